@@ -1,0 +1,2 @@
+//! isostream-detect: see ARCHITECTURE.md.
+#![deny(unsafe_code)]

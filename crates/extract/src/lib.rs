@@ -1,0 +1,2 @@
+//! isostream-extract: see ARCHITECTURE.md.
+#![deny(unsafe_code)]

@@ -1,0 +1,2 @@
+//! isostream-measure: see ARCHITECTURE.md.
+#![deny(unsafe_code)]

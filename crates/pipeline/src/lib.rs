@@ -1,0 +1,2 @@
+//! isostream-pipeline: see ARCHITECTURE.md.
+#![deny(unsafe_code)]

@@ -1,0 +1,2 @@
+//! isostream-simplify: see ARCHITECTURE.md.
+#![deny(unsafe_code)]

@@ -1,0 +1,2 @@
+//! isostream-smesh: see ARCHITECTURE.md.
+#![deny(unsafe_code)]

@@ -1,0 +1,2 @@
+//! isostream-volume: see ARCHITECTURE.md.
+#![deny(unsafe_code)]
