@@ -1,1 +1,53 @@
-fn main() {}
+//! `isostream`: the command line. All flag handling lives here; the work is in the crates.
+//!
+//! Errors reach the user as one line (`error: ...`) naming the file and the fix, with a
+//! non-zero exit code: 2 for a bad job or bad input, 130 for Ctrl-C, 1 otherwise.
+
+mod cli;
+mod logging;
+mod measure_cmd;
+mod run_cmd;
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+fn main() -> ExitCode {
+    let cli = cli::Cli::parse();
+    match cli.command.execute() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {}", one_line(&err));
+            ExitCode::from(exit_code(&err))
+        }
+    }
+}
+
+/// Joins the context chain into one line: "reading job a.toml: a.toml:3: unknown field ...".
+fn one_line(err: &anyhow::Error) -> String {
+    let mut parts: Vec<String> = Vec::new();
+    for cause in err.chain() {
+        let s = cause.to_string();
+        if !parts.iter().any(|p| p.contains(&s)) {
+            parts.push(s);
+        }
+    }
+    parts.join(": ").replace('\n', " ")
+}
+
+fn exit_code(err: &anyhow::Error) -> u8 {
+    use isostream_pipeline::RunError;
+    for cause in err.chain() {
+        if let Some(run) = cause.downcast_ref::<RunError>() {
+            return match run {
+                RunError::Cancelled => 130,
+                RunError::Config(_) | RunError::Volume(_) => 2,
+                _ => 1,
+            };
+        }
+        if cause.downcast_ref::<isostream_pipeline::ConfigError>().is_some() {
+            return 2;
+        }
+    }
+    1
+}

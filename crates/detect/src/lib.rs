@@ -1,2 +1,151 @@
-//! isostream-detect: see ARCHITECTURE.md.
+//! Per-cube vertex modifiability detection (Hou and Chen 2016, section 3.1 and Table 1).
+//!
+//! The extractor emits, cube by cube in traversal order (x fastest, then y, then z), the
+//! triangles of each non-empty cube with their vertices named by grid edge ([`EdgeKey`]). This
+//! stage turns that soup into indexed triangles with stable `u64` vertex ids and announces, after
+//! each cube, which vertices have received *all* their triangles (are "modifiable"): a vertex on a
+//! grid edge only appears in the four cubes around that edge, and Table 1 names, for each kind of
+//! cube, the edges whose last adjacent cube it is. From then on the simplifier may move the vertex.
+//!
+//! The id map holds only the front: an entry leaves the map when its vertex becomes modifiable, so
+//! memory is bounded by one slab of crossing edges, not by the surface.
+//!
+//! Architecture invariant: no I/O, no threads; one [`Detector`] per stream.
 #![deny(unsafe_code)]
+
+mod table1;
+
+use glam::DVec3;
+use isostream_extract::{CubeBatch, EdgeKey};
+use rustc_hash::FxHashMap;
+
+pub use table1::{CubeKind, modifiable_lines};
+
+/// A vertex seen for the first time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewVertex {
+    /// Stable id, assigned in order of first appearance (so roughly in sweep order).
+    pub id: u64,
+    pub pos: DVec3,
+    /// The highest grid plane (z index) the vertex's edge touches: its layer in the Tandem sense.
+    pub rank: u32,
+}
+
+/// What one [`CubeBatch`] adds to the indexed surface. Order matters to the consumer: add the
+/// vertices, then the triangles, then mark `modifiable` (every triangle of those vertices is in
+/// this or an earlier delta).
+#[derive(Debug, Clone, Default)]
+pub struct MeshDelta {
+    pub vertices: Vec<NewVertex>,
+    /// Counter-clockwise seen from outside, by vertex id.
+    pub triangles: Vec<[u64; 3]>,
+    pub modifiable: Vec<u64>,
+    /// Number of slabs completely extracted after this delta.
+    pub front: u32,
+    pub end_of_volume: bool,
+}
+
+impl MeshDelta {
+    pub fn clear(&mut self) {
+        self.vertices.clear();
+        self.triangles.clear();
+        self.modifiable.clear();
+        self.front = 0;
+        self.end_of_volume = false;
+    }
+}
+
+/// Counters for the run summary.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DetectStats {
+    pub vertices: u64,
+    pub triangles: u64,
+    /// Most vertices waiting in the front map at once.
+    pub peak_front: u64,
+}
+
+/// Streaming soup-to-indexed conversion with Table 1 modifiability.
+#[derive(Debug)]
+pub struct Detector {
+    dims: [u64; 3],
+    front: FxHashMap<EdgeKey, u64>,
+    next_id: u64,
+    stats: DetectStats,
+}
+
+impl Detector {
+    /// `dims` are the voxel dimensions of the volume (at least 2 along each axis).
+    pub fn new(dims: [u64; 3]) -> Self {
+        Self {
+            dims,
+            front: FxHashMap::default(),
+            next_id: 0,
+            stats: DetectStats::default(),
+        }
+    }
+
+    /// Converts one batch, appending to `out` (which the caller clears or reuses).
+    pub fn process(&mut self, batch: &CubeBatch, out: &mut MeshDelta) {
+        for cube in &batch.cubes {
+            let first = cube.first_vertex as usize;
+            let verts = &batch.vertices[first..first + cube.vertex_count as usize];
+            let mut ids = [0u64; 12];
+            for (slot, v) in ids.iter_mut().zip(verts) {
+                *slot = match self.front.get(&v.key) {
+                    Some(&id) => id,
+                    None => {
+                        let id = self.next_id;
+                        self.next_id += 1;
+                        self.front.insert(v.key, id);
+                        let ([_, _, z], axis) = v.key.decode(self.dims);
+                        let rank = z + u64::from(axis == 2);
+                        out.vertices.push(NewVertex {
+                            id,
+                            pos: v.pos,
+                            rank: u32::try_from(rank).unwrap_or(u32::MAX),
+                        });
+                        id
+                    }
+                };
+            }
+            let first_tri = cube.first_triangle as usize;
+            for t in &batch.triangles[first_tri..first_tri + cube.triangle_count as usize] {
+                out.triangles
+                    .push([ids[t[0] as usize], ids[t[1] as usize], ids[t[2] as usize]]);
+            }
+            self.stats.peak_front = self.stats.peak_front.max(self.front.len() as u64);
+
+            let [x, y, z] = cube.coord;
+            for &(offset, axis) in modifiable_lines(CubeKind::of(cube.coord, self.dims)) {
+                let key = EdgeKey::new(x + offset[0], y + offset[1], z + offset[2], axis, self.dims);
+                if let Some(id) = self.front.remove(&key) {
+                    out.modifiable.push(id);
+                }
+            }
+        }
+        self.stats.vertices = self.next_id;
+        self.stats.triangles += batch.triangles.len() as u64;
+        out.front = u32::try_from(batch.slab + u64::from(batch.end_of_slab)).unwrap_or(u32::MAX);
+        if batch.end_of_volume {
+            // Table 1's "last traversed" cube releases everything; if that cube was empty the
+            // map is already empty, otherwise it was released above. Drain defensively so a
+            // vertex can never stay unmodifiable at the end of the stream.
+            let mut rest: Vec<u64> = self.front.drain().map(|(_, id)| id).collect();
+            rest.sort_unstable();
+            out.modifiable.extend(rest);
+            out.end_of_volume = true;
+        }
+    }
+
+    /// Vertices currently waiting for their last cube.
+    pub fn front_len(&self) -> usize {
+        self.front.len()
+    }
+
+    pub fn stats(&self) -> DetectStats {
+        self.stats
+    }
+}
+
+#[cfg(test)]
+mod tests;

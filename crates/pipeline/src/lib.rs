@@ -1,2 +1,159 @@
-//! isostream-pipeline: see ARCHITECTURE.md.
+//! The wiring of an isostream job: config, stage threads, bounded channels, run summary.
+//!
+//! This is the only crate that spawns threads. Each stage (read, extract, detect, simplify,
+//! write) runs on its own thread; the channels between them are bounded, so a slow stage makes
+//! the earlier ones wait instead of queueing without limit: together with the simplifier's
+//! retirement this keeps memory bounded by the sweep front. See ARCHITECTURE.md.
 #![deny(unsafe_code)]
+
+mod config;
+mod error;
+mod output;
+mod rss;
+mod sink;
+mod source;
+mod stages;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use isostream_simplify::{Policy, SimplifyConfig as SimplifierConfig, Simplifier};
+use isostream_smesh::Header;
+use serde::Serialize;
+use tracing::info;
+
+pub use config::{ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat, Mode, OutputConfig, PipelineConfig, SimplifyConfig};
+pub use error::{ConfigError, RunError};
+pub use rss::peak_rss_bytes;
+pub use sink::SinkStats;
+pub use source::open_source;
+pub use stages::{Progress, StageSeconds};
+
+/// What a finished run reports (logged, and written as `<output>.run.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSummary {
+    pub input: String,
+    pub dims: [u64; 3],
+    pub voxels: u64,
+    pub iso: f64,
+    pub mode: Mode,
+    pub output: PathBuf,
+    pub faces_extracted: u64,
+    pub faces_written: u64,
+    pub vertices_written: u64,
+    pub seconds: f64,
+    pub stage_seconds: StageSeconds,
+    pub peak_rss_bytes: Option<u64>,
+    pub peak_resident_faces: u64,
+    pub extract: isostream_extract::ExtractStats,
+    pub detect: isostream_detect::DetectStats,
+    pub simplify: isostream_simplify::SimplifyStats,
+    pub sink: SinkStats,
+}
+
+/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
+pub fn run(
+    job: &JobConfig,
+    job_path: &Path,
+    cancel: &AtomicBool,
+    observer: &(dyn Fn(&Progress) + Sync),
+) -> Result<RunSummary, RunError> {
+    let started = Instant::now();
+    let source = open_source(&job.input, job_path)?;
+    let grid = source.grid();
+    let input = source.describe();
+    info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");
+
+    let simplifier = Simplifier::new(simplifier_config(job)).map_err(|e| {
+        RunError::Config(ConfigError::Invalid {
+            path: job_path.to_path_buf(),
+            key: "simplify".into(),
+            expected: "a valid simplification setting".into(),
+            got: e.to_string(),
+        })
+    })?;
+    let header = Header {
+        comments: vec![
+            format!("isostream {}", env!("CARGO_PKG_VERSION")),
+            format!("input {input} iso {}", job.extract.iso),
+        ],
+        attribute_names: Vec::new(),
+    };
+    let sink = sink::Sink::create(&job.output.path, &header)?;
+    let outputs = stages::Stages {
+        source,
+        iso: job.extract.iso as f32,
+        simplifier,
+        sink,
+        capacity: job.pipeline.channel_capacity,
+        batch_triangles: job.pipeline.batch_triangles,
+        cancel,
+        observer,
+    }
+    .run()?;
+
+    let mut sink_stats = outputs.sink;
+    if sink_stats.path.as_os_str().is_empty() {
+        sink_stats.path = job.output.path.clone();
+    }
+    let summary = RunSummary {
+        input,
+        dims: grid.dims,
+        voxels: grid.voxel_count(),
+        iso: job.extract.iso,
+        mode: job.simplify.mode,
+        output: job.output.path.clone(),
+        faces_extracted: outputs.extract.triangles,
+        faces_written: sink_stats.triangles,
+        vertices_written: sink_stats.vertices,
+        seconds: started.elapsed().as_secs_f64(),
+        stage_seconds: outputs.seconds,
+        peak_rss_bytes: peak_rss_bytes(),
+        peak_resident_faces: outputs.simplify.peak_resident_faces,
+        extract: outputs.extract,
+        detect: outputs.detect,
+        simplify: outputs.simplify,
+        sink: sink_stats,
+    };
+    if job.output.summary {
+        write_summary(&summary, &summary_path(&job.output.path))?;
+    }
+    Ok(summary)
+}
+
+fn simplifier_config(job: &JobConfig) -> SimplifierConfig {
+    let s = &job.simplify;
+    SimplifierConfig {
+        policy: match s.mode {
+            Mode::None => Policy::None,
+            Mode::Rate => Policy::Rate {
+                rate: s.rate,
+                batch: s.batch,
+                initial_rate: s.initial_rate,
+            },
+        },
+        retire_lag: s.retire_lag,
+        max_resident_faces: job.max_resident_faces(),
+        attributes: 0,
+    }
+}
+
+/// `out/x.smb` -> `out/x.smb.run.json`.
+pub fn summary_path(output: &Path) -> PathBuf {
+    let mut name = output.file_name().unwrap_or_default().to_os_string();
+    name.push(".run.json");
+    output.with_file_name(name)
+}
+
+fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
+    let fail = |reason: String| RunError::Summary {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| fail(e.to_string()))?;
+    serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;
+    tmp.persist(path).map_err(|e| fail(e.to_string()))?;
+    Ok(())
+}

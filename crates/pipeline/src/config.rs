@@ -1,0 +1,377 @@
+//! The job file: what to read, where the surface is, how to simplify, where to write.
+//!
+//! Parsed with serde (`deny_unknown_fields` everywhere, so a misspelt key is an error naming it)
+//! and validated once, before any work starts: every error names the key or the file and says
+//! what was expected. Every key is documented in `config/README.md`.
+
+use std::path::{Path, PathBuf};
+
+use isostream_volume::{Dtype, Endian, Shape};
+use serde::{Deserialize, Serialize};
+
+use crate::error::ConfigError;
+
+/// One job, as written in a TOML file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobConfig {
+    pub input: InputConfig,
+    pub extract: ExtractConfig,
+    #[serde(default)]
+    pub simplify: SimplifyConfig,
+    pub output: OutputConfig,
+    #[serde(default)]
+    pub pipeline: PipelineConfig,
+    #[serde(default)]
+    pub log: LogConfig,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputConfig {
+    /// A volume file (relative paths are relative to the job file). Exclusive with `shape`.
+    pub path: Option<PathBuf>,
+    /// A procedural volume instead of a file.
+    pub shape: Option<Shape>,
+    /// Grid size of a procedural volume.
+    pub size: Option<[u64; 3]>,
+    /// Voxel dimensions of a raw file (x y z).
+    pub dims: Option<[u64; 3]>,
+    pub dtype: Option<Dtype>,
+    #[serde(default)]
+    pub endian: Endian,
+    #[serde(default = "unit_spacing")]
+    pub spacing: [f64; 3],
+    #[serde(default)]
+    pub origin: [f64; 3],
+    #[serde(default)]
+    pub header_bytes: u64,
+}
+
+fn unit_spacing() -> [f64; 3] {
+    [1.0; 3]
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExtractConfig {
+    /// The iso value. Voxels strictly above it are inside.
+    pub iso: f64,
+}
+
+/// How the surface is simplified.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Hou and Chen's decimation rate.
+    #[default]
+    Rate,
+    /// No simplification: the full-resolution surface, streamed.
+    None,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimplifyConfig {
+    #[serde(default)]
+    pub mode: Mode,
+    /// R: output faces / input faces, in (0, 1].
+    #[serde(default = "default_rate")]
+    pub rate: f64,
+    /// B: faces extracted between two decimations.
+    #[serde(default = "default_batch")]
+    pub batch: u64,
+    /// R_i: decimation rate of the initial phase, used while R < R_i.
+    #[serde(default = "default_initial_rate")]
+    pub initial_rate: f64,
+    /// Slabs a vertex stays editable behind the front before it is retired and written.
+    #[serde(default = "default_retire_lag")]
+    pub retire_lag: u32,
+}
+
+fn default_rate() -> f64 {
+    0.2
+}
+fn default_batch() -> u64 {
+    10_000
+}
+fn default_initial_rate() -> f64 {
+    0.5
+}
+fn default_retire_lag() -> u32 {
+    8
+}
+
+impl Default for SimplifyConfig {
+    fn default() -> Self {
+        Self {
+            mode: Mode::default(),
+            rate: default_rate(),
+            batch: default_batch(),
+            initial_rate: default_initial_rate(),
+            retire_lag: default_retire_lag(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    /// `.smb` or `.sma` (relative paths are relative to the job file).
+    pub path: PathBuf,
+    /// Also write a JSON run summary next to the output (`<path>.run.json`).
+    #[serde(default = "yes")]
+    pub summary: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// Batches a channel between two stages may hold before its producer blocks.
+    #[serde(default = "default_capacity")]
+    pub channel_capacity: usize,
+    /// Budget for the simplifier's resident surface; vertices are retired early to stay inside.
+    #[serde(default = "default_budget")]
+    pub memory_budget_mib: u64,
+    /// Most triangles per batch sent from the extractor.
+    #[serde(default = "default_batch_triangles")]
+    pub batch_triangles: usize,
+}
+
+fn default_capacity() -> usize {
+    8
+}
+fn default_budget() -> u64 {
+    256
+}
+fn default_batch_triangles() -> usize {
+    8192
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            channel_capacity: default_capacity(),
+            memory_budget_mib: default_budget(),
+            batch_triangles: default_batch_triangles(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    #[default]
+    Text,
+    Json,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct LogConfig {
+    #[serde(default)]
+    pub format: LogFormat,
+    /// A tracing filter such as "info" or "isostream_pipeline=debug"; RUST_LOG wins when set.
+    pub level: Option<String>,
+}
+
+/// Bytes of simplifier state per resident face (a face, half a vertex with its quadric, heap
+/// entries); measured order of magnitude, used to turn the memory budget into a face budget.
+const BYTES_PER_RESIDENT_FACE: u64 = 256;
+
+impl JobConfig {
+    /// Reads and validates a job file; relative paths inside are resolved against its folder.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })?;
+        let mut job = Self::parse(&text, path)?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        job.resolve_paths(base);
+        job.validate(path)?;
+        Ok(job)
+    }
+
+    /// Parses TOML text; `origin` only names the source in errors.
+    pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
+        toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: origin.to_path_buf(),
+            reason: e.message().to_string(),
+            key: e
+                .span()
+                .and_then(|s| text.get(s))
+                .map(|s| s.trim().to_string())
+                .unwrap_or_default(),
+            line: e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].lines().count().max(1))
+                .unwrap_or(0),
+        })
+    }
+
+    fn resolve_paths(&mut self, base: &Path) {
+        if let Some(p) = &self.input.path {
+            if p.is_relative() {
+                self.input.path = Some(base.join(p));
+            }
+        }
+        if self.output.path.is_relative() {
+            self.output.path = base.join(&self.output.path);
+        }
+    }
+
+    /// Checks every value a run depends on; the error names the key and what was expected.
+    pub fn validate(&self, origin: &Path) -> Result<(), ConfigError> {
+        let bad = |key: &str, expected: &str, got: String| ConfigError::Invalid {
+            path: origin.to_path_buf(),
+            key: key.to_string(),
+            expected: expected.to_string(),
+            got,
+        };
+        let i = &self.input;
+        match (&i.path, &i.shape) {
+            (Some(_), Some(_)) => {
+                return Err(bad(
+                    "input.path",
+                    "either `path` or `shape`, not both",
+                    "both".into(),
+                ));
+            }
+            (None, None) => {
+                return Err(bad(
+                    "input.path",
+                    "a volume file `path` or a procedural `shape`",
+                    "neither".into(),
+                ));
+            }
+            (None, Some(_)) => {
+                let size = i.size.ok_or_else(|| {
+                    bad("input.size", "[nx, ny, nz] for a procedural shape", "nothing".into())
+                })?;
+                if size.iter().any(|&n| n < 2) {
+                    return Err(bad("input.size", "at least 2 voxels per axis", format!("{size:?}")));
+                }
+            }
+            (Some(_), None) => {}
+        }
+        if i.spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(bad("input.spacing", "three finite values > 0", format!("{:?}", i.spacing)));
+        }
+        if i.origin.iter().any(|s| !s.is_finite()) {
+            return Err(bad("input.origin", "three finite values", format!("{:?}", i.origin)));
+        }
+        if !self.extract.iso.is_finite() {
+            return Err(bad("extract.iso", "a finite number", self.extract.iso.to_string()));
+        }
+        let s = &self.simplify;
+        if !(s.rate > 0.0 && s.rate <= 1.0) {
+            return Err(bad("simplify.rate", "a value in (0, 1]", s.rate.to_string()));
+        }
+        if !(s.initial_rate > 0.0 && s.initial_rate <= 1.0) {
+            return Err(bad("simplify.initial_rate", "a value in (0, 1]", s.initial_rate.to_string()));
+        }
+        if s.batch == 0 {
+            return Err(bad("simplify.batch", "at least 1 face", "0".into()));
+        }
+        let p = &self.pipeline;
+        if p.channel_capacity == 0 {
+            return Err(bad("pipeline.channel_capacity", "at least 1 batch", "0".into()));
+        }
+        if p.memory_budget_mib < 16 {
+            return Err(bad(
+                "pipeline.memory_budget_mib",
+                "at least 16 MiB",
+                p.memory_budget_mib.to_string(),
+            ));
+        }
+        if p.batch_triangles == 0 {
+            return Err(bad("pipeline.batch_triangles", "at least 1", "0".into()));
+        }
+        crate::output::check_output_path(&self.output.path)
+            .map_err(|reason| bad("output.path", "a writable .smb or .sma path", reason))?;
+        Ok(())
+    }
+
+    /// The simplifier's resident-face budget derived from `pipeline.memory_budget_mib`.
+    pub fn max_resident_faces(&self) -> usize {
+        // Half the budget for the simplifier's surface; the rest covers slices, channels, maps.
+        (self.pipeline.memory_budget_mib * 1024 * 1024 / 2 / BYTES_PER_RESIDENT_FACE) as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<JobConfig, ConfigError> {
+        let job = JobConfig::parse(text, Path::new("job.toml"))?;
+        job.validate(Path::new("job.toml"))?;
+        Ok(job)
+    }
+
+    const MINIMAL: &str = r#"
+        [input]
+        shape = "sphere"
+        size = [16, 16, 16]
+        [extract]
+        iso = 0.0
+        [output]
+        path = "/tmp/isostream-config-test.smb"
+    "#;
+
+    #[test]
+    fn minimal_job_gets_defaults() {
+        let job = parse(MINIMAL).unwrap();
+        assert_eq!(job.simplify.mode, Mode::Rate);
+        assert_eq!(job.pipeline.channel_capacity, 8);
+        assert_eq!(job.input.spacing, [1.0; 3]);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let text = MINIMAL.replace("iso = 0.0", "iso = 0.0\nisovalue = 3");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("isovalue"), "{err}");
+        assert!(err.contains("job.toml"), "{err}");
+    }
+
+    #[test]
+    fn rate_out_of_range_is_named() {
+        let text = format!("{MINIMAL}\n[simplify]\nrate = 1.5\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("simplify.rate") && err.contains("(0, 1]"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_is_an_error() {
+        let text = MINIMAL.replace("iso = 0.0", "iso = \"high\"");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("job.toml"), "{err}");
+    }
+
+    #[test]
+    fn path_and_shape_together_are_refused() {
+        let text = MINIMAL.replace("shape = \"sphere\"", "shape = \"sphere\"\npath = \"a.raw\"");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("input.path"), "{err}");
+    }
+
+    #[test]
+    fn unwritable_output_is_refused() {
+        let text = MINIMAL.replace("/tmp/isostream-config-test.smb", "/nonexistent-dir/x.smb");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("output.path") && err.contains("nonexistent-dir"), "{err}");
+    }
+
+    #[test]
+    fn output_extension_is_checked() {
+        let text = MINIMAL.replace(".smb", ".stl");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("output.path"), "{err}");
+    }
+}

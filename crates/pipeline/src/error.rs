@@ -1,0 +1,40 @@
+//! Errors of a job. Each message is one line that names the file or key and says what to do.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("{}: cannot read job file: {reason}", path.display())]
+    Read { path: PathBuf, reason: String },
+    #[error("{}:{line}: {reason}{}", path.display(), if key.is_empty() { String::new() } else { format!(" (at `{key}`)") })]
+    Parse {
+        path: PathBuf,
+        line: usize,
+        reason: String,
+        key: String,
+    },
+    #[error("{}: `{key}` must be {expected}, got {got}", path.display())]
+    Invalid {
+        path: PathBuf,
+        key: String,
+        expected: String,
+        got: String,
+    },
+}
+
+/// Why a run stopped. The first failing stage's error is the one reported.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error(transparent)]
+    Volume(#[from] isostream_volume::VolumeError),
+    #[error(transparent)]
+    Output(#[from] isostream_smesh::SmeshError),
+    #[error("{}: cannot write run summary: {reason}", path.display())]
+    Summary { path: PathBuf, reason: String },
+    #[error("interrupted: no output was written (the partial file was removed)")]
+    Cancelled,
+    #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]
+    Internal { stage: &'static str, reason: String },
+}

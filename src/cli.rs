@@ -1,0 +1,73 @@
+//! Command-line interface (clap derive).
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+
+/// Streaming iso-surface extraction and simplification for huge volumes.
+#[derive(Debug, Parser)]
+#[command(name = "isostream", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run the job described by a TOML file and write its mesh.
+    Run {
+        /// The job file (see config/README.md).
+        job: PathBuf,
+        /// No progress bar even on a terminal.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Check a job file (keys, values, input file, output folder) without running it.
+    Validate {
+        job: PathBuf,
+    },
+    /// Convert a mesh between SMB, SMA, PLY and OBJ (streaming for SMB/SMA inputs).
+    Convert {
+        input: PathBuf,
+        output: PathBuf,
+    },
+    /// Check a streaming mesh file: indices, finalization, header counts, stream width.
+    Check {
+        mesh: PathBuf,
+    },
+    /// Measure an output mesh: quality, topology, and distances to the full-resolution surface.
+    Measure {
+        /// The job file whose volume and iso value define the full-resolution surface.
+        #[arg(long)]
+        volume: PathBuf,
+        /// The mesh to measure (.smb, .sma, .ply, .obj).
+        mesh: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Surface samples per unit area (physical units squared).
+        #[arg(long)]
+        samples_per_area: Option<f64>,
+        /// Random seed for the sample positions.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+}
+
+impl Command {
+    pub fn execute(self) -> anyhow::Result<()> {
+        match self {
+            Command::Run { job, quiet } => crate::run_cmd::run(&job, quiet),
+            Command::Validate { job } => crate::run_cmd::validate(&job),
+            Command::Convert { input, output } => crate::run_cmd::convert(&input, &output),
+            Command::Check { mesh } => crate::run_cmd::check(&mesh),
+            Command::Measure {
+                volume,
+                mesh,
+                json,
+                samples_per_area,
+                seed,
+            } => crate::measure_cmd::measure(&volume, &mesh, json, samples_per_area, seed),
+        }
+    }
+}

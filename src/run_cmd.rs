@@ -1,0 +1,105 @@
+//! `run`, `validate`, `convert`, `check`.
+
+use std::io::IsTerminal;
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use isostream_pipeline::{JobConfig, Progress, RunSummary};
+
+pub fn validate(job_path: &Path) -> anyhow::Result<()> {
+    let job = JobConfig::load(job_path)?;
+    // Opening the source checks the input file (exists, size matches dims and type).
+    let source = isostream_pipeline::open_source(&job.input, job_path)?;
+    let grid = source.grid();
+    println!(
+        "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
+        job_path.display(),
+        source.describe(),
+        grid.dims[0],
+        grid.dims[1],
+        grid.dims[2],
+        job.extract.iso,
+        job.simplify.mode,
+        job.output.path.display()
+    );
+    Ok(())
+}
+
+pub fn run(job_path: &Path, quiet: bool) -> anyhow::Result<()> {
+    let job = JobConfig::load(job_path)?;
+    crate::logging::init(&job.log);
+
+    let cancel = Arc::new(AtomicBool::new(false));
+    {
+        let cancel = Arc::clone(&cancel);
+        ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed))
+            .context("cannot install the Ctrl-C handler")?;
+    }
+    let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
+        let bar = ProgressBar::new(0);
+        bar.set_style(
+            ProgressStyle::with_template("{elapsed_precise} [{bar:40}] slab {pos}/{len} {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar())
+                .progress_chars("=> "),
+        );
+        bar
+    });
+    let observer = |p: &Progress| {
+        if let Some(bar) = &bar {
+            bar.set_length(p.slabs_total);
+            bar.set_position(p.slabs_done);
+            bar.set_message(format!(
+                "faces in {} out {} resident {}",
+                p.faces_in, p.faces_out, p.resident_faces
+            ));
+        }
+    };
+    let summary = isostream_pipeline::run(&job, job_path, &cancel, &observer);
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    let summary = summary?;
+    report(&summary);
+    Ok(())
+}
+
+fn report(s: &RunSummary) {
+    let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+    tracing::info!(
+        voxels = s.voxels,
+        faces_extracted = s.faces_extracted,
+        faces_written = s.faces_written,
+        seconds = format!("{:.3}", s.seconds),
+        read_s = format!("{:.3}", s.stage_seconds.read),
+        extract_s = format!("{:.3}", s.stage_seconds.extract),
+        detect_s = format!("{:.3}", s.stage_seconds.detect),
+        simplify_s = format!("{:.3}", s.stage_seconds.simplify),
+        write_s = format!("{:.3}", s.stage_seconds.write),
+        peak_rss_mib = format!("{:.1}", s.peak_rss_bytes.map(mib).unwrap_or(f64::NAN)),
+        peak_resident_faces = s.peak_resident_faces,
+        "job done"
+    );
+    println!(
+        "{}: {} -> {} faces in {:.2} s, peak RSS {:.1} MiB",
+        s.output.display(),
+        s.faces_extracted,
+        s.faces_written,
+        s.seconds,
+        s.peak_rss_bytes.map(mib).unwrap_or(f64::NAN)
+    );
+}
+
+pub fn convert(input: &Path, output: &Path) -> anyhow::Result<()> {
+    let stats = isostream_smesh::convert(input, output)?;
+    println!("{} -> {}: {stats:?}", input.display(), output.display());
+    Ok(())
+}
+
+pub fn check(mesh: &Path) -> anyhow::Result<()> {
+    let report = isostream_smesh::validate(mesh)?;
+    println!("{}: valid streaming mesh: {report:?}", mesh.display());
+    Ok(())
+}
