@@ -1,0 +1,188 @@
+//! Voxel types and byte orders, and the one conversion from stored bytes to f32 that every
+//! reader shares (so endianness and type handling are tested once).
+
+/// Stored voxel type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Dtype {
+    U8,
+    I8,
+    U16,
+    I16,
+    U32,
+    I32,
+    F32,
+    F64,
+}
+
+/// Byte order of multi-byte voxels.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Endian {
+    #[default]
+    Little,
+    Big,
+}
+
+impl Dtype {
+    /// Bytes per stored voxel.
+    pub fn size_bytes(self) -> usize {
+        match self {
+            Dtype::U8 | Dtype::I8 => 1,
+            Dtype::U16 | Dtype::I16 => 2,
+            Dtype::U32 | Dtype::I32 | Dtype::F32 => 4,
+            Dtype::F64 => 8,
+        }
+    }
+
+    /// Lower-case name as written in job files ("u8", "f32", ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            Dtype::U8 => "u8",
+            Dtype::I8 => "i8",
+            Dtype::U16 => "u16",
+            Dtype::I16 => "i16",
+            Dtype::U32 => "u32",
+            Dtype::I32 => "i32",
+            Dtype::F32 => "f32",
+            Dtype::F64 => "f64",
+        }
+    }
+}
+
+impl std::fmt::Display for Dtype {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Converts `out.len()` voxels stored in `bytes` to f32.
+///
+/// `bytes.len()` must be `out.len() * dtype.size_bytes()`; callers size both from the grid, and a
+/// short `bytes` leaves the tail of `out` untouched rather than panicking. 32-bit integers and f64
+/// lose precision beyond f32's 24-bit mantissa; iso-surfaces of such data are still located to
+/// within that relative precision. NaN and infinities pass through unchanged.
+pub(crate) fn decode(dtype: Dtype, endian: Endian, bytes: &[u8], out: &mut [f32]) {
+    macro_rules! convert {
+        ($t:ty) => {{
+            const N: usize = std::mem::size_of::<$t>();
+            for (o, c) in out.iter_mut().zip(bytes.chunks_exact(N)) {
+                let mut a = [0u8; N];
+                a.copy_from_slice(c);
+                let v = match endian {
+                    Endian::Little => <$t>::from_le_bytes(a),
+                    Endian::Big => <$t>::from_be_bytes(a),
+                };
+                *o = v as f32;
+            }
+        }};
+    }
+    match dtype {
+        Dtype::U8 => convert!(u8),
+        Dtype::I8 => convert!(i8),
+        Dtype::U16 => convert!(u16),
+        Dtype::I16 => convert!(i16),
+        Dtype::U32 => convert!(u32),
+        Dtype::I32 => convert!(i32),
+        Dtype::F32 => convert!(f32),
+        Dtype::F64 => convert!(f64),
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub(crate) const ALL: [Dtype; 8] = [
+        Dtype::U8,
+        Dtype::I8,
+        Dtype::U16,
+        Dtype::I16,
+        Dtype::U32,
+        Dtype::I32,
+        Dtype::F32,
+        Dtype::F64,
+    ];
+
+    /// Encodes `values` (exactly representable in `dtype`) as stored bytes: the test-side inverse
+    /// of [`decode`], used by every reader's round-trip tests.
+    pub(crate) fn encode(dtype: Dtype, endian: Endian, values: &[f64]) -> Vec<u8> {
+        macro_rules! enc {
+            ($t:ty) => {
+                values
+                    .iter()
+                    .flat_map(|&v| match endian {
+                        Endian::Little => (v as $t).to_le_bytes().to_vec(),
+                        Endian::Big => (v as $t).to_be_bytes().to_vec(),
+                    })
+                    .collect()
+            };
+        }
+        match dtype {
+            Dtype::U8 => enc!(u8),
+            Dtype::I8 => enc!(i8),
+            Dtype::U16 => enc!(u16),
+            Dtype::I16 => enc!(i16),
+            Dtype::U32 => enc!(u32),
+            Dtype::I32 => enc!(i32),
+            Dtype::F32 => enc!(f32),
+            Dtype::F64 => enc!(f64),
+        }
+    }
+
+    /// Values every dtype can hold exactly, including each type's extremes that f32 represents.
+    pub(crate) fn sample_values(dtype: Dtype, n: usize) -> Vec<f64> {
+        let (lo, hi) = match dtype {
+            Dtype::U8 => (0.0, 255.0),
+            Dtype::I8 => (-128.0, 127.0),
+            Dtype::U16 => (0.0, 65535.0),
+            Dtype::I16 => (-32768.0, 32767.0),
+            Dtype::U32 => (0.0, 4_000_000.0),
+            Dtype::I32 => (-4_000_000.0, 4_000_000.0),
+            Dtype::F32 | Dtype::F64 => (-1.5e6, 2.5e6),
+        };
+        (0..n)
+            .map(|i| (lo + (hi - lo) * (i as f64) / ((n - 1) as f64)).round())
+            .collect()
+    }
+
+    #[test]
+    fn every_dtype_and_endian_round_trips() {
+        for dtype in ALL {
+            for endian in [Endian::Little, Endian::Big] {
+                let values = sample_values(dtype, 17);
+                let bytes = encode(dtype, endian, &values);
+                assert_eq!(bytes.len(), 17 * dtype.size_bytes());
+                let mut out = vec![0.0f32; 17];
+                decode(dtype, endian, &bytes, &mut out);
+                let want: Vec<f32> = values.iter().map(|&v| v as f32).collect();
+                assert_eq!(out, want, "{dtype} {endian:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn non_finite_floats_pass_through() {
+        let bytes = encode(Dtype::F32, Endian::Big, &[f64::NAN, f64::INFINITY]);
+        let mut out = [0.0f32; 2];
+        decode(Dtype::F32, Endian::Big, &bytes, &mut out);
+        assert!(out[0].is_nan());
+        assert_eq!(out[1], f32::INFINITY);
+    }
+
+    #[test]
+    fn serde_names_are_lowercase() {
+        #[derive(serde::Deserialize)]
+        struct T {
+            d: Dtype,
+            e: Endian,
+        }
+        let t: T = toml_like(r#"{"d":"i16","e":"big"}"#);
+        assert_eq!((t.d, t.e), (Dtype::I16, Endian::Big));
+        assert_eq!(Endian::default(), Endian::Little);
+    }
+
+    fn toml_like<T: serde::de::DeserializeOwned>(json: &str) -> T {
+        serde_json::from_str(json).unwrap()
+    }
+}

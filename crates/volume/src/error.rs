@@ -1,0 +1,120 @@
+//! The crate's one error type. Every message is a single line that names the file (or the
+//! procedural/in-memory origin) and says what to check, because these messages end up verbatim in
+//! job logs read by people who did not write the reader.
+
+use std::path::Path;
+
+/// Everything that can go wrong while describing or reading a volume.
+#[derive(Debug, thiserror::Error)]
+pub enum VolumeError {
+    /// The file does not exist.
+    #[error("{file}: no such file; check the input path")]
+    NotFound { file: String },
+
+    /// An I/O call failed for another reason (permissions, device errors, ...).
+    #[error("{file}: cannot {action}: {source}; check the file is readable and not being modified")]
+    Io {
+        file: String,
+        action: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+
+    /// A raw payload does not have the size the grid and voxel type require.
+    #[error(
+        "{file}: file is {actual} bytes but dims {dims} of {dtype} plus {header_bytes} header bytes need {expected}; {hint}"
+    )]
+    SizeMismatch {
+        file: String,
+        actual: u64,
+        expected: u64,
+        dims: String,
+        dtype: &'static str,
+        header_bytes: u64,
+        /// What to check, in the vocabulary of the format (job file keys, header fields).
+        hint: &'static str,
+    },
+
+    /// The grid itself is impossible (too few voxels, overflowing sizes, bad spacing).
+    #[error("{origin}: {problem}")]
+    Grid { origin: String, problem: String },
+
+    /// A header or payload does not follow its format: `at` says where (header line, byte offset).
+    #[error("{file}: {at}: expected {expected}, found {found}")]
+    Format {
+        file: String,
+        at: String,
+        expected: String,
+        found: String,
+    },
+
+    /// The caller broke the `read_slice` contract (slice index or buffer length).
+    #[error("{origin}: {problem}; this is a bug in the caller of read_slice")]
+    Contract { origin: String, problem: String },
+}
+
+impl VolumeError {
+    /// Replaces the generic "grid" origin of a [`VolumeError::Grid`] with the file or source
+    /// that produced the impossible grid, so the message points at what to fix.
+    pub(crate) fn in_origin(self, origin: &str) -> Self {
+        match self {
+            VolumeError::Grid { problem, .. } => VolumeError::Grid {
+                origin: origin.to_string(),
+                problem,
+            },
+            other => other,
+        }
+    }
+
+    pub(crate) fn io(path: &Path, action: &'static str, source: std::io::Error) -> Self {
+        if source.kind() == std::io::ErrorKind::NotFound {
+            VolumeError::NotFound {
+                file: path.display().to_string(),
+            }
+        } else {
+            VolumeError::Io {
+                file: path.display().to_string(),
+                action,
+                source,
+            }
+        }
+    }
+
+    /// Checks the two `read_slice` preconditions every source shares.
+    pub(crate) fn check_slice_request(
+        origin: impl FnOnce() -> String,
+        z: u64,
+        nz: u64,
+        got_len: usize,
+        want_len: usize,
+    ) -> Result<(), Self> {
+        if z >= nz {
+            return Err(VolumeError::Contract {
+                origin: origin(),
+                problem: format!("slice {z} requested but the volume has {nz} slices"),
+            });
+        }
+        if got_len != want_len {
+            return Err(VolumeError::Contract {
+                origin: origin(),
+                problem: format!("output buffer has {got_len} values but a slice has {want_len}"),
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn missing_file_maps_to_not_found() {
+        let err = std::io::Error::from(std::io::ErrorKind::NotFound);
+        let e = VolumeError::io(Path::new("/nope.raw"), "open", err);
+        assert_eq!(
+            e.to_string(),
+            "/nope.raw: no such file; check the input path"
+        );
+    }
+}

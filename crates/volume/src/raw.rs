@@ -1,0 +1,358 @@
+//! Headerless (or fixed-header) binary volumes, memory-mapped.
+//!
+//! Memory mapping lets the kernel do read-ahead and keeps our copy to one slice of f32; releasing
+//! pages behind the sweep front keeps resident memory flat however large the file is. The same
+//! reader serves every format whose payload is an uncompressed block at a known offset (NRRD raw,
+//! VTK legacy binary, NIfTI `.nii`).
+#![allow(unsafe_code)]
+
+use crate::dtype::decode;
+use crate::grid::dims_text;
+use crate::source::check_request;
+use crate::{Dtype, Endian, Grid, VolumeError, VolumeSource};
+use memmap2::Mmap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+/// Everything needed to read a headerless binary volume.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RawSpec {
+    pub path: PathBuf,
+    pub dims: [u64; 3],
+    pub dtype: Dtype,
+    #[serde(default)]
+    pub endian: Endian,
+    pub spacing: [f64; 3],
+    pub origin: [f64; 3],
+    /// Bytes to skip before the first voxel.
+    #[serde(default)]
+    pub header_bytes: u64,
+}
+
+/// Where the voxels of an already-parsed container sit: used by the format readers, which word
+/// their own hints and may tolerate bytes after the payload (VTK legacy files carry more arrays).
+pub(crate) struct Payload<'a> {
+    pub path: &'a Path,
+    pub grid: Grid,
+    pub dtype: Dtype,
+    pub endian: Endian,
+    pub offset: u64,
+    pub trailing_ok: bool,
+    pub hint: &'static str,
+}
+
+/// A memory-mapped raw volume.
+pub struct RawVolume {
+    path: PathBuf,
+    grid: Grid,
+    dtype: Dtype,
+    endian: Endian,
+    offset: usize,
+    slice_bytes: usize,
+    map: Mmap,
+    /// Bytes at the start of the map already handed back to the kernel.
+    released: usize,
+}
+
+impl RawVolume {
+    /// Opens and validates `spec`: the file must exist and hold exactly
+    /// `header_bytes + product(dims) * dtype size` bytes.
+    pub fn open(spec: &RawSpec) -> Result<Self, VolumeError> {
+        let name = spec.path.display().to_string();
+        let grid =
+            Grid::new(spec.dims, spec.spacing, spec.origin).map_err(|e| e.in_origin(&name))?;
+        Self::open_payload(Payload {
+            path: &spec.path,
+            grid,
+            dtype: spec.dtype,
+            endian: spec.endian,
+            offset: spec.header_bytes,
+            trailing_ok: false,
+            hint: "check [input] dims, dtype and header_bytes",
+        })
+    }
+
+    pub(crate) fn open_payload(p: Payload<'_>) -> Result<Self, VolumeError> {
+        let name = p.path.display().to_string();
+        let expected = payload_bytes(p.grid.dims, p.dtype)
+            .and_then(|b| b.checked_add(p.offset))
+            .ok_or_else(|| VolumeError::Grid {
+                origin: name.clone(),
+                problem: format!(
+                    "dims {} of {} need more than 2^64 bytes; check the dims",
+                    dims_text(p.grid.dims),
+                    p.dtype
+                ),
+            })?;
+        let file = File::open(p.path).map_err(|e| VolumeError::io(p.path, "open", e))?;
+        let actual = file
+            .metadata()
+            .map_err(|e| VolumeError::io(p.path, "read the size of", e))?
+            .len();
+        if actual < expected || (actual > expected && !p.trailing_ok) {
+            return Err(VolumeError::SizeMismatch {
+                file: name,
+                actual,
+                expected,
+                dims: dims_text(p.grid.dims),
+                dtype: p.dtype.name(),
+                header_bytes: p.offset,
+                hint: p.hint,
+            });
+        }
+        // SAFETY: the map is read-only and private to this struct. As with any file mapping, a
+        // process truncating the file while we read would fault (SIGBUS); inputs are treated as
+        // immutable for the duration of a job, which the docs of the pipeline state.
+        let map = unsafe { Mmap::map(&file) }.map_err(|e| VolumeError::io(p.path, "map", e))?;
+        let too_big = || VolumeError::Grid {
+            origin: name.clone(),
+            problem: "the volume does not fit this platform's address space; use a 64-bit build"
+                .to_string(),
+        };
+        let slice_bytes = p
+            .grid
+            .slice_len()
+            .checked_mul(p.dtype.size_bytes())
+            .ok_or_else(too_big)?;
+        Ok(RawVolume {
+            path: p.path.to_path_buf(),
+            grid: p.grid,
+            dtype: p.dtype,
+            endian: p.endian,
+            offset: usize::try_from(p.offset).map_err(|_| too_big())?,
+            slice_bytes,
+            map,
+            released: 0,
+        })
+    }
+
+    /// Tells the kernel the bytes before slice `keep_from` will not be read again, so resident
+    /// memory tracks the sweep front instead of the file size. Only whole pages go (madvise
+    /// rounds), and a re-read simply faults the page back in from the file.
+    fn release_before(&mut self, keep_from: u64) {
+        const PAGE: usize = 4096;
+        let end = (keep_from as usize)
+            .saturating_mul(self.slice_bytes)
+            .saturating_add(self.offset);
+        let end = end / PAGE * PAGE;
+        if end <= self.released {
+            return;
+        }
+        #[cfg(target_os = "linux")]
+        {
+            // SAFETY: MADV_DONTNEED on a read-only MAP_SHARED file mapping (what `Mmap::map`
+            // creates) only drops cached pages; later reads repopulate them from the file, so no
+            // value observed through the map changes. No borrow of the map is alive here.
+            let _ = unsafe {
+                self.map.unchecked_advise_range(
+                    memmap2::UncheckedAdvice::DontNeed,
+                    self.released,
+                    end - self.released,
+                )
+            };
+        }
+        self.released = end;
+    }
+}
+
+/// Payload size in bytes, or None on overflow.
+pub(crate) fn payload_bytes(dims: [u64; 3], dtype: Dtype) -> Option<u64> {
+    dims[0]
+        .checked_mul(dims[1])?
+        .checked_mul(dims[2])?
+        .checked_mul(dtype.size_bytes() as u64)
+}
+
+impl VolumeSource for RawVolume {
+    fn grid(&self) -> Grid {
+        self.grid
+    }
+
+    fn describe(&self) -> String {
+        self.path.display().to_string()
+    }
+
+    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+        check_request(self, z, out)?;
+        // In range: open_payload checked the file holds offset + dims[2] slices.
+        let start = self.offset + z as usize * self.slice_bytes;
+        decode(
+            self.dtype,
+            self.endian,
+            &self.map[start..start + self.slice_bytes],
+            out,
+        );
+        self.release_before(z.saturating_sub(1));
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dtype::tests::{ALL, encode, sample_values};
+    use std::io::Write;
+
+    fn spec(path: &Path, dims: [u64; 3], dtype: Dtype, endian: Endian, header: u64) -> RawSpec {
+        RawSpec {
+            path: path.to_path_buf(),
+            dims,
+            dtype,
+            endian,
+            spacing: [1.0, 2.0, 3.0],
+            origin: [0.5, 0.0, 0.0],
+            header_bytes: header,
+        }
+    }
+
+    fn write(bytes: &[u8]) -> tempfile::NamedTempFile {
+        let mut f = tempfile::NamedTempFile::new().unwrap();
+        f.write_all(bytes).unwrap();
+        f.flush().unwrap();
+        f
+    }
+
+    #[test]
+    fn every_dtype_and_endian_round_trips_with_header() {
+        let dims = [3, 2, 4];
+        for dtype in ALL {
+            for endian in [Endian::Little, Endian::Big] {
+                for header in [0u64, 7] {
+                    let values = sample_values(dtype, 24);
+                    let mut bytes = vec![0xAB; header as usize];
+                    bytes.extend(encode(dtype, endian, &values));
+                    let f = write(&bytes);
+                    let mut v =
+                        RawVolume::open(&spec(f.path(), dims, dtype, endian, header)).unwrap();
+                    assert_eq!(v.grid().spacing, [1.0, 2.0, 3.0]);
+                    let mut out = vec![0.0f32; 6];
+                    for z in 0..4u64 {
+                        v.read_slice(z, &mut out).unwrap();
+                        let want: Vec<f32> = values[z as usize * 6..][..6]
+                            .iter()
+                            .map(|&x| x as f32)
+                            .collect();
+                        assert_eq!(out, want, "{dtype} {endian:?} header {header} z {z}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn re_reading_a_released_slice_still_works() {
+        // Slices of 64 KiB so release_before really drops pages.
+        let dims = [256, 256, 4];
+        let bytes: Vec<u8> = (0..256 * 256 * 4).map(|i| (i / 65536) as u8 + 1).collect();
+        let f = write(&bytes);
+        let mut v = RawVolume::open(&spec(f.path(), dims, Dtype::U8, Endian::Little, 0)).unwrap();
+        let mut out = vec![0.0f32; 65536];
+        for z in 0..4 {
+            v.read_slice(z, &mut out).unwrap();
+            assert!(out.iter().all(|&x| x == z as f32 + 1.0));
+        }
+        v.read_slice(0, &mut out).unwrap();
+        assert!(out.iter().all(|&x| x == 1.0));
+    }
+
+    #[test]
+    fn size_mismatch_names_both_numbers() {
+        let f = write(&vec![0u8; 8388607]);
+        let e = RawVolume::open(&spec(
+            f.path(),
+            [256, 256, 128],
+            Dtype::U8,
+            Endian::Little,
+            0,
+        ))
+        .err()
+        .unwrap();
+        let name = f.path().display();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "{name}: file is 8388607 bytes but dims 256x256x128 of u8 plus 0 header bytes need 8388608; check [input] dims, dtype and header_bytes"
+            )
+        );
+        // Too long is as wrong as too short for a raw file.
+        let f = write(&[0u8; 17]);
+        assert!(matches!(
+            RawVolume::open(&spec(f.path(), [2, 2, 2], Dtype::U16, Endian::Big, 0)),
+            Err(VolumeError::SizeMismatch {
+                actual: 17,
+                expected: 16,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn missing_file_and_overflow() {
+        let e = RawVolume::open(&spec(
+            Path::new("/no/such/dir/v.raw"),
+            [2, 2, 2],
+            Dtype::U8,
+            Endian::Little,
+            0,
+        ))
+        .err()
+        .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "/no/such/dir/v.raw: no such file; check the input path"
+        );
+        let e = RawVolume::open(&spec(
+            Path::new("/no/v.raw"),
+            [1 << 32, 1 << 32, 2],
+            Dtype::F64,
+            Endian::Little,
+            0,
+        ))
+        .err()
+        .unwrap();
+        assert!(e.to_string().starts_with("/no/v.raw: dims"), "{e}");
+        assert!(e.to_string().contains("overflow"), "{e}");
+        let e = RawVolume::open(&spec(
+            Path::new("/no/v.raw"),
+            [1 << 21, 1 << 20, 1 << 20],
+            Dtype::F64,
+            Endian::Little,
+            0,
+        ))
+        .err()
+        .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "/no/v.raw: dims 2097152x1048576x1048576 of f64 need more than 2^64 bytes; check the dims"
+        );
+    }
+
+    #[test]
+    fn engine_raw_when_present() {
+        let path = Path::new("/work/shared/data/engine/engine_256x256x128_uint8.raw");
+        if !path.exists() {
+            eprintln!("skipping: {} not present", path.display());
+            return;
+        }
+        let mut v = RawVolume::open(&RawSpec {
+            path: path.to_path_buf(),
+            dims: [256, 256, 128],
+            dtype: Dtype::U8,
+            endian: Endian::Little,
+            spacing: [1.0; 3],
+            origin: [0.0; 3],
+            header_bytes: 0,
+        })
+        .unwrap();
+        let mut out = vec![0.0f32; 65536];
+        let (mut sum, mut max) = (0.0f64, 0.0f32);
+        for z in 0..128 {
+            v.read_slice(z, &mut out).unwrap();
+            sum += out.iter().map(|&x| x as f64).sum::<f64>();
+            max = out.iter().fold(max, |m, &x| m.max(x));
+        }
+        let mean = sum / (256.0 * 256.0 * 128.0);
+        assert!((mean - 22.3488).abs() < 1e-3, "mean {mean}");
+        assert_eq!(max, 255.0);
+    }
+}

@@ -1,0 +1,44 @@
+//! The slice-streaming contract between volume readers and the extractor.
+
+use crate::{Grid, VolumeError};
+
+/// A volume read slice by slice in increasing z. Implementations never hold the whole volume
+/// (an encoding that forces it says so in its docs), because the memory bound of the whole
+/// pipeline starts here.
+pub trait VolumeSource: Send {
+    fn grid(&self) -> Grid;
+    /// Human-readable origin for logs and errors: the file path, or e.g. "procedural sphere 64x64x64".
+    fn describe(&self) -> String;
+    /// Fill `out` (len == grid.slice_len(), x fastest then y) with slice z converted to f32.
+    /// Callers ask for z = 0,1,2,... in order (a source may re-read a slice, e.g. z-1, too).
+    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError>;
+}
+
+/// Lets pipelines hold `Box<dyn VolumeSource>` wherever a source is expected.
+impl VolumeSource for Box<dyn VolumeSource> {
+    fn grid(&self) -> Grid {
+        (**self).grid()
+    }
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+        (**self).read_slice(z, out)
+    }
+}
+
+/// Checks the `read_slice` preconditions every source shares (z in range, buffer length).
+pub(crate) fn check_request(
+    src: &dyn VolumeSource,
+    z: u64,
+    out: &[f32],
+) -> Result<(), VolumeError> {
+    let grid = src.grid();
+    VolumeError::check_slice_request(
+        || src.describe(),
+        z,
+        grid.dims[2],
+        out.len(),
+        grid.slice_len(),
+    )
+}
