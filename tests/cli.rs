@@ -1,0 +1,182 @@
+//! The `isostream` binary as a user meets it: the README's commands, and a clear one-line error
+//! with a non-zero exit for every kind of bad input, leaving no half-written output behind.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+use common::{Mesh, TestVolume, random_blobs};
+
+fn isostream(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// The error is one line starting with `error:`.
+fn assert_one_line_error(o: &Output, code: i32, needles: &[&str]) {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(code), "stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "stderr: {err}");
+    for n in needles {
+        assert!(lines[0].contains(n), "{n:?} missing from: {}", lines[0]);
+    }
+}
+
+fn write_job(dir: &Path, body: &str) -> String {
+    let job = dir.join("job.toml");
+    std::fs::write(&job, body).unwrap();
+    job.to_string_lossy().into_owned()
+}
+
+fn leftovers(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != "job.toml" && n != "volume.raw")
+        .collect()
+}
+
+#[test]
+fn example_job_runs_and_converts() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"torus\"\nsize = [40, 40, 40]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.25\n[output]\npath = \"out/torus.smb\"\n",
+    );
+    let o = isostream(&["validate", &job]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = isostream(&["run", &job]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let smb = dir.path().join("out/torus.smb");
+    assert!(dir.path().join("out/torus.smb.run.json").exists());
+    let o = isostream(&["check", &smb.to_string_lossy()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for ext in ["ply", "obj", "sma"] {
+        let target = dir.path().join(format!("out/torus.{ext}"));
+        let o = isostream(&["convert", &smb.to_string_lossy(), &target.to_string_lossy()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let r = Mesh::read(&target).check();
+        assert!(r.is_closed_manifold(), "{ext}: {r:?}");
+        assert_eq!(r.euler(), 0, "{ext}: a torus has Euler characteristic 0");
+    }
+}
+
+#[test]
+fn bundled_example_configs_validate() {
+    for entry in std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples")).unwrap() {
+        let path = entry.unwrap().path();
+        let text = std::fs::read_to_string(&path).unwrap();
+        if text.contains("shared/data") && !Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).exists() {
+            continue; // real-data examples need ../shared beside the checkout
+        }
+        let o = isostream(&["validate", &path.to_string_lossy()]);
+        assert!(o.status.success(), "{}: {}", path.display(), stderr(&o));
+    }
+}
+
+#[test]
+fn unknown_key_names_key_and_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0.0\nisovalue = 1\n[output]\npath = \"o.smb\"\n",
+    );
+    assert_one_line_error(&isostream(&["run", &job]), 2, &["isovalue", "job.toml"]);
+}
+
+#[test]
+fn impossible_rate_names_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0.0\n[simplify]\nrate = 0\n[output]\npath = \"o.smb\"\n",
+    );
+    assert_one_line_error(&isostream(&["validate", &job]), 2, &["simplify.rate", "(0, 1]"]);
+}
+
+#[test]
+fn wrong_dims_name_the_file_and_both_sizes() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = TestVolume {
+        dims: [4, 4, 4],
+        data: vec![0.0; 64],
+        iso: 0.5,
+    };
+    let job = vol.job(dir.path(), "mode = \"none\"", "o.smb");
+    let text = std::fs::read_to_string(&job).unwrap().replace("[4, 4, 4]", "[4, 4, 5]");
+    std::fs::write(&job, text).unwrap();
+    let o = isostream(&["run", &job.to_string_lossy()]);
+    assert_one_line_error(&o, 2, &["volume.raw", "256", "320"]);
+    assert!(leftovers(dir.path()).is_empty(), "{:?}", leftovers(dir.path()));
+}
+
+#[test]
+fn missing_input_file_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"nothing.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 1\n[output]\npath = \"o.smb\"\n",
+    );
+    assert_one_line_error(&isostream(&["run", &job]), 2, &["nothing.raw"]);
+}
+
+#[test]
+fn unwritable_output_fails_before_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0.0\n[output]\npath = \"/proc/isostream/o.smb\"\n",
+    );
+    assert_one_line_error(&isostream(&["run", &job]), 2, &["output.path", "/proc"]);
+}
+
+#[test]
+fn nan_voxels_are_outside_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut vol = random_blobs([16, 16, 16], 1, 7);
+    for v in vol.data.iter_mut().step_by(97) {
+        *v = f32::NAN;
+    }
+    let job = vol.job(dir.path(), "mode = \"none\"", "o.smb");
+    let o = isostream(&["run", &job.to_string_lossy()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("o.smb.run.json")).unwrap()).unwrap();
+    let nan = summary["extract"]["non_finite_voxels"].as_u64().unwrap();
+    assert!(nan > 0, "{summary}");
+    let r = Mesh::read(&dir.path().join("o.smb")).check();
+    assert!(r.is_valid_manifold(), "{r:?}");
+}
+
+#[test]
+fn ctrl_c_stops_with_130_and_leaves_no_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"gyroid\"\nsize = [400, 400, 400]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.1\n[output]\npath = \"big.smb\"\n",
+    );
+    let child = Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(["run", &job])
+        .env("RUST_LOG", "warn")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(700));
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let o = child.wait_with_output().unwrap();
+    assert_one_line_error(&o, 130, &["interrupted"]);
+    assert!(leftovers(dir.path()).is_empty(), "{:?}", leftovers(dir.path()));
+}

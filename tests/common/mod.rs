@@ -1,0 +1,148 @@
+//! Shared helpers for the integration tests: generated volumes written as raw files, job files,
+//! and the reference in-memory marching cubes.
+#![allow(dead_code)] // each test binary uses a different subset
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use isostream_meshcheck::Report;
+use isostream_pipeline::{JobConfig, RunSummary};
+use isostream_volume::{Grid, MemoryVolume};
+
+/// A volume generated in a test, with the iso value to extract.
+#[derive(Debug, Clone)]
+pub struct TestVolume {
+    pub dims: [u64; 3],
+    pub data: Vec<f32>,
+    pub iso: f32,
+}
+
+impl TestVolume {
+    /// Writes the volume as a raw little-endian f32 file and a job file next to it.
+    pub fn job(&self, dir: &Path, simplify: &str, output: &str) -> PathBuf {
+        let raw = dir.join("volume.raw");
+        let bytes: Vec<u8> = self.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+        std::fs::write(&raw, bytes).unwrap();
+        let job = dir.join("job.toml");
+        let text = format!(
+            "[input]\npath = \"volume.raw\"\ndims = [{}, {}, {}]\ndtype = \"f32\"\n\n[extract]\niso = {}\n\n[simplify]\n{simplify}\n\n[output]\npath = \"{output}\"\n\n[pipeline]\nchannel_capacity = 2\nbatch_triangles = 64\n",
+            self.dims[0], self.dims[1], self.dims[2], self.iso
+        );
+        std::fs::write(&job, text).unwrap();
+        job
+    }
+
+    /// The reference: plain in-memory marching cubes of the same volume.
+    pub fn reference(&self) -> Mesh {
+        let grid = Grid::new(self.dims, [1.0; 3], [0.0; 3]).unwrap();
+        let mut vol = MemoryVolume::new(grid, self.data.clone()).unwrap();
+        let s = isostream_extract::extract_indexed(&mut vol, self.iso).unwrap();
+        Mesh {
+            positions: s.positions.iter().map(|p| p.to_array()).collect(),
+            triangles: s.triangles,
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct Mesh {
+    pub positions: Vec<[f64; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    pub fn read(path: &Path) -> Mesh {
+        let m = isostream_smesh::read_indexed(path).unwrap();
+        Mesh {
+            positions: m.positions,
+            triangles: m.triangles,
+        }
+    }
+
+    pub fn check(&self) -> Report {
+        isostream_meshcheck::check(&self.positions, &self.triangles)
+    }
+
+    /// Triangles as position triples (f32 bits), rotated so the smallest comes first
+    /// (orientation kept), sorted: comparable across meshes whose vertex numbering differs.
+    pub fn canonical_triangles(&self) -> Vec<[[u32; 3]; 3]> {
+        let mut out: Vec<[[u32; 3]; 3]> = self
+            .triangles
+            .iter()
+            .map(|t| {
+                let p = t.map(|i| self.positions[i as usize].map(|c| (c as f32).to_bits()));
+                let k = (0..3).min_by_key(|&i| p[i]).unwrap();
+                [p[k], p[(k + 1) % 3], p[(k + 2) % 3]]
+            })
+            .collect();
+        out.sort_unstable();
+        out
+    }
+}
+
+/// Runs a job file through the library (the same path as `isostream run`).
+pub fn run_job(job: &Path) -> RunSummary {
+    let config = JobConfig::load(job).unwrap();
+    let cancel = AtomicBool::new(false);
+    isostream_pipeline::run(&config, job, &cancel, &|_| {}).unwrap()
+}
+
+/// Deterministic pseudo-random numbers for building fields (splitmix64).
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// Random integer field: iso values that fall exactly on grid values are common.
+pub fn random_levels(dims: [u64; 3], levels: u32, iso: f32, seed: u64) -> TestVolume {
+    let mut rng = Rng(seed);
+    let n = (dims[0] * dims[1] * dims[2]) as usize;
+    let data = (0..n)
+        .map(|_| (rng.next_u64() % u64::from(levels)) as f32)
+        .collect();
+    TestVolume { dims, data, iso }
+}
+
+/// A smooth field: sum of random Gaussian blobs, so surfaces are closed or touch the box.
+pub fn random_blobs(dims: [u64; 3], blobs: usize, seed: u64) -> TestVolume {
+    let mut rng = Rng(seed);
+    let centres: Vec<([f64; 3], f64)> = (0..blobs)
+        .map(|_| {
+            let c = [0, 1, 2].map(|i| (0.2 + 0.6 * rng.unit()) * (dims[i] - 1) as f64);
+            let r = (0.12 + 0.15 * rng.unit()) * dims.iter().copied().min().unwrap() as f64;
+            (c, r)
+        })
+        .collect();
+    let mut data = Vec::with_capacity((dims[0] * dims[1] * dims[2]) as usize);
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let p = [x as f64, y as f64, z as f64];
+                let v: f64 = centres
+                    .iter()
+                    .map(|(c, r)| {
+                        let d2: f64 = (0..3).map(|i| (p[i] - c[i]).powi(2)).sum();
+                        (-d2 / (r * r)).exp()
+                    })
+                    .sum();
+                data.push(v as f32);
+            }
+        }
+    }
+    TestVolume {
+        dims,
+        data,
+        iso: 0.5,
+    }
+}
