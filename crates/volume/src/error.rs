@@ -80,6 +80,21 @@ impl VolumeError {
         }
     }
 
+    /// A format error; `found` is shortened and escaped so the message stays on one line.
+    pub(crate) fn format(
+        file: &Path,
+        at: impl Into<String>,
+        expected: impl Into<String>,
+        found: impl AsRef<str>,
+    ) -> Self {
+        VolumeError::Format {
+            file: file.display().to_string(),
+            at: at.into(),
+            expected: expected.into(),
+            found: one_line(found.as_ref()),
+        }
+    }
+
     /// Checks the two `read_slice` preconditions every source shares.
     pub(crate) fn check_slice_request(
         origin: impl FnOnce() -> String,
@@ -104,9 +119,37 @@ impl VolumeError {
     }
 }
 
+/// Quotes `s` (escaping control characters) and cuts it to a readable length.
+fn one_line(s: &str) -> String {
+    const MAX: usize = 60;
+    let mut cut: String = s.chars().take(MAX).collect();
+    if s.chars().count() > MAX {
+        cut.push_str("...");
+    }
+    format!("{cut:?}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn format_error_stays_on_one_line() {
+        let e = VolumeError::format(Path::new("a.nrrd"), "header line 3", "a field", "x\ny\0z");
+        let msg = e.to_string();
+        assert!(!msg.contains('\n'), "{msg}");
+        assert_eq!(
+            msg,
+            r#"a.nrrd: header line 3: expected a field, found "x\ny\0z""#
+        );
+    }
+
+    #[test]
+    fn long_found_text_is_cut() {
+        let e = VolumeError::format(Path::new("f"), "byte 0", "x", "a".repeat(500));
+        assert!(e.to_string().len() < 120);
+        assert!(e.to_string().contains("..."));
+    }
 
     #[test]
     fn missing_file_maps_to_not_found() {

@@ -7,18 +7,25 @@
 //! the file and what to check.
 #![deny(unsafe_code)]
 
+mod codec;
 mod dtype;
 mod error;
 mod grid;
 mod memory;
+mod nrrd;
+mod open;
+mod options;
 mod procedural;
 mod raw;
 mod source;
+mod stream;
 
 pub use dtype::{Dtype, Endian};
 pub use error::VolumeError;
 pub use grid::Grid;
 pub use memory::MemoryVolume;
+pub use open::open_path;
+pub use options::OpenOptions;
 pub use procedural::{Procedural, Shape};
 pub use raw::{RawSpec, RawVolume};
 pub use source::VolumeSource;

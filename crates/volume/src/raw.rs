@@ -185,6 +185,10 @@ impl VolumeSource for RawVolume {
         self.release_before(z.saturating_sub(1));
         Ok(())
     }
+
+    fn dtype(&self) -> Option<Dtype> {
+        Some(self.dtype)
+    }
 }
 
 #[cfg(test)]

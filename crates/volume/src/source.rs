@@ -1,6 +1,6 @@
 //! The slice-streaming contract between volume readers and the extractor.
 
-use crate::{Grid, VolumeError};
+use crate::{Dtype, Grid, VolumeError};
 
 /// A volume read slice by slice in increasing z. Implementations never hold the whole volume
 /// (an encoding that forces it says so in its docs), because the memory bound of the whole
@@ -12,6 +12,15 @@ pub trait VolumeSource: Send {
     /// Fill `out` (len == grid.slice_len(), x fastest then y) with slice z converted to f32.
     /// Callers ask for z = 0,1,2,... in order (a source may re-read a slice, e.g. z-1, too).
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError>;
+    /// The voxel type stored in the file, when there is one (for logs and format checks).
+    fn dtype(&self) -> Option<Dtype> {
+        None
+    }
+    /// True when the encoding forces the reader to decode the whole volume up front, so the
+    /// pipeline can warn that its memory bound does not hold for this input.
+    fn loads_whole_volume(&self) -> bool {
+        false
+    }
 }
 
 /// Lets pipelines hold `Box<dyn VolumeSource>` wherever a source is expected.
@@ -24,6 +33,12 @@ impl VolumeSource for Box<dyn VolumeSource> {
     }
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
         (**self).read_slice(z, out)
+    }
+    fn dtype(&self) -> Option<Dtype> {
+        (**self).dtype()
+    }
+    fn loads_whole_volume(&self) -> bool {
+        (**self).loads_whole_volume()
     }
 }
 

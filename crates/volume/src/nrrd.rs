@@ -1,0 +1,473 @@
+//! NRRD (teem's "nearly raw raster data"): attached (`.nrrd`) and detached (`.nhdr`) headers,
+//! encodings raw, gzip and ascii, one or many data files (`data file: name.%d first last step`
+//! and `data file: LIST`). No NRRD crate exists, and the header is a short line-based text, so we
+//! parse it here. Raw single-file payloads are memory-mapped; everything else streams.
+//!
+//! Orientation: `space directions` contribute only their lengths (the spacing); isostream grids
+//! are axis-aligned, so a rotated or sheared volume is meshed in index-aligned physical units.
+
+use crate::codec::AsciiValues;
+use crate::grid::dims_text;
+use crate::raw::{Payload, RawVolume, payload_bytes};
+use crate::stream::{Opener, Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
+use crate::{Dtype, Endian, OpenOptions, VolumeError, VolumeSource};
+use flate2::read::MultiGzDecoder;
+use std::io::{self, BufRead, Read};
+use std::path::{Path, PathBuf};
+
+/// Longest header we read before deciding the file is not NRRD text.
+const MAX_HEADER: u64 = 1 << 20;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Encoding {
+    Raw,
+    Gzip,
+    Ascii,
+}
+
+#[derive(Debug)]
+struct Header {
+    dims: [u64; 3],
+    dtype: Dtype,
+    endian: Option<Endian>,
+    encoding: Encoding,
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    /// Empty when the data is attached.
+    files: Vec<PathBuf>,
+    line_skip: u64,
+    /// -1 means "the payload is the last bytes of the file" (raw only).
+    byte_skip: i64,
+    /// Bytes of header text (start of attached data).
+    len: u64,
+}
+
+/// Opens an NRRD file (attached or detached header).
+pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    opts.reject_raw_params(path, "NRRD")?;
+    opts.reject_array(path, "NRRD")?;
+    let h = parse(path)?;
+    let grid = opts.grid(path, h.dims, h.spacing, h.origin)?;
+    let endian = match (h.endian, h.dtype.size_bytes(), h.encoding) {
+        (Some(e), _, _) => e,
+        (None, 1, _) | (None, _, Encoding::Ascii) => Endian::Little,
+        (None, _, _) => {
+            return Err(VolumeError::format(
+                path,
+                "header",
+                format!("an \"endian: little|big\" line for type {}", h.dtype),
+                "none",
+            ));
+        }
+    };
+    let payload = payload_bytes(h.dims, h.dtype).ok_or_else(|| VolumeError::Grid {
+        origin: path.display().to_string(),
+        problem: format!(
+            "dims {} of {} need more than 2^64 bytes; check the sizes line",
+            dims_text(h.dims),
+            h.dtype
+        ),
+    })?;
+    let attached = h.files.is_empty();
+    let files: Vec<PathBuf> = if attached {
+        vec![path.to_path_buf()]
+    } else {
+        h.files.clone()
+    };
+    for f in &files {
+        std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read the size of", e))?;
+    }
+    let start = if attached { h.len } else { 0 };
+    if h.encoding == Encoding::Raw && files.len() == 1 && h.line_skip == 0 {
+        let len = std::fs::metadata(&files[0])
+            .map_err(|e| VolumeError::io(&files[0], "read the size of", e))?
+            .len();
+        let offset = if h.byte_skip < 0 {
+            len.saturating_sub(payload).max(start)
+        } else {
+            start.saturating_add(h.byte_skip as u64)
+        };
+        let raw = RawVolume::open_payload(Payload {
+            path: &files[0],
+            grid,
+            dtype: h.dtype,
+            endian,
+            offset,
+            trailing_ok: true,
+            hint: "check the NRRD header's sizes, type, byte skip and data file",
+        })?;
+        return Ok(Box::new(raw));
+    }
+    if h.byte_skip < 0 && (h.encoding != Encoding::Raw || files.len() > 1) {
+        return Err(VolumeError::format(
+            path,
+            "byte skip line",
+            "byte skip -1 only with raw encoding and one data file (as teem requires)",
+            h.byte_skip.to_string(),
+        ));
+    }
+    if h.encoding == Encoding::Raw {
+        check_total(path, &files, start, &h, payload)?;
+    }
+    let (encoding, line_skip, byte_skip) = (h.encoding, h.line_skip, h.byte_skip as u64);
+    let open_one = move |f: &Path| -> Result<Stream, VolumeError> {
+        let mut r = open_at(f, start)?;
+        for _ in 0..line_skip {
+            let mut line = Vec::new();
+            r.read_until(b'\n', &mut line)
+                .map_err(|e| VolumeError::io(f, "read", e))?;
+        }
+        let mut s: Stream = match encoding {
+            Encoding::Raw => Box::new(r),
+            Encoding::Gzip => Box::new(MultiGzDecoder::new(r)),
+            Encoding::Ascii => Box::new(AsciiValues::new(r, None)),
+        };
+        // Byte skip counts decoded bytes (teem applies it after decompression).
+        skip_bytes(&mut s, byte_skip).map_err(|e| {
+            VolumeError::format(
+                f,
+                "byte skip",
+                format!("{byte_skip} bytes to skip"),
+                e.to_string(),
+            )
+        })?;
+        Ok(s)
+    };
+    let what = match encoding {
+        Encoding::Raw => "raw NRRD payload",
+        Encoding::Gzip => "gzip NRRD payload",
+        Encoding::Ascii => "ascii NRRD payload",
+    };
+    let open: Opener = Box::new(move || {
+        Ok(Box::new(FileChain {
+            files: files.clone(),
+            next: 0,
+            current: None,
+            open_one,
+        }) as Stream)
+    });
+    let decode_as = if encoding == Encoding::Ascii {
+        Dtype::F64
+    } else {
+        h.dtype
+    };
+    Ok(Box::new(StreamVolume::new(StreamSpec {
+        path: path.to_path_buf(),
+        what,
+        grid,
+        dtype: decode_as,
+        stored: h.dtype,
+        endian: if encoding == Encoding::Ascii {
+            Endian::Little
+        } else {
+            endian
+        },
+        open,
+    })?))
+}
+
+/// A raw payload split over files must add up to exactly the volume.
+fn check_total(
+    path: &Path,
+    files: &[PathBuf],
+    start: u64,
+    h: &Header,
+    payload: u64,
+) -> Result<(), VolumeError> {
+    let mut total: u64 = 0;
+    for f in files {
+        let len = std::fs::metadata(f)
+            .map_err(|e| VolumeError::io(f, "read the size of", e))?
+            .len();
+        total = total.saturating_add(len.saturating_sub(start.saturating_add(h.byte_skip as u64)));
+    }
+    if total < payload {
+        return Err(VolumeError::format(
+            path,
+            "data file line",
+            format!(
+                "{payload} payload bytes in {} file(s) for dims {} of {}",
+                files.len(),
+                dims_text(h.dims),
+                h.dtype
+            ),
+            format!("{total} bytes"),
+        ));
+    }
+    Ok(())
+}
+
+/// Reads the data files one after the other, opening each only when the previous one is done
+/// (a stack of thousands of slice files never holds thousands of descriptors).
+struct FileChain<F> {
+    files: Vec<PathBuf>,
+    next: usize,
+    current: Option<Stream>,
+    open_one: F,
+}
+
+impl<F: Fn(&Path) -> Result<Stream, VolumeError>> Read for FileChain<F> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        loop {
+            if let Some(r) = &mut self.current {
+                let n = r.read(buf)?;
+                if n > 0 || buf.is_empty() {
+                    return Ok(n);
+                }
+                self.current = None;
+            }
+            let Some(f) = self.files.get(self.next) else {
+                return Ok(0);
+            };
+            self.next += 1;
+            self.current = Some((self.open_one)(f).map_err(io::Error::other)?);
+        }
+    }
+}
+
+/// Parses the header text of `path`.
+fn parse(path: &Path) -> Result<Header, VolumeError> {
+    let f = std::fs::File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
+    let mut r = io::BufReader::new(f).take(MAX_HEADER);
+    let err = |n: usize, expected: &str, found: &str| {
+        VolumeError::format(path, format!("header line {n}"), expected, found)
+    };
+    let mut len: u64 = 0;
+    let mut lines = Vec::new();
+    loop {
+        let mut raw = Vec::new();
+        let got = r
+            .read_until(b'\n', &mut raw)
+            .map_err(|e| VolumeError::io(path, "read", e))?;
+        if got == 0 {
+            break;
+        }
+        len += got as u64;
+        let text = String::from_utf8_lossy(&raw);
+        let text = text.trim_end_matches(['\n', '\r']).to_string();
+        if lines.is_empty() && !text.starts_with("NRRD000") {
+            return Err(err(1, "the NRRD magic \"NRRD0001\"..\"NRRD0005\"", &text));
+        }
+        if text.is_empty() {
+            break;
+        }
+        if !raw.ends_with(b"\n") && got as u64 == MAX_HEADER {
+            return Err(err(lines.len() + 1, "a header shorter than 1 MiB", "more"));
+        }
+        lines.push(text);
+    }
+    if lines.is_empty() {
+        return Err(err(
+            1,
+            "the NRRD magic \"NRRD0001\"..\"NRRD0005\"",
+            "an empty file",
+        ));
+    }
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut dims = None;
+    let mut dtype = None;
+    let mut encoding = None;
+    let mut endian = None;
+    let mut spacing = None;
+    let mut directions = None;
+    let mut origin = [0.0; 3];
+    let mut files = Vec::new();
+    let mut line_skip = 0;
+    let mut byte_skip = 0;
+    let mut i = 1;
+    while i < lines.len() {
+        let n = i + 1;
+        let line = &lines[i];
+        i += 1;
+        if line.starts_with('#') || line.contains(":=") {
+            continue;
+        }
+        let Some((key, value)) = line.split_once(": ") else {
+            return Err(err(n, "\"field: value\"", line));
+        };
+        let value = value.trim();
+        match key.trim() {
+            "dimension" if value != "3" => {
+                return Err(err(n, "dimension: 3 (a scalar volume)", value));
+            }
+            "sizes" => {
+                dims = Some(parse_n::<u64>(value).ok_or_else(|| err(n, "three sizes", value))?)
+            }
+            "type" => {
+                dtype = Some(parse_type(value).ok_or_else(|| {
+                    err(
+                        n,
+                        "a type among int8/uint8/int16/uint16/int32/uint32/float/double",
+                        value,
+                    )
+                })?)
+            }
+            "encoding" => {
+                encoding = Some(match value {
+                    "raw" => Encoding::Raw,
+                    "gzip" | "gz" => Encoding::Gzip,
+                    "ascii" | "txt" | "text" => Encoding::Ascii,
+                    _ => return Err(err(n, "encoding raw, gzip or ascii", value)),
+                })
+            }
+            "endian" => {
+                endian = Some(match value {
+                    "little" => Endian::Little,
+                    "big" => Endian::Big,
+                    _ => return Err(err(n, "endian little or big", value)),
+                })
+            }
+            "spacings" => {
+                let s = parse_n::<f64>(value).ok_or_else(|| err(n, "three spacings", value))?;
+                spacing = Some(s.map(|v| if v.is_nan() { 1.0 } else { v.abs() }));
+            }
+            "space directions" => {
+                let mut d = [1.0; 3];
+                let vecs: Vec<&str> = value.split_whitespace().collect();
+                if vecs.len() != 3 {
+                    return Err(err(n, "three space direction vectors", value));
+                }
+                for (axis, v) in vecs.iter().enumerate() {
+                    if *v == "none" {
+                        continue;
+                    }
+                    let c = parse_vector(v).ok_or_else(|| err(n, "vectors like (1,0,0)", v))?;
+                    d[axis] = c.iter().map(|x| x * x).sum::<f64>().sqrt();
+                }
+                directions = Some(d);
+            }
+            "space origin" => {
+                origin =
+                    parse_vector(value).ok_or_else(|| err(n, "an origin like (0,0,0)", value))?
+            }
+            "data file" | "datafile" => {
+                files = data_files(value, dir, &lines[i..]).ok_or_else(|| {
+                    err(
+                        n,
+                        "a file name, \"LIST\" or \"name.%d first last step\"",
+                        value,
+                    )
+                })?;
+                if value.starts_with("LIST") {
+                    i = lines.len();
+                }
+            }
+            "line skip" | "lineskip" => {
+                line_skip = value.parse().map_err(|_| err(n, "a line count", value))?
+            }
+            "byte skip" | "byteskip" => {
+                byte_skip = value
+                    .parse::<i64>()
+                    .ok()
+                    .filter(|&b| b >= -1)
+                    .ok_or_else(|| err(n, "a byte count or -1", value))?
+            }
+            // Fields that do not change the sampled values or the grid.
+            _ => {}
+        }
+    }
+    let missing =
+        |field: &str| VolumeError::format(path, "header", format!("a \"{field}:\" line"), "none");
+    Ok(Header {
+        dims: dims.ok_or_else(|| missing("sizes"))?,
+        dtype: dtype.ok_or_else(|| missing("type"))?,
+        endian,
+        encoding: encoding.ok_or_else(|| missing("encoding"))?,
+        spacing: directions.or(spacing).unwrap_or([1.0; 3]),
+        origin,
+        files,
+        line_skip,
+        byte_skip,
+        len,
+    })
+}
+
+fn parse_n<T: std::str::FromStr>(s: &str) -> Option<[T; 3]> {
+    let v: Vec<T> = s
+        .split_whitespace()
+        .map(|t| t.parse().ok())
+        .collect::<Option<_>>()?;
+    v.try_into().ok()
+}
+
+/// "(1.5,0,0)" -> [1.5, 0, 0].
+fn parse_vector(s: &str) -> Option<[f64; 3]> {
+    let inner = s.trim().strip_prefix('(')?.strip_suffix(')')?;
+    let v: Vec<f64> = inner
+        .split(',')
+        .map(|t| t.trim().parse().ok())
+        .collect::<Option<_>>()?;
+    v.try_into().ok()
+}
+
+fn parse_type(s: &str) -> Option<Dtype> {
+    Some(match s {
+        "signed char" | "int8" | "int8_t" => Dtype::I8,
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => Dtype::U8,
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => {
+            Dtype::I16
+        }
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => Dtype::U16,
+        "int" | "signed int" | "int32" | "int32_t" => Dtype::I32,
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => Dtype::U32,
+        "float" => Dtype::F32,
+        "double" => Dtype::F64,
+        _ => return None,
+    })
+}
+
+/// The files of a detached header: one name, a `%d` pattern with first/last/step, or a LIST
+/// whose names are the remaining header lines. Relative names are relative to the header.
+fn data_files(value: &str, dir: &Path, rest: &[String]) -> Option<Vec<PathBuf>> {
+    let parts: Vec<&str> = value.split_whitespace().collect();
+    let names: Vec<String> = match parts.as_slice() {
+        ["LIST", ..] => rest
+            .iter()
+            .map(|l| l.trim().to_string())
+            .filter(|l| !l.is_empty())
+            .collect(),
+        [name] => vec![name.to_string()],
+        [pattern, first, last, step, ..] => {
+            let (first, last, step): (i64, i64, i64) =
+                (first.parse().ok()?, last.parse().ok()?, step.parse().ok()?);
+            if step == 0 || (last - first).signum() * step.signum() < 0 {
+                return None;
+            }
+            let count = (last - first) / step + 1;
+            if count > 1 << 24 {
+                return None;
+            }
+            (0..count)
+                .map(|k| printf_d(pattern, first + k * step))
+                .collect::<Option<_>>()?
+        }
+        _ => return None,
+    };
+    if names.is_empty() {
+        return None;
+    }
+    Some(names.into_iter().map(|n| dir.join(n)).collect())
+}
+
+/// Substitutes `v` for the single `%d`, `%Nd` or `%0Nd` in `pattern`.
+fn printf_d(pattern: &str, v: i64) -> Option<String> {
+    let start = pattern.find('%')?;
+    let rest = &pattern[start + 1..];
+    let end = rest.find('d')?;
+    let spec = &rest[..end];
+    let zero = spec.starts_with('0');
+    let width: usize = if spec.is_empty() {
+        0
+    } else {
+        spec.parse().ok()?
+    };
+    let num = if zero {
+        format!("{v:0width$}")
+    } else {
+        format!("{v:width$}")
+    };
+    Some(format!("{}{}{}", &pattern[..start], num, &rest[end + 1..]))
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,297 @@
+use super::*;
+use crate::dtype::tests::{ALL, encode, sample_values};
+use crate::open_path;
+use flate2::Compression;
+use flate2::write::GzEncoder;
+use std::io::Write;
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut e = GzEncoder::new(Vec::new(), Compression::fast());
+    e.write_all(bytes).unwrap();
+    e.finish().unwrap()
+}
+
+fn type_name(d: Dtype) -> &'static str {
+    match d {
+        Dtype::U8 => "uint8",
+        Dtype::I8 => "signed char",
+        Dtype::U16 => "ushort",
+        Dtype::I16 => "short",
+        Dtype::U32 => "uint32_t",
+        Dtype::I32 => "int",
+        Dtype::F32 => "float",
+        Dtype::F64 => "double",
+    }
+}
+
+fn header(d: Dtype, e: Endian, encoding: &str, extra: &str) -> String {
+    let endian = if e == Endian::Big { "big" } else { "little" };
+    format!(
+        "NRRD0004\n# a comment\ntype: {}\ndimension: 3\nsizes: 3 2 4\nendian: {endian}\nencoding: {encoding}\nkey:=value\n{extra}",
+        type_name(d)
+    )
+}
+
+fn read_all(path: &Path) -> Result<Vec<f32>, VolumeError> {
+    let mut v = open_path(path, &OpenOptions::default())?;
+    let g = v.grid();
+    let mut all = Vec::new();
+    let mut out = vec![0.0f32; g.slice_len()];
+    for z in 0..g.dims[2] {
+        v.read_slice(z, &mut out)?;
+        all.extend_from_slice(&out);
+    }
+    Ok(all)
+}
+
+fn as_f32(v: &[f64]) -> Vec<f32> {
+    v.iter().map(|&x| x as f32).collect()
+}
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+#[test]
+fn attached_raw_and_gzip_every_type_and_endian() {
+    let dir = tempfile::tempdir().unwrap();
+    for d in ALL {
+        for e in [Endian::Little, Endian::Big] {
+            let values = sample_values(d, 24);
+            let data = encode(d, e, &values);
+            for (enc, payload) in [("raw", data.clone()), ("gzip", gzip(&data))] {
+                let mut file = header(d, e, enc, "spacings: 0.5 1 2\n\n").into_bytes();
+                file.extend(&payload);
+                let p = write(dir.path(), "v.nrrd", &file);
+                assert_eq!(read_all(&p).unwrap(), as_f32(&values), "{d} {e:?} {enc}");
+                let v = open_path(&p, &OpenOptions::default()).unwrap();
+                assert_eq!(v.grid().spacing, [0.5, 1.0, 2.0]);
+                assert_eq!(v.dtype(), Some(d));
+            }
+        }
+    }
+}
+
+#[test]
+fn space_directions_and_origin() {
+    let dir = tempfile::tempdir().unwrap();
+    let extra = "space: left-posterior-superior\nspace directions: (0,2,0) (3,0,0) (0,0,0.5)\nspace origin: (1,-2,3.5)\n\n";
+    let mut file = header(Dtype::U8, Endian::Little, "raw", extra).into_bytes();
+    file.extend(0..24u8);
+    let p = write(dir.path(), "v.nrrd", &file);
+    let v = open_path(&p, &OpenOptions::default()).unwrap();
+    assert_eq!(v.grid().spacing, [2.0, 3.0, 0.5]);
+    assert_eq!(v.grid().origin, [1.0, -2.0, 3.5]);
+}
+
+#[test]
+fn ascii_encoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut file = header(Dtype::I16, Endian::Little, "ascii", "\n");
+    for i in 0..24 {
+        file.push_str(&format!("{}\n", i * 100 - 1000));
+    }
+    let p = write(dir.path(), "v.nrrd", file.as_bytes());
+    let want: Vec<f32> = (0..24).map(|i| (i * 100 - 1000) as f32).collect();
+    assert_eq!(read_all(&p).unwrap(), want);
+}
+
+#[test]
+fn detached_single_file_with_byte_skip() {
+    let dir = tempfile::tempdir().unwrap();
+    let values = sample_values(Dtype::U16, 24);
+    let mut data = vec![9u8; 5];
+    data.extend(encode(Dtype::U16, Endian::Big, &values));
+    write(dir.path(), "v.raw", &data);
+    for skip in ["5", "-1"] {
+        let extra = format!("data file: v.raw\nbyte skip: {skip}\n");
+        let h = header(Dtype::U16, Endian::Big, "raw", &extra);
+        let p = write(dir.path(), "v.nhdr", h.as_bytes());
+        assert_eq!(read_all(&p).unwrap(), as_f32(&values), "byte skip {skip}");
+    }
+    // Gzip detached, byte skip counted in decoded bytes.
+    write(dir.path(), "v.raw.gz", &gzip(&data));
+    let h = header(
+        Dtype::U16,
+        Endian::Big,
+        "gzip",
+        "data file: v.raw.gz\nbyte skip: 5\n",
+    );
+    let p = write(dir.path(), "v.nhdr", h.as_bytes());
+    assert_eq!(read_all(&p).unwrap(), as_f32(&values));
+}
+
+#[test]
+fn detached_file_lists() {
+    let dir = tempfile::tempdir().unwrap();
+    let values = sample_values(Dtype::I16, 24);
+    let data = encode(Dtype::I16, Endian::Little, &values);
+    for (k, chunk) in data.chunks(12).enumerate() {
+        write(dir.path(), &format!("s{:03}.bin", 2 * k + 1), chunk);
+        write(dir.path(), &format!("g{k}.gz"), &gzip(chunk));
+    }
+    let cases = [
+        ("raw", "data file: s%03d.bin 1 7 2\n".to_string()),
+        ("gzip", "data file: g%d.gz 0 3 1 2\n".to_string()),
+        (
+            "raw",
+            "data file: LIST\ns001.bin\ns003.bin\ns005.bin\ns007.bin\n".to_string(),
+        ),
+    ];
+    for (enc, extra) in cases {
+        let h = header(Dtype::I16, Endian::Little, enc, &extra);
+        let p = write(dir.path(), "v.nhdr", h.as_bytes());
+        assert_eq!(read_all(&p).unwrap(), as_f32(&values), "{extra}");
+    }
+}
+
+#[test]
+fn printf_forms() {
+    assert_eq!(printf_d("a.%d", 7).as_deref(), Some("a.7"));
+    assert_eq!(printf_d("a%03d.raw", 7).as_deref(), Some("a007.raw"));
+    assert_eq!(printf_d("a%3d", 7).as_deref(), Some("a  7"));
+    assert_eq!(printf_d("nopattern", 7), None);
+}
+
+/// Writes `file` as an attached NRRD and returns the one-line error with the temp path removed.
+fn error_of(file: &[u8]) -> String {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "bad.nrrd", file);
+    let msg = read_all(&p).unwrap_err().to_string();
+    assert!(!msg.contains('\n'), "{msg}");
+    msg.replace(&dir.path().display().to_string(), "DIR")
+}
+
+#[test]
+fn bad_files_give_one_line_errors() {
+    let ok = |extra: &str, enc: &str| header(Dtype::U8, Endian::Little, enc, extra);
+    let with_data = |h: String, data: &[u8]| {
+        let mut f = h.into_bytes();
+        f.extend_from_slice(data);
+        f
+    };
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        (
+            b"PNG\nsizes: 1\n".to_vec(),
+            "DIR/bad.nrrd: header line 1: expected the NRRD magic \"NRRD0001\"..\"NRRD0005\", found \"PNG\"",
+        ),
+        (
+            b"NRRD0004\ntype: int64\n".to_vec(),
+            "DIR/bad.nrrd: header line 2: expected a type among int8/uint8/int16/uint16/int32/uint32/float/double, found \"int64\"",
+        ),
+        (
+            b"NRRD0004\ntype: uint8\nencoding: bzip2\n".to_vec(),
+            "DIR/bad.nrrd: header line 3: expected encoding raw, gzip or ascii, found \"bzip2\"",
+        ),
+        (
+            b"NRRD0004\ntype: uint8\nencoding: raw\n\n".to_vec(),
+            "DIR/bad.nrrd: header: expected a \"sizes:\" line, found \"none\"",
+        ),
+        (
+            b"NRRD0004\ndimension: 4\n".to_vec(),
+            "DIR/bad.nrrd: header line 2: expected dimension: 3 (a scalar volume), found \"4\"",
+        ),
+        (
+            b"NRRD0004\nsizes 3 2 4\n".to_vec(),
+            "DIR/bad.nrrd: header line 2: expected \"field: value\", found \"sizes 3 2 4\"",
+        ),
+        (
+            with_data(ok("\n", "raw"), &[0; 23]),
+            "DIR/bad.nrrd: file is 123 bytes but dims 3x2x4 of u8 plus 100 header bytes need 124; check the NRRD header's sizes, type, byte skip and data file",
+        ),
+        (
+            with_data(ok("\n", "gzip"), &gzip(&[0; 23])),
+            "DIR/bad.nrrd: gzip NRRD payload slice 3 (payload byte 18): expected 6 more bytes for dims 3x2x4 of u8, found \"end of data (truncated file?)\"",
+        ),
+        (
+            with_data(ok("\n", "gzip"), b"\x1f\x8b\x08\x00garbage-garbage-garbage"),
+            "DIR/bad.nrrd: gzip NRRD payload slice 0 (payload byte 0): expected valid encoded data, found \"corrupt deflate stream\"",
+        ),
+        (
+            with_data(ok("\n", "ascii"), b"1 2 3 x"),
+            "DIR/bad.nrrd: ascii NRRD payload slice 0 (payload byte 0): expected valid encoded data, found \"a number as value 3, found \\\"x\\\"\"",
+        ),
+        (
+            ok("data file: missing.raw\n", "raw").into_bytes(),
+            "DIR/missing.raw: no such file; check the input path",
+        ),
+        (
+            header(Dtype::U16, Endian::Little, "raw", "\n")
+                .replace("endian: little\n", "")
+                .into_bytes(),
+            "DIR/bad.nrrd: header: expected an \"endian: little|big\" line for type u16, found \"none\"",
+        ),
+        (
+            ok("\n", "raw")
+                .replace("sizes: 3 2 4", "sizes: 0 2 4")
+                .into_bytes(),
+            "DIR/bad.nrrd: dims 0x2x4 need at least 2 voxels per axis; check the dims",
+        ),
+        (
+            ok("\n", "raw")
+                .replace("sizes: 3 2 4", "sizes: 4294967296 4294967296 2")
+                .into_bytes(),
+            "DIR/bad.nrrd: dims 4294967296x4294967296x2 overflow a 64-bit voxel count; check the dims",
+        ),
+        (
+            header(Dtype::F64, Endian::Little, "raw", "\n")
+                .replace("sizes: 3 2 4", "sizes: 4294967296 1048576 1024")
+                .into_bytes(),
+            "DIR/bad.nrrd: dims 4294967296x1048576x1024 of f64 need more than 2^64 bytes; check the sizes line",
+        ),
+    ];
+    let wrong: Vec<String> = cases
+        .iter()
+        .map(|(file, want)| (error_of(file), want))
+        .filter(|(got, want)| got != *want)
+        .map(|(got, want)| format!("got  {got}\nwant {want}"))
+        .collect();
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+fn stats(path: &str) -> Option<(Box<dyn VolumeSource>, f64, f32, f32)> {
+    let p = Path::new(path);
+    if !p.exists() {
+        eprintln!("skipping: {path} not present");
+        return None;
+    }
+    let mut v = open_path(p, &OpenOptions::default()).unwrap();
+    let g = v.grid();
+    let mut out = vec![0.0f32; g.slice_len()];
+    let (mut sum, mut lo, mut hi) = (0.0f64, f32::MAX, f32::MIN);
+    for z in 0..g.dims[2] {
+        v.read_slice(z, &mut out).unwrap();
+        for &x in &out {
+            sum += x as f64;
+            lo = lo.min(x);
+            hi = hi.max(x);
+        }
+    }
+    Some((v, sum / g.voxel_count() as f64, lo, hi))
+}
+
+#[test]
+fn tooth_when_present() {
+    let Some((v, mean, lo, hi)) = stats("/work/shared/data/tooth/tooth.nrrd") else {
+        return;
+    };
+    assert_eq!(v.grid().dims, [103, 94, 161]);
+    assert_eq!(v.dtype(), Some(Dtype::U8));
+    assert_eq!(v.grid().spacing, [1.0; 3]);
+    assert!((mean - 103.1652).abs() < 1e-3, "{mean}");
+    assert_eq!((lo, hi), (0.0, 255.0));
+}
+
+#[test]
+fn headsq_when_present() {
+    let Some((v, mean, lo, hi)) = stats("/work/shared/data/headsq/quarter.nhdr") else {
+        return;
+    };
+    assert_eq!(v.grid().dims, [64, 64, 93]);
+    assert_eq!(v.dtype(), Some(Dtype::I16));
+    assert_eq!(v.grid().spacing, [3.2, 3.2, 1.5]);
+    assert!((mean - 507.6873).abs() < 1e-3, "{mean}");
+    assert_eq!((lo, hi), (0.0, 3926.0));
+}

@@ -1,0 +1,106 @@
+//! Format detection: one entry point from a path (and job-file options) to a source.
+
+use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nrrd};
+use std::io::Read;
+use std::path::Path;
+
+/// Formats [`open_path`] recognises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Format {
+    Raw,
+    Nrrd,
+}
+
+/// Opens any supported volume file, choosing the reader from the extension, or else from the
+/// first bytes. A `.raw` (or unrecognised) file needs `dims` and `dtype` in `opts`.
+pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    match detect(path)? {
+        Format::Raw => open_raw(path, opts),
+        Format::Nrrd => nrrd::open(path, opts),
+    }
+}
+
+fn detect(path: &Path) -> Result<Format, VolumeError> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let by_ext = [
+        (".nrrd", Format::Nrrd),
+        (".nhdr", Format::Nrrd),
+        (".raw", Format::Raw),
+    ];
+    if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
+        return Ok(*f);
+    }
+    let mut head = [0u8; 16];
+    let n = std::fs::File::open(path)
+        .and_then(|mut f| f.read(&mut head))
+        .map_err(|e| VolumeError::io(path, "open", e))?;
+    let head = &head[..n];
+    Ok(if head.starts_with(b"NRRD000") {
+        Format::Nrrd
+    } else {
+        Format::Raw
+    })
+}
+
+fn open_raw(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    opts.reject_array(path, "raw")?;
+    let (Some(dims), Some(dtype)) = (opts.dims, opts.dtype) else {
+        return Err(VolumeError::Grid {
+            origin: path.display().to_string(),
+            problem: "a raw file (or one of unknown format) has no header; set [input] dims and dtype (and endian, header_bytes if needed)".to_string(),
+        });
+    };
+    Ok(Box::new(RawVolume::open(&RawSpec {
+        path: path.to_path_buf(),
+        dims,
+        dtype,
+        endian: opts.endian.unwrap_or_default(),
+        spacing: opts.spacing.unwrap_or([1.0; 3]),
+        origin: opts.origin.unwrap_or([0.0; 3]),
+        header_bytes: opts.header_bytes.unwrap_or(0),
+    })?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Dtype;
+
+    #[test]
+    fn raw_needs_dims_and_dtype() {
+        let e = open_path(Path::new("/tmp/x.raw"), &OpenOptions::default())
+            .err()
+            .unwrap();
+        assert_eq!(
+            e.to_string(),
+            "/tmp/x.raw: a raw file (or one of unknown format) has no header; set [input] dims and dtype (and endian, header_bytes if needed)"
+        );
+    }
+
+    #[test]
+    fn raw_with_options_opens() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("v.raw");
+        std::fs::write(&p, [1u8, 2, 3, 4, 5, 6, 7, 8]).unwrap();
+        let opts = OpenOptions {
+            dims: Some([2, 2, 2]),
+            dtype: Some(Dtype::U8),
+            spacing: Some([0.5; 3]),
+            ..Default::default()
+        };
+        let mut v = open_path(&p, &opts).unwrap();
+        assert_eq!(v.grid().spacing, [0.5; 3]);
+        assert_eq!(v.dtype(), Some(Dtype::U8));
+        let mut out = [0.0f32; 4];
+        v.read_slice(1, &mut out).unwrap();
+        assert_eq!(out, [5.0, 6.0, 7.0, 8.0]);
+        let named = OpenOptions {
+            array: Some("a".into()),
+            ..opts
+        };
+        assert!(open_path(&p, &named).is_err());
+    }
+}

@@ -1,0 +1,113 @@
+//! What a job file can say about an input besides its path: raw layout (a raw file has no header)
+//! and overrides for header-carrying formats.
+
+use crate::{Dtype, Endian, Grid, VolumeError};
+use std::path::Path;
+
+/// Parameters for [`crate::open_path`]. `dims`, `dtype`, `endian` and `header_bytes` describe a
+/// headerless `.raw` file and are rejected for other formats (their headers say it);
+/// `spacing` and `origin` override any header; `array` picks one array of a multi-array file.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OpenOptions {
+    pub dims: Option<[u64; 3]>,
+    pub dtype: Option<Dtype>,
+    pub endian: Option<Endian>,
+    pub header_bytes: Option<u64>,
+    pub spacing: Option<[f64; 3]>,
+    pub origin: Option<[f64; 3]>,
+    pub array: Option<String>,
+}
+
+impl OpenOptions {
+    /// Errors if raw-only parameters were given for a format whose header defines them.
+    pub(crate) fn reject_raw_params(&self, path: &Path, format: &str) -> Result<(), VolumeError> {
+        let given: Vec<&str> = [
+            ("dims", self.dims.is_some()),
+            ("dtype", self.dtype.is_some()),
+            ("endian", self.endian.is_some()),
+            ("header_bytes", self.header_bytes.is_some()),
+        ]
+        .iter()
+        .filter(|(_, set)| *set)
+        .map(|(k, _)| *k)
+        .collect();
+        if given.is_empty() {
+            return Ok(());
+        }
+        Err(VolumeError::Grid {
+            origin: path.display().to_string(),
+            problem: format!(
+                "{} apply only to .raw files but this is {format}, whose header defines them; remove them from [input]",
+                given.join(", ")
+            ),
+        })
+    }
+
+    /// Builds the grid of a file from its header values and these overrides.
+    pub(crate) fn grid(
+        &self,
+        path: &Path,
+        dims: [u64; 3],
+        spacing: [f64; 3],
+        origin: [f64; 3],
+    ) -> Result<Grid, VolumeError> {
+        Grid::new(
+            dims,
+            self.spacing.unwrap_or(spacing),
+            self.origin.unwrap_or(origin),
+        )
+        .map_err(|e| e.in_origin(&path.display().to_string()))
+    }
+
+    /// Errors if an array was asked for in a format that holds one unnamed array.
+    pub(crate) fn reject_array(&self, path: &Path, format: &str) -> Result<(), VolumeError> {
+        match &self.array {
+            None => Ok(()),
+            Some(name) => Err(VolumeError::Grid {
+                origin: path.display().to_string(),
+                problem: format!(
+                    "array {name:?} was requested but {format} files hold a single unnamed array; remove [input] array"
+                ),
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raw_params_rejected_for_headered_formats() {
+        let o = OpenOptions {
+            dims: Some([2, 2, 2]),
+            header_bytes: Some(4),
+            ..Default::default()
+        };
+        let e = o
+            .reject_raw_params(Path::new("a.nrrd"), "NRRD")
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "a.nrrd: dims, header_bytes apply only to .raw files but this is NRRD, whose header defines them; remove them from [input]"
+        );
+        assert!(
+            OpenOptions::default()
+                .reject_raw_params(Path::new("a"), "x")
+                .is_ok()
+        );
+    }
+
+    #[test]
+    fn overrides_win_over_header() {
+        let o = OpenOptions {
+            spacing: Some([2.0, 2.0, 2.0]),
+            ..Default::default()
+        };
+        let g = o
+            .grid(Path::new("a"), [2, 3, 4], [1.0; 3], [5.0; 3])
+            .unwrap();
+        assert_eq!((g.spacing, g.origin), ([2.0; 3], [5.0; 3]));
+    }
+}

@@ -1,0 +1,237 @@
+//! Sources whose payload can only be read front to back: compressed (gzip, zlib blocks), encoded
+//! (base64, ASCII numbers) or split over many files. They decode one slice at a time from a
+//! `Read`, so memory stays at one slice of bytes whatever the volume size.
+
+use crate::dtype::decode;
+use crate::grid::dims_text;
+use crate::source::check_request;
+use crate::{Dtype, Endian, Grid, VolumeError, VolumeSource};
+use std::io::{self, Read};
+use std::path::{Path, PathBuf};
+
+/// A payload stream positioned at the first voxel.
+pub(crate) type Stream = Box<dyn Read + Send>;
+
+/// Re-creates the payload stream from its start: needed only when a caller goes back more than
+/// one slice, which the pipeline never does, but the trait allows.
+pub(crate) type Opener = Box<dyn Fn() -> Result<Stream, VolumeError> + Send>;
+
+/// Streams slices out of a sequential payload.
+pub(crate) struct StreamVolume {
+    path: PathBuf,
+    /// What the payload is ("gzip NRRD payload"), for error messages.
+    what: &'static str,
+    grid: Grid,
+    /// How the payload bytes are decoded (f64 for ASCII text) and what the file stores.
+    dtype: Dtype,
+    stored: Dtype,
+    endian: Endian,
+    open: Opener,
+    reader: Option<Stream>,
+    /// Slice index the reader is positioned at.
+    next_z: u64,
+    /// Bytes of slice `next_z - 1`, kept so re-reading the previous slice costs nothing.
+    bytes: Vec<u8>,
+}
+
+pub(crate) struct StreamSpec {
+    pub path: PathBuf,
+    pub what: &'static str,
+    pub grid: Grid,
+    pub dtype: Dtype,
+    pub stored: Dtype,
+    pub endian: Endian,
+    pub open: Opener,
+}
+
+impl StreamVolume {
+    pub(crate) fn new(spec: StreamSpec) -> Result<Self, VolumeError> {
+        let slice_bytes = spec
+            .grid
+            .slice_len()
+            .checked_mul(spec.dtype.size_bytes())
+            .ok_or_else(|| VolumeError::Grid {
+                origin: spec.path.display().to_string(),
+                problem: format!(
+                    "a slice of dims {} does not fit in memory; check the dims",
+                    dims_text(spec.grid.dims)
+                ),
+            })?;
+        Ok(StreamVolume {
+            path: spec.path,
+            what: spec.what,
+            grid: spec.grid,
+            dtype: spec.dtype,
+            stored: spec.stored,
+            endian: spec.endian,
+            open: spec.open,
+            reader: None,
+            next_z: 0,
+            bytes: vec![0; slice_bytes],
+        })
+    }
+
+    /// Reads slice `next_z` into `self.bytes`, turning I/O failures into format errors that say
+    /// which slice and byte of the payload broke.
+    fn advance(&mut self) -> Result<(), VolumeError> {
+        let reader = match &mut self.reader {
+            Some(r) => r,
+            None => self.reader.insert((self.open)()?),
+        };
+        let at = self.next_z.saturating_mul(self.bytes.len() as u64);
+        let z = self.next_z;
+        let n = self.bytes.len();
+        if let Err(e) = read_full(reader, &mut self.bytes) {
+            self.reader = None;
+            let kind = e.kind();
+            let at = format!("{} slice {z} (payload byte {at})", self.what);
+            // A multi-file stream reports a missing or unreadable part as our own error.
+            let e = match e.into_inner() {
+                Some(inner) => match inner.downcast::<VolumeError>() {
+                    Ok(ve) => return Err(*ve),
+                    Err(other) => io::Error::new(kind, other),
+                },
+                None => io::Error::from(kind),
+            };
+            return Err(match e.kind() {
+                io::ErrorKind::UnexpectedEof => VolumeError::format(
+                    &self.path,
+                    at,
+                    format!(
+                        "{n} more bytes for dims {} of {}",
+                        dims_text(self.grid.dims),
+                        self.dtype
+                    ),
+                    "end of data (truncated file?)",
+                ),
+                io::ErrorKind::InvalidData | io::ErrorKind::InvalidInput => {
+                    VolumeError::format(&self.path, at, "valid encoded data", e.to_string())
+                }
+                _ => VolumeError::io(&self.path, "read", e),
+            });
+        }
+        self.next_z += 1;
+        Ok(())
+    }
+}
+
+/// `read_exact` that reports a short stream as `UnexpectedEof` and passes decoder errors through.
+fn read_full(r: &mut Stream, buf: &mut [u8]) -> io::Result<()> {
+    let mut filled = 0;
+    while filled < buf.len() {
+        match r.read(&mut buf[filled..]) {
+            Ok(0) => return Err(io::ErrorKind::UnexpectedEof.into()),
+            Ok(n) => filled += n,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+impl VolumeSource for StreamVolume {
+    fn grid(&self) -> Grid {
+        self.grid
+    }
+
+    fn describe(&self) -> String {
+        self.path.display().to_string()
+    }
+
+    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+        check_request(self, z, out)?;
+        if z + 1 != self.next_z {
+            if z < self.next_z {
+                self.reader = None;
+                self.next_z = 0;
+            }
+            while self.next_z <= z {
+                self.advance()?;
+            }
+        }
+        decode(self.dtype, self.endian, &self.bytes, out);
+        Ok(())
+    }
+
+    fn dtype(&self) -> Option<Dtype> {
+        Some(self.stored)
+    }
+}
+
+/// Opens `path` and skips `skip` bytes: the start of most streams.
+pub(crate) fn open_at(path: &Path, skip: u64) -> Result<io::BufReader<std::fs::File>, VolumeError> {
+    use std::io::{Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
+    f.seek(SeekFrom::Start(skip))
+        .map_err(|e| VolumeError::io(path, "seek in", e))?;
+    Ok(io::BufReader::with_capacity(1 << 16, f))
+}
+
+/// Discards `n` bytes of a stream (headers inside compressed data), reporting a short stream.
+pub(crate) fn skip_bytes(r: &mut dyn Read, n: u64) -> io::Result<()> {
+    let copied = io::copy(&mut r.take(n), &mut io::sink())?;
+    if copied < n {
+        return Err(io::ErrorKind::UnexpectedEof.into());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    fn volume(bytes: Vec<u8>, dims: [u64; 3]) -> (StreamVolume, Arc<AtomicUsize>) {
+        let opens = Arc::new(AtomicUsize::new(0));
+        let counter = opens.clone();
+        let bytes = Arc::new(bytes);
+        let v = StreamVolume::new(StreamSpec {
+            path: PathBuf::from("mem.bin"),
+            what: "test payload",
+            grid: Grid::new(dims, [1.0; 3], [0.0; 3]).unwrap(),
+            dtype: Dtype::U8,
+            stored: Dtype::U8,
+            endian: Endian::Little,
+            open: Box::new(move || {
+                counter.fetch_add(1, Ordering::SeqCst);
+                Ok(Box::new(io::Cursor::new(bytes.as_ref().clone())) as Stream)
+            }),
+        })
+        .unwrap();
+        (v, opens)
+    }
+
+    #[test]
+    fn forward_back_one_and_rewind() {
+        let (mut v, opens) = volume((0..16).collect(), [2, 2, 4]);
+        let mut out = [0.0f32; 4];
+        v.read_slice(0, &mut out).unwrap();
+        v.read_slice(1, &mut out).unwrap();
+        assert_eq!(out, [4.0, 5.0, 6.0, 7.0]);
+        v.read_slice(0, &mut out).unwrap();
+        assert_eq!(out, [0.0, 1.0, 2.0, 3.0]);
+        assert_eq!(
+            opens.load(Ordering::SeqCst),
+            2,
+            "going back re-opens the stream"
+        );
+        v.read_slice(3, &mut out).unwrap();
+        assert_eq!(out, [12.0, 13.0, 14.0, 15.0]);
+        v.read_slice(3, &mut out).unwrap();
+        assert_eq!(out[0], 12.0);
+        assert_eq!(opens.load(Ordering::SeqCst), 2);
+    }
+
+    #[test]
+    fn truncated_stream_names_slice_and_offset() {
+        let (mut v, _) = volume((0..14).collect(), [2, 2, 4]);
+        let mut out = [0.0f32; 4];
+        v.read_slice(2, &mut out).unwrap();
+        let e = v.read_slice(3, &mut out).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "mem.bin: test payload slice 3 (payload byte 12): expected 4 more bytes for dims 2x2x4 of u8, found \"end of data (truncated file?)\""
+        );
+    }
+}
