@@ -1,2 +1,45 @@
-//! isostream-extract: see ARCHITECTURE.md.
+//! Per-cube marching cubes for isostream: a watertight, edge-manifold case table generated at
+//! start-up, vertices keyed by the grid edge they lie on, and a slab-at-a-time extractor whose
+//! batches feed the detector.
+//!
+//! # Conventions
+//!
+//! - **Inside / outside.** A voxel is *inside* when its value is strictly greater than the iso
+//!   value and finite ([`is_inside`]); values equal to iso, NaN and ±inf are *outside*. The
+//!   rule is a plain comparison, so it is deterministic, and a value equal to iso puts a vertex
+//!   exactly on the corner (it stays an edge vertex; the simplifier collapses such zero-length
+//!   edges first).
+//! - **Orientation.** Triangles are counter-clockwise seen from the outside region: normals point
+//!   from inside (high values) to outside (low values), i.e. against the gradient. A blob of high
+//!   values (a sphere with values decreasing outwards) therefore has outward normals and
+//!   positive signed volume.
+//! - **Numbering.** Corner `c` of a cube sits at offset `(c & 1, (c >> 1) & 1, (c >> 2) & 1)`;
+//!   edge `e` runs along axis `e / 4` from the corner whose other two coordinates are the bits of
+//!   `e % 4` (see [`cube`]). A cube's case index has bit `c` set when corner `c` is inside.
+//! - **Vertices.** A vertex lies on the grid edge from voxel (x, y, z) along an axis,
+//!   identified by [`EdgeKey`]; it sits at `t = (iso - va) / (vb - va)` along the edge (clamped
+//!   to [0, 1], 0.5 when a value is non-finite), mapped through the grid's spacing and origin.
+//!
+//! # Modules
+//!
+//! - [`cube`]: corner, edge and face numbering of one cube.
+//! - [`table`]: the case table and how it is generated (the face rule, loops, triangulation).
+//! - [`interp`]: inside test and vertex placement.
+//! - `key`, `slab`, `reference`: [`EdgeKey`], the streaming [`Extractor`], and the in-memory
+//!   reference [`extract_indexed`].
+//!
+//! Architecture invariant: no I/O beyond the [`isostream_volume::VolumeSource`] the reference
+//! is handed, no threads.
 #![deny(unsafe_code)]
+
+pub mod cube;
+pub mod interp;
+mod key;
+mod reference;
+mod slab;
+pub mod table;
+
+pub use interp::is_inside;
+pub use key::EdgeKey;
+pub use reference::{IndexedSurface, extract_indexed};
+pub use slab::{Cube, CubeBatch, EdgeVertex, ExtractStats, Extractor};

@@ -1,0 +1,396 @@
+//! Streaming extraction: one slab (the cubes between two consecutive slices) at a time, emitted
+//! as batches of whole rows.
+//!
+//! This is the hot loop of the whole service (it runs over every voxel of gigavoxel volumes), so:
+//! the 8-bit case index is built incrementally along x (the right face of one cube is the left
+//! face of the next), empty and full cubes cost two comparisons and a branch, nothing is
+//! allocated per cube, and an edge's position is computed only in the cubes that use it
+//! (a vertex shared by several cubes is computed once per cube; the detector deduplicates by
+//! [`EdgeKey`]).
+
+use glam::DVec3;
+use isostream_volume::Grid;
+use serde::Serialize;
+
+use crate::cube::{corner_offset, edge_axis, edge_corners};
+use crate::interp::{edge_position, is_inside};
+use crate::key::EdgeKey;
+use crate::table;
+
+/// A surface vertex: the grid edge it lies on and its physical position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EdgeVertex {
+    pub key: EdgeKey,
+    pub pos: DVec3,
+}
+
+/// One non-empty cube of a batch: its minimum voxel and its ranges in the batch's vertices and
+/// triangles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cube {
+    pub coord: [u64; 3],
+    pub first_vertex: u32,
+    pub vertex_count: u8,
+    pub first_triangle: u32,
+    pub triangle_count: u8,
+}
+
+/// Non-empty cubes of consecutive rows of one slab, in traversal order (x fastest, then y,
+/// then z). Triangles index the cube's own vertex range (local 0..vertex_count),
+/// counter-clockwise seen from outside.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct CubeBatch {
+    pub slab: u64,
+    pub cubes: Vec<Cube>,
+    pub vertices: Vec<EdgeVertex>,
+    pub triangles: Vec<[u8; 3]>,
+    pub end_of_slab: bool,
+    pub end_of_volume: bool,
+}
+
+impl CubeBatch {
+    /// Empties the batch (keeping its allocations) and resets the slab and flags.
+    pub fn clear(&mut self) {
+        self.slab = 0;
+        self.cubes.clear();
+        self.vertices.clear();
+        self.triangles.clear();
+        self.end_of_slab = false;
+        self.end_of_volume = false;
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// The vertices of one of this batch's cubes; local vertex `i` is element `i`.
+    pub fn cube_vertices(&self, cube: &Cube) -> &[EdgeVertex] {
+        let first = cube.first_vertex as usize;
+        &self.vertices[first..first + cube.vertex_count as usize]
+    }
+
+    /// The triangles of one of this batch's cubes, as local vertex indices.
+    pub fn cube_triangles(&self, cube: &Cube) -> &[[u8; 3]] {
+        let first = cube.first_triangle as usize;
+        &self.triangles[first..first + cube.triangle_count as usize]
+    }
+
+    /// Every triangle of the batch as the edge keys of its vertices, in batch order.
+    pub fn keyed_triangles(&self) -> impl Iterator<Item = [EdgeKey; 3]> + '_ {
+        self.cubes.iter().flat_map(move |cube| {
+            let vertices = self.cube_vertices(cube);
+            self.cube_triangles(cube)
+                .iter()
+                .map(move |t| t.map(|i| vertices[i as usize].key))
+        })
+    }
+
+    /// A new empty batch for `slab`, with room for as much as `previous` held: batches travel
+    /// through a channel, so each needs its own buffers, and consecutive batches are alike.
+    fn with_capacity_like(slab: u64, previous: &CubeBatch) -> Self {
+        CubeBatch {
+            slab,
+            cubes: Vec::with_capacity(previous.cubes.len()),
+            vertices: Vec::with_capacity(previous.vertices.len()),
+            triangles: Vec::with_capacity(previous.triangles.len()),
+            end_of_slab: false,
+            end_of_volume: false,
+        }
+    }
+}
+
+/// Counters over everything extracted so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct ExtractStats {
+    /// Cubes visited.
+    pub cubes: u64,
+    /// Cubes with at least one triangle.
+    pub active_cubes: u64,
+    pub triangles: u64,
+    /// NaN or infinite voxels (treated as outside). Slice 0 is counted with slab 0 and every
+    /// other slice as the upper slice of its slab, so a full sweep counts each voxel once.
+    pub non_finite_voxels: u64,
+}
+
+/// The streaming marching-cubes extractor of one volume at one iso value.
+#[derive(Debug, Clone)]
+pub struct Extractor {
+    grid: Grid,
+    iso: f32,
+    stats: ExtractStats,
+}
+
+/// The four rows of voxels holding the corners of one row of cubes, indexed by `c >> 1` for
+/// corner `c`: (y, z), (y + 1, z), (y, z + 1), (y + 1, z + 1).
+type RowQuad<'a> = [&'a [f32]; 4];
+
+impl Extractor {
+    pub fn new(grid: Grid, iso: f32) -> Self {
+        Extractor {
+            grid,
+            iso,
+            stats: ExtractStats::default(),
+        }
+    }
+
+    /// Extracts slab z (cubes between slices z and z+1, z in 0..dims[2]-1). Emits batches
+    /// holding whole rows, flushing when a batch reaches `max_triangles` (at least one row per
+    /// batch, and never an empty batch before the last); the last batch of the slab has
+    /// `end_of_slab = true` (an empty one if needed), and on the last slab
+    /// `end_of_volume = true`. The first error returned by `emit` stops the slab and is
+    /// returned.
+    ///
+    /// # Panics
+    /// If z is not a slab of the grid or a slice does not hold `grid.slice_len()` values.
+    pub fn extract_slab<E>(
+        &mut self,
+        z: u64,
+        lower: &[f32],
+        upper: &[f32],
+        max_triangles: usize,
+        mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let [nx, ny, nz] = self.grid.dims;
+        assert!(z + 1 < nz, "slab {z} outside a grid of {nz} slices");
+        let n = self.grid.slice_len();
+        assert!(
+            lower.len() == n && upper.len() == n,
+            "slices must hold {n} values"
+        );
+        if z == 0 {
+            self.stats.non_finite_voxels += count_non_finite(lower);
+        }
+        self.stats.non_finite_voxels += count_non_finite(upper);
+        self.stats.cubes += nx.saturating_sub(1) * ny.saturating_sub(1);
+
+        let rows = ny.saturating_sub(1);
+        let nx = nx as usize;
+        let mut batch = CubeBatch {
+            slab: z,
+            ..CubeBatch::default()
+        };
+        for y in 0..rows {
+            let (y0, y1) = (y as usize * nx, (y as usize + 1) * nx);
+            let quad = [
+                &lower[y0..y1],
+                &lower[y1..y1 + nx],
+                &upper[y0..y1],
+                &upper[y1..y1 + nx],
+            ];
+            self.extract_row([0, y, z], quad, &mut batch);
+            let full = !batch.cubes.is_empty() && batch.triangles.len() >= max_triangles;
+            if full && y + 1 < rows {
+                let next = CubeBatch::with_capacity_like(z, &batch);
+                emit(std::mem::replace(&mut batch, next))?;
+            }
+        }
+        batch.end_of_slab = true;
+        batch.end_of_volume = z + 2 == nz;
+        emit(batch)
+    }
+
+    /// Counters over every slab extracted so far.
+    pub fn stats(&self) -> ExtractStats {
+        self.stats
+    }
+
+    /// Appends the non-empty cubes of the row of cubes starting at voxel `start` (x = 0).
+    fn extract_row(&mut self, start: [u64; 3], quad: RowQuad<'_>, batch: &mut CubeBatch) {
+        let iso = self.iso;
+        // Inside bits of the four voxels at x, placed at the corner bits of the cube's x = 0
+        // face (corner 2j for row j); shifted left by one they are the x = 1 face.
+        let column = |x: usize| {
+            u8::from(is_inside(quad[0][x], iso))
+                | (u8::from(is_inside(quad[1][x], iso)) << 2)
+                | (u8::from(is_inside(quad[2][x], iso)) << 4)
+                | (u8::from(is_inside(quad[3][x], iso)) << 6)
+        };
+        let mut left = column(0);
+        for x in 0..quad[0].len() - 1 {
+            let right = column(x + 1);
+            let index = left | (right << 1);
+            left = right;
+            if index == 0 || index == 0xff {
+                continue;
+            }
+            self.push_cube(
+                [start[0] + x as u64, start[1], start[2]],
+                index,
+                &quad,
+                batch,
+            );
+        }
+    }
+
+    /// Appends one non-empty cube: its crossing edges' vertices and its triangles.
+    fn push_cube(&mut self, coord: [u64; 3], index: u8, quad: &RowQuad<'_>, batch: &mut CubeBatch) {
+        let case = table::case(index);
+        let x = coord[0] as usize;
+        let value = |c: u8| quad[(c >> 1) as usize][x + (c & 1) as usize];
+        let first_vertex = batch.vertices.len();
+        for &e in case.edges() {
+            let (a, b) = edge_corners(e);
+            let o = corner_offset(a);
+            let voxel = [0, 1, 2].map(|i| coord[i] + u64::from(o[i]));
+            let axis = edge_axis(e);
+            batch.vertices.push(EdgeVertex {
+                key: EdgeKey::new(voxel[0], voxel[1], voxel[2], axis, self.grid.dims),
+                pos: edge_position(&self.grid, voxel, axis, value(a), value(b), self.iso),
+            });
+        }
+        let first_triangle = batch.triangles.len();
+        batch.triangles.extend_from_slice(case.triangles());
+        batch.cubes.push(Cube {
+            coord,
+            first_vertex: u32::try_from(first_vertex).expect("batch vertex count fits u32"),
+            vertex_count: case.edges().len() as u8,
+            first_triangle: u32::try_from(first_triangle).expect("batch triangle count fits u32"),
+            triangle_count: case.triangles().len() as u8,
+        });
+        self.stats.active_cubes += 1;
+        self.stats.triangles += case.triangles().len() as u64;
+    }
+}
+
+fn count_non_finite(slice: &[f32]) -> u64 {
+    slice.iter().filter(|v| !v.is_finite()).count() as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 3x3x3 grid with only the centre voxel inside: a closed octahedron-like surface made of
+    /// 8 corner triangles, one per cube.
+    fn blob() -> (Grid, Vec<f32>) {
+        let grid = Grid::new([3, 3, 3], [1.0; 3], [0.0; 3]).unwrap();
+        let mut data = vec![0.0f32; 27];
+        data[13] = 2.0;
+        (grid, data)
+    }
+
+    fn run(grid: Grid, data: &[f32], max_triangles: usize) -> (Vec<CubeBatch>, ExtractStats) {
+        let n = grid.slice_len();
+        let mut ex = Extractor::new(grid, 1.0);
+        let mut batches = Vec::new();
+        for z in 0..grid.dims[2] - 1 {
+            let (lower, upper) = (
+                &data[z as usize * n..][..n],
+                &data[(z as usize + 1) * n..][..n],
+            );
+            ex.extract_slab(z, lower, upper, max_triangles, |b| {
+                batches.push(b);
+                Ok::<_, ()>(())
+            })
+            .unwrap();
+        }
+        (batches, ex.stats())
+    }
+
+    #[test]
+    fn single_inside_voxel_gives_one_triangle_per_cube() {
+        let (grid, data) = blob();
+        let (batches, stats) = run(grid, &data, usize::MAX);
+        assert_eq!(batches.len(), 2);
+        assert_eq!(
+            stats,
+            ExtractStats {
+                cubes: 8,
+                active_cubes: 8,
+                triangles: 8,
+                non_finite_voxels: 0
+            }
+        );
+        for (z, b) in batches.iter().enumerate() {
+            assert_eq!(b.slab, z as u64);
+            assert!(b.end_of_slab);
+            assert_eq!(b.end_of_volume, z == 1);
+            assert_eq!(b.cubes.len(), 4);
+            for cube in &b.cubes {
+                assert_eq!((cube.vertex_count, cube.triangle_count), (3, 1));
+                // Every vertex sits halfway (t = 0.5) on an edge touching the centre voxel.
+                for v in b.cube_vertices(cube) {
+                    let d = v.pos - DVec3::ONE;
+                    assert_eq!(d.abs().max_element(), 0.5, "{:?}", v.pos);
+                    assert_eq!(d.abs().min_element(), 0.0);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn small_budget_flushes_whole_rows_and_marks_the_last_batch() {
+        let (grid, data) = blob();
+        let (batches, _) = run(grid, &data, 1);
+        // Two rows per slab, two cubes each: one batch per row.
+        assert_eq!(batches.len(), 4);
+        let flags: Vec<_> = batches
+            .iter()
+            .map(|b| (b.slab, b.cubes.len(), b.end_of_slab, b.end_of_volume))
+            .collect();
+        assert_eq!(
+            flags,
+            [
+                (0, 2, false, false),
+                (0, 2, true, false),
+                (1, 2, false, false),
+                (1, 2, true, true)
+            ]
+        );
+        // Cubes of a batch come in traversal order.
+        assert_eq!(batches[1].cubes[0].coord, [0, 1, 0]);
+        assert_eq!(batches[1].cubes[1].coord, [1, 1, 0]);
+    }
+
+    #[test]
+    fn empty_slabs_still_end_with_a_batch() {
+        let grid = Grid::new([3, 3, 3], [1.0; 3], [0.0; 3]).unwrap();
+        let mut data = vec![0.0f32; 27];
+        data[0] = f32::NAN;
+        data[26] = f32::INFINITY;
+        let (batches, stats) = run(grid, &data, 0);
+        assert_eq!(batches.len(), 2);
+        assert!(batches.iter().all(|b| b.cubes.is_empty() && b.end_of_slab));
+        assert_eq!(stats.non_finite_voxels, 2);
+        assert_eq!(stats.triangles, 0);
+    }
+
+    #[test]
+    fn emit_errors_stop_the_slab() {
+        let (grid, data) = blob();
+        let mut ex = Extractor::new(grid, 1.0);
+        let mut calls = 0;
+        let r = ex.extract_slab(0, &data[..9], &data[9..18], 0, |_| {
+            calls += 1;
+            Err("channel closed")
+        });
+        assert_eq!(r, Err("channel closed"));
+        assert_eq!(calls, 1);
+    }
+
+    #[test]
+    fn keyed_triangles_and_clear() {
+        let (grid, data) = blob();
+        let (mut batches, _) = run(grid, &data, usize::MAX);
+        let b = &mut batches[0];
+        let tris: Vec<_> = b.keyed_triangles().collect();
+        assert_eq!(tris.len(), b.triangle_count());
+        // Every vertex of the blob is on an edge touching the centre voxel (1, 1, 1).
+        for key in tris.iter().flatten() {
+            let (start, axis) = key.decode(grid.dims);
+            let mut end = start;
+            end[axis as usize] += 1;
+            assert!(start == [1, 1, 1] || end == [1, 1, 1], "{start:?} {axis}");
+        }
+        b.clear();
+        assert_eq!(b, &CubeBatch::default());
+    }
+
+    #[test]
+    #[should_panic(expected = "slab 2 outside")]
+    fn rejects_slabs_outside_the_grid() {
+        let (grid, data) = blob();
+        let _ = Extractor::new(grid, 1.0)
+            .extract_slab(2, &data[..9], &data[9..18], 1, |_| Ok::<_, ()>(()));
+    }
+}
