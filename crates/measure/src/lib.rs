@@ -1,2 +1,34 @@
-//! isostream-measure: see ARCHITECTURE.md.
+//! Quality measures of a simplified iso-surface, after the Tandem paper (Attali, Cohen-Steiner,
+//! Edelsbrunner, "Extraction and Simplification of Iso-surfaces in Tandem", section 4):
+//!
+//! * [`mesh_quality`]: topology (via `isostream-meshcheck`), minimum angles, anisotropy and
+//!   directional bias of the in-memory output mesh;
+//! * [`surface_distances`]: Metro-style mean / RMS / Hausdorff distances in both directions between
+//!   the output mesh and the full-resolution iso-surface, which is regenerated from the volume slab
+//!   by slab and never held whole;
+//! * [`MeasureReport`]: both, plus the run's shape error, as JSON or text.
+//!
+//! Modules: `triangle` (one triangle's geometry), `bvh` (nearest-point queries), `sampling`
+//! (seeded area-proportional samples), `anisotropy`, `bias`, `quality`, `distances` (the streamed
+//! two-way distance), `full_surface` (the volume -> slab stream), `report`.
 #![deny(unsafe_code)]
+
+mod anisotropy;
+mod bias;
+mod bvh;
+mod distances;
+mod error;
+mod full_surface;
+mod quality;
+mod report;
+mod sampling;
+mod triangle;
+
+pub use distances::{
+    DEFAULT_SAMPLES_PER_AREA, DEFAULT_SEARCH_VOXEL_DIAGONALS, DEFAULT_SEED, DirectedDistance,
+    Distances, MAX_SAMPLES, MIN_SAMPLES, MeasureOptions,
+};
+pub use error::MeasureError;
+pub use full_surface::surface_distances;
+pub use quality::{MeshQuality, mesh_quality};
+pub use report::MeasureReport;

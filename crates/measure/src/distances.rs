@@ -1,0 +1,503 @@
+//! Metro-style distances between the output mesh and the full-resolution iso-surface, Tandem paper
+//! section 4 "Approximation error": directed `L_p(M|N) = (1/area(M) int_M d^p(x, N) dx)^(1/p)` for
+//! p = 1 (mean), 2 (RMS) and infinity (Hausdorff), estimated from area-proportional samples as
+//! Metro does, and the undirected distance as the larger of the two directions.
+//!
+//! The output mesh is in memory and indexed once by a BVH. The full-resolution surface arrives in
+//! batches (slab by slab) and is dropped after each batch, so memory is bounded by one batch:
+//!
+//! * full -> output: every batch triangle is sampled and each sample queries the output BVH.
+//! * output -> full: the output mesh is sampled up front and the samples sorted by z. A sample can
+//!   only have its nearest full-resolution point within `r = max_distance` in a batch whose z-range
+//!   reaches within `r` of it, and the minimum over the whole surface is the minimum over batches;
+//!   so each batch gets its own small BVH and updates the running nearest distance of just the
+//!   samples in `[z_min - r, z_max + r]`. A window of one batch suffices. Samples with nothing
+//!   within `r` are reported at `r` and counted as clipped.
+
+use glam::DVec3;
+use serde::Serialize;
+
+use crate::MeasureError;
+use crate::bvh::Bvh;
+use crate::sampling::{SplitMix64, sample_triangle};
+use crate::triangle::{Triangle, area};
+
+/// Samples per unit of area when none is given: a sphere of radius 10 voxels (unit spacing) then
+/// gets about 12 000 samples per direction.
+pub const DEFAULT_SAMPLES_PER_AREA: f64 = 10.0;
+/// Floor on the samples per direction: the density is raised to reach it, so meshes in small
+/// units (millimetres given in metres) still get a meaningful estimate.
+pub const MIN_SAMPLES: f64 = 10_000.0;
+/// Cap on the samples per direction: the density is lowered to stay under it, which bounds the
+/// running time (one exact nearest-point query per sample) on huge surfaces.
+pub const MAX_SAMPLES: f64 = 4_000_000.0;
+/// Default search radius of the output -> full direction, in voxel diagonals. A simplified mesh
+/// within its error bound stays well inside a few voxels of the full-resolution surface.
+pub const DEFAULT_SEARCH_VOXEL_DIAGONALS: f64 = 4.0;
+/// Default seed: reports are reproducible unless a seed is asked for.
+pub const DEFAULT_SEED: u64 = 0x1505_7EA3;
+
+/// How the distances are sampled.
+#[derive(Debug, Clone)]
+pub struct MeasureOptions {
+    /// Samples per unit^2 of surface (default [`DEFAULT_SAMPLES_PER_AREA`]). The density actually
+    /// used is clamped so that the output mesh gets between [`MIN_SAMPLES`] and [`MAX_SAMPLES`]
+    /// samples; the full-resolution surface, of about the same area, is sampled at the same density.
+    pub samples_per_area: f64,
+    /// Seed of the sample positions; equal seeds give identical reports.
+    pub seed: u64,
+    /// Search radius of the output -> full direction in the volume's units (default
+    /// [`DEFAULT_SEARCH_VOXEL_DIAGONALS`] voxel diagonals). Larger is exact for worse meshes but
+    /// slower: every sample is compared with all slabs within this distance.
+    pub max_distance: Option<f64>,
+}
+
+impl Default for MeasureOptions {
+    fn default() -> Self {
+        MeasureOptions {
+            samples_per_area: DEFAULT_SAMPLES_PER_AREA,
+            seed: DEFAULT_SEED,
+            max_distance: None,
+        }
+    }
+}
+
+/// One direction of the distance, `L_p(M|N)` with M the sampled surface.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DirectedDistance {
+    /// L_1: mean distance.
+    pub mean: f64,
+    /// L_2: root mean square distance.
+    pub rms: f64,
+    /// L_infinity over the samples: Hausdorff distance.
+    pub hausdorff: f64,
+    pub samples: u64,
+}
+
+/// Both directions, the undirected distances (the larger of the two, section 4) and the same in
+/// percent of the bounding-box diagonal of both surfaces.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Distances {
+    pub full_to_output: DirectedDistance,
+    pub output_to_full: DirectedDistance,
+    pub mean: f64,
+    pub rms: f64,
+    pub hausdorff: f64,
+    /// Diagonal of the bounding box of both surfaces.
+    pub diagonal: f64,
+    pub mean_pct: f64,
+    pub rms_pct: f64,
+    pub hausdorff_pct: f64,
+    pub full_resolution_triangles: u64,
+    /// Output samples with no full-resolution point within `max_distance`: counted at
+    /// `max_distance`, so output -> full is then a lower bound.
+    pub clipped_samples: u64,
+    /// The search radius used for output -> full.
+    pub max_distance: f64,
+    /// The sampling density used, after clamping.
+    pub samples_per_area: f64,
+}
+
+#[derive(Debug, Default)]
+struct Accumulator {
+    sum: f64,
+    sum_squares: f64,
+    max: f64,
+    count: u64,
+}
+
+impl Accumulator {
+    fn add(&mut self, d: f64) {
+        self.sum += d;
+        self.sum_squares += d * d;
+        self.max = self.max.max(d);
+        self.count += 1;
+    }
+
+    fn finish(&self) -> DirectedDistance {
+        let n = self.count as f64;
+        DirectedDistance {
+            mean: self.sum / n,
+            rms: (self.sum_squares / n).sqrt(),
+            hausdorff: self.max,
+            samples: self.count,
+        }
+    }
+}
+
+/// Both directions of the distance while the full-resolution surface streams by in batches.
+#[derive(Debug)]
+pub(crate) struct DistanceStream {
+    output: Bvh,
+    density: f64,
+    radius: f64,
+    rng: SplitMix64,
+    full_to_output: Accumulator,
+    /// Output samples sorted by z, and their nearest full-resolution distance so far (capped at
+    /// `radius`).
+    samples: Vec<DVec3>,
+    nearest: Vec<f64>,
+    full_triangles: u64,
+    bounds: (DVec3, DVec3),
+}
+
+impl DistanceStream {
+    /// Indexes and samples the output mesh. `radius` is the resolved `max_distance`.
+    pub(crate) fn new(
+        positions: &[[f64; 3]],
+        triangles: &[[u32; 3]],
+        opts: &MeasureOptions,
+        radius: f64,
+    ) -> Result<Self, MeasureError> {
+        if !(opts.samples_per_area.is_finite() && opts.samples_per_area > 0.0) {
+            return Err(MeasureError::SamplesPerArea(opts.samples_per_area));
+        }
+        if !(radius.is_finite() && radius > 0.0) {
+            return Err(MeasureError::MaxDistance(radius));
+        }
+        let tris = output_triangles(positions, triangles)?;
+        let total_area: f64 = tris.iter().map(area).sum();
+        if total_area <= 0.0 {
+            return Err(MeasureError::EmptyOutput);
+        }
+        let density = opts
+            .samples_per_area
+            .clamp(MIN_SAMPLES / total_area, MAX_SAMPLES / total_area);
+
+        // Two generators from one seed: the output's samples do not depend on the volume, and the
+        // full surface's do not depend on the output mesh's size.
+        let mut rng = SplitMix64::new(opts.seed);
+        let mut samples = Vec::with_capacity((density * total_area * 1.01) as usize + 16);
+        for t in &tris {
+            sample_triangle(t, density, &mut rng, |p| samples.push(p));
+        }
+        samples.sort_unstable_by(|a, b| a.z.total_cmp(&b.z));
+        let bounds = tris
+            .iter()
+            .flatten()
+            .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
+                (lo.min(p), hi.max(p))
+            });
+        Ok(DistanceStream {
+            output: Bvh::new(tris),
+            density,
+            radius,
+            rng: SplitMix64::new(opts.seed ^ 0x5EED_F011_0000_0001),
+            full_to_output: Accumulator::default(),
+            nearest: vec![radius; samples.len()],
+            samples,
+            full_triangles: 0,
+            bounds,
+        })
+    }
+
+    /// Takes the next batch of full-resolution triangles (any grouping works; slabs keep the
+    /// number of output samples each batch must look at small).
+    pub(crate) fn add_batch(&mut self, batch: Vec<Triangle>) {
+        if batch.is_empty() {
+            return;
+        }
+        self.full_triangles += batch.len() as u64;
+        let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
+        for t in &batch {
+            for &p in t {
+                self.bounds = (self.bounds.0.min(p), self.bounds.1.max(p));
+                z_min = z_min.min(p.z);
+                z_max = z_max.max(p.z);
+            }
+            let (output, acc) = (&self.output, &mut self.full_to_output);
+            sample_triangle(t, self.density, &mut self.rng, |p| {
+                acc.add(output.nearest(p))
+            });
+        }
+
+        let first = self.samples.partition_point(|p| p.z < z_min - self.radius);
+        let end = self.samples.partition_point(|p| p.z <= z_max + self.radius);
+        let slab = Bvh::new(batch);
+        for (p, nearest) in self.samples[first..end]
+            .iter()
+            .zip(&mut self.nearest[first..end])
+        {
+            if let Some(d) = slab.nearest_within(*p, *nearest) {
+                *nearest = d;
+            }
+        }
+    }
+
+    /// The output mesh's samples, sorted by z.
+    #[cfg(test)]
+    pub(crate) fn samples(&self) -> &[DVec3] {
+        &self.samples
+    }
+
+    pub(crate) fn finish(self) -> Result<Distances, MeasureError> {
+        if self.full_to_output.count == 0 {
+            return Err(MeasureError::EmptySurface);
+        }
+        let mut output_to_full = Accumulator::default();
+        let mut clipped_samples = 0;
+        for &d in &self.nearest {
+            output_to_full.add(d);
+            if d >= self.radius {
+                clipped_samples += 1;
+            }
+        }
+        let (f2o, o2f) = (self.full_to_output.finish(), output_to_full.finish());
+        let (mean, rms, hausdorff) = (
+            f2o.mean.max(o2f.mean),
+            f2o.rms.max(o2f.rms),
+            f2o.hausdorff.max(o2f.hausdorff),
+        );
+        let diagonal = (self.bounds.1 - self.bounds.0).length();
+        let pct = |d: f64| 100.0 * d / diagonal;
+        Ok(Distances {
+            mean_pct: pct(mean),
+            rms_pct: pct(rms),
+            hausdorff_pct: pct(hausdorff),
+            full_to_output: f2o,
+            output_to_full: o2f,
+            mean,
+            rms,
+            hausdorff,
+            diagonal,
+            full_resolution_triangles: self.full_triangles,
+            clipped_samples,
+            max_distance: self.radius,
+            samples_per_area: self.density,
+        })
+    }
+}
+
+fn output_triangles(
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+) -> Result<Vec<Triangle>, MeasureError> {
+    triangles
+        .iter()
+        .enumerate()
+        .map(
+            |(i, t)| match t.iter().find(|&&v| v as usize >= positions.len()) {
+                Some(&vertex) => Err(MeasureError::VertexIndex {
+                    triangle: i,
+                    vertex,
+                    vertices: positions.len(),
+                }),
+                None => Ok(crate::triangle::corners(positions, t)),
+            },
+        )
+        .collect()
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::bias::tests::geodesic_sphere;
+    use crate::triangle::closest_point;
+
+    /// A square `[0, size]^2` at height `z`, split into `n x n` cells of two triangles.
+    pub(crate) fn plane(size: f64, n: u32, z: f64) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+        let step = size / n as f64;
+        let positions = (0..=n)
+            .flat_map(|j| (0..=n).map(move |i| [i as f64 * step, j as f64 * step, z]))
+            .collect();
+        let idx = |i: u32, j: u32| j * (n + 1) + i;
+        let triangles = (0..n)
+            .flat_map(|j| {
+                (0..n).flat_map(move |i| {
+                    [
+                        [idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)],
+                        [idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)],
+                    ]
+                })
+            })
+            .collect();
+        (positions, triangles)
+    }
+
+    fn soup(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> Vec<Triangle> {
+        output_triangles(positions, triangles).unwrap()
+    }
+
+    /// Streams `full` in slabs of height `slab` along z, as the volume stream would.
+    fn stream(
+        output: (&[[f64; 3]], &[[u32; 3]]),
+        full: &[Triangle],
+        slab: f64,
+        opts: &MeasureOptions,
+        radius: f64,
+    ) -> Distances {
+        let mut s = DistanceStream::new(output.0, output.1, opts, radius).unwrap();
+        let mut batches: std::collections::BTreeMap<i64, Vec<Triangle>> = Default::default();
+        for t in full {
+            let z = t.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
+            batches
+                .entry((z / slab).floor() as i64)
+                .or_default()
+                .push(*t);
+        }
+        for (_, b) in batches {
+            s.add_batch(b);
+        }
+        s.finish().unwrap()
+    }
+
+    fn sphere(radius: f64, levels: u32) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+        let (v, f) = geodesic_sphere(levels);
+        (v.iter().map(|p| (*p * radius).to_array()).collect(), f)
+    }
+
+    #[test]
+    fn parallel_planes_are_offset_apart() {
+        let (op, ot) = plane(10.0, 4, 0.0);
+        let (fp, ft) = plane(10.0, 20, 0.3);
+        let d = stream(
+            (&op, &ot),
+            &soup(&fp, &ft),
+            1.0,
+            &MeasureOptions::default(),
+            1.0,
+        );
+        for dir in [&d.full_to_output, &d.output_to_full] {
+            assert!((dir.mean - 0.3).abs() < 1e-12, "{dir:?}");
+            assert!((dir.rms - 0.3).abs() < 1e-12);
+            assert!((dir.hausdorff - 0.3).abs() < 1e-12);
+            assert!(
+                dir.samples >= MIN_SAMPLES as u64 * 9 / 10,
+                "{}",
+                dir.samples
+            );
+        }
+        assert!((d.mean - 0.3).abs() < 1e-12 && (d.hausdorff - 0.3).abs() < 1e-12);
+        assert_eq!(d.clipped_samples, 0);
+        assert_eq!(d.full_resolution_triangles, 800);
+        assert!((d.diagonal - (200.0f64 + 0.09).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_mesh_is_at_distance_zero_from_itself() {
+        let (p, t) = sphere(10.0, 3);
+        let d = stream(
+            (&p, &t),
+            &soup(&p, &t),
+            1.0,
+            &MeasureOptions::default(),
+            1.0,
+        );
+        assert!(d.hausdorff < 1e-9, "{d:?}");
+        assert_eq!(d.clipped_samples, 0);
+    }
+
+    #[test]
+    fn far_samples_are_clipped_at_the_radius() {
+        let (op, ot) = plane(10.0, 2, 0.0);
+        let (fp, ft) = plane(10.0, 2, 5.0);
+        let d = stream(
+            (&op, &ot),
+            &soup(&fp, &ft),
+            1.0,
+            &MeasureOptions::default(),
+            2.0,
+        );
+        assert_eq!(d.clipped_samples, d.output_to_full.samples);
+        assert_eq!(d.output_to_full.hausdorff, 2.0);
+        assert!((d.full_to_output.mean - 5.0).abs() < 1e-12);
+    }
+
+    /// The streamed, windowed output -> full direction equals a brute-force nearest search over
+    /// the whole full surface for every sample within the radius.
+    #[test]
+    fn streamed_output_to_full_matches_brute_force() {
+        let (op, ot) = sphere(10.0, 2); // coarse: its faces cut inside the fine sphere
+        let (fp, ft) = sphere(10.2, 4);
+        let full = soup(&fp, &ft);
+        let opts = MeasureOptions {
+            samples_per_area: 1.0,
+            ..MeasureOptions::default()
+        };
+        let radius = 1.5;
+        let streamed = stream((&op, &ot), &full, 0.7, &opts, radius);
+
+        let s = DistanceStream::new(&op, &ot, &opts, radius).unwrap();
+        let mut acc = Accumulator::default();
+        for p in &s.samples {
+            let d = full
+                .iter()
+                .map(|t| closest_point(*p, t).distance(*p))
+                .fold(f64::INFINITY, f64::min);
+            acc.add(d.min(radius));
+        }
+        let brute = acc.finish();
+        let o2f = &streamed.output_to_full;
+        assert_eq!(o2f.samples, brute.samples);
+        assert!(
+            (o2f.mean - brute.mean).abs() < 1e-9 * brute.mean,
+            "{o2f:?} {brute:?}"
+        );
+        assert!((o2f.rms - brute.rms).abs() < 1e-9 * brute.rms);
+        assert_eq!(o2f.hausdorff, brute.hausdorff);
+        assert!(o2f.hausdorff > 0.2 && o2f.hausdorff < radius);
+    }
+
+    #[test]
+    fn same_seed_same_report_other_seed_other_samples() {
+        let (op, ot) = sphere(10.0, 2);
+        let (fp, ft) = sphere(10.2, 3);
+        let full = soup(&fp, &ft);
+        let opts = MeasureOptions::default();
+        let a = stream((&op, &ot), &full, 1.0, &opts, 2.0);
+        let b = stream((&op, &ot), &full, 1.0, &opts, 2.0);
+        assert_eq!(a, b);
+        let other = MeasureOptions { seed: 99, ..opts };
+        let c = stream((&op, &ot), &full, 1.0, &other, 2.0);
+        assert_ne!(a.output_to_full.mean, c.output_to_full.mean);
+        assert!(
+            (a.output_to_full.mean - c.output_to_full.mean).abs() < 0.02 * a.output_to_full.mean
+        );
+    }
+
+    #[test]
+    fn density_is_clamped_to_the_sample_budget() {
+        let (p, t) = plane(1000.0, 1, 0.0); // area 10^6
+        let opts = MeasureOptions {
+            samples_per_area: 100.0,
+            ..MeasureOptions::default()
+        };
+        let s = DistanceStream::new(&p, &t, &opts, 1.0).unwrap();
+        assert!((s.density - MAX_SAMPLES / 1e6).abs() < 1e-12);
+        let (p, t) = plane(1.0, 1, 0.0); // area 1
+        let s = DistanceStream::new(&p, &t, &MeasureOptions::default(), 1.0).unwrap();
+        assert!((s.density - MIN_SAMPLES).abs() < 1e-9);
+    }
+
+    #[test]
+    fn bad_inputs_are_typed_errors() {
+        let (p, t) = plane(1.0, 1, 0.0);
+        let opts = MeasureOptions {
+            samples_per_area: f64::NAN,
+            ..MeasureOptions::default()
+        };
+        assert!(matches!(
+            DistanceStream::new(&p, &t, &opts, 1.0),
+            Err(MeasureError::SamplesPerArea(_))
+        ));
+        let opts = MeasureOptions::default();
+        assert!(matches!(
+            DistanceStream::new(&p, &t, &opts, 0.0),
+            Err(MeasureError::MaxDistance(_))
+        ));
+        assert!(matches!(
+            DistanceStream::new(&p, &[[0, 1, 7]], &opts, 1.0),
+            Err(MeasureError::VertexIndex {
+                triangle: 0,
+                vertex: 7,
+                vertices: 4
+            })
+        ));
+        assert!(matches!(
+            DistanceStream::new(&p, &[], &opts, 1.0),
+            Err(MeasureError::EmptyOutput)
+        ));
+        let s = DistanceStream::new(&p, &t, &opts, 1.0).unwrap();
+        assert!(matches!(s.finish(), Err(MeasureError::EmptySurface)));
+    }
+}

@@ -1,0 +1,33 @@
+//! The crate's error type: one line per message, saying what to check.
+
+use isostream_volume::VolumeError;
+
+#[derive(Debug, thiserror::Error)]
+pub enum MeasureError {
+    /// Reading the volume failed; its message already names the file and the fix.
+    #[error(transparent)]
+    Volume(#[from] VolumeError),
+
+    #[error("samples_per_area must be positive and finite, got {0}")]
+    SamplesPerArea(f64),
+
+    #[error("max_distance must be positive and finite, got {0}")]
+    MaxDistance(f64),
+
+    #[error(
+        "triangle {triangle} uses vertex {vertex} but the mesh has {vertices} vertices; the mesh file is corrupt"
+    )]
+    VertexIndex {
+        triangle: usize,
+        vertex: u32,
+        vertices: usize,
+    },
+
+    #[error("the output mesh has no area; distances need a surface to sample")]
+    EmptyOutput,
+
+    #[error(
+        "the full-resolution iso-surface has no area; check the iso value against the volume's range"
+    )]
+    EmptySurface,
+}

@@ -1,0 +1,163 @@
+//! The full-resolution iso-surface regenerated from the volume as a stream: two slices resident,
+//! each slab's triangles handed to the distance computation and dropped.
+//!
+//! This is what keeps `isostream measure` within the service's memory promise (ARCHITECTURE.md,
+//! "Memory is bounded by the sweep front"): the full-resolution surface of a large volume is far
+//! bigger than the simplified output and is never held whole.
+
+use glam::DVec3;
+use isostream_extract::{CubeBatch, Extractor};
+use isostream_volume::VolumeSource;
+
+use crate::distances::{DEFAULT_SEARCH_VOXEL_DIAGONALS, DistanceStream};
+use crate::triangle::Triangle;
+use crate::{Distances, MeasureError, MeasureOptions};
+
+/// Triangles gathered before a batch is handed on, even mid-slab: bounds memory on slabs with an
+/// enormous surface (about 20 MB of triangles) while keeping batches slab-sized in practice.
+const MAX_BATCH_TRIANGLES: usize = 1 << 18;
+
+/// Metro-style distances between the output mesh (in memory: it is the simplified one) and the
+/// full-resolution iso-surface, which is regenerated from the volume as a stream (slab by slab,
+/// via `Extractor`) and never held in memory whole. Tandem paper, section 4 "Approximation error".
+///
+/// `volume` is read from slice 0; `positions`/`triangles` are the output mesh in the volume's
+/// physical coordinates.
+pub fn surface_distances(
+    volume: &mut dyn VolumeSource,
+    iso: f32,
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    opts: &MeasureOptions,
+) -> Result<Distances, MeasureError> {
+    let grid = volume.grid();
+    let voxel_diagonal = DVec3::from(grid.spacing).length();
+    let radius = opts
+        .max_distance
+        .unwrap_or(DEFAULT_SEARCH_VOXEL_DIAGONALS * voxel_diagonal);
+    let mut stream = DistanceStream::new(positions, triangles, opts, radius)?;
+
+    let mut extractor = Extractor::new(grid, iso);
+    let n = grid.slice_len();
+    let (mut lower, mut upper) = (vec![0.0f32; n], vec![0.0f32; n]);
+    volume.read_slice(0, &mut lower)?;
+    let mut pending: Vec<Triangle> = Vec::new();
+    for z in 0..grid.dims[2] - 1 {
+        volume.read_slice(z + 1, &mut upper)?;
+        let emit = |batch: CubeBatch| -> Result<(), MeasureError> {
+            append_triangles(&batch, &mut pending);
+            if batch.end_of_slab || pending.len() >= MAX_BATCH_TRIANGLES {
+                stream.add_batch(std::mem::take(&mut pending));
+            }
+            Ok(())
+        };
+        extractor.extract_slab(z, &lower, &upper, MAX_BATCH_TRIANGLES, emit)?;
+        std::mem::swap(&mut lower, &mut upper);
+    }
+    stream.finish()
+}
+
+fn append_triangles(batch: &CubeBatch, out: &mut Vec<Triangle>) {
+    for cube in &batch.cubes {
+        let vertices = batch.cube_vertices(cube);
+        out.extend(
+            batch
+                .cube_triangles(cube)
+                .iter()
+                .map(|t| t.map(|i| vertices[i as usize].pos)),
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use isostream_extract::extract_indexed;
+    use isostream_volume::{Grid, MemoryVolume, Procedural, Shape};
+
+    use super::*;
+    use crate::bias::tests::geodesic_sphere;
+    use crate::triangle::{closest_point, corners};
+
+    fn sphere_volume(n: u64) -> Procedural {
+        Procedural::new(Shape::Sphere, [n; 3], [1.0; 3], [0.0; 3]).unwrap()
+    }
+
+    fn brute_nearest(p: DVec3, positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> f64 {
+        triangles
+            .iter()
+            .map(|t| {
+                let t = corners(positions, t);
+                closest_point(p, &t).distance(p)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    #[test]
+    fn full_resolution_surface_is_at_distance_zero_from_itself() {
+        let mut v = sphere_volume(24);
+        let full = extract_indexed(&mut v, 0.0).unwrap();
+        let p = full.position_arrays();
+        let mut v = sphere_volume(24);
+        let d = surface_distances(&mut v, 0.0, &p, &full.triangles, &MeasureOptions::default())
+            .unwrap();
+        assert!(d.hausdorff < 1e-9, "{d:?}");
+        assert_eq!(d.full_resolution_triangles, full.triangles.len() as u64);
+        assert_eq!(d.clipped_samples, 0);
+        assert!(d.full_to_output.samples >= 9_000 && d.output_to_full.samples >= 9_000);
+    }
+
+    /// A geodesic sphere against the marching-cubes sphere of the same radius: the streamed
+    /// output -> full distances equal a brute-force search over the whole extracted surface.
+    #[test]
+    fn streamed_distances_match_brute_force_on_a_sphere() {
+        let n = 20;
+        let centre = (n - 1) as f64 / 2.0;
+        let radius = 0.7 * centre; // Shape::Sphere: 0.7 of the half-box
+        let (v, f) = geodesic_sphere(2);
+        let positions: Vec<[f64; 3]> = v
+            .iter()
+            .map(|p| (*p * radius + centre).to_array())
+            .collect();
+        let full = extract_indexed(&mut sphere_volume(n), 0.0).unwrap();
+        let full_positions = full.position_arrays();
+        let opts = MeasureOptions {
+            max_distance: Some(1.0),
+            ..MeasureOptions::default()
+        };
+        let d = surface_distances(&mut sphere_volume(n), 0.0, &positions, &f, &opts).unwrap();
+
+        // Re-draw the same output samples and measure them against the whole surface.
+        let s = DistanceStream::new(&positions, &f, &opts, 1.0).unwrap();
+        let (mut sum, mut max) = (0.0, 0.0f64);
+        for p in s.samples() {
+            let dist = brute_nearest(*p, &full_positions, &full.triangles).min(1.0);
+            sum += dist;
+            max = max.max(dist);
+        }
+        let mean = sum / s.samples().len() as f64;
+        assert!(
+            (d.output_to_full.mean - mean).abs() < 1e-9 * mean,
+            "{d:?} vs {mean}"
+        );
+        assert_eq!(d.output_to_full.hausdorff, max);
+        assert!(d.hausdorff > 0.05 && d.hausdorff < 1.0, "{d:?}");
+        assert!(d.mean_pct > 0.0 && d.mean_pct < 5.0);
+    }
+
+    #[test]
+    fn marching_cubes_sphere_has_little_bias() {
+        let full = extract_indexed(&mut sphere_volume(41), 0.0).unwrap();
+        let q = crate::mesh_quality(&full.position_arrays(), &full.triangles);
+        assert!(q.closed);
+        assert!(q.directional_bias < 0.02, "{}", q.directional_bias);
+    }
+
+    #[test]
+    fn empty_iso_surface_is_an_error() {
+        let grid = Grid::new([3, 3, 3], [1.0; 3], [0.0; 3]).unwrap();
+        let mut v = MemoryVolume::new(grid, vec![0.0; 27]).unwrap();
+        let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let err = surface_distances(&mut v, 5.0, &p, &[[0, 1, 2]], &MeasureOptions::default());
+        assert!(matches!(err, Err(MeasureError::EmptySurface)), "{err:?}");
+    }
+}
