@@ -19,6 +19,7 @@ mod procedural;
 mod raw;
 mod source;
 mod stream;
+mod vtk;
 
 pub use dtype::{Dtype, Endian};
 pub use error::VolumeError;

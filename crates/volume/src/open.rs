@@ -1,6 +1,6 @@
 //! Format detection: one entry point from a path (and job-file options) to a source.
 
-use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nrrd};
+use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nrrd, vtk};
 use std::io::Read;
 use std::path::Path;
 
@@ -9,6 +9,7 @@ use std::path::Path;
 enum Format {
     Raw,
     Nrrd,
+    Vtk,
 }
 
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
@@ -17,6 +18,7 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
     match detect(path)? {
         Format::Raw => open_raw(path, opts),
         Format::Nrrd => nrrd::open(path, opts),
+        Format::Vtk => vtk::open(path, opts),
     }
 }
 
@@ -29,6 +31,7 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         (".nrrd", Format::Nrrd),
         (".nhdr", Format::Nrrd),
         (".raw", Format::Raw),
+        (".vtk", Format::Vtk),
     ];
     if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
         return Ok(*f);
@@ -40,6 +43,8 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
     let head = &head[..n];
     Ok(if head.starts_with(b"NRRD000") {
         Format::Nrrd
+    } else if head.starts_with(b"# vtk DataFile") {
+        Format::Vtk
     } else {
         Format::Raw
     })

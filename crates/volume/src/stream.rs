@@ -78,13 +78,15 @@ impl StreamVolume {
             Some(r) => r,
             None => self.reader.insert((self.open)()?),
         };
-        let at = self.next_z.saturating_mul(self.bytes.len() as u64);
         let z = self.next_z;
-        let n = self.bytes.len();
-        if let Err(e) = read_full(reader, &mut self.bytes) {
+        if let Err((filled, e)) = read_full(reader, &mut self.bytes) {
             self.reader = None;
+            let slice_len = self.grid.slice_len();
+            let voxel = z
+                .saturating_mul(slice_len as u64)
+                .saturating_add((filled / self.dtype.size_bytes()) as u64);
+            let at = format!("{} voxel {voxel} (slice {z})", self.what);
             let kind = e.kind();
-            let at = format!("{} slice {z} (payload byte {at})", self.what);
             // A multi-file stream reports a missing or unreadable part as our own error.
             let e = match e.into_inner() {
                 Some(inner) => match inner.downcast::<VolumeError>() {
@@ -93,14 +95,15 @@ impl StreamVolume {
                 },
                 None => io::Error::from(kind),
             };
-            return Err(match e.kind() {
+            return Err(match kind {
                 io::ErrorKind::UnexpectedEof => VolumeError::format(
                     &self.path,
                     at,
                     format!(
-                        "{n} more bytes for dims {} of {}",
-                        dims_text(self.grid.dims),
-                        self.dtype
+                        "{} voxels of {} for dims {}",
+                        self.grid.voxel_count(),
+                        self.stored,
+                        dims_text(self.grid.dims)
                     ),
                     "end of data (truncated file?)",
                 ),
@@ -115,20 +118,20 @@ impl StreamVolume {
     }
 }
 
-/// `read_exact` that reports a short stream as `UnexpectedEof` and passes decoder errors through.
-fn read_full(r: &mut Stream, buf: &mut [u8]) -> io::Result<()> {
+/// `read_exact` that reports a short stream as `UnexpectedEof` and passes decoder errors
+/// through, with the number of bytes read before the failure.
+fn read_full(r: &mut Stream, buf: &mut [u8]) -> Result<(), (usize, io::Error)> {
     let mut filled = 0;
     while filled < buf.len() {
         match r.read(&mut buf[filled..]) {
-            Ok(0) => return Err(io::ErrorKind::UnexpectedEof.into()),
+            Ok(0) => return Err((filled, io::ErrorKind::UnexpectedEof.into())),
             Ok(n) => filled += n,
             Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
+            Err(e) => return Err((filled, e)),
         }
     }
     Ok(())
 }
-
 impl VolumeSource for StreamVolume {
     fn grid(&self) -> Grid {
         self.grid
@@ -231,7 +234,7 @@ mod tests {
         let e = v.read_slice(3, &mut out).unwrap_err();
         assert_eq!(
             e.to_string(),
-            "mem.bin: test payload slice 3 (payload byte 12): expected 4 more bytes for dims 2x2x4 of u8, found \"end of data (truncated file?)\""
+            "mem.bin: test payload voxel 14 (slice 3): expected 16 voxels of u8 for dims 2x2x4, found \"end of data (truncated file?)\""
         );
     }
 }

@@ -14,6 +14,9 @@ pub(crate) struct AsciiValues<R> {
     count: u64,
     /// Byte that ends the text (e.g. `<` in XML); None reads to the end of the stream.
     stop: Option<u8>,
+    /// An error met after some bytes of a `read` call were produced, reported by the next call
+    /// so the caller sees exactly how many values were good.
+    deferred: Option<io::Error>,
 }
 
 impl<R: BufRead> AsciiValues<R> {
@@ -24,6 +27,7 @@ impl<R: BufRead> AsciiValues<R> {
             used: 8,
             count: 0,
             stop,
+            deferred: None,
         }
     }
 
@@ -71,13 +75,27 @@ impl<R: BufRead> AsciiValues<R> {
 
 impl<R: BufRead> Read for AsciiValues<R> {
     fn read(&mut self, out: &mut [u8]) -> io::Result<usize> {
+        if let Some(e) = self.deferred.take() {
+            return Err(e);
+        }
         let mut written = 0;
         while written < out.len() {
             if self.used == 8 {
-                let Some(tok) = self.token()? else { break };
-                let v: f64 = tok.parse().map_err(|_| {
-                    invalid(format!("a number as value {}, found {tok:?}", self.count))
-                })?;
+                let next = self.token().and_then(|tok| match tok {
+                    None => Ok(None),
+                    Some(tok) => tok.parse::<f64>().map(Some).map_err(|_| {
+                        invalid(format!("a number as value {}, found {tok:?}", self.count))
+                    }),
+                });
+                let v = match next {
+                    Ok(Some(v)) => v,
+                    Ok(None) => break,
+                    Err(e) if written > 0 => {
+                        self.deferred = Some(e);
+                        break;
+                    }
+                    Err(e) => return Err(e),
+                };
                 self.count += 1;
                 self.pending = v.to_le_bytes();
                 self.used = 0;

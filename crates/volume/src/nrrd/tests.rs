@@ -203,15 +203,15 @@ fn bad_files_give_one_line_errors() {
         ),
         (
             with_data(ok("\n", "gzip"), &gzip(&[0; 23])),
-            "DIR/bad.nrrd: gzip NRRD payload slice 3 (payload byte 18): expected 6 more bytes for dims 3x2x4 of u8, found \"end of data (truncated file?)\"",
+            "DIR/bad.nrrd: gzip NRRD payload voxel 23 (slice 3): expected 24 voxels of u8 for dims 3x2x4, found \"end of data (truncated file?)\"",
         ),
         (
             with_data(ok("\n", "gzip"), b"\x1f\x8b\x08\x00garbage-garbage-garbage"),
-            "DIR/bad.nrrd: gzip NRRD payload slice 0 (payload byte 0): expected valid encoded data, found \"corrupt deflate stream\"",
+            "DIR/bad.nrrd: gzip NRRD payload voxel 0 (slice 0): expected valid encoded data, found \"corrupt deflate stream\"",
         ),
         (
             with_data(ok("\n", "ascii"), b"1 2 3 x"),
-            "DIR/bad.nrrd: ascii NRRD payload slice 0 (payload byte 0): expected valid encoded data, found \"a number as value 3, found \\\"x\\\"\"",
+            "DIR/bad.nrrd: ascii NRRD payload voxel 3 (slice 0): expected valid encoded data, found \"a number as value 3, found \\\"x\\\"\"",
         ),
         (
             ok("data file: missing.raw\n", "raw").into_bytes(),

@@ -1,0 +1,207 @@
+use super::*;
+use crate::dtype::tests::{ALL, encode, sample_values};
+use crate::open_path;
+
+fn type_name(d: Dtype) -> &'static str {
+    match d {
+        Dtype::U8 => "unsigned_char",
+        Dtype::I8 => "char",
+        Dtype::U16 => "unsigned_short",
+        Dtype::I16 => "short",
+        Dtype::U32 => "unsigned_int",
+        Dtype::I32 => "int",
+        Dtype::F32 => "float",
+        Dtype::F64 => "double",
+    }
+}
+
+fn head(mode: &str) -> String {
+    format!(
+        "# vtk DataFile Version 3.0\ntitle\n{mode}\nDATASET STRUCTURED_POINTS\nDIMENSIONS 3 2 4\nSPACING 1 2 0.5\nORIGIN -1 0 1\nPOINT_DATA 24\n"
+    )
+}
+
+fn read_all(path: &Path, opts: &OpenOptions) -> Result<Vec<f32>, VolumeError> {
+    let mut v = open_path(path, opts)?;
+    let g = v.grid();
+    let mut all = Vec::new();
+    let mut out = vec![0.0f32; g.slice_len()];
+    for z in 0..g.dims[2] {
+        v.read_slice(z, &mut out)?;
+        all.extend_from_slice(&out);
+    }
+    Ok(all)
+}
+
+fn as_f32(v: &[f64]) -> Vec<f32> {
+    v.iter().map(|&x| x as f32).collect()
+}
+
+#[test]
+fn binary_every_type_and_ascii() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("v.vtk");
+    for d in ALL {
+        let values = sample_values(d, 24);
+        let mut file = format!(
+            "{}SCALARS s {}\nLOOKUP_TABLE default\n",
+            head("BINARY"),
+            type_name(d)
+        )
+        .into_bytes();
+        file.extend(encode(d, Endian::Big, &values));
+        file.push(b'\n');
+        std::fs::write(&p, &file).unwrap();
+        assert_eq!(
+            read_all(&p, &OpenOptions::default()).unwrap(),
+            as_f32(&values),
+            "{d}"
+        );
+        let v = open_path(&p, &OpenOptions::default()).unwrap();
+        assert_eq!(
+            (v.grid().spacing, v.grid().origin),
+            ([1.0, 2.0, 0.5], [-1.0, 0.0, 1.0])
+        );
+        assert_eq!(v.dtype(), Some(d));
+
+        let text: Vec<String> = values.iter().map(|v| v.to_string()).collect();
+        let file = format!(
+            "{}SCALARS s {} 1\nLOOKUP_TABLE default\n{}\n",
+            head("ASCII"),
+            type_name(d),
+            text.join(" ")
+        );
+        std::fs::write(&p, file).unwrap();
+        assert_eq!(
+            read_all(&p, &OpenOptions::default()).unwrap(),
+            as_f32(&values),
+            "ascii {d}"
+        );
+    }
+}
+
+#[test]
+fn picks_named_array() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("v.vtk");
+    let a = sample_values(Dtype::I16, 24);
+    let b: Vec<f64> = (0..24).map(|i| i as f64).collect();
+    let mut file =
+        format!("{}SCALARS a short\nLOOKUP_TABLE default\n", head("BINARY")).into_bytes();
+    file.extend(encode(Dtype::I16, Endian::Big, &a));
+    file.extend(b"\nSCALARS b float\n");
+    file.extend(encode(Dtype::F32, Endian::Big, &b));
+    std::fs::write(&p, &file).unwrap();
+    let named = |n: &str| OpenOptions {
+        array: Some(n.into()),
+        ..Default::default()
+    };
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), as_f32(&a));
+    assert_eq!(read_all(&p, &named("b")).unwrap(), as_f32(&b));
+    let e = read_all(&p, &named("c")).unwrap_err().to_string();
+    assert!(
+        e.ends_with(
+            ": end of file: expected a SCALARS array named \"c\" (arrays: a, b), found \"none\""
+        ),
+        "{e}"
+    );
+    // The same in ASCII.
+    let text = |v: &[f64]| {
+        v.iter()
+            .map(|x| x.to_string())
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    let file = format!(
+        "{}SCALARS a short\nLOOKUP_TABLE default\n{}\nSCALARS b float\nLOOKUP_TABLE default\n{}\n",
+        head("ASCII"),
+        text(&a),
+        text(&b)
+    );
+    std::fs::write(&p, file).unwrap();
+    assert_eq!(read_all(&p, &named("b")).unwrap(), as_f32(&b));
+}
+
+#[test]
+fn bad_files_give_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bad.vtk");
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        (
+            b"hello\n".to_vec(),
+            "line 1: expected \"# vtk DataFile Version x.x\", found \"hello\"",
+        ),
+        (
+            b"# vtk DataFile Version 3.0\nt\nBINARY\nDATASET POLYDATA\n".to_vec(),
+            "line 4: expected DATASET STRUCTURED_POINTS (a regular grid), found \"DATASET POLYDATA\"",
+        ),
+        (
+            format!("{}SCALARS s long\n", head("BINARY")).into_bytes(),
+            "line 9: expected a type among unsigned_char/char/unsigned_short/short/unsigned_int/int/float/double, found \"long\"",
+        ),
+        (
+            head("BINARY")
+                .replace("POINT_DATA 24", "POINT_DATA 25")
+                .into_bytes()
+                .into_iter()
+                .chain(b"SCALARS s float\n".iter().copied())
+                .collect(),
+            "line 9: expected POINT_DATA equal to dims 3x2x4, found \"25\"",
+        ),
+        (
+            {
+                let mut f = format!("{}SCALARS s short\nLOOKUP_TABLE default\n", head("BINARY"))
+                    .into_bytes();
+                f.extend([0u8; 47]);
+                f
+            },
+            "file is 211 bytes but dims 3x2x4 of i16 plus 164 header bytes need 212; check the DIMENSIONS and SCALARS lines against the data",
+        ),
+        (
+            format!(
+                "{}SCALARS s short\nLOOKUP_TABLE default\n1 2 3\n",
+                head("ASCII")
+            )
+            .into_bytes(),
+            "ascii VTK scalars voxel 3 (slice 0): expected 24 voxels of i16 for dims 3x2x4, found \"end of data (truncated file?)\"",
+        ),
+        (
+            head("BINARY")
+                .replace("DIMENSIONS 3 2 4", "DIMENSIONS 3 0 4")
+                .replace("POINT_DATA 24", "POINT_DATA 0")
+                .into_bytes()
+                .into_iter()
+                .chain(b"SCALARS s float\n".iter().copied())
+                .collect(),
+            "dims 3x0x4 need at least 2 voxels per axis; check the dims",
+        ),
+    ];
+    let mut wrong = Vec::new();
+    for (file, want) in cases {
+        std::fs::write(&p, &file).unwrap();
+        let got = read_all(&p, &OpenOptions::default())
+            .unwrap_err()
+            .to_string();
+        let want = format!("{}: {want}", p.display());
+        if got != want {
+            wrong.push(format!("got  {got}\nwant {want}"));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+#[test]
+fn ironprot_when_present() {
+    let p = Path::new("/work/shared/data/ironprot/ironProt.vtk");
+    if !p.exists() {
+        eprintln!("skipping: {} not present", p.display());
+        return;
+    }
+    let v = open_path(p, &OpenOptions::default()).unwrap();
+    assert_eq!(v.grid().dims, [68, 68, 68]);
+    assert_eq!(v.dtype(), Some(Dtype::U8));
+    let all = read_all(p, &OpenOptions::default()).unwrap();
+    let mean = all.iter().map(|&x| x as f64).sum::<f64>() / all.len() as f64;
+    assert!((mean - 13.1383).abs() < 1e-3, "{mean}");
+    assert_eq!(all.iter().fold(0.0f32, |m, &x| m.max(x)), 255.0);
+}
