@@ -1,2 +1,40 @@
-//! isostream-smesh: see ARCHITECTURE.md.
+//! Streaming mesh formats for isostream.
+//!
+//! A *streaming mesh* (Isenburg and Lindstrom 2005) interleaves vertices and triangles and says
+//! when a vertex is used for the last time (*finalized*), so writers and readers need memory only
+//! for the active vertices, not for the whole mesh. This crate has:
+//!
+//! - `StreamWriter` / `StreamReader`: SMA (ASCII) and SMB (binary), see `sma` and `smb` for the
+//!   layouts, with per-vertex attributes as an SMA superset;
+//! - `validate`: the streaming rules checked on a file, plus stream width and skip;
+//! - `MeshSink`: one writing interface for every output format (SMA, SMB, PLY, OBJ), each written
+//!   to a temporary file and renamed when complete;
+//! - `convert` and `read_indexed` for moving between formats and loading small meshes.
 #![deny(unsafe_code)]
+
+mod atomic;
+mod convert;
+mod error;
+mod format;
+mod index;
+mod indexed;
+mod obj;
+mod ply;
+mod reader;
+mod sink;
+mod sma;
+mod smb;
+mod track;
+mod validate;
+mod writer;
+
+pub use convert::{ConvertOptions, ConvertStats, convert, convert_with, create_sink};
+pub use error::{Place, SmeshError, StreamFault, Subject};
+pub use format::Format;
+pub use indexed::{IndexedMesh, read_indexed};
+pub use obj::ObjSink;
+pub use ply::{PlyEncoding, PlySink};
+pub use reader::{Element, ReadHeader, StreamReader};
+pub use sink::{Header, MeshSink, WriteStats};
+pub use validate::{ValidationReport, validate};
+pub use writer::StreamWriter;

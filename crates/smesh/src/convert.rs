@@ -1,0 +1,93 @@
+//! Conversion between all supported formats through `MeshSink`s.
+//!
+//! Streaming inputs (SMA/SMB) are piped element by element into the output sink, so memory stays
+//! bounded by the stream width whatever the output (PLY spills to scratch files, see `ply`).
+//! Other inputs are loaded whole (they are not streams: PLY puts all faces after all vertices)
+//! and re-emitted in compact pre-order.
+
+use std::path::Path;
+
+use crate::obj::ObjSink;
+use crate::ply::{PlyEncoding, PlySink};
+use crate::validate::CheckedStream;
+use crate::{
+    Element, Format, Header, MeshSink, SmeshError, StreamWriter, WriteStats, read_indexed,
+};
+
+/// Choices that only some output formats have.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ConvertOptions {
+    pub ply_encoding: PlyEncoding,
+}
+
+/// What `convert` did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConvertStats {
+    pub input: Format,
+    pub output: Format,
+    pub written: WriteStats,
+    /// Vertices of a non-streaming input that no triangle uses; they cannot be finalized in a
+    /// stream and are not written.
+    pub dropped_vertices: u64,
+}
+
+/// A sink writing `path` in the format its extension names.
+pub fn create_sink(
+    path: &Path,
+    header: &Header,
+    options: &ConvertOptions,
+) -> Result<Box<dyn MeshSink>, SmeshError> {
+    Ok(match Format::from_path(path)? {
+        Format::Sma | Format::Smb => Box::new(StreamWriter::create(path, header)?),
+        Format::Ply => Box::new(PlySink::create(path, header, options.ply_encoding)?),
+        Format::Obj => Box::new(ObjSink::create(path, header)?),
+    })
+}
+
+/// Converts between SMA, SMB, PLY (binary little-endian) and OBJ, streaming when the input is a
+/// streaming mesh; the output is written temp-then-rename.
+pub fn convert(input: &Path, output: &Path) -> Result<ConvertStats, SmeshError> {
+    convert_with(input, output, &ConvertOptions::default())
+}
+
+/// `convert` with format options.
+pub fn convert_with(
+    input: &Path,
+    output: &Path,
+    options: &ConvertOptions,
+) -> Result<ConvertStats, SmeshError> {
+    let input_format = Format::from_path(input)?;
+    let output_format = Format::from_path(output)?;
+    let (written, dropped_vertices) = if input_format.is_streaming() {
+        let mut stream = CheckedStream::open(input)?;
+        let header = Header {
+            comments: stream.header().comments.clone(),
+            attribute_names: stream.header().attribute_names.clone(),
+        };
+        let mut sink = create_sink(output, &header, options)?;
+        while let Some(e) = stream.next_element() {
+            match e? {
+                Element::Vertex { pos, attrs } => sink.vertex(pos, &attrs)?,
+                Element::Triangle { v, finalized } => sink.triangle(v, finalized)?,
+                Element::Finalize(v) => sink.finalize(v)?,
+            }
+        }
+        stream.finish()?;
+        (sink.finish()?, 0)
+    } else {
+        let mesh = read_indexed(input)?;
+        let header = Header {
+            comments: Vec::new(),
+            attribute_names: mesh.attribute_names.clone(),
+        };
+        let mut sink = create_sink(output, &header, options)?;
+        let dropped = mesh.stream_into(sink.as_mut())?;
+        (sink.finish()?, dropped)
+    };
+    Ok(ConvertStats {
+        input: input_format,
+        output: output_format,
+        written,
+        dropped_vertices,
+    })
+}

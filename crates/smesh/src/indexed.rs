@@ -1,0 +1,96 @@
+//! In-memory indexed meshes: loading any supported format (for tests and `measure`, where meshes
+//! are small) and emitting one as a stream in compact pre-order.
+
+use std::path::Path;
+
+use crate::validate::CheckedStream;
+use crate::{Element, Format, MeshSink, SmeshError, obj, ply};
+
+/// A whole mesh in memory.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct IndexedMesh {
+    pub positions: Vec<[f64; 3]>,
+    pub triangles: Vec<[u32; 3]>,
+    pub attribute_names: Vec<String>,
+    /// Per-vertex attributes, `attribute_names.len()` values per vertex.
+    pub attrs: Vec<f32>,
+}
+
+/// In-memory load of a (small) mesh of any supported format: positions, triangles, per-vertex
+/// attributes. Streaming inputs are checked against the streaming rules on the way.
+pub fn read_indexed(path: &Path) -> Result<IndexedMesh, SmeshError> {
+    match Format::from_path(path)? {
+        Format::Sma | Format::Smb => read_stream(path),
+        Format::Ply => ply::read(path),
+        Format::Obj => obj::read(path),
+    }
+}
+
+fn read_stream(path: &Path) -> Result<IndexedMesh, SmeshError> {
+    let mut stream = CheckedStream::open(path)?;
+    let mut mesh = IndexedMesh {
+        attribute_names: stream.header().attribute_names.clone(),
+        ..IndexedMesh::default()
+    };
+    while let Some(e) = stream.next_element() {
+        match e? {
+            Element::Vertex { pos, attrs } => {
+                mesh.positions.push(pos.map(f64::from));
+                mesh.attrs.extend(attrs);
+            }
+            Element::Triangle { v, .. } => {
+                let t = v.map(|x| u32::try_from(x).ok());
+                match t {
+                    [Some(a), Some(b), Some(c)] => mesh.triangles.push([a, b, c]),
+                    _ => {
+                        return Err(SmeshError::Unsupported {
+                            path: path.to_path_buf(),
+                            message: format!(
+                                "triangle {v:?} needs indices beyond 32 bits, too large to load in memory"
+                            ),
+                        });
+                    }
+                }
+            }
+            Element::Finalize(_) => {}
+        }
+    }
+    stream.finish()?;
+    Ok(mesh)
+}
+
+impl IndexedMesh {
+    /// Writes the mesh into `sink` in compact pre-order: triangles in their order, each vertex
+    /// right before its first triangle, finalized on its last one. Vertices are renumbered in
+    /// order of first use; vertices no triangle uses are dropped (SMB could not finalize them).
+    /// Returns the number of dropped vertices.
+    pub fn stream_into(&self, sink: &mut dyn MeshSink) -> Result<u64, SmeshError> {
+        let stride = self.attribute_names.len();
+        let mut last = vec![usize::MAX; self.positions.len()];
+        for (t, tri) in self.triangles.iter().enumerate() {
+            for &v in tri {
+                last[v as usize] = t;
+            }
+        }
+        let mut id = vec![u64::MAX; self.positions.len()];
+        let mut next = 0u64;
+        for (t, tri) in self.triangles.iter().enumerate() {
+            for &v in tri {
+                let v = v as usize;
+                if id[v] == u64::MAX {
+                    id[v] = next;
+                    next += 1;
+                    sink.vertex(
+                        self.positions[v].map(|x| x as f32),
+                        &self.attrs[v * stride..(v + 1) * stride],
+                    )?;
+                }
+            }
+            sink.triangle(
+                tri.map(|v| id[v as usize]),
+                tri.map(|v| last[v as usize] == t),
+            )?;
+        }
+        Ok(self.positions.len() as u64 - next)
+    }
+}

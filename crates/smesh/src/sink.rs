@@ -1,0 +1,124 @@
+//! What every mesh writer shares: the element calls of a streaming mesh (so the pipeline and
+//! `convert` can write any format the same way) and the checks behind them.
+
+use std::path::{Path, PathBuf};
+
+use crate::track::Tracker;
+use crate::{Place, SmeshError, StreamFault, Subject};
+
+/// Metadata written at the top of an output file.
+#[derive(Debug, Clone, Default)]
+pub struct Header {
+    /// Free text, one line each (no line breaks).
+    pub comments: Vec<String>,
+    /// Names of the per-vertex attributes passed to `vertex` (no whitespace in a name).
+    pub attribute_names: Vec<String>,
+}
+
+/// What a finished writer wrote.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WriteStats {
+    pub vertices: u64,
+    pub triangles: u64,
+    /// Size of the final file.
+    pub bytes: u64,
+    /// Stream width: the most vertices written but not yet finalized at any time.
+    pub max_active_vertices: u64,
+}
+
+/// A destination for a streaming mesh: vertices numbered 0, 1, 2, ... in call order, triangles
+/// referring to them by absolute index and saying which use is a vertex's last.
+///
+/// Every implementation checks the streaming rules (index written, not yet finalized, all
+/// finalized at the end) and writes temp-then-rename, so an invalid or unfinished output never
+/// appears under its final name.
+pub trait MeshSink {
+    fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError>;
+    fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError>;
+    /// Finalizes a vertex without a triangle (an SMA `x` line; an isolated vertex).
+    fn finalize(&mut self, v: u64) -> Result<(), SmeshError>;
+    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError>;
+}
+
+/// The rule checking and bookkeeping embedded in every sink.
+#[derive(Debug)]
+pub(crate) struct SinkCore {
+    pub(crate) path: PathBuf,
+    pub(crate) tracker: Tracker,
+    attributes: usize,
+}
+
+impl SinkCore {
+    pub(crate) fn new(path: &Path, header: &Header) -> Result<SinkCore, SmeshError> {
+        let unsupported = |message: String| SmeshError::Unsupported {
+            path: path.to_path_buf(),
+            message,
+        };
+        if let Some(c) = header.comments.iter().find(|c| c.contains(['\n', '\r'])) {
+            return Err(unsupported(format!(
+                "header comment {c:?} contains a line break; comments are one line each"
+            )));
+        }
+        if let Some(n) = header
+            .attribute_names
+            .iter()
+            .find(|n| n.is_empty() || n.contains(char::is_whitespace))
+        {
+            return Err(unsupported(format!(
+                "attribute name {n:?} must be non-empty without whitespace"
+            )));
+        }
+        Ok(SinkCore {
+            path: path.to_path_buf(),
+            tracker: Tracker::default(),
+            attributes: header.attribute_names.len(),
+        })
+    }
+
+    /// Checks and registers a vertex; returns its index.
+    pub(crate) fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<u64, SmeshError> {
+        if attrs.len() != self.attributes {
+            return Err(self.fault(
+                Subject::Vertex(self.tracker.vertices(), Place::Written),
+                StreamFault::AttributeCount {
+                    expected: self.attributes,
+                    found: attrs.len(),
+                },
+            ));
+        }
+        Ok(self.tracker.vertex(pos))
+    }
+
+    pub(crate) fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
+        let subject = Subject::Triangle(self.tracker.triangles(), Place::Written);
+        self.tracker
+            .triangle(v, last_use)
+            .map_err(|f| self.fault(subject, f))
+    }
+
+    pub(crate) fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {
+        self.tracker
+            .finalize(v)
+            .map_err(|f| self.fault(Subject::Finalization(Place::Written), f))
+    }
+
+    /// End-of-stream check: every vertex finalized.
+    pub(crate) fn finish(&self) -> Result<(), SmeshError> {
+        self.tracker
+            .finish()
+            .map_err(|f| self.fault(Subject::EndOfStream, f))
+    }
+
+    pub(crate) fn fault(&self, subject: Subject, fault: StreamFault) -> SmeshError {
+        SmeshError::stream(&self.path, subject, fault)
+    }
+
+    pub(crate) fn stats(&self, bytes: u64) -> WriteStats {
+        WriteStats {
+            vertices: self.tracker.vertices(),
+            triangles: self.tracker.triangles(),
+            bytes,
+            max_active_vertices: self.tracker.max_active(),
+        }
+    }
+}

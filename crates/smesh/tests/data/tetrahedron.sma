@@ -1,0 +1,13 @@
+# nverts 4                   
+# nfaces 4                   
+# bb_min 0e0 0e0 0e0                                       
+# bb_max 1e0 1e0 1e0                                       
+# tetrahedron
+v 0 0 0
+v 1 0 0
+v 0 1 0
+f 1 3 2
+v 0 0 1
+f 1 2 4
+f -4 4 3
+f -3 -2 -1

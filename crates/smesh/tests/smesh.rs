@@ -1,0 +1,542 @@
+//! Integration tests: golden fixtures, rule violations with their messages, atomic output, and
+//! round trips through every format on generated streams.
+
+use std::path::{Path, PathBuf};
+
+use isostream_smesh::{
+    ConvertOptions, Element, Format, Header, IndexedMesh, PlyEncoding, StreamReader, StreamWriter,
+    convert, convert_with, read_indexed, validate,
+};
+use proptest::prelude::*;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(name)
+}
+
+/// One call on a writer / one element of a stream.
+#[derive(Debug, Clone, PartialEq)]
+enum Op {
+    V([f32; 3], Vec<f32>),
+    T([u64; 3], [bool; 3]),
+    X(u64),
+}
+
+fn write(path: &Path, header: &Header, ops: &[Op]) -> isostream_smesh::WriteStats {
+    let mut w = StreamWriter::create(path, header).unwrap();
+    for op in ops {
+        match op {
+            Op::V(p, a) => w.vertex(*p, a).unwrap(),
+            Op::T(v, l) => w.triangle(*v, *l).unwrap(),
+            Op::X(v) => w.finalize(*v).unwrap(),
+        }
+    }
+    w.finish().unwrap()
+}
+
+fn read(path: &Path) -> Vec<Op> {
+    StreamReader::open(path)
+        .unwrap()
+        .map(|e| match e.unwrap() {
+            Element::Vertex { pos, attrs } => Op::V(pos, attrs),
+            Element::Triangle { v, finalized } => Op::T(v, finalized),
+            Element::Finalize(v) => Op::X(v),
+        })
+        .collect()
+}
+
+fn tetrahedron() -> Vec<Op> {
+    let v = |x, y, z| Op::V([x, y, z], vec![]);
+    vec![
+        v(0.0, 0.0, 0.0),
+        v(1.0, 0.0, 0.0),
+        v(0.0, 1.0, 0.0),
+        Op::T([0, 2, 1], [false; 3]),
+        v(0.0, 0.0, 1.0),
+        Op::T([0, 1, 3], [false; 3]),
+        Op::T([0, 3, 2], [true, false, false]),
+        Op::T([1, 2, 3], [true; 3]),
+    ]
+}
+
+fn tetra_header() -> Header {
+    Header {
+        comments: vec!["tetrahedron".into()],
+        attribute_names: vec![],
+    }
+}
+
+// ---------------------------------------------------------------- golden fixtures
+
+#[test]
+fn golden_fixtures_are_written_byte_for_byte_and_read_back() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["tetrahedron.sma", "tetrahedron.smb"] {
+        let out = dir.path().join(name);
+        let stats = write(&out, &tetra_header(), &tetrahedron());
+        let golden = std::fs::read(data(name)).unwrap();
+        assert_eq!(std::fs::read(&out).unwrap(), golden, "{name}");
+        assert_eq!(stats.bytes, golden.len() as u64);
+        assert_eq!(
+            (stats.vertices, stats.triangles, stats.max_active_vertices),
+            (4, 4, 4)
+        );
+        assert_eq!(read(&data(name)), tetrahedron(), "{name}");
+        let h = StreamReader::open(&data(name)).unwrap().header().clone();
+        assert_eq!((h.nverts, h.nfaces), (Some(4), Some(4)));
+        assert_eq!(h.bbox, Some(([0.0; 3], [1.0; 3])));
+        assert_eq!(h.comments, vec!["tetrahedron".to_string()]);
+        let report = validate(&data(name)).unwrap();
+        assert_eq!((report.vertices, report.triangles), (4, 4));
+        assert_eq!(report.max_active_vertices, 4);
+        assert_eq!(report.max_triangle_skip, 3);
+    }
+}
+
+#[test]
+fn golden_smb_matches_the_spec_layout() {
+    // Built field by field from DESIGN.md section 3, independently of the fixture script.
+    let mut b = vec![0u8, 0, 0, 0];
+    b.extend(1i32.to_le_bytes());
+    b.extend(11i32.to_le_bytes());
+    b.extend(b"tetrahedron");
+    b.extend(4i32.to_le_bytes());
+    b.extend(4i32.to_le_bytes());
+    b.push(1);
+    for x in [0f32, 0.0, 0.0, 1.0, 1.0, 1.0] {
+        b.extend(x.to_le_bytes());
+    }
+    b.extend(0b0001_0111u32.to_le_bytes());
+    let f = |b: &mut Vec<u8>, p: [f32; 3]| p.iter().for_each(|x| b.extend(x.to_le_bytes()));
+    let t = |b: &mut Vec<u8>, i: [i32; 3]| i.iter().for_each(|x| b.extend(x.to_le_bytes()));
+    f(&mut b, [0.0, 0.0, 0.0]);
+    f(&mut b, [1.0, 0.0, 0.0]);
+    f(&mut b, [0.0, 1.0, 0.0]);
+    t(&mut b, [1, 3, 2]);
+    f(&mut b, [0.0, 0.0, 1.0]);
+    t(&mut b, [1, 2, 4]);
+    t(&mut b, [-4, 4, 3]);
+    t(&mut b, [-3, -2, -1]);
+    assert_eq!(std::fs::read(data("tetrahedron.smb")).unwrap(), b);
+}
+
+#[test]
+fn smb_byte_order_is_sanity_checked() {
+    let le = std::fs::read(data("tetrahedron.smb")).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    // Declares big-endian but holds little-endian data, like reference writers on x86_64.
+    let mut lying = le.clone();
+    lying[1] = 1;
+    let p = dir.path().join("lying.smb");
+    std::fs::write(&p, &lying).unwrap();
+    assert_eq!(read(&p), tetrahedron());
+    // A genuine big-endian file: every 4-byte word after the magic swapped, except the comment
+    // text and the has_bbox byte.
+    let mut be = le.clone();
+    be[1] = 1;
+    let swap = |b: &mut [u8], at: usize| b[at..at + 4].reverse();
+    for at in [4, 8, 23, 27] {
+        swap(&mut be, at);
+    }
+    for at in (32..le.len()).step_by(4) {
+        swap(&mut be, at);
+    }
+    let p = dir.path().join("big.smb");
+    std::fs::write(&p, &be).unwrap();
+    assert_eq!(read(&p), tetrahedron());
+    validate(&p).unwrap();
+}
+
+// ---------------------------------------------------------------- rule violations
+
+/// Writes `body` after a header-less SMA start and returns validate's message.
+fn sma_error(dir: &Path, body: &str) -> String {
+    let p = dir.join("broken.sma");
+    std::fs::write(&p, body).unwrap();
+    validate(&p).unwrap_err().to_string()
+}
+
+const TRIANGLE: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+
+#[test]
+fn validate_rejects_broken_streams_with_one_line_messages() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let p = d.join("broken.sma");
+    let p = p.display();
+    let cases = [
+        (
+            format!("{TRIANGLE}f -3 2 3\nf 1 2 3\n"),
+            format!("{p}: triangle 1 on line 5 uses vertex 0, which was already finalized"),
+        ),
+        (
+            format!("{TRIANGLE}f 1 2 3\n"),
+            format!(
+                "{p}: at end of stream, vertex 0 was never finalized (2 other vertices neither)"
+            ),
+        ),
+        (
+            format!("{TRIANGLE}f 1 2 4\nv 0 0 1\n"),
+            format!("{p}: triangle 0 on line 4 references vertex 3 but only 3 vertices precede it"),
+        ),
+        (
+            format!("{TRIANGLE}f -4 2 3\n"),
+            format!(
+                "{p}: triangle 0 on line 4 uses relative index -4 but only 3 vertices precede it"
+            ),
+        ),
+        (
+            format!("# nverts 4\n{TRIANGLE}f -3 -2 -1\n"),
+            format!("{p}: at end of stream, the header declares 4 vertices but the stream holds 3"),
+        ),
+        (
+            format!("{TRIANGLE}f 0 2 3\n"),
+            format!(
+                "{p}: line 4: expected nonzero indices (1-based, or negative relative), found f 0 2 3"
+            ),
+        ),
+        (
+            format!("{TRIANGLE}q 1\n"),
+            format!("{p}: line 4: expected a `v`, `f`, `x` or `#` line, found q 1"),
+        ),
+        (
+            format!("{TRIANGLE}x 1\nf 1 2 3\n"),
+            format!("{p}: triangle 0 on line 5 uses vertex 0, which was already finalized"),
+        ),
+    ];
+    for (body, expected) in cases {
+        let msg = sma_error(d, &body);
+        assert_eq!(msg, expected);
+        assert!(!msg.contains('\n'));
+    }
+}
+
+#[test]
+fn validate_rejects_truncated_and_foreign_smb() {
+    let dir = tempfile::tempdir().unwrap();
+    let golden = std::fs::read(data("tetrahedron.smb")).unwrap();
+    let p = dir.path().join("cut.smb");
+    // Cut in the middle of the last triangle: the declared counts no longer fit the size, so
+    // neither byte order is plausible.
+    std::fs::write(&p, &golden[..golden.len() - 5]).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert!(
+        msg.starts_with(&format!("{}: byte 4: expected an SMB header", p.display())),
+        "{msg}"
+    );
+    // Unknown counts: the reader has to find the cut itself.
+    let mut unknown = golden.clone();
+    unknown[23..31].copy_from_slice(&[0xff; 8]);
+    std::fs::write(&p, &unknown[..unknown.len() - 5]).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert_eq!(
+        msg,
+        format!(
+            "{}: file ends at byte 151 in the middle of a triangle (12 bytes)",
+            p.display()
+        )
+    );
+    std::fs::write(&p, &unknown[..unknown.len() - 12]).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert_eq!(
+        msg,
+        format!(
+            "{}: at end of stream, vertex 1 was never finalized (2 other vertices neither)",
+            p.display()
+        )
+    );
+    let p = dir.path().join("magic.smb");
+    std::fs::write(&p, b"ply\nformat ascii 1.0\n").unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert!(
+        msg.starts_with(&format!(
+            "{}: not an SMB file: first bytes are [70, 6c, 79, 0a]",
+            p.display()
+        )),
+        "{msg}"
+    );
+}
+
+#[test]
+fn writer_rejects_invalid_calls() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("w.smb");
+    let mut w = StreamWriter::create(&p, &Header::default()).unwrap();
+    for i in 0..3 {
+        w.vertex([i as f32, 0.0, 0.0], &[]).unwrap();
+    }
+    let e = w.triangle([0, 1, 3], [false; 3]).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: triangle 0 references vertex 3 but only 3 vertices precede it",
+            p.display()
+        )
+    );
+    w.triangle([0, 1, 2], [true, false, false]).unwrap();
+    let e = w.triangle([0, 1, 2], [false; 3]).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: triangle 1 uses vertex 0, which was already finalized",
+            p.display()
+        )
+    );
+    let e = w.vertex([0.0; 3], &[1.0]).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: vertex 3 has 1 attribute values but the header names 0 attributes",
+            p.display()
+        )
+    );
+    let e = w.finalize(1).unwrap_err().to_string();
+    assert!(
+        e.contains("finalization of vertex 1 cannot be stored in SMB"),
+        "{e}"
+    );
+    let e = w.finish().unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: at end of stream, vertex 1 was never finalized (1 other vertices neither)",
+            p.display()
+        )
+    );
+    assert!(!p.exists());
+}
+
+// ---------------------------------------------------------------- atomic output
+
+#[test]
+fn unfinished_writer_leaves_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["a.sma", "a.smb"] {
+        let p = dir.path().join(name);
+        let mut w = StreamWriter::create(&p, &Header::default()).unwrap();
+        w.vertex([0.0; 3], &[]).unwrap();
+        assert!(!p.exists());
+        drop(w);
+        assert!(!p.exists());
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+#[test]
+fn missing_directory_gives_one_line_error_naming_the_path() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["a.smb", "a.ply", "a.obj"] {
+        let p = dir.path().join("missing").join(name);
+        let e = isostream_smesh::create_sink(&p, &Header::default(), &ConvertOptions::default())
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.starts_with(&format!(
+                "{}: cannot create a temporary file in ",
+                p.display()
+            )),
+            "{e}"
+        );
+        assert!(!e.contains('\n'));
+    }
+}
+
+#[test]
+fn empty_mesh_round_trips() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["e.sma", "e.smb"] {
+        let p = dir.path().join(name);
+        write(&p, &Header::default(), &[]);
+        let r = validate(&p).unwrap();
+        assert_eq!((r.vertices, r.triangles, r.header.bbox), (0, 0, None));
+        assert_eq!(r.header.nverts, Some(0));
+    }
+}
+
+// ---------------------------------------------------------------- generated streams
+
+/// A random triangle soup over `n` vertices turned into a valid stream: triangles in order,
+/// every vertex emitted before its first triangle, some of them early (so the stream is not
+/// always compact), and finalized either on its last triangle or, when `explicit`, sometimes by
+/// a later `x` element. `choices` drives the random decisions.
+fn stream(
+    positions: &[[f32; 3]],
+    attrs: usize,
+    tris: &[[usize; 3]],
+    choices: &[u8],
+    explicit: bool,
+) -> Vec<Op> {
+    let mut choice = choices.iter().cycle().copied();
+    let n = positions.len();
+    let mut last = vec![usize::MAX; n];
+    for (t, tri) in tris.iter().enumerate() {
+        tri.iter().for_each(|&v| last[v] = t);
+    }
+    let mut id = vec![u64::MAX; n];
+    let mut next = 0u64;
+    let mut ops = Vec::new();
+    let mut pending_x = Vec::new();
+    let mut emit = |v: usize, ops: &mut Vec<Op>, id: &mut Vec<u64>| {
+        if id[v] == u64::MAX {
+            id[v] = next;
+            next += 1;
+            let a = (0..attrs).map(|k| (v * 10 + k) as f32 * 0.5).collect();
+            ops.push(Op::V(positions[v], a));
+        }
+    };
+    for (t, tri) in tris.iter().enumerate() {
+        // Sometimes emit a later triangle's vertex early.
+        let early = tris[t..].iter().flatten().find(|&&v| id[v] == u64::MAX);
+        if let Some(&v) = early.filter(|_| choice.next().unwrap() % 4 == 0) {
+            emit(v, &mut ops, &mut id);
+        }
+        tri.iter().for_each(|&v| emit(v, &mut ops, &mut id));
+        let mut fin = [false; 3];
+        for (i, &v) in tri.iter().enumerate() {
+            if last[v] == t && !tri[..i].contains(&v) {
+                if explicit && choice.next().unwrap() % 3 == 0 {
+                    pending_x.push(id[v]);
+                } else {
+                    fin[i] = true;
+                }
+            }
+        }
+        ops.push(Op::T(tri.map(|v| id[v]), fin));
+        if choice.next().unwrap() % 2 == 0 {
+            ops.extend(pending_x.drain(..).map(Op::X));
+        }
+    }
+    ops.extend(pending_x.drain(..).map(Op::X));
+    ops
+}
+
+/// Per triangle, its corner positions (and attributes): equal for meshes that differ only in
+/// vertex numbering.
+fn corners(m: &IndexedMesh) -> Vec<[([f64; 3], Vec<f32>); 3]> {
+    let k = m.attribute_names.len();
+    m.triangles
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                (
+                    m.positions[v as usize],
+                    m.attrs[v as usize * k..(v as usize + 1) * k].to_vec(),
+                )
+            })
+        })
+        .collect()
+}
+
+fn soup() -> impl Strategy<Value = (Vec<[f32; 3]>, Vec<[usize; 3]>, Vec<u8>)> {
+    (3usize..30).prop_flat_map(|n| {
+        let pos = proptest::collection::vec(proptest::array::uniform3(-1e4f32..1e4), n);
+        let tri = proptest::array::uniform3(0..n).prop_filter("distinct corners", |t| {
+            t[0] != t[1] && t[1] != t[2] && t[0] != t[2]
+        });
+        let tris = proptest::collection::vec(tri, 1..80);
+        (pos, tris, proptest::collection::vec(any::<u8>(), 1..64))
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn streams_round_trip_through_sma_and_smb((pos, tris, choices) in soup(), explicit in any::<bool>()) {
+        let dir = tempfile::tempdir().unwrap();
+        let names = vec!["temperature".to_string(), "grad".to_string()];
+        let sma_ops = stream(&pos, 2, &tris, &choices, explicit);
+        let sma = dir.path().join("m.sma");
+        let header = Header { comments: vec!["generated".into()], attribute_names: names.clone() };
+        let stats = write(&sma, &header, &sma_ops);
+        prop_assert_eq!(read(&sma), sma_ops.clone());
+        let report = validate(&sma).unwrap();
+        prop_assert_eq!(report.max_active_vertices, stats.max_active_vertices);
+        prop_assert_eq!(&report.header.attribute_names, &names);
+
+        let smb_ops = stream(&pos, 0, &tris, &choices, false);
+        let smb = dir.path().join("m.smb");
+        write(&smb, &Header::default(), &smb_ops);
+        prop_assert_eq!(read(&smb), smb_ops);
+        validate(&smb).unwrap();
+    }
+
+    #[test]
+    fn conversions_preserve_triangles_and_attributes((pos, tris, choices) in soup()) {
+        let dir = tempfile::tempdir().unwrap();
+        let names = vec!["a".to_string()];
+        let src = dir.path().join("src.sma");
+        let header = Header { comments: vec![], attribute_names: names };
+        write(&src, &header, &stream(&pos, 1, &tris, &choices, true));
+        let original = corners(&read_indexed(&src).unwrap());
+        let strip = |c: &Vec<[([f64; 3], Vec<f32>); 3]>| {
+            c.iter().map(|t| t.clone().map(|(p, _)| p)).collect::<Vec<_>>()
+        };
+
+        // Attributes survive SMA -> PLY (binary and ascii) -> SMA.
+        for (i, enc) in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii].into_iter().enumerate() {
+            let ply = dir.path().join(format!("a{i}.ply"));
+            convert_with(&src, &ply, &ConvertOptions { ply_encoding: enc }).unwrap();
+            prop_assert_eq!(&corners(&read_indexed(&ply).unwrap()), &original);
+            let back = dir.path().join(format!("b{i}.sma"));
+            convert(&ply, &back).unwrap();
+            validate(&back).unwrap();
+            prop_assert_eq!(&corners(&read_indexed(&back).unwrap()), &original);
+        }
+
+        // Positions survive every chain of formats, streaming or not.
+        let chain = ["c.obj", "d.smb", "e.ply", "f.smb", "g.obj", "h.sma", "i.ply", "j.obj", "k.sma"];
+        let mut prev = src.clone();
+        for name in chain {
+            let next = dir.path().join(name);
+            convert(&prev, &next).unwrap();
+            prop_assert_eq!(strip(&corners(&read_indexed(&next).unwrap())), strip(&original));
+            if Format::from_path(&next).unwrap().is_streaming() {
+                validate(&next).unwrap();
+            }
+            prev = next;
+        }
+    }
+}
+
+#[test]
+fn explicit_finalization_cannot_become_smb() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("x.sma");
+    std::fs::write(&src, format!("{TRIANGLE}f 1 2 3\nx 1\nx 2\nx 3\n")).unwrap();
+    validate(&src).unwrap();
+    let out = dir.path().join("x.smb");
+    let e = convert(&src, &out).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: finalization of vertex 0 cannot be stored in SMB, which only finalizes a vertex on its last triangle",
+            out.display()
+        )
+    );
+    assert!(!out.exists());
+    convert(&src, &dir.path().join("x.ply")).unwrap();
+}
+
+#[test]
+fn foreign_ply_with_quads_and_doubles_is_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("quad.ply");
+    std::fs::write(
+        &p,
+        "ply\nformat ascii 1.0\ncomment made by hand\nelement vertex 5\nproperty double x\nproperty double y\n\
+         property double z\nproperty uchar quality\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\
+         0 0 0 1\n1 0 0 2\n1 1 0 3\n0 1 0 4\n9 9 9 5\n4 0 1 2 3\n",
+    )
+    .unwrap();
+    let m = read_indexed(&p).unwrap();
+    assert_eq!(m.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+    assert_eq!(m.attribute_names, vec!["quality".to_string()]);
+    assert_eq!(m.attrs, vec![1.0, 2.0, 3.0, 4.0, 5.0]);
+    let out = dir.path().join("quad.smb");
+    let stats = convert(&p, &out).unwrap();
+    assert_eq!(stats.dropped_vertices, 1);
+    assert_eq!((stats.written.vertices, stats.written.triangles), (4, 2));
+}
