@@ -19,7 +19,9 @@ mod procedural;
 mod raw;
 mod source;
 mod stream;
+mod vti;
 mod vtk;
+mod xml;
 
 pub use dtype::{Dtype, Endian};
 pub use error::VolumeError;

@@ -1,6 +1,6 @@
 //! Format detection: one entry point from a path (and job-file options) to a source.
 
-use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nrrd, vtk};
+use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nrrd, vti, vtk};
 use std::io::Read;
 use std::path::Path;
 
@@ -10,6 +10,7 @@ enum Format {
     Raw,
     Nrrd,
     Vtk,
+    Vti,
 }
 
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
@@ -19,6 +20,7 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
         Format::Raw => open_raw(path, opts),
         Format::Nrrd => nrrd::open(path, opts),
         Format::Vtk => vtk::open(path, opts),
+        Format::Vti => vti::open(path, opts),
     }
 }
 
@@ -32,6 +34,7 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         (".nhdr", Format::Nrrd),
         (".raw", Format::Raw),
         (".vtk", Format::Vtk),
+        (".vti", Format::Vti),
     ];
     if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
         return Ok(*f);
@@ -45,6 +48,8 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         Format::Nrrd
     } else if head.starts_with(b"# vtk DataFile") {
         Format::Vtk
+    } else if head.starts_with(b"<?xml") || head.starts_with(b"<VTKFile") {
+        Format::Vti
     } else {
         Format::Raw
     })

@@ -12,7 +12,9 @@ use crate::source::check_request;
 use crate::{Dtype, Endian, Grid, VolumeError, VolumeSource};
 use memmap2::Mmap;
 use std::fs::File;
+use std::io::{BufRead, Read};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Everything needed to read a headerless binary volume.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -152,6 +154,47 @@ impl RawVolume {
             };
         }
         self.released = end;
+    }
+}
+
+/// Maps a whole file read-only, for formats that parse a header and then read payload bytes at
+/// computed offsets (VTI). Sharing one map between reopened streams needs the `Arc`.
+pub(crate) fn map_file(path: &Path) -> Result<Arc<Mmap>, VolumeError> {
+    let file = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
+    // SAFETY: as in `RawVolume::open_payload`: read-only map of an input treated as immutable.
+    let map = unsafe { Mmap::map(&file) }.map_err(|e| VolumeError::io(path, "map", e))?;
+    Ok(Arc::new(map))
+}
+
+/// A `BufRead` over a byte range of a shared map: streams start anywhere in a mapped file
+/// without copying it.
+pub(crate) struct MapReader {
+    map: Arc<Mmap>,
+    pos: usize,
+}
+
+impl MapReader {
+    /// Reads from `pos` to the end of the map (an out-of-range `pos` reads nothing).
+    pub(crate) fn new(map: Arc<Mmap>, pos: usize) -> Self {
+        let pos = pos.min(map.len());
+        MapReader { map, pos }
+    }
+}
+
+impl Read for MapReader {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = (&self.map[self.pos..]).read(buf)?;
+        self.pos += n;
+        Ok(n)
+    }
+}
+
+impl BufRead for MapReader {
+    fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
+        Ok(&self.map[self.pos..])
+    }
+    fn consume(&mut self, amt: usize) {
+        self.pos = (self.pos + amt).min(self.map.len());
     }
 }
 

@@ -2,8 +2,12 @@
 //! each, so every reader composes the same tested pieces (e.g. VTI = base64 -> zlib blocks).
 
 mod ascii;
+mod base64;
+mod zblocks;
 
 pub(crate) use ascii::AsciiValues;
+pub(crate) use base64::Base64Reader;
+pub(crate) use zblocks::{ZlibBlocks, ZlibLayout};
 
 use std::io;
 
@@ -11,4 +15,9 @@ use std::io;
 /// which the stream source turns into a one-line format error.
 pub(crate) fn invalid(msg: String) -> io::Error {
     io::Error::new(io::ErrorKind::InvalidData, msg)
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    pub(crate) use super::zblocks::tests::compress;
 }

@@ -1,0 +1,445 @@
+//! VTK XML ImageData (`.vti`): one piece, point data arrays in `ascii`, `binary` (base64) or
+//! `appended` (raw or base64) form, optionally zlib-compressed (`vtkZLibDataCompressor`), with
+//! `header_type` UInt32 or UInt64 and either byte order.
+//!
+//! Nothing here loads the whole array: uncompressed appended raw data is memory-mapped like a raw
+//! file; every other form streams through base64 / zlib-block decoders that keep one block
+//! (VTK writes 32 KiB blocks) in memory. `Direction` is ignored: grids are axis-aligned.
+
+use crate::codec::{AsciiValues, Base64Reader, ZlibBlocks, ZlibLayout};
+use crate::grid::dims_text;
+use crate::raw::{MapReader, Payload, RawVolume, map_file, payload_bytes};
+use crate::stream::{Stream, StreamSpec, StreamVolume};
+use crate::xml::{Tag, Tags};
+use crate::{Dtype, Endian, OpenOptions, VolumeError, VolumeSource};
+use memmap2::Mmap;
+use std::io::Read;
+use std::path::Path;
+use std::sync::Arc;
+
+/// How the chosen array's bytes are laid out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Form {
+    Ascii,
+    /// Base64 text starting at a byte offset of the file.
+    Base64,
+    /// Raw bytes starting at a byte offset of the file.
+    Raw,
+}
+
+/// Everything needed to open a payload stream again.
+#[derive(Debug, Clone, Copy)]
+struct Layout {
+    form: Form,
+    start: usize,
+    endian: Endian,
+    header_u64: bool,
+    compressed: bool,
+}
+
+/// Opens a `.vti` file.
+pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    opts.reject_raw_params(path, "VTK XML ImageData")?;
+    let map = map_file(path)?;
+    let doc = Doc::scan(path, &map)?;
+    let ferr =
+        |at: &str, expected: &str, found: &str| VolumeError::format(path, at, expected, found);
+    let root = &doc.root;
+    if root.attr("type") != Some("ImageData") {
+        return Err(ferr(
+            "VTKFile tag",
+            "type=\"ImageData\"",
+            root.attr("type").unwrap_or("none"),
+        ));
+    }
+    let endian = match root.attr("byte_order") {
+        None | Some("LittleEndian") => Endian::Little,
+        Some("BigEndian") => Endian::Big,
+        Some(o) => {
+            return Err(ferr(
+                "VTKFile tag",
+                "byte_order LittleEndian or BigEndian",
+                o,
+            ));
+        }
+    };
+    let header_u64 = match root.attr("header_type") {
+        None | Some("UInt32") => false,
+        Some("UInt64") => true,
+        Some(h) => return Err(ferr("VTKFile tag", "header_type UInt32 or UInt64", h)),
+    };
+    let compressed = match root.attr("compressor") {
+        None | Some("") => false,
+        Some("vtkZLibDataCompressor") => true,
+        Some(c) => {
+            return Err(ferr(
+                "VTKFile tag",
+                "no compressor or vtkZLibDataCompressor",
+                c,
+            ));
+        }
+    };
+    let image = doc
+        .image
+        .as_ref()
+        .ok_or_else(|| ferr("document", "an ImageData tag", "none"))?;
+    let extent = numbers::<i64, 6>(image.attr("WholeExtent").unwrap_or("")).ok_or_else(|| {
+        ferr(
+            "ImageData tag",
+            "WholeExtent=\"x0 x1 y0 y1 z0 z1\"",
+            image.attr("WholeExtent").unwrap_or("none"),
+        )
+    })?;
+    let spacing = match image.attr("Spacing") {
+        None => [1.0; 3],
+        Some(s) => {
+            numbers::<f64, 3>(s).ok_or_else(|| ferr("ImageData tag", "Spacing=\"sx sy sz\"", s))?
+        }
+    };
+    let origin = match image.attr("Origin") {
+        None => [0.0; 3],
+        Some(s) => {
+            numbers::<f64, 3>(s).ok_or_else(|| ferr("ImageData tag", "Origin=\"x y z\"", s))?
+        }
+    };
+    if doc.pieces != 1 {
+        return Err(ferr(
+            "ImageData tag",
+            "exactly one Piece",
+            &doc.pieces.to_string(),
+        ));
+    }
+    let mut dims = [0u64; 3];
+    for a in 0..3 {
+        let n = extent[2 * a + 1]
+            .checked_sub(extent[2 * a])
+            .and_then(|d| d.checked_add(1));
+        dims[a] = n.and_then(|n| u64::try_from(n).ok()).unwrap_or(0);
+    }
+    // VTK places point (i, j, k) of the extent at Origin + Spacing * (x0 + i, ...).
+    let origin = [0, 1, 2].map(|a| origin[a] + spacing[a] * extent[2 * a] as f64);
+    let grid = opts.grid(path, dims, spacing, origin)?;
+
+    let array = doc.pick(path, opts.array.as_deref())?;
+    let name = array.tag.attr("Name").unwrap_or("").to_string();
+    let at = format!("DataArray {name:?}");
+    let ty = array.tag.attr("type").unwrap_or("none");
+    let dtype = vti_type(ty).ok_or_else(|| {
+        ferr(
+            &at,
+            "type Int8/UInt8/Int16/UInt16/Int32/UInt32/Float32/Float64",
+            ty,
+        )
+    })?;
+    if let Some(c) = array.tag.attr("NumberOfComponents").filter(|c| *c != "1") {
+        return Err(ferr(&at, "NumberOfComponents=\"1\" (a scalar array)", c));
+    }
+    let (form, start) = match array.tag.attr("format") {
+        Some("ascii") => (Form::Ascii, array.tag.end),
+        Some("binary") => (Form::Base64, array.tag.end),
+        Some("appended") => {
+            let (base, raw) = doc.appended.ok_or_else(|| {
+                ferr(
+                    &at,
+                    "an AppendedData section for format=\"appended\"",
+                    "none",
+                )
+            })?;
+            let off = array.tag.attr("offset").unwrap_or("0");
+            let off: usize = off.parse().map_err(|_| ferr(&at, "a byte offset", off))?;
+            let start = base
+                .checked_add(off)
+                .filter(|&s| s <= map.len())
+                .ok_or_else(|| {
+                    ferr(
+                        &at,
+                        &format!("an offset inside the {}-byte file", map.len()),
+                        &off.to_string(),
+                    )
+                })?;
+            (if raw { Form::Raw } else { Form::Base64 }, start)
+        }
+        other => {
+            return Err(ferr(
+                &at,
+                "format ascii, binary or appended",
+                other.unwrap_or("none"),
+            ));
+        }
+    };
+    let layout = Layout {
+        form,
+        start,
+        endian,
+        header_u64,
+        compressed: compressed && form != Form::Ascii,
+    };
+    let payload = payload_bytes(dims, dtype).ok_or_else(|| VolumeError::Grid {
+        origin: path.display().to_string(),
+        problem: format!(
+            "dims {} of {dtype} need more than 2^64 bytes; check WholeExtent",
+            dims_text(dims)
+        ),
+    })?;
+    // Read the block header once now, so a broken header fails at open time with its own message.
+    let data_start = check_header(path, &at, &map, layout, payload)?;
+    if layout.form == Form::Raw && !layout.compressed {
+        return Ok(Box::new(RawVolume::open_payload(Payload {
+            path,
+            grid,
+            dtype,
+            endian,
+            offset: data_start as u64,
+            trailing_ok: true,
+            hint: "check WholeExtent, the DataArray type and offset",
+        })?));
+    }
+    let (decode_as, what) = match (layout.form, layout.compressed) {
+        (Form::Ascii, _) => (Dtype::F64, "ascii VTI array"),
+        (_, true) => (dtype, "zlib VTI array"),
+        _ => (dtype, "base64 VTI array"),
+    };
+    let owned = path.to_path_buf();
+    Ok(Box::new(StreamVolume::new(StreamSpec {
+        path: path.to_path_buf(),
+        what,
+        grid,
+        dtype: decode_as,
+        stored: dtype,
+        // AsciiValues emits little-endian f64 whatever the file's byte order.
+        endian: if form == Form::Ascii {
+            Endian::Little
+        } else {
+            endian
+        },
+        open: Box::new(move || open_stream(&owned, &at, &map, layout, payload).map(|(s, _)| s)),
+    })?))
+}
+
+/// Checks the array's header against the grid; returns where uncompressed raw data starts.
+fn check_header(
+    path: &Path,
+    at: &str,
+    map: &Arc<Mmap>,
+    layout: Layout,
+    payload: u64,
+) -> Result<usize, VolumeError> {
+    open_stream(path, at, map, layout, payload).map(|(_, start)| start)
+}
+
+/// Opens the payload stream of the array, after reading and checking its block header.
+/// Also returns the file offset of the first data byte (meaningful for raw forms only).
+fn open_stream(
+    path: &Path,
+    at: &str,
+    map: &Arc<Mmap>,
+    l: Layout,
+    payload: u64,
+) -> Result<(Stream, usize), VolumeError> {
+    let reader = MapReader::new(map.clone(), l.start);
+    let mut encoded: Stream = match l.form {
+        Form::Ascii => return Ok((Box::new(AsciiValues::new(reader, Some(b'<'))), l.start)),
+        Form::Base64 => Box::new(Base64Reader::new(reader)),
+        Form::Raw => Box::new(reader),
+    };
+    let word = if l.header_u64 { 8 } else { 4 };
+    let herr = |what: String, found: String| {
+        VolumeError::format(path, format!("{at} header"), what, found)
+    };
+    let next = |r: &mut Stream| -> Result<u64, VolumeError> {
+        let mut b = [0u8; 8];
+        r.read_exact(&mut b[..word])
+            .map_err(|e| herr(format!("a {}-byte block header", word), e.to_string()))?;
+        let v = match (l.endian, l.header_u64) {
+            (Endian::Little, true) => u64::from_le_bytes(b),
+            (Endian::Big, true) => u64::from_be_bytes(b),
+            (Endian::Little, false) => u64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
+            (Endian::Big, false) => u64::from(u32::from_be_bytes([b[0], b[1], b[2], b[3]])),
+        };
+        Ok(v)
+    };
+    if !l.compressed {
+        let n = next(&mut encoded)?;
+        if n != payload {
+            return Err(herr(format!("{payload} bytes of data"), format!("{n}")));
+        }
+        return Ok((encoded, l.start + word));
+    }
+    let blocks = next(&mut encoded)?;
+    let block_size = next(&mut encoded)?;
+    let last_size = next(&mut encoded)?;
+    // Every block needs a header word: more blocks than the file has bytes is a corrupt header.
+    if blocks.saturating_mul(word as u64) > map.len() as u64
+        || block_size > ZlibLayout::MAX_BLOCK
+        || (blocks > 0 && block_size == 0)
+    {
+        return Err(herr(
+            "a plausible zlib block header".into(),
+            format!("{blocks} blocks of {block_size} bytes"),
+        ));
+    }
+    let mut compressed = Vec::with_capacity(blocks as usize);
+    for _ in 0..blocks {
+        compressed.push(next(&mut encoded)?);
+    }
+    let zl = ZlibLayout {
+        block_size,
+        last_size,
+        compressed,
+    };
+    if zl.total() != Some(payload) {
+        return Err(herr(
+            format!("{payload} uncompressed bytes"),
+            format!("{blocks} blocks of {block_size} bytes, last {last_size}"),
+        ));
+    }
+    Ok((Box::new(ZlibBlocks::new(encoded, zl)), l.start))
+}
+
+/// A chosen DataArray tag.
+struct Array {
+    tag: Tag,
+}
+
+/// The tags of a VTI document that matter.
+struct Doc {
+    root: Tag,
+    image: Option<Tag>,
+    pieces: usize,
+    /// Scalars attribute of PointData.
+    scalars: Option<String>,
+    arrays: Vec<Tag>,
+    /// File offset just after the `_` that starts appended data, and whether it is raw.
+    appended: Option<(usize, bool)>,
+}
+
+impl Doc {
+    fn scan(path: &Path, map: &[u8]) -> Result<Doc, VolumeError> {
+        let bad = |off: usize| {
+            VolumeError::format(
+                path,
+                format!("byte offset {off}"),
+                "a well-formed XML tag",
+                "something else",
+            )
+        };
+        let mut root = None;
+        let mut image = None;
+        let (mut pieces, mut scalars, mut arrays, mut appended) = (0, None, Vec::new(), None);
+        let mut in_point_data = false;
+        for tag in Tags::new(map) {
+            let tag = tag.map_err(bad)?;
+            if root.is_none() {
+                if tag.name != "VTKFile" {
+                    let found =
+                        String::from_utf8_lossy(&map[tag.start..tag.end.min(tag.start + 40)])
+                            .into_owned();
+                    return Err(VolumeError::format(
+                        path,
+                        "first tag",
+                        "<VTKFile ...> (a VTK XML file)",
+                        found,
+                    ));
+                }
+                root = Some(tag);
+                continue;
+            }
+            match (tag.name.as_str(), tag.closing) {
+                ("ImageData", false) => image = Some(tag),
+                ("Piece", false) => pieces += 1,
+                ("PointData", closing) => {
+                    in_point_data = !closing;
+                    if !closing {
+                        scalars = tag.attr("Scalars").map(str::to_string);
+                    }
+                }
+                ("DataArray", false) if in_point_data => arrays.push(tag),
+                ("AppendedData", false) => {
+                    let raw = tag.attr("encoding") == Some("raw");
+                    let underscore =
+                        map[tag.end..]
+                            .iter()
+                            .position(|&b| b == b'_')
+                            .ok_or_else(|| {
+                                VolumeError::format(
+                                    path,
+                                    format!("byte offset {}", tag.end),
+                                    "'_' starting the appended data",
+                                    "none",
+                                )
+                            })?;
+                    appended = Some((tag.end + underscore + 1, raw));
+                    // Binary data follows: no more tags to read.
+                    break;
+                }
+                _ => {}
+            }
+        }
+        let root = root.ok_or_else(|| {
+            VolumeError::format(
+                path,
+                "byte offset 0",
+                "<VTKFile ...> (a VTK XML file)",
+                "no tags",
+            )
+        })?;
+        Ok(Doc {
+            root,
+            image,
+            pieces,
+            scalars,
+            arrays,
+            appended,
+        })
+    }
+
+    /// The array named by the job, else PointData's active scalars, else the first array.
+    fn pick(&self, path: &Path, wanted: Option<&str>) -> Result<Array, VolumeError> {
+        let names: Vec<&str> = self
+            .arrays
+            .iter()
+            .map(|a| a.attr("Name").unwrap_or(""))
+            .collect();
+        let want = wanted.or(self.scalars.as_deref());
+        let found = match want {
+            Some(w) => self.arrays.iter().find(|a| a.attr("Name") == Some(w)),
+            None => self.arrays.first(),
+        };
+        found.cloned().map(|tag| Array { tag }).ok_or_else(|| {
+            VolumeError::format(
+                path,
+                "PointData",
+                match want {
+                    Some(w) => format!("a DataArray named {w:?}"),
+                    None => "a DataArray".to_string(),
+                },
+                format!("arrays [{}]", names.join(", ")),
+            )
+        })
+    }
+}
+
+fn numbers<T: std::str::FromStr, const N: usize>(s: &str) -> Option<[T; N]> {
+    let v: Vec<T> = s
+        .split_whitespace()
+        .map(|t| t.parse().ok())
+        .collect::<Option<_>>()?;
+    v.try_into().ok()
+}
+
+fn vti_type(s: &str) -> Option<Dtype> {
+    Some(match s {
+        "Int8" | "Char" => Dtype::I8,
+        "UInt8" | "UnsignedChar" => Dtype::U8,
+        "Int16" => Dtype::I16,
+        "UInt16" => Dtype::U16,
+        "Int32" => Dtype::I32,
+        "UInt32" => Dtype::U32,
+        "Float32" => Dtype::F32,
+        "Float64" => Dtype::F64,
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod tests;

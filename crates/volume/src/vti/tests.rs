@@ -1,0 +1,419 @@
+use super::*;
+use crate::codec::tests::compress;
+use crate::dtype::tests::{encode, sample_values};
+use crate::open_path;
+
+/// Test-side base64 encoder (the inverse of `Base64Reader`).
+fn b64(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let b = [c[0], *c.get(1).unwrap_or(&0), *c.get(2).unwrap_or(&0)];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for i in 0..4 {
+            if i <= c.len() {
+                s.push(T[(n >> (18 - 6 * i) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Case {
+    format: &'static str, // ascii, binary, appended-raw, appended-base64
+    zlib: bool,
+    u64_header: bool,
+    endian: Endian,
+}
+
+fn words(values: &[u64], c: Case) -> Vec<u8> {
+    values
+        .iter()
+        .flat_map(|&v| match (c.u64_header, c.endian) {
+            (true, Endian::Little) => v.to_le_bytes().to_vec(),
+            (true, Endian::Big) => v.to_be_bytes().to_vec(),
+            (false, Endian::Little) => (v as u32).to_le_bytes().to_vec(),
+            (false, Endian::Big) => (v as u32).to_be_bytes().to_vec(),
+        })
+        .collect()
+}
+
+/// Header bytes and data bytes of one array as VTK frames them.
+fn framed(data: &[u8], c: Case) -> (Vec<u8>, Vec<u8>) {
+    if c.zlib {
+        let (layout, blocks) = compress(data, 40);
+        let mut h = vec![
+            layout.compressed.len() as u64,
+            layout.block_size,
+            layout.last_size,
+        ];
+        h.extend(&layout.compressed);
+        (words(&h, c), blocks)
+    } else {
+        (words(&[data.len() as u64], c), data.to_vec())
+    }
+}
+
+/// A VTI with a decoy array "first" before the array "v" holding `values` of `dtype`.
+fn vti(dtype: Dtype, vti_type: &str, values: &[f64], c: Case) -> Vec<u8> {
+    let data = encode(dtype, c.endian, values);
+    let decoy = encode(Dtype::U8, c.endian, &[7.0; 24]);
+    let order = if c.endian == Endian::Big {
+        "BigEndian"
+    } else {
+        "LittleEndian"
+    };
+    let header = if c.u64_header { "UInt64" } else { "UInt32" };
+    let comp = if c.zlib {
+        " compressor=\"vtkZLibDataCompressor\""
+    } else {
+        ""
+    };
+    let mut doc = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"{order}\" header_type=\"{header}\"{comp}>\n<ImageData WholeExtent=\"1 3 0 1 2 5\" Origin=\"10 0 0\" Spacing=\"2 1 0.5\">\n<Piece Extent=\"1 3 0 1 2 5\">\n<PointData Scalars=\"v\">\n"
+    );
+    let mut appended = Vec::new();
+    for (name, ty, bytes, vals) in [
+        ("first", "UInt8", &decoy, vec![7.0; 24]),
+        ("v", vti_type, &data, values.to_vec()),
+    ] {
+        let (h, d) = framed(bytes, c);
+        match c.format {
+            "ascii" => {
+                let text: Vec<String> = vals.iter().map(|v| v.to_string()).collect();
+                doc += &format!(
+                    "<DataArray type=\"{ty}\" Name=\"{name}\" format=\"ascii\">\n{}\n</DataArray>\n",
+                    text.join(" ")
+                );
+            }
+            "binary" => {
+                doc += &format!(
+                    "<DataArray type=\"{ty}\" Name=\"{name}\" format=\"binary\">\n  {}{}\n</DataArray>\n",
+                    b64(&h),
+                    b64(&d)
+                );
+            }
+            "appended-raw" => {
+                doc += &format!(
+                    "<DataArray type=\"{ty}\" Name=\"{name}\" format=\"appended\" offset=\"{}\"/>\n",
+                    appended.len()
+                );
+                appended.extend(h);
+                appended.extend(d);
+            }
+            _ => {
+                doc += &format!(
+                    "<DataArray type=\"{ty}\" Name=\"{name}\" format=\"appended\" offset=\"{}\"/>\n",
+                    appended.len()
+                );
+                appended.extend(b64(&h).into_bytes());
+                appended.extend(b64(&d).into_bytes());
+            }
+        }
+    }
+    doc += "</PointData>\n</Piece>\n</ImageData>\n";
+    let mut out = doc.into_bytes();
+    if c.format.starts_with("appended") {
+        let enc = if c.format == "appended-raw" {
+            "raw"
+        } else {
+            "base64"
+        };
+        out.extend(format!("<AppendedData encoding=\"{enc}\">\n   _").into_bytes());
+        out.extend(appended);
+        out.extend(b"\n</AppendedData>\n");
+    }
+    out.extend(b"</VTKFile>\n");
+    out
+}
+
+fn read_all(path: &Path, opts: &OpenOptions) -> Result<Vec<f32>, VolumeError> {
+    let mut v = open_path(path, opts)?;
+    let g = v.grid();
+    let mut all = Vec::new();
+    let mut out = vec![0.0f32; g.slice_len()];
+    for z in 0..g.dims[2] {
+        v.read_slice(z, &mut out)?;
+        all.extend_from_slice(&out);
+    }
+    Ok(all)
+}
+
+fn cases() -> Vec<Case> {
+    let mut v = Vec::new();
+    for format in ["ascii", "binary", "appended-raw", "appended-base64"] {
+        for zlib in [false, true] {
+            for u64_header in [false, true] {
+                for endian in [Endian::Little, Endian::Big] {
+                    v.push(Case {
+                        format,
+                        zlib,
+                        u64_header,
+                        endian,
+                    });
+                }
+            }
+        }
+    }
+    v
+}
+
+#[test]
+fn every_form_header_type_and_byte_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("v.vti");
+    for (dtype, ty) in [
+        (Dtype::I16, "Int16"),
+        (Dtype::F64, "Float64"),
+        (Dtype::U8, "UInt8"),
+        (Dtype::U32, "UInt32"),
+    ] {
+        let values = sample_values(dtype, 24);
+        for c in cases() {
+            std::fs::write(&p, vti(dtype, ty, &values, c)).unwrap();
+            let want: Vec<f32> = values.iter().map(|&x| x as f32).collect();
+            assert_eq!(
+                read_all(&p, &OpenOptions::default()).unwrap(),
+                want,
+                "{ty} {c:?}"
+            );
+            let v = open_path(&p, &OpenOptions::default()).unwrap();
+            assert_eq!(v.grid().dims, [3, 2, 4]);
+            assert_eq!(v.grid().spacing, [2.0, 1.0, 0.5]);
+            assert_eq!(
+                v.grid().origin,
+                [12.0, 0.0, 1.0],
+                "origin includes the extent start"
+            );
+            assert_eq!(v.dtype(), Some(dtype));
+            let first = OpenOptions {
+                array: Some("first".into()),
+                ..Default::default()
+            };
+            assert_eq!(read_all(&p, &first).unwrap(), vec![7.0; 24], "{c:?}");
+        }
+    }
+}
+
+/// Byte-level `replace`/`replacen` for files with binary appended data.
+struct Bytes(Vec<u8>);
+
+impl Bytes {
+    fn replacen(self, from: &str, to: &str, n: usize) -> Self {
+        let (from, to) = (from.as_bytes(), to.as_bytes());
+        let mut out = Vec::new();
+        let (mut i, mut done) = (0, 0);
+        while i < self.0.len() {
+            if done < n && self.0[i..].starts_with(from) {
+                out.extend_from_slice(to);
+                i += from.len();
+                done += 1;
+            } else {
+                out.push(self.0[i]);
+                i += 1;
+            }
+        }
+        Bytes(out)
+    }
+    fn replace(self, from: &str, to: &str) -> Self {
+        self.replacen(from, to, usize::MAX)
+    }
+    fn into_bytes(self) -> Vec<u8> {
+        self.0
+    }
+}
+
+#[test]
+fn bad_files_give_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("bad.vti");
+    let values = sample_values(Dtype::U8, 24);
+    let base = |format, zlib| {
+        vti(
+            Dtype::U8,
+            "UInt8",
+            &values,
+            Case {
+                format,
+                zlib,
+                u64_header: false,
+                endian: Endian::Little,
+            },
+        )
+    };
+    let s = |b: Vec<u8>| Bytes(b);
+    let cut = |b: Vec<u8>, n: usize| b[..b.len() - n].to_vec();
+    let corrupt = {
+        let mut b = base("appended-raw", true);
+        let at = b.len() - 60;
+        b[at..at + 8].fill(0x55);
+        b
+    };
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        (
+            b"<html></html>".to_vec(),
+            "first tag: expected <VTKFile ...> (a VTK XML file), found \"<html>\"",
+        ),
+        (
+            s(base("binary", false))
+                .replace("ImageData\" version", "PolyData\" version")
+                .into_bytes(),
+            "VTKFile tag: expected type=\"ImageData\", found \"PolyData\"",
+        ),
+        (
+            s(base("binary", true))
+                .replace("vtkZLib", "vtkLZ4")
+                .into_bytes(),
+            "VTKFile tag: expected no compressor or vtkZLibDataCompressor, found \"vtkLZ4DataCompressor\"",
+        ),
+        (
+            s(base("binary", false))
+                .replace("\"UInt8\" Name=\"v\"", "\"Int64\" Name=\"v\"")
+                .into_bytes(),
+            "DataArray \"v\": expected type Int8/UInt8/Int16/UInt16/Int32/UInt32/Float32/Float64, found \"Int64\"",
+        ),
+        (
+            s(base("binary", false))
+                .replace("Scalars=\"v\"", "Scalars=\"w\"")
+                .into_bytes(),
+            "PointData: expected a DataArray named \"w\", found \"arrays [first, v]\"",
+        ),
+        (
+            s(base("binary", false))
+                .replace("WholeExtent=\"1 3", "WholeExtent=\"1 1")
+                .into_bytes(),
+            "dims 1x2x4 need at least 2 voxels per axis; check the dims",
+        ),
+        (
+            s(base("binary", false))
+                .replace(
+                    "WholeExtent=\"1 3 0 1 2 5\"",
+                    "WholeExtent=\"0 4294967295 0 4294967295 0 9\"",
+                )
+                .into_bytes(),
+            "dims 4294967296x4294967296x10 overflow a 64-bit voxel count; check the dims",
+        ),
+        (
+            cut(base("appended-raw", false), 30),
+            "file is 491 bytes but dims 3x2x4 of u8 plus 469 header bytes need 493; check WholeExtent, the DataArray type and offset",
+        ),
+        (
+            s(base("appended-raw", false))
+                .replace("WholeExtent=\"1 3", "WholeExtent=\"1 4")
+                .into_bytes(),
+            "DataArray \"v\" header: expected 32 bytes of data, found \"24\"",
+        ),
+        (
+            corrupt,
+            "zlib VTI array voxel 0 (slice 0): expected valid encoded data, found \"zlib block 0: corrupt deflate stream\"",
+        ),
+        (
+            s(base("binary", false))
+                .replace(
+                    "Name=\"v\" format=\"binary\">\n  ",
+                    "Name=\"v\" format=\"binary\">\n  *",
+                )
+                .into_bytes(),
+            "DataArray \"v\" header: expected a 4-byte block header, found \"base64 text, found '*' at character 3\"",
+        ),
+    ];
+    let mut wrong = Vec::new();
+    for (file, want) in cases {
+        std::fs::write(&p, &file).unwrap();
+        let got = match read_all(&p, &OpenOptions::default()) {
+            Ok(_) => "Ok".to_string(),
+            Err(e) => e.to_string(),
+        };
+        let want = format!("{}: {want}", p.display());
+        if got != want {
+            wrong.push(format!("got  {got}\nwant {want}"));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+const DATA: &str = "/work/shared/data";
+
+fn present(rel: &str) -> Option<std::path::PathBuf> {
+    let p = Path::new(DATA).join(rel);
+    if p.exists() {
+        Some(p)
+    } else {
+        eprintln!("skipping: {} not present", p.display());
+        None
+    }
+}
+
+#[test]
+fn engine_vti_equals_engine_raw() {
+    let (Some(vti), Some(raw)) = (
+        present("engine/engine.vti"),
+        present("engine/engine_256x256x128_uint8.raw"),
+    ) else {
+        return;
+    };
+    let opts = OpenOptions {
+        dims: Some([256, 256, 128]),
+        dtype: Some(Dtype::U8),
+        ..Default::default()
+    };
+    let mut a = open_path(&vti, &OpenOptions::default()).unwrap();
+    let mut b = open_path(&raw, &opts).unwrap();
+    assert_eq!(a.grid(), b.grid());
+    assert_eq!(a.dtype(), Some(Dtype::U8));
+    let (mut sa, mut sb) = (vec![0.0f32; 65536], vec![0.0f32; 65536]);
+    for z in 0..128 {
+        a.read_slice(z, &mut sa).unwrap();
+        b.read_slice(z, &mut sb).unwrap();
+        assert!(sa == sb, "slice {z} differs");
+    }
+}
+
+fn mean_max(rel: &str) -> Option<(Box<dyn VolumeSource>, f64, f32)> {
+    let p = present(rel)?;
+    let all = read_all(&p, &OpenOptions::default()).unwrap();
+    let mean = all.iter().map(|&x| x as f64).sum::<f64>() / all.len() as f64;
+    Some((
+        open_path(&p, &OpenOptions::default()).unwrap(),
+        mean,
+        all.iter().fold(f32::MIN, |m, &x| m.max(x)),
+    ))
+}
+
+#[test]
+fn real_vti_files_when_present() {
+    for (rel, dims, dtype, mean, max) in [
+        (
+            "bonsai/bonsai.vti",
+            [256, 256, 256],
+            Dtype::U8,
+            13.7114,
+            255.0,
+        ),
+        (
+            "aneurism/aneurism.vti",
+            [256, 256, 256],
+            Dtype::U8,
+            1.0692,
+            255.0,
+        ),
+        (
+            "hydrogen/hydrogen.vti",
+            [64, 64, 64],
+            Dtype::F32,
+            0.0185,
+            1.0,
+        ),
+    ] {
+        let Some((v, m, mx)) = mean_max(rel) else {
+            continue;
+        };
+        assert_eq!(v.grid().dims, dims, "{rel}");
+        assert_eq!(v.dtype(), Some(dtype), "{rel}");
+        assert!((m - mean).abs() < 1e-3, "{rel} mean {m}");
+        assert!((mx - max).abs() < 1e-6, "{rel} max {mx}");
+    }
+}
