@@ -35,9 +35,15 @@ pub fn crossing(va: f32, vb: f32, iso: f32) -> f64 {
 /// `va` (at `voxel`) and `vb`.
 #[inline]
 pub fn edge_position(grid: &Grid, voxel: [u64; 3], axis: u8, va: f32, vb: f32, iso: f32) -> DVec3 {
-    let mut c = voxel.map(|v| v as f64);
-    c[axis as usize] += crossing(va, vb, iso);
-    grid.position(c[0], c[1], c[2])
+    let t = crossing(va, vb, iso);
+    let [x, y, z] = voxel.map(|v| v as f64);
+    // A match rather than `c[axis] += t`: indexing a stack array with a runtime axis made the
+    // hot loop stall on store forwarding.
+    match axis {
+        0 => grid.position(x + t, y, z),
+        1 => grid.position(x, y + t, z),
+        _ => grid.position(x, y, z + t),
+    }
 }
 
 #[cfg(test)]

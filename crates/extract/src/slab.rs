@@ -118,6 +118,8 @@ pub struct Extractor {
     grid: Grid,
     iso: f32,
     stats: ExtractStats,
+    /// Per-row scratch: the inside bits of each column of four voxels (reused, never shrinks).
+    columns: Vec<u8>,
 }
 
 /// The four rows of voxels holding the corners of one row of cubes, indexed by `c >> 1` for
@@ -130,6 +132,7 @@ impl Extractor {
             grid,
             iso,
             stats: ExtractStats::default(),
+            columns: Vec::new(),
         }
     }
 
@@ -197,59 +200,80 @@ impl Extractor {
     /// Appends the non-empty cubes of the row of cubes starting at voxel `start` (x = 0).
     fn extract_row(&mut self, start: [u64; 3], quad: RowQuad<'_>, batch: &mut CubeBatch) {
         let iso = self.iso;
-        // Inside bits of the four voxels at x, placed at the corner bits of the cube's x = 0
-        // face (corner 2j for row j); shifted left by one they are the x = 1 face.
-        let column = |x: usize| {
-            u8::from(is_inside(quad[0][x], iso))
-                | (u8::from(is_inside(quad[1][x], iso)) << 2)
-                | (u8::from(is_inside(quad[2][x], iso)) << 4)
-                | (u8::from(is_inside(quad[3][x], iso)) << 6)
-        };
-        let mut left = column(0);
-        for x in 0..quad[0].len() - 1 {
-            let right = column(x + 1);
-            let index = left | (right << 1);
-            left = right;
-            if index == 0 || index == 0xff {
-                continue;
+        // The case index is built incrementally along x: the inside bits of the four voxels of
+        // column x, placed at the corner bits of a cube's x = 0 face (corner 2j for row j), are
+        // computed once and serve as the x = 1 face (shifted left by one) of cube x - 1 and the
+        // x = 0 face of cube x. This branch-free loop vectorises.
+        self.columns.clear();
+        self.columns
+            .extend(quad[0].iter().zip(quad[1]).zip(quad[2]).zip(quad[3]).map(
+                |(((&v0, &v1), &v2), &v3)| {
+                    u8::from(is_inside(v0, iso))
+                        | (u8::from(is_inside(v1, iso)) << 2)
+                        | (u8::from(is_inside(v2, iso)) << 4)
+                        | (u8::from(is_inside(v3, iso)) << 6)
+                },
+            ));
+        let columns = &self.columns;
+        let (cubes_before, triangles_before) = (batch.cubes.len(), batch.triangles.len());
+        let mut x = 0;
+        while x + 1 < columns.len() {
+            // Most of a volume is empty or full: skip 8 cubes at once when their 9 columns are
+            // all outside or all inside.
+            if let Some(run) = columns.get(x..x + 9) {
+                let word = u64::from_le_bytes(run[..8].try_into().expect("8 bytes"));
+                if (word == 0 || word == ALL_INSIDE_RUN) && run[8] == run[0] {
+                    x += 8;
+                    continue;
+                }
             }
-            self.push_cube(
-                [start[0] + x as u64, start[1], start[2]],
-                index,
-                &quad,
-                batch,
-            );
+            let index = columns[x] | (columns[x + 1] << 1);
+            if index != 0 && index != 0xff {
+                let coord = [start[0] + x as u64, start[1], start[2]];
+                push_cube(&self.grid, iso, coord, index, &quad, batch);
+            }
+            x += 1;
         }
+        self.stats.active_cubes += (batch.cubes.len() - cubes_before) as u64;
+        self.stats.triangles += (batch.triangles.len() - triangles_before) as u64;
     }
+}
 
-    /// Appends one non-empty cube: its crossing edges' vertices and its triangles.
-    fn push_cube(&mut self, coord: [u64; 3], index: u8, quad: &RowQuad<'_>, batch: &mut CubeBatch) {
-        let case = table::case(index);
-        let x = coord[0] as usize;
-        let value = |c: u8| quad[(c >> 1) as usize][x + (c & 1) as usize];
-        let first_vertex = batch.vertices.len();
-        for &e in case.edges() {
-            let (a, b) = edge_corners(e);
-            let o = corner_offset(a);
-            let voxel = [0, 1, 2].map(|i| coord[i] + u64::from(o[i]));
-            let axis = edge_axis(e);
-            batch.vertices.push(EdgeVertex {
-                key: EdgeKey::new(voxel[0], voxel[1], voxel[2], axis, self.grid.dims),
-                pos: edge_position(&self.grid, voxel, axis, value(a), value(b), self.iso),
-            });
-        }
-        let first_triangle = batch.triangles.len();
-        batch.triangles.extend_from_slice(case.triangles());
-        batch.cubes.push(Cube {
-            coord,
-            first_vertex: u32::try_from(first_vertex).expect("batch vertex count fits u32"),
-            vertex_count: case.edges().len() as u8,
-            first_triangle: u32::try_from(first_triangle).expect("batch triangle count fits u32"),
-            triangle_count: case.triangles().len() as u8,
+/// Eight column codes with all four voxels inside.
+const ALL_INSIDE_RUN: u64 = u64::from_le_bytes([0b0101_0101; 8]);
+
+/// Appends one non-empty cube: its crossing edges' vertices and its triangles.
+fn push_cube(
+    grid: &Grid,
+    iso: f32,
+    coord: [u64; 3],
+    index: u8,
+    quad: &RowQuad<'_>,
+    batch: &mut CubeBatch,
+) {
+    let case = table::case(index);
+    let x = coord[0] as usize;
+    let value = |c: u8| quad[(c >> 1) as usize][x + (c & 1) as usize];
+    let first_vertex = batch.vertices.len();
+    for &e in case.edges() {
+        let (a, b) = edge_corners(e);
+        let o = corner_offset(a);
+        let voxel = [0, 1, 2].map(|i| coord[i] + u64::from(o[i]));
+        let axis = edge_axis(e);
+        batch.vertices.push(EdgeVertex {
+            key: EdgeKey::new(voxel[0], voxel[1], voxel[2], axis, grid.dims),
+            pos: edge_position(grid, voxel, axis, value(a), value(b), iso),
         });
-        self.stats.active_cubes += 1;
-        self.stats.triangles += case.triangles().len() as u64;
     }
+    let first_triangle = batch.triangles.len();
+    batch.triangles.extend_from_slice(case.triangles());
+    batch.cubes.push(Cube {
+        coord,
+        first_vertex: u32::try_from(first_vertex).expect("batch vertex count fits u32"),
+        vertex_count: case.edges().len() as u8,
+        first_triangle: u32::try_from(first_triangle).expect("batch triangle count fits u32"),
+        triangle_count: case.triangles().len() as u8,
+    });
 }
 
 fn count_non_finite(slice: &[f32]) -> u64 {
