@@ -16,29 +16,14 @@ fn main() {
         .unwrap_or(256);
     let only = std::env::args().nth(2);
     let grid = Grid::new([n; 3], [1.0; 3], [0.0; 3]).expect("valid grid");
-    let c = n as f64 / 2.0;
-    let fields: [(&str, Box<dyn Fn(f64, f64, f64) -> f64>); 2] = [
-        (
-            "sphere",
-            Box::new(move |x, y, z| {
-                c * 0.8 - ((x - c).powi(2) + (y - c).powi(2) + (z - c).powi(2)).sqrt()
-            }),
-        ),
-        (
-            "gyroid",
-            Box::new(|x, y, z| {
-                let (x, y, z) = (x * 0.3, y * 0.3, z * 0.3);
-                x.sin() * y.cos() + y.sin() * z.cos() + z.sin() * x.cos()
-            }),
-        ),
-    ];
+    let fields: [(&str, Field); 2] = [("sphere", sphere), ("gyroid", gyroid)];
     for (name, f) in fields {
         if only.as_deref().is_some_and(|o| o != name) {
             continue;
         }
         let slice = |z: u64| -> Vec<f32> {
             (0..n * n)
-                .map(|i| f((i % n) as f64, (i / n) as f64, z as f64) as f32)
+                .map(|i| f([(i % n) as f64, (i / n) as f64, z as f64], n as f64) as f32)
                 .collect()
         };
         let slices: Vec<Vec<f32>> = (0..n).map(slice).collect();
@@ -64,4 +49,19 @@ fn main() {
             stats.active_cubes,
         );
     }
+}
+
+/// A scalar field sampled at voxel coordinates of an n^3 grid.
+type Field = fn([f64; 3], f64) -> f64;
+
+/// A ball of radius 0.4 n centred in the grid, values decreasing outwards.
+fn sphere(p: [f64; 3], n: f64) -> f64 {
+    let c = n / 2.0;
+    0.8 * c - ((p[0] - c).powi(2) + (p[1] - c).powi(2) + (p[2] - c).powi(2)).sqrt()
+}
+
+/// A gyroid with a period of about 21 voxels: a dense surface full of saddles.
+fn gyroid(p: [f64; 3], _n: f64) -> f64 {
+    let [x, y, z] = p.map(|v| v * 0.3);
+    x.sin() * y.cos() + y.sin() * z.cos() + z.sin() * x.cos()
 }
