@@ -1,2 +1,305 @@
-//! isostream-simplify: see ARCHITECTURE.md.
+//! isostream-simplify: one streaming quadric edge-collapse simplifier.
+//!
+//! The detector feeds batches of vertices (stable, increasing `u64` ids), triangles and
+//! "modifiable" notices (all triangles of the vertex exist). After each batch,
+//! [`Simplifier::end_batch`] decimates as the [`Policy`] says, retires what fell behind the
+//! sweep front and appends finished output in compact pre-order (see [`OutElement`]).
+//!
+//! Modules, by role:
+//! * `quadric`: symmetric 4x4 quadrics (Garland and Heckbert 1997);
+//! * `store`: the resident mesh band (vertices by `id - base`, triangle slab);
+//! * `topology`: link condition, boundary rule, no-flip/no-degenerate checks;
+//! * `cost`: cost and placement of one contraction, per objective (the policy hook);
+//! * `policy`: the public [`Policy`] and when/how far to decimate (Hou and Chen 4.2, Tandem);
+//! * `candidates`: the lazy edge heap and the time-lag waiting queue;
+//! * `decimate`: the one contraction loop;
+//! * `retire`: retirement behind the front or for the memory budget, and emission.
+//!
+//! Architecture invariants: no I/O, no threads; only modifiable, unretired vertices move; every
+//! contraction passes the link condition and the geometry checks; memory is bounded by the
+//! unretired band.
 #![deny(unsafe_code)]
+
+mod candidates;
+mod cost;
+mod decimate;
+mod policy;
+mod quadric;
+mod retire;
+mod store;
+mod topology;
+
+use glam::DVec3;
+use serde::Serialize;
+
+pub use policy::Policy;
+
+use candidates::Candidates;
+use cost::Objective;
+use decimate::Until;
+use policy::{FaceCounts, Schedule};
+use quadric::Quadric;
+use retire::RankBuckets;
+use store::{Store, Tri, Vertex};
+
+#[derive(Debug, Clone)]
+pub struct SimplifyConfig {
+    pub policy: Policy,
+    /// Retire vertices whose highest preimage rank is below front - retire_lag (slabs).
+    pub retire_lag: u32,
+    /// When more faces than this are resident, retire the oldest vertices early (memory budget).
+    pub max_resident_faces: usize,
+    /// Number of f32 attributes per vertex (0 for now; later issues carry data through
+    /// contractions).
+    pub attributes: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimplifyError {
+    #[error("invalid simplification policy: {0}")]
+    InvalidPolicy(String),
+    #[error("max_resident_faces must be at least 1")]
+    ZeroFaceBudget,
+}
+
+/// Counters for the run summary and the tests.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct SimplifyStats {
+    /// Faces received (`F_g`).
+    pub faces_in: u64,
+    pub vertices_in: u64,
+    pub faces_out: u64,
+    pub vertices_out: u64,
+    pub faces_resident: usize,
+    pub peak_resident_faces: usize,
+    /// Faces in memory with a vertex that is not modifiable yet (`F_u`).
+    pub faces_unmodifiable: usize,
+    pub contractions: u64,
+    /// Candidates refused by the link condition.
+    pub rejected_link: u64,
+    /// Candidates refused because a triangle would flip or degenerate.
+    pub rejected_flip: u64,
+    /// Candidates refused on re-evaluation (boundary rule, threshold).
+    pub rejected_other: u64,
+    /// Vertices retired early for the memory budget.
+    pub forced_retirements: u64,
+    /// Highest cost of a performed contraction (objective units).
+    pub max_cost: f64,
+    /// Highest shape measure `eps0` of a vertex created by a contraction (position units).
+    pub max_shape_error: f64,
+    /// Edges currently in the heap or the time-lag waiting queue (including stale entries).
+    pub candidates: usize,
+    /// Contractions performed while their reach was beyond the front. A self-check of the
+    /// time-lag: always 0.
+    pub lag_violations: u64,
+}
+
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct OutBatch {
+    pub elements: Vec<OutElement>,
+    /// attribute values, `attributes` per Vertex element, in order
+    pub attrs: Vec<f32>,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum OutElement {
+    /// Next output vertex; output vertices are numbered 0,1,2,... in emission order.
+    Vertex { pos: DVec3 },
+    /// Triangle by output vertex numbers, CCW; last_use[i]: this is the last triangle using v[i]
+    /// (the writer finalizes it).
+    Triangle { v: [u64; 3], last_use: [bool; 3] },
+}
+
+/// The streaming simplifier. See the crate documentation.
+pub struct Simplifier {
+    config: SimplifyConfig,
+    objective: Option<Objective>,
+    schedule: Schedule,
+    time_lag: bool,
+    rank_spacing: f64,
+    store: Store,
+    candidates: Candidates,
+    buckets: RankBuckets,
+    /// Vertices behind the front that could not retire because they were not modifiable yet.
+    deferred: Vec<u64>,
+    /// Rank of the front, `+inf` after `finish`.
+    front: f64,
+    next_out: u64,
+    stats: SimplifyStats,
+}
+
+impl Simplifier {
+    pub fn new(config: SimplifyConfig) -> Result<Self, SimplifyError> {
+        config.policy.validate()?;
+        if config.max_resident_faces == 0 {
+            return Err(SimplifyError::ZeroFaceBudget);
+        }
+        Ok(Self {
+            objective: config.policy.objective(),
+            schedule: config.policy.schedule(),
+            time_lag: config.policy.time_lag(),
+            rank_spacing: 1.0,
+            config,
+            store: Store::default(),
+            candidates: Candidates::default(),
+            buckets: RankBuckets::default(),
+            deferred: Vec::new(),
+            front: 0.0,
+            next_out: 0,
+            stats: SimplifyStats::default(),
+        })
+    }
+
+    /// Physical distance between consecutive ranks (z spacing of the grid), default 1. The
+    /// time-lag radius adds edge lengths (position units) to heights (ranks), so it divides
+    /// lengths by this.
+    pub fn set_rank_spacing(&mut self, spacing: f64) {
+        if spacing > 0.0 && spacing.is_finite() {
+            self.rank_spacing = spacing;
+        }
+    }
+
+    /// A new vertex. `attrs` holds `attributes` values (missing ones are 0, extra ones dropped).
+    ///
+    /// # Panics
+    /// If `id` is not larger than every id added before.
+    pub fn add_vertex(&mut self, id: u64, pos: DVec3, rank: u32, attrs: &[f32]) {
+        let mut values = vec![0.0; self.config.attributes];
+        for (v, a) in values.iter_mut().zip(attrs) {
+            *v = *a;
+        }
+        self.store
+            .insert_vertex(id, Vertex::new(pos, rank, &values));
+        self.buckets.push(rank, id, &mut self.store);
+        self.stats.vertices_in += 1;
+    }
+
+    /// A new triangle (CCW seen from outside). Adds its area-weighted plane quadric to its
+    /// vertices (Garland and Heckbert; Hou and Chen 4.1 "Adding face quadric").
+    ///
+    /// # Panics
+    /// If a vertex is unknown or already retired, or the triangle repeats a vertex: the detector
+    /// only adds triangles to vertices that are not modifiable yet.
+    pub fn add_triangle(&mut self, v: [u64; 3]) {
+        assert!(
+            v[0] != v[1] && v[1] != v[2] && v[0] != v[2],
+            "triangle {v:?} repeats a vertex"
+        );
+        let mut unmodifiable = 0;
+        for id in v {
+            match self.store.vertex(id) {
+                Some(x) if !x.retired => unmodifiable += u8::from(!x.modifiable),
+                _ => panic!("triangle {v:?} uses unknown or retired vertex {id}"),
+            }
+        }
+        let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
+        let cross = (p[1] - p[0]).cross(p[2] - p[0]);
+        let len = cross.length();
+        if len > 0.0 {
+            let n = cross / len;
+            let area = 0.5 * len;
+            let q = Quadric::plane(n, -n.dot(p[0]), area);
+            for id in v {
+                if let Some(x) = self.store.vertex_mut(id) {
+                    x.quadric += q;
+                    x.area += area;
+                }
+            }
+        }
+        self.store.add_triangle(Tri { v, unmodifiable });
+        self.stats.faces_in += 1;
+        self.stats.faces_unmodifiable += usize::from(unmodifiable > 0);
+        self.note_resident();
+    }
+
+    /// All triangles of `id` exist: it may move from now on, and its edges to other modifiable
+    /// vertices become candidates (Hou and Chen 4.1, "Vertex modifiability detection").
+    pub fn set_modifiable(&mut self, id: u64) {
+        let Some(v) = self.store.vertex_mut(id) else {
+            return;
+        };
+        if v.modifiable {
+            return;
+        }
+        v.modifiable = true;
+        let tris = v.tris.clone();
+        for t in tris {
+            let tri = self.store.tri_mut(t);
+            tri.unmodifiable -= 1;
+            if tri.unmodifiable == 0 {
+                self.stats.faces_unmodifiable -= 1;
+            }
+        }
+        self.push_edges(id);
+    }
+
+    /// After each batch: decimate as the policy says, retire what is behind the front, append
+    /// finished output.
+    pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
+        self.front = f64::from(front);
+        self.candidates.activate(self.front);
+        let counts = self.face_counts();
+        let until = match &mut self.schedule {
+            Schedule::Off => None,
+            Schedule::Rate(rate) => rate
+                .due(counts.generated)
+                .then(|| Until::Resident(rate.resident_target(counts))),
+            Schedule::Threshold => Some(Until::Exhausted),
+        };
+        // Retirement waits for a decimation pass (rate: every `batch` faces), so that no vertex
+        // leaves without having been offered to the heap; the resident band thus spans the lag
+        // plus one batch, as in Hou and Chen 4.3 where R and B set the memory.
+        if until.is_some() || matches!(self.schedule, Schedule::Off) {
+            if let Some(until) = until {
+                self.decimate(until);
+            }
+            self.retire_behind(front, out);
+        }
+        self.retire_for_memory(out);
+    }
+
+    /// End of volume: everything is modifiable; final decimation, retire all, emit all.
+    pub fn finish(&mut self, out: &mut OutBatch) {
+        let pending: Vec<u64> = self.store.ids().collect();
+        for id in pending {
+            self.set_modifiable(id);
+        }
+        self.front = f64::INFINITY;
+        self.candidates.activate(self.front);
+        let until = match &self.schedule {
+            Schedule::Off => None,
+            Schedule::Rate(rate) => Some(Until::Resident(rate.final_target(self.face_counts()))),
+            Schedule::Threshold => Some(Until::Exhausted),
+        };
+        if let Some(until) = until {
+            self.decimate(until);
+            // Edges refused earlier (link, flips) may pass now that their neighbourhoods changed.
+            if !self.reached(until) {
+                self.requeue_all();
+                self.decimate(until);
+            }
+        }
+        self.retire_all(out);
+    }
+
+    pub fn stats(&self) -> SimplifyStats {
+        SimplifyStats {
+            faces_resident: self.store.resident(),
+            candidates: self.candidates.len(),
+            ..self.stats.clone()
+        }
+    }
+
+    fn face_counts(&self) -> FaceCounts {
+        FaceCounts {
+            generated: self.stats.faces_in,
+            unmodifiable: self.stats.faces_unmodifiable,
+            emitted: self.stats.faces_out,
+            resident: self.store.resident(),
+        }
+    }
+
+    fn note_resident(&mut self) {
+        self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(self.store.resident());
+    }
+}

@@ -1,0 +1,263 @@
+//! Cost and placement of one contraction `ab -> c`: the policy hook of the decimation loop.
+//!
+//! Every objective has the same shape: build a quadric `M` to minimise, pick `c` among the sites
+//! the boundary rule admits ([`topology::sites`]), rank the edge by a function of `M(c)`, and
+//! optionally refuse the edge (threshold policies). New objectives (data-dependent priority,
+//! attribute-aware quadrics) are new variants here; the loop in `decimate` does not change.
+
+use glam::DVec3;
+
+use crate::quadric::Quadric;
+use crate::store::Store;
+use crate::topology::{self, Sites};
+
+/// An optimal placement farther than this many edge lengths from the edge midpoint is treated
+/// like an ill-conditioned one: nearly flat neighbourhoods put the exact minimum far away.
+const FAR_FACTOR: f64 = 4.0;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Objective {
+    /// Garland and Heckbert: `M = Q_a + Q_b` (area-weighted plane quadrics), cost `M(c)`.
+    Quadric,
+    /// Tandem (seed 000, section 3): priority
+    /// `eps_alpha(c) = sqrt(c^T [(1 - alpha) H_c / W_c + alpha G_c / W] c)`, placement at its
+    /// minimum, and only edges with shape measure `eps0(c) = sqrt(c^T H_c c / W_c) <= e0`
+    /// (multiplicity version `H_c = H_a + H_b`, `W_c = W_a + W_b`).
+    Shape { e0: f64, alpha: f64 },
+}
+
+/// The outcome of evaluating a contraction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Eval {
+    pub(crate) pos: DVec3,
+    /// Heap priority (lower first).
+    pub(crate) cost: f64,
+    /// `eps0(c)`, reported in the statistics for every objective.
+    pub(crate) shape_error: f64,
+    /// `reach(c)` of the Tandem time-lag, in ranks.
+    pub(crate) reach: f64,
+}
+
+impl Objective {
+    /// Whether the cost depends on more than the two endpoints. Such heap entries can go stale
+    /// without either endpoint changing, so they are re-evaluated when popped.
+    pub(crate) fn reads_neighbourhood(&self) -> bool {
+        matches!(*self, Objective::Shape { alpha, .. } if alpha > 0.0)
+    }
+
+    /// `None` when the edge is no candidate: no admissible site, or above the error threshold.
+    pub(crate) fn evaluate(
+        &self,
+        store: &Store,
+        a: u64,
+        b: u64,
+        rank_spacing: f64,
+    ) -> Option<Eval> {
+        let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
+        let sites = topology::sites(store, a, b)?;
+        let h = va.quadric + vb.quadric;
+        let w = va.area + vb.area;
+        let m = self.metric(store, a, b, h, w);
+        let (pa, pb) = (va.pos, vb.pos);
+        let mid = 0.5 * (pa + pb);
+        let candidates = match sites {
+            // Coincident vertices (marching cubes at value == iso): nothing to optimise.
+            Sites::Free if pa == pb => [Some(pa), None, None],
+            Sites::Free => match m
+                .minimizer()
+                .filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length())
+            {
+                Some(x) => [Some(x), None, None],
+                // Ill-conditioned: the best of the endpoints and the midpoint.
+                None => [Some(pa), Some(pb), Some(mid)],
+            },
+            Sites::Fixed([p, q]) => [p, q, None],
+        };
+        let (pos, value) = candidates
+            .into_iter()
+            .flatten()
+            .map(|p| (p, m.eval(p).max(0.0)))
+            .min_by(|x, y| x.1.total_cmp(&y.1))?;
+        let shape_error = shape_measure(&h, w, pos);
+        let cost = match *self {
+            Objective::Quadric => value,
+            Objective::Shape { e0, .. } if shape_error > e0 => return None,
+            Objective::Shape { .. } => shape_measure(&m, w, pos),
+        };
+        let (height, rad) = va.merged_patch(vb, rank_spacing);
+        Some(Eval {
+            pos,
+            cost,
+            shape_error,
+            reach: height + rad,
+        })
+    }
+
+    /// The quadric to minimise, scaled by `W_c` so that with `alpha = 0` it is `H_c` itself and
+    /// the placement is bit for bit the plain shape-measure (and Garland-Heckbert) placement.
+    fn metric(&self, store: &Store, a: u64, b: u64, h: Quadric, w: f64) -> Quadric {
+        match *self {
+            Objective::Shape { e0, alpha } if alpha > 0.0 => {
+                let (g, area) = isotropy_quadric(store, a, b);
+                // W = 3 area(S_ab) W_c^(1/2) / E0 (seed 000, section 3, "Mesh isotropy").
+                let norm = 3.0 * area * w.sqrt() / e0;
+                if norm > 0.0 {
+                    h.scaled(1.0 - alpha) + g.scaled(alpha * w / norm)
+                } else {
+                    h
+                }
+            }
+            _ => h,
+        }
+    }
+}
+
+/// `sqrt(q(c) / W)`, 0 for a patch without area.
+fn shape_measure(q: &Quadric, w: f64, c: DVec3) -> f64 {
+    if w > 0.0 {
+        (q.eval(c).max(0.0) / w).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// `G_c = sum_{t in T_ab} w_t G_t`, `G_t(x) = |x - centroid(t)|^2 + avg(t)`,
+/// `avg(t) = (|p|^2 + |q|^2 + |r|^2) / 12` with `p, q, r` relative to the centroid
+/// (seed 000, section 3 and appendix A), and `area(S_ab)`.
+fn isotropy_quadric(store: &Store, a: u64, b: u64) -> (Quadric, f64) {
+    let mut g = Quadric::default();
+    let mut area = 0.0;
+    for t in topology::patch(store, a, b) {
+        let p = store.corners(store.tri(t));
+        let w = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
+        let centroid = (p[0] + p[1] + p[2]) / 3.0;
+        let avg = p
+            .iter()
+            .map(|x| (*x - centroid).length_squared())
+            .sum::<f64>()
+            / 12.0;
+        g += Quadric::point(centroid, avg, w);
+        area += w;
+    }
+    (g, area)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{Tri, Vertex};
+
+    /// A bumpy closed surface's worth of interior vertices: a 6x6 grid with heights, all fans
+    /// complete, quadrics accumulated as the simplifier does.
+    fn bumpy() -> Store {
+        let mut s = Store::default();
+        let n = 6u64;
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = (i as f64, j as f64);
+                let z = 0.3 * (1.3 * x).sin() * (0.7 * y).cos() + 0.05 * x * y;
+                let mut v = Vertex::new(DVec3::new(x, y, z), j as u32, &[]);
+                v.modifiable = true;
+                s.insert_vertex(j * n + i, v);
+            }
+        }
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let v = j * n + i;
+                for t in [[v, v + 1, v + n + 1], [v, v + n + 1, v + n]] {
+                    let p = t.map(|id| s.vertex(id).unwrap().pos);
+                    let cross = (p[1] - p[0]).cross(p[2] - p[0]);
+                    let normal = cross.normalize();
+                    let q = Quadric::plane(normal, -normal.dot(p[0]), 0.5 * cross.length());
+                    for id in t {
+                        let x = s.vertex_mut(id).unwrap();
+                        x.quadric += q;
+                        x.area += 0.5 * cross.length();
+                    }
+                    s.add_triangle(Tri {
+                        v: t,
+                        unmodifiable: 0,
+                    });
+                }
+            }
+        }
+        s
+    }
+
+    /// Edges whose endpoints are both interior (free placement).
+    fn interior_edges(s: &Store) -> Vec<(u64, u64)> {
+        let interior = |v: u64| topology::ring(s, v).iter().all(|&(_, n)| n == 2);
+        let mut edges = Vec::new();
+        for a in s.ids().filter(|&a| interior(a)) {
+            for (b, _) in topology::ring(s, a) {
+                if a < b && interior(b) {
+                    edges.push((a, b));
+                }
+            }
+        }
+        edges
+    }
+
+    #[test]
+    fn zero_isotropy_is_the_plain_shape_measure_placement_bit_for_bit() {
+        let s = bumpy();
+        let plain = Objective::Shape {
+            e0: f64::INFINITY,
+            alpha: 0.0,
+        };
+        let mut compared = 0;
+        for (a, b) in interior_edges(&s) {
+            let gh = Objective::Quadric.evaluate(&s, a, b, 1.0).unwrap();
+            let e = plain.evaluate(&s, a, b, 1.0).unwrap();
+            assert_eq!(e.pos, gh.pos, "edge {a}-{b}");
+            assert_eq!(e.cost, e.shape_error);
+            let w = s.vertex(a).unwrap().area + s.vertex(b).unwrap().area;
+            assert!((e.cost * e.cost * w - gh.cost).abs() <= 1e-9 * (1.0 + gh.cost));
+            compared += 1;
+        }
+        assert!(compared > 20, "{compared}");
+    }
+
+    #[test]
+    fn isotropy_pulls_the_placement_towards_the_patch_centroid() {
+        let s = bumpy();
+        let (a, b) = (14, 15);
+        let eps = |alpha| {
+            Objective::Shape { e0: 1.0, alpha }
+                .evaluate(&s, a, b, 1.0)
+                .unwrap()
+        };
+        let centroid: DVec3 = {
+            let tris = topology::patch(&s, a, b);
+            let (mut sum, mut area) = (DVec3::ZERO, 0.0);
+            for t in tris {
+                let p = s.corners(s.tri(t));
+                let w = (p[1] - p[0]).cross(p[2] - p[0]).length();
+                sum += w * (p[0] + p[1] + p[2]) / 3.0;
+                area += w;
+            }
+            sum / area
+        };
+        let (p0, p1) = (eps(0.0).pos, eps(1.0).pos);
+        assert!(
+            (p1 - centroid).length() < 1e-9,
+            "alpha = 1 minimises g: the centroid"
+        );
+        assert!((p0 - centroid).length() > (eps(0.5).pos - centroid).length());
+    }
+
+    #[test]
+    fn threshold_refuses_and_reach_follows_the_time_lag_formula() {
+        let s = bumpy();
+        let (a, b) = (14, 15);
+        let tight = Objective::Shape {
+            e0: 1e-12,
+            alpha: 0.0,
+        };
+        assert!(tight.evaluate(&s, a, b, 1.0).is_none());
+        let e = Objective::Quadric.evaluate(&s, a, b, 2.0).unwrap();
+        // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
+        let len = (s.vertex(a).unwrap().pos - s.vertex(b).unwrap().pos).length();
+        assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,200 @@
+//! The contraction loop, shared by every policy: pop the cheapest candidate, drop it if stale,
+//! check topology and geometry, contract, re-queue the new vertex's edges (Garland and Heckbert
+//! 1997; incremental as in Hou and Chen section 3.2).
+
+use glam::DVec3;
+
+use crate::Simplifier;
+use crate::candidates::Candidate;
+use crate::cost::Eval;
+use crate::store::Vertex;
+use crate::topology;
+
+/// Where a decimation run stops (besides running out of candidates).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Until {
+    /// When at most this many faces are resident (rate policy).
+    Resident(usize),
+    /// When no candidate is left (threshold policies: every queued edge passes the threshold).
+    Exhausted,
+}
+
+impl Simplifier {
+    pub(crate) fn reached(&self, until: Until) -> bool {
+        match until {
+            Until::Resident(target) => self.store.resident() <= target,
+            Until::Exhausted => false,
+        }
+    }
+
+    pub(crate) fn decimate(&mut self, until: Until) {
+        let Some(objective) = self.objective else {
+            return;
+        };
+        while !self.reached(until) {
+            let Some(c) = self.candidates.pop() else {
+                break;
+            };
+            if !self.is_current(&c) {
+                continue;
+            }
+            let eval = if objective.reads_neighbourhood() {
+                match objective.evaluate(&self.store, c.a, c.b, self.rank_spacing) {
+                    None => {
+                        self.stats.rejected_other += 1;
+                        continue;
+                    }
+                    Some(eval) if eval.cost > c.eval.cost => {
+                        self.candidates
+                            .push(Candidate { eval, ..c }, self.lag_front());
+                        continue;
+                    }
+                    Some(eval) => eval,
+                }
+            } else {
+                c.eval
+            };
+            if !topology::link_ok(&self.store, c.a, c.b) {
+                self.stats.rejected_link += 1;
+            } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
+                self.stats.rejected_flip += 1;
+            } else {
+                self.contract(c.a, c.b, eval);
+            }
+        }
+    }
+
+    /// Queues the edges from `v` to its free neighbours.
+    pub(crate) fn push_edges(&mut self, v: u64) {
+        self.push_edges_where(v, |_| true);
+    }
+
+    /// Queues every edge between free vertices once more (used at the end, when refused edges
+    /// may pass in their changed neighbourhoods).
+    pub(crate) fn requeue_all(&mut self) {
+        let ids: Vec<u64> = self.store.ids().collect();
+        for id in ids {
+            self.push_edges_where(id, |n| n > id);
+        }
+    }
+
+    fn push_edges_where(&mut self, v: u64, take: impl Fn(u64) -> bool) {
+        let Some(objective) = self.objective else {
+            return;
+        };
+        if !self.store.vertex(v).is_some_and(Vertex::is_free) {
+            return;
+        }
+        for (n, _) in topology::ring(&self.store, v) {
+            if !take(n) || !self.store.vertex(n).is_some_and(Vertex::is_free) {
+                continue;
+            }
+            let (a, b) = (v.min(n), v.max(n));
+            if !self.span_ok(a, b) {
+                continue;
+            }
+            if let Some(eval) = objective.evaluate(&self.store, a, b, self.rank_spacing) {
+                let stamps = [a, b].map(|x| self.store.vertex(x).map_or(0, |x| x.stamp));
+                self.candidates
+                    .push(Candidate { a, b, stamps, eval }, self.lag_front());
+            }
+        }
+    }
+
+    /// A vertex that kept absorbing neighbours ahead of it would ride along with the front (its
+    /// highest rank never falls behind), never retire, and keep ever more retired neighbours
+    /// resident: on a straight tube along the sweep, contractions along the axis cost nothing.
+    /// Bounding the rank span of every preimage to `2 * retire_lag + 2` slabs bounds the life of
+    /// every vertex, and so the resident band, independently of the surface.
+    fn span_ok(&self, a: u64, b: u64) -> bool {
+        let max_span = self.config.retire_lag.saturating_mul(2).saturating_add(2);
+        match (self.store.vertex(a), self.store.vertex(b)) {
+            (Some(va), Some(vb)) => va.merged_span(vb) <= max_span,
+            _ => false,
+        }
+    }
+
+    /// The front edges are held back behind, when the time-lag is on.
+    fn lag_front(&self) -> Option<f64> {
+        self.time_lag.then_some(self.front)
+    }
+
+    fn is_current(&self, c: &Candidate) -> bool {
+        [(c.a, c.stamps[0]), (c.b, c.stamps[1])]
+            .iter()
+            .all(|&(id, stamp)| {
+                self.store
+                    .vertex(id)
+                    .is_some_and(|v| v.is_free() && v.stamp == stamp)
+            })
+    }
+
+    /// `ab -> c` at `pos`. The younger id `b` survives as `c` (its slot is nearer the front, so the
+    /// store's front slot frees sooner); `a` dies. Triangles on `ab` disappear, `a`'s others are
+    /// relinked to `b`; orientation is preserved because only the id is replaced.
+    fn contract(&mut self, a: u64, b: u64, eval: Eval) {
+        let (gone, keep, pos) = (a, b, eval.pos);
+        if self.time_lag && eval.reach > self.front {
+            self.stats.lag_violations += 1;
+        }
+        let tris = self
+            .store
+            .vertex(gone)
+            .map(|v| v.tris.clone())
+            .unwrap_or_default();
+        for t in tris {
+            if self.store.tri(t).contains(keep) {
+                let removed = self.store.remove_triangle(t);
+                self.stats.faces_unmodifiable -= usize::from(removed.unmodifiable > 0);
+            } else {
+                let tri = self.store.tri_mut(t);
+                for id in &mut tri.v {
+                    if *id == gone {
+                        *id = keep;
+                    }
+                }
+                if let Some(k) = self.store.vertex_mut(keep) {
+                    k.tris.push(t);
+                }
+            }
+        }
+        let Some(g) = self.store.remove_vertex(gone) else {
+            return;
+        };
+        let rank_spacing = self.rank_spacing;
+        let Some(k) = self.store.vertex_mut(keep) else {
+            return;
+        };
+        (k.height, k.rad) = k.merged_patch(&g, rank_spacing);
+        interpolate_attrs(&mut k.attrs, &g.attrs, g.pos, k.pos, pos);
+        k.pos = pos;
+        k.quadric += g.quadric;
+        k.area += g.area;
+        k.stamp = k.stamp.wrapping_add(1);
+        let rank_moved = g.rank_max > k.rank_max;
+        k.rank_max = k.rank_max.max(g.rank_max);
+        k.rank_min = k.rank_min.min(g.rank_min);
+        let rank = k.rank_max;
+        if rank_moved {
+            self.buckets.push(rank, keep, &mut self.store);
+        }
+        self.stats.contractions += 1;
+        self.stats.max_cost = self.stats.max_cost.max(eval.cost);
+        self.stats.max_shape_error = self.stats.max_shape_error.max(eval.shape_error);
+        self.push_edges(keep);
+    }
+}
+
+/// Attributes of `c` by linear interpolation along the edge, at the projection of `c`.
+fn interpolate_attrs(keep: &mut [f32], gone: &[f32], p_gone: DVec3, p_keep: DVec3, c: DVec3) {
+    let d = p_keep - p_gone;
+    let len2 = d.length_squared();
+    let t = if len2 > 0.0 {
+        ((c - p_gone).dot(d) / len2).clamp(0.0, 1.0)
+    } else {
+        0.5
+    };
+    for (k, g) in keep.iter_mut().zip(gone) {
+        *k = (f64::from(*g) + t * (f64::from(*k) - f64::from(*g))) as f32;
+    }
+}

@@ -1,0 +1,289 @@
+//! Simplification policies: what the user asks for, and when decimation runs and stops.
+//!
+//! The cost and placement of a single contraction live in [`crate::cost`]; this module decides
+//! how far to decimate after each batch.
+
+use serde::{Deserialize, Serialize};
+
+use crate::SimplifyError;
+use crate::cost::Objective;
+
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+pub enum Policy {
+    /// Pass-through: no contraction (still retires and emits in streaming order).
+    None,
+    /// Hou & Chen: target F_t = (F_g - F_u) * rate + F_u after every `batch` extracted faces;
+    /// initial phase with `initial_rate` while rate < initial_rate.
+    Rate {
+        rate: f64,
+        batch: u64,
+        initial_rate: f64,
+    },
+    /// Tandem (seed 000, section 3): after every batch (layer), contract while the cheapest
+    /// candidate's shape measure `eps0(c) = sqrt(c^T H_c c / W_c)` is at most `e0` (a length, in
+    /// the units of the vertex positions). `time_lag` delays contractions whose patch reaches
+    /// beyond the front; `isotropy` (alpha in [0, 1]) mixes in the anisotropy measure for
+    /// placement and priority, while still only contracting when `eps0 <= e0`.
+    Error {
+        e0: f64,
+        time_lag: bool,
+        isotropy: f64,
+    },
+}
+
+impl Policy {
+    pub(crate) fn validate(&self) -> Result<(), SimplifyError> {
+        let unit = |x: f64| x > 0.0 && x <= 1.0;
+        let invalid = |why: &str| Err(SimplifyError::InvalidPolicy(why.to_owned()));
+        match *self {
+            Policy::None => Ok(()),
+            Policy::Rate { rate, .. } if !unit(rate) => invalid("rate must be in (0, 1]"),
+            Policy::Rate { batch: 0, .. } => invalid("batch must be at least 1"),
+            Policy::Rate { initial_rate, .. } if !unit(initial_rate) => {
+                invalid("initial_rate must be in (0, 1]")
+            }
+            Policy::Rate { .. } => Ok(()),
+            Policy::Error { e0, .. } if !(e0 > 0.0 && e0.is_finite()) => {
+                invalid("e0 must be positive and finite")
+            }
+            Policy::Error { isotropy, .. } if !(0.0..=1.0).contains(&isotropy) => {
+                invalid("isotropy must be in [0, 1]")
+            }
+            Policy::Error { .. } => Ok(()),
+        }
+    }
+
+    /// Cost and placement of contractions, `None` for pass-through.
+    pub(crate) fn objective(&self) -> Option<Objective> {
+        match *self {
+            Policy::None => None,
+            Policy::Rate { .. } => Some(Objective::Quadric),
+            Policy::Error { e0, isotropy, .. } => Some(Objective::Shape {
+                e0,
+                alpha: isotropy,
+            }),
+        }
+    }
+
+    pub(crate) fn schedule(&self) -> Schedule {
+        match *self {
+            Policy::None => Schedule::Off,
+            Policy::Rate {
+                rate,
+                batch,
+                initial_rate,
+            } => Schedule::Rate(RateSchedule {
+                rate,
+                batch,
+                initial_rate,
+                initial_phase: rate < initial_rate,
+                faces_at_last: 0,
+            }),
+            Policy::Error { .. } => Schedule::Threshold,
+        }
+    }
+
+    pub(crate) fn time_lag(&self) -> bool {
+        matches!(self, Policy::Error { time_lag: true, .. })
+    }
+}
+
+/// When decimation runs and where it stops.
+#[derive(Debug, Clone)]
+pub(crate) enum Schedule {
+    Off,
+    /// Down to a face count (Hou and Chen, section 4.2).
+    Rate(RateSchedule),
+    /// Until no candidate passes the objective's threshold (every candidate in the heap does, so:
+    /// until the heap is empty).
+    Threshold,
+}
+
+/// Face counts the rate target is computed from.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct FaceCounts {
+    /// `F_g`: faces extracted so far.
+    pub(crate) generated: u64,
+    /// `F_u`: resident faces with at least one non-modifiable vertex.
+    pub(crate) unmodifiable: usize,
+    /// Faces already handed to the writer.
+    pub(crate) emitted: u64,
+    /// Faces in memory.
+    pub(crate) resident: usize,
+}
+
+#[derive(Debug, Clone)]
+pub(crate) struct RateSchedule {
+    rate: f64,
+    batch: u64,
+    initial_rate: f64,
+    initial_phase: bool,
+    faces_at_last: u64,
+}
+
+impl RateSchedule {
+    /// Whether at least `batch` faces arrived since the last decimation (then remembers this one).
+    pub(crate) fn due(&mut self, generated: u64) -> bool {
+        let due = generated - self.faces_at_last >= self.batch;
+        if due {
+            self.faces_at_last = generated;
+        }
+        due
+    }
+
+    /// Resident face count to decimate down to after a batch.
+    ///
+    /// Hou and Chen (section 4.2): `F_t = (F_g - F_u) R + F_u` for the whole surface, of which
+    /// `emitted` faces already left, so resident target `F_t - emitted`. While `R < R_i` an
+    /// initial phase decimates the intermediate surface only by `R_i`:
+    /// `(resident - F_u) R_i + F_u`, as long as that is the larger target; once the standard target
+    /// catches up the phase ends for good. This avoids over-decimating the first batches, which
+    /// would otherwise be squeezed to `R` of the whole (still small) surface. The phase also ends
+    /// once faces have been emitted: Hou and Chen keep the whole surface resident, so their phase
+    /// always ends; with retirement the emitted part is fixed, and only the standard target (which
+    /// subtracts it) can still steer the overall rate to `R`.
+    pub(crate) fn resident_target(&mut self, c: FaceCounts) -> usize {
+        let fu = c.unmodifiable as f64;
+        let standard = ((c.generated as f64 - fu) * self.rate + fu - c.emitted as f64).max(0.0);
+        if self.initial_phase {
+            let initial = (c.resident as f64 - fu) * self.initial_rate + fu;
+            if c.emitted == 0 && initial > standard {
+                return initial.ceil() as usize;
+            }
+            self.initial_phase = false;
+        }
+        standard.ceil() as usize
+    }
+
+    /// At the end every face is modifiable: `F_g R` overall, minus what was emitted already.
+    pub(crate) fn final_target(&self, c: FaceCounts) -> usize {
+        (c.generated as f64 * self.rate - c.emitted as f64)
+            .max(0.0)
+            .ceil() as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rate(rate: f64, batch: u64, initial_rate: f64) -> RateSchedule {
+        match (Policy::Rate {
+            rate,
+            batch,
+            initial_rate,
+        })
+        .schedule()
+        {
+            Schedule::Rate(r) => r,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn validation() {
+        let ok = |p: Policy| p.validate().is_ok();
+        assert!(ok(Policy::None));
+        assert!(ok(Policy::Rate {
+            rate: 1.0,
+            batch: 1,
+            initial_rate: 0.5
+        }));
+        assert!(!ok(Policy::Rate {
+            rate: 0.0,
+            batch: 1,
+            initial_rate: 0.5
+        }));
+        assert!(!ok(Policy::Rate {
+            rate: f64::NAN,
+            batch: 1,
+            initial_rate: 0.5
+        }));
+        assert!(!ok(Policy::Rate {
+            rate: 0.5,
+            batch: 0,
+            initial_rate: 0.5
+        }));
+        assert!(!ok(Policy::Rate {
+            rate: 0.5,
+            batch: 1,
+            initial_rate: 1.5
+        }));
+        assert!(ok(Policy::Error {
+            e0: 0.1,
+            time_lag: true,
+            isotropy: 0.0
+        }));
+        assert!(!ok(Policy::Error {
+            e0: 0.0,
+            time_lag: true,
+            isotropy: 0.0
+        }));
+        assert!(!ok(Policy::Error {
+            e0: 0.1,
+            time_lag: false,
+            isotropy: 1.5
+        }));
+    }
+
+    #[test]
+    fn batches_are_counted_in_faces() {
+        let mut r = rate(0.5, 100, 0.5);
+        assert!(!r.due(99));
+        assert!(r.due(100));
+        assert!(!r.due(150));
+        assert!(r.due(200));
+    }
+
+    #[test]
+    fn hou_chen_target() {
+        let mut r = rate(0.1, 10, 0.1);
+        let c = FaceCounts {
+            generated: 1000,
+            unmodifiable: 100,
+            emitted: 20,
+            resident: 900,
+        };
+        // (1000 - 100) * 0.1 + 100 - 20
+        assert_eq!(r.resident_target(c), 170);
+        let c = FaceCounts { emitted: 500, ..c };
+        assert_eq!(r.resident_target(c), 0);
+        assert_eq!(r.final_target(FaceCounts { emitted: 50, ..c }), 50);
+    }
+
+    #[test]
+    fn initial_phase_ends_once_the_standard_target_catches_up() {
+        let mut r = rate(0.1, 10, 0.5);
+        let early = FaceCounts {
+            generated: 1000,
+            unmodifiable: 100,
+            emitted: 0,
+            resident: 1000,
+        };
+        // initial: 900 * 0.5 + 100 = 550 > standard 190
+        assert_eq!(r.resident_target(early), 550);
+        let later = FaceCounts {
+            generated: 10_000,
+            unmodifiable: 100,
+            emitted: 0,
+            resident: 1000,
+        };
+        // initial 550 < standard 1090: the phase ends ...
+        assert_eq!(r.resident_target(later), 1090);
+        // ... and does not come back.
+        assert_eq!(r.resident_target(early), 190);
+    }
+
+    #[test]
+    fn initial_phase_ends_when_output_starts() {
+        let mut r = rate(0.1, 10, 0.5);
+        let c = FaceCounts {
+            generated: 1000,
+            unmodifiable: 100,
+            emitted: 1,
+            resident: 1000,
+        };
+        assert_eq!(r.resident_target(c), 189);
+        assert_eq!(r.resident_target(FaceCounts { emitted: 0, ..c }), 190);
+    }
+}

@@ -1,0 +1,180 @@
+//! Retirement and emission in compact pre-order.
+//!
+//! A vertex retires when its highest preimage rank falls `retire_lag` slabs behind the front, or
+//! early when the memory budget is exceeded (oldest first). Only modifiable vertices retire: a
+//! vertex that may still receive triangles could not be finalized. A triangle is emitted once its
+//! three vertices are retired; each vertex goes out right before its first triangle, and is freed
+//! with `last_use` set on its last one (Isenburg and Lindstrom's streaming meshes).
+
+use std::collections::VecDeque;
+
+use crate::store::Store;
+use crate::store::TriId;
+use crate::{OutBatch, OutElement, Simplifier};
+
+/// Vertices filed by highest rank in a ring of per-rank lists. A contraction that raises a
+/// vertex's rank files it again; the old entry goes stale and is skipped (the vertex records its
+/// current bucket).
+#[derive(Debug, Default)]
+pub(crate) struct RankBuckets {
+    base: u32,
+    lists: VecDeque<Vec<u64>>,
+}
+
+impl RankBuckets {
+    /// Files `id` under `rank`, clamped to the oldest open bucket.
+    pub(crate) fn push(&mut self, rank: u32, id: u64, store: &mut Store) {
+        if self.lists.is_empty() {
+            self.base = rank;
+        }
+        let key = rank.max(self.base);
+        let i = (key - self.base) as usize;
+        if self.lists.len() <= i {
+            self.lists.resize_with(i + 1, Vec::new);
+        }
+        self.lists[i].push(id);
+        if let Some(v) = store.vertex_mut(id) {
+            v.bucket = key;
+        }
+    }
+
+    /// The oldest bucket, if its rank is below `limit`.
+    fn pop_below(&mut self, limit: u32) -> Option<(u32, Vec<u64>)> {
+        if self.base >= limit {
+            return None;
+        }
+        let ids = self.lists.pop_front()?;
+        let key = self.base;
+        self.base += 1;
+        Some((key, ids))
+    }
+
+    /// Puts back the unprocessed rest of the bucket just popped.
+    fn restore(&mut self, key: u32, ids: Vec<u64>) {
+        self.lists.push_front(ids);
+        self.base = key;
+    }
+}
+
+impl Simplifier {
+    /// Retires the vertices with `rank_max < front - retire_lag`, and the earlier ones that were
+    /// due but not yet modifiable.
+    pub(crate) fn retire_behind(&mut self, front: u32, out: &mut OutBatch) {
+        for id in std::mem::take(&mut self.deferred) {
+            self.try_retire(id, out);
+        }
+        let limit = front.saturating_sub(self.config.retire_lag);
+        while let Some((key, ids)) = self.buckets.pop_below(limit) {
+            for id in ids {
+                if self.is_filed(id, key) {
+                    self.try_retire(id, out);
+                }
+            }
+        }
+    }
+
+    /// Over the memory budget: retires the oldest vertices until resident faces are at most 90%
+    /// of it (or nothing is left to retire).
+    pub(crate) fn retire_for_memory(&mut self, out: &mut OutBatch) {
+        let budget = self.config.max_resident_faces;
+        if self.store.resident() <= budget {
+            return;
+        }
+        let goal = budget - budget / 10;
+        while self.store.resident() > goal {
+            let Some((key, ids)) = self.buckets.pop_below(u32::MAX) else {
+                break;
+            };
+            let mut ids = ids.into_iter();
+            for id in ids.by_ref() {
+                if self.is_filed(id, key) && self.try_retire(id, out) {
+                    self.stats.forced_retirements += 1;
+                }
+                if self.store.resident() <= goal {
+                    break;
+                }
+            }
+            let rest: Vec<u64> = ids.collect();
+            if !rest.is_empty() {
+                self.buckets.restore(key, rest);
+            }
+        }
+    }
+
+    /// End of the volume (everything is modifiable): retires and emits everything.
+    pub(crate) fn retire_all(&mut self, out: &mut OutBatch) {
+        self.retire_behind(u32::MAX, out);
+        debug_assert_eq!(self.store.resident(), 0, "everything emitted");
+    }
+
+    /// A bucket entry is current when the vertex lives, is unretired and still filed there.
+    fn is_filed(&self, id: u64, key: u32) -> bool {
+        self.store
+            .vertex(id)
+            .is_some_and(|v| !v.retired && v.bucket == key)
+    }
+
+    /// Retires `id` if it is modifiable, else defers it. Returns whether it retired.
+    fn try_retire(&mut self, id: u64, out: &mut OutBatch) -> bool {
+        let Some(v) = self.store.vertex_mut(id) else {
+            return false;
+        };
+        if v.retired {
+            return false;
+        }
+        if !v.modifiable {
+            self.deferred.push(id);
+            return false;
+        }
+        v.retired = true;
+        let tris = v.tris.clone();
+        if tris.is_empty() {
+            self.store.remove_vertex(id);
+        }
+        for t in tris {
+            let done = self
+                .store
+                .tri(t)
+                .v
+                .iter()
+                .all(|&x| self.store.vertex(x).is_some_and(|x| x.retired));
+            if done {
+                self.emit(t, out);
+            }
+        }
+        true
+    }
+
+    /// Emits a triangle with all three vertices retired, preceded by its vertices that did not go
+    /// out yet; frees the vertices it used for the last time.
+    fn emit(&mut self, t: TriId, out: &mut OutBatch) {
+        let tri = self.store.remove_triangle(t);
+        let mut v = [0; 3];
+        let mut last_use = [false; 3];
+        for (i, &id) in tri.v.iter().enumerate() {
+            let Some(x) = self.store.vertex_mut(id) else {
+                continue;
+            };
+            v[i] = match x.out {
+                Some(o) => o,
+                None => {
+                    let o = self.next_out;
+                    self.next_out += 1;
+                    x.out = Some(o);
+                    out.elements.push(OutElement::Vertex { pos: x.pos });
+                    out.attrs.extend_from_slice(&x.attrs);
+                    self.stats.vertices_out += 1;
+                    o
+                }
+            };
+            last_use[i] = x.tris.is_empty();
+        }
+        out.elements.push(OutElement::Triangle { v, last_use });
+        self.stats.faces_out += 1;
+        for (id, last) in tri.v.into_iter().zip(last_use) {
+            if last {
+                self.store.remove_vertex(id);
+            }
+        }
+    }
+}

@@ -1,0 +1,362 @@
+//! Checks that keep every contraction a valid manifold operation.
+//!
+//! * [`link_ok`]: the link condition of Dey, Edelsbrunner, Guha and Nekhayev,
+//!   `Lk(a) ∩ Lk(b) = Lk(ab)`, on vertices *and* edges of the links, with the usual dummy vertex
+//!   `ω` joined to every boundary edge so that surfaces with boundary are covered too.
+//! * [`geometry_ok`]: no surviving triangle flips or becomes degenerate.
+//! * [`sites`]: where the new vertex may go without changing the surface boundary.
+//!
+//! Only the fans of `a` and `b` are read. Both endpoints of a candidate are modifiable, so their
+//! fans are complete even when some neighbours are not (yet).
+
+use glam::DVec3;
+
+use crate::store::{Store, Tri, TriId};
+
+/// A surviving triangle must keep `cos(angle(n_old, n_new)) > MIN_NORMAL_COS` (about 84 degrees).
+const MIN_NORMAL_COS: f64 = 0.1;
+/// A triangle is degenerate when `|cross|` is below this fraction of the largest `|cross|` in the
+/// fans of `a` and `b`.
+const DEGENERATE_FRACTION: f64 = 1e-6;
+/// A boundary vertex lies on a straight boundary when the sine of its turning angle is below this.
+const STRAIGHT_SINE: f64 = 1e-6;
+
+/// Neighbours of `v` with the number of `v`'s triangles on edge `v-x` (1: boundary edge),
+/// sorted by id.
+pub(crate) fn ring(store: &Store, v: u64) -> Vec<(u64, u8)> {
+    let mut all: Vec<u64> = Vec::with_capacity(16);
+    if let Some(vx) = store.vertex(v) {
+        for &t in &vx.tris {
+            all.extend(store.tri(t).v.iter().copied().filter(|&x| x != v));
+        }
+    }
+    all.sort_unstable();
+    let mut ring: Vec<(u64, u8)> = Vec::with_capacity(all.len() / 2 + 1);
+    for x in all {
+        match ring.last_mut() {
+            Some((y, n)) if *y == x => *n = n.saturating_add(1),
+            _ => ring.push((x, 1)),
+        }
+    }
+    ring
+}
+
+fn boundary_neighbours(ring: &[(u64, u8)]) -> impl Iterator<Item = u64> + '_ {
+    ring.iter().filter(|&&(_, n)| n == 1).map(|&(x, _)| x)
+}
+
+fn is_boundary(ring: &[(u64, u8)]) -> bool {
+    boundary_neighbours(ring).next().is_some()
+}
+
+/// Triangles of `a` that contain `b`, i.e. the triangles on edge `ab`.
+fn edge_triangles(store: &Store, a: u64, b: u64) -> Vec<Tri> {
+    store.vertex(a).map_or_else(Vec::new, |v| {
+        v.tris
+            .iter()
+            .map(|&t| *store.tri(t))
+            .filter(|t| t.contains(b))
+            .collect()
+    })
+}
+
+/// Whether `v`'s fan has a triangle containing both `x` and `y`.
+fn has_triangle_with(store: &Store, v: u64, x: u64, y: u64) -> bool {
+    store.vertex(v).is_some_and(|vx| {
+        vx.tris.iter().any(|&t| {
+            let t = store.tri(t);
+            t.contains(x) && t.contains(y)
+        })
+    })
+}
+
+/// The link condition for contracting edge `ab` (Dey, Edelsbrunner, Guha, Nekhayev 1999).
+///
+/// * vertices: the common neighbours of `a` and `b` are exactly the vertices opposite `ab`;
+/// * `ω`: an interior edge whose endpoints both lie on the boundary is rejected (`ω` would be a
+///   common neighbour not in `Lk(ab)`); for a boundary edge, an opposite vertex `x` with `ax` and
+///   `bx` both on the boundary is rejected (edge `ωx` in both links), so a lone triangle or a
+///   boundary ear never disappears;
+/// * edges: no edge `xy` of both links, i.e. not both triangles `axy` and `bxy`. With the vertex
+///   rule `x` and `y` are the two opposite vertices. This is what stops a tetrahedron (and every
+///   closed component, which can only shrink to one) from collapsing: a component is never
+///   reduced below 4 triangles.
+pub(crate) fn link_ok(store: &Store, a: u64, b: u64) -> bool {
+    let on_edge = edge_triangles(store, a, b);
+    if on_edge.is_empty() || on_edge.len() > 2 {
+        return false;
+    }
+    let mut opposite: Vec<u64> = on_edge.iter().map(|t| t.third(a, b)).collect();
+    opposite.sort_unstable();
+    let (ra, rb) = (ring(store, a), ring(store, b));
+    let common: Vec<(u64, u8, u8)> = ra
+        .iter()
+        .filter_map(|&(x, na)| {
+            let i = rb.binary_search_by_key(&x, |&(y, _)| y).ok()?;
+            Some((x, na, rb[i].1))
+        })
+        .collect();
+    if !common
+        .iter()
+        .map(|&(x, _, _)| x)
+        .eq(opposite.iter().copied())
+    {
+        return false;
+    }
+    if on_edge.len() == 2 {
+        if is_boundary(&ra) && is_boundary(&rb) {
+            return false;
+        }
+        let (x, y) = (opposite[0], opposite[1]);
+        if has_triangle_with(store, a, x, y) && has_triangle_with(store, b, x, y) {
+            return false;
+        }
+    } else if common.iter().any(|&(_, na, nb)| na == 1 && nb == 1) {
+        return false;
+    }
+    true
+}
+
+/// Where the vertex replacing `a` and `b` may be placed. This is the boundary rule:
+///
+/// * both endpoints interior: anywhere ([`Sites::Free`]);
+/// * one endpoint on the surface boundary: exactly at that endpoint, so the boundary does not
+///   move;
+/// * both on the boundary: only along a boundary edge, into one endpoint's position, and only if
+///   the removed endpoint lies on a straight piece of boundary (its two boundary neighbours and
+///   itself collinear within `STRAIGHT_SINE`, or it coincides with the kept one). The boundary
+///   polyline therefore keeps its exact shape. Closed surfaces have no boundary and are not
+///   restricted at all.
+///
+/// `None`: no admissible position.
+pub(crate) fn sites(store: &Store, a: u64, b: u64) -> Option<Sites> {
+    let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
+    let (ra, rb) = (ring(store, a), ring(store, b));
+    match (is_boundary(&ra), is_boundary(&rb)) {
+        (false, false) => Some(Sites::Free),
+        (true, false) => Some(Sites::Fixed([Some(va.pos), None])),
+        (false, true) => Some(Sites::Fixed([Some(vb.pos), None])),
+        (true, true) => {
+            let boundary_edge = ra.iter().any(|&(x, n)| x == b && n == 1);
+            if !boundary_edge {
+                return None;
+            }
+            let keep_a = removable_onto(store, &rb, vb.pos, va.pos).then_some(va.pos);
+            let keep_b = removable_onto(store, &ra, va.pos, vb.pos).then_some(vb.pos);
+            (keep_a.is_some() || keep_b.is_some()).then_some(Sites::Fixed([keep_a, keep_b]))
+        }
+    }
+}
+
+/// Whether boundary vertex `r` (at `pr`, with ring `ring`) can be merged into its boundary
+/// neighbour at `pk` without changing the boundary polyline.
+fn removable_onto(store: &Store, ring: &[(u64, u8)], pr: DVec3, pk: DVec3) -> bool {
+    if pr == pk {
+        return true;
+    }
+    let bn: Vec<u64> = boundary_neighbours(ring).collect();
+    if bn.len() != 2 {
+        return false;
+    }
+    let Some(po) = bn
+        .iter()
+        .filter_map(|&x| store.vertex(x).map(|v| v.pos))
+        .find(|&p| p != pk)
+    else {
+        return false;
+    };
+    let (to_r, to_k) = (pr - po, pk - pr);
+    to_r.dot(to_k) >= 0.0
+        && to_r.cross(to_k).length() <= STRAIGHT_SINE * to_r.length() * to_k.length()
+}
+
+/// Admissible positions of the new vertex.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Sites {
+    /// Anywhere: minimise the objective, with a fallback when it is ill-conditioned.
+    Free,
+    /// Only these (boundary rule).
+    Fixed([Option<DVec3>; 2]),
+}
+
+/// `T_ab`: the triangles containing `a` or `b` (each once), whose union is the patch replaced by
+/// the contraction.
+pub(crate) fn patch(store: &Store, a: u64, b: u64) -> Vec<TriId> {
+    let fan = |v: u64| {
+        store
+            .vertex(v)
+            .into_iter()
+            .flat_map(|x| x.tris.iter().copied())
+    };
+    let mut tris: Vec<TriId> = fan(a).chain(fan(b)).collect();
+    tris.sort_unstable();
+    tris.dedup();
+    tris
+}
+
+/// No surviving triangle of the fans of `a` and `b` may turn its normal by more than about 84
+/// degrees or become degenerate when `a` and `b` move to `pos`. Triangles that were degenerate
+/// already (coincident marching-cubes vertices) may stay so, but if they gain area they must face
+/// the way the whole fan faces.
+pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
+    let tris = patch(store, a, b);
+    let cross = |p: [DVec3; 3]| (p[1] - p[0]).cross(p[2] - p[0]);
+    let mut max_old = 0.0_f64;
+    let mut reference = DVec3::ZERO;
+    for &t in &tris {
+        let n = cross(store.corners(store.tri(t)));
+        max_old = max_old.max(n.length());
+        reference += n;
+    }
+    let tiny = DEGENERATE_FRACTION * max_old;
+    tris.iter().all(|&t| {
+        let tri = store.tri(t);
+        if tri.contains(a) && tri.contains(b) {
+            return true; // removed by the contraction
+        }
+        let old = store.corners(tri);
+        let mut new = old;
+        for (p, &id) in new.iter_mut().zip(&tri.v) {
+            if id == a || id == b {
+                *p = pos;
+            }
+        }
+        if new == old {
+            return true;
+        }
+        let (n_old, n_new) = (cross(old), cross(new));
+        let (l_old, l_new) = (n_old.length(), n_new.length());
+        if l_new <= tiny {
+            return l_old <= tiny;
+        }
+        if l_old <= tiny {
+            return n_new.dot(reference) > 0.0;
+        }
+        n_old.dot(n_new) > MIN_NORMAL_COS * l_old * l_new
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::Vertex;
+
+    fn store(pos: &[[f64; 3]], tris: &[[u64; 3]]) -> Store {
+        let mut s = Store::default();
+        for (i, p) in pos.iter().enumerate() {
+            s.insert_vertex(i as u64, Vertex::new(DVec3::from_array(*p), 0, &[]));
+        }
+        for &v in tris {
+            s.add_triangle(Tri { v, unmodifiable: 0 });
+        }
+        s
+    }
+
+    fn tetrahedron() -> Store {
+        store(
+            &[
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ],
+            &[[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]],
+        )
+    }
+
+    /// Octahedron: vertices +-x (0, 1), +-y (2, 3), +-z (4, 5).
+    fn octahedron() -> Store {
+        let p = [
+            [1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+        ];
+        let mut t = Vec::new();
+        for (x, y) in [(0, 2), (2, 1), (1, 3), (3, 0)] {
+            t.push([x, y, 4]);
+            t.push([y, x, 5]);
+        }
+        store(&p, &t)
+    }
+
+    /// 3x3 vertex grid in the xy plane, ids row by row; centre is 4.
+    fn grid() -> Store {
+        let mut p = Vec::new();
+        for y in 0..3 {
+            for x in 0..3 {
+                p.push([f64::from(x), f64::from(y), 0.0]);
+            }
+        }
+        let mut t = Vec::new();
+        for y in 0..2u64 {
+            for x in 0..2u64 {
+                let v = y * 3 + x;
+                t.push([v, v + 1, v + 4]);
+                t.push([v, v + 4, v + 3]);
+            }
+        }
+        store(&p, &t)
+    }
+
+    #[test]
+    fn tetrahedron_never_collapses() {
+        let s = tetrahedron();
+        for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+            assert!(!link_ok(&s, a, b), "edge {a}{b}");
+        }
+    }
+
+    #[test]
+    fn octahedron_edges_pass_but_non_edges_fail() {
+        let s = octahedron();
+        assert!(link_ok(&s, 0, 2));
+        assert!(!link_ok(&s, 0, 1), "not an edge");
+    }
+
+    #[test]
+    fn boundary_rules() {
+        let s = grid();
+        let p = |i: u64| s.vertex(i).unwrap().pos;
+        assert!(link_ok(&s, 4, 0), "interior vertex to corner");
+        assert_eq!(sites(&s, 4, 0), Some(Sites::Fixed([Some(p(0)), None])));
+        assert_eq!(sites(&s, 4, 5), Some(Sites::Fixed([Some(p(5)), None])));
+        // 1 lies on the straight bottom side 0-2 and may merge into corner 0; the corner turns
+        // and may not merge into anything.
+        assert!(link_ok(&s, 0, 1));
+        assert_eq!(sites(&s, 0, 1), Some(Sites::Fixed([Some(p(0)), None])));
+        assert_eq!(sites(&s, 0, 3), Some(Sites::Fixed([Some(p(0)), None])));
+        assert_eq!(sites(&s, 1, 2), Some(Sites::Fixed([None, Some(p(2))])));
+    }
+
+    #[test]
+    fn lone_triangle_keeps_its_edges() {
+        let s = store(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[[0, 1, 2]]);
+        assert!(!link_ok(&s, 0, 1));
+    }
+
+    #[test]
+    fn interior_edge_between_boundary_vertices_is_rejected() {
+        // A strip of two triangles: edge 1-2 is interior, both ends on the boundary.
+        let s = store(
+            &[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]],
+            &[[0, 1, 2], [1, 3, 2]],
+        );
+        assert!(!link_ok(&s, 1, 2));
+        assert!(link_ok(&s, 0, 1), "boundary edge of the strip");
+    }
+
+    #[test]
+    fn flips_and_degenerates_are_detected() {
+        let s = grid();
+        assert!(geometry_ok(&s, 4, 0, DVec3::ZERO));
+        // Past the left side: triangle 3-4-7 turns over.
+        assert!(!geometry_ok(&s, 4, 5, DVec3::new(-5.0, 1.0, 0.0)));
+        // Far above the plane: normals turn by almost 90 degrees.
+        assert!(!geometry_ok(&s, 4, 5, DVec3::new(1.0, 1.0, 50.0)));
+        // Onto vertex 1: triangle 0-1-4 (which survives contracting 4-3) becomes degenerate.
+        assert!(!geometry_ok(&s, 4, 3, DVec3::new(1.0, 0.0, 0.0)));
+    }
+}

@@ -1,0 +1,376 @@
+//! Test meshes built in-test, a sweep feeder that plays the detector, and an output collector
+//! that checks compact pre-order and finalization.
+#![allow(dead_code)] // each test binary uses its own subset
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+use isostream_meshcheck::Report;
+use isostream_simplify::{OutBatch, OutElement, Policy, Simplifier, SimplifyConfig, SimplifyStats};
+
+#[derive(Debug, Clone, Default)]
+pub struct Mesh {
+    pub pos: Vec<DVec3>,
+    pub tris: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    pub fn union(mut self, other: Mesh) -> Mesh {
+        let n = self.pos.len() as u32;
+        self.pos.extend(other.pos);
+        self.tris
+            .extend(other.tris.iter().map(|t| t.map(|i| i + n)));
+        self
+    }
+
+    pub fn translated(mut self, d: DVec3) -> Mesh {
+        for p in &mut self.pos {
+            *p += d;
+        }
+        self
+    }
+
+    pub fn check(&self) -> Report {
+        let pos: Vec<[f64; 3]> = self.pos.iter().map(|p| p.to_array()).collect();
+        isostream_meshcheck::check(&pos, &self.tris)
+    }
+}
+
+/// A `nu x nv` quad grid over a parametrisation, optionally wrapping in u and/or v, two
+/// consistently oriented triangles per quad.
+pub fn param_grid(
+    nu: u32,
+    nv: u32,
+    wrap_u: bool,
+    wrap_v: bool,
+    f: impl Fn(f64, f64) -> DVec3,
+) -> Mesh {
+    let cu = if wrap_u { nu } else { nu + 1 };
+    let cv = if wrap_v { nv } else { nv + 1 };
+    let mut m = Mesh::default();
+    for j in 0..cv {
+        for i in 0..cu {
+            m.pos.push(f(
+                f64::from(i) / f64::from(nu),
+                f64::from(j) / f64::from(nv),
+            ));
+        }
+    }
+    let id = |i: u32, j: u32| (j % cv) * cu + (i % cu);
+    for j in 0..nv {
+        for i in 0..nu {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            m.tris.push([a, b, c]);
+            m.tris.push([a, c, d]);
+        }
+    }
+    m
+}
+
+pub fn torus(n_major: u32, n_minor: u32, big: f64, small: f64) -> Mesh {
+    use std::f64::consts::TAU;
+    param_grid(n_major, n_minor, true, true, |u, v| {
+        let (su, cu) = (TAU * u).sin_cos();
+        let (sv, cv) = (TAU * v).sin_cos();
+        DVec3::new((big + small * cv) * cu, (big + small * cv) * su, small * sv)
+    })
+}
+
+/// Open cylinder along z: two boundary circles.
+pub fn tube(around: u32, along: u32, radius: f64, length: f64) -> Mesh {
+    use std::f64::consts::TAU;
+    param_grid(around, along, true, false, |u, v| {
+        let (s, c) = (TAU * u).sin_cos();
+        DVec3::new(radius * c, radius * s, length * v)
+    })
+}
+
+/// Height field over the xz plane (spans many ranks along z), open with a rectangular boundary.
+pub fn height_field(nx: u32, nz: u32, size: f64, h: impl Fn(f64, f64) -> f64) -> Mesh {
+    param_grid(nx, nz, false, false, |u, v| {
+        DVec3::new(size * u, h(u, v), size * v)
+    })
+}
+
+/// Pseudo-random heights from a seed (SplitMix64), for random height-field grids.
+pub fn random_heights(nx: u32, nz: u32, size: f64, amp: f64, seed: u64) -> Mesh {
+    let mut state = seed;
+    let mut next = move || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let hs: Vec<f64> = (0..(nx + 1) * (nz + 1)).map(|_| amp * next()).collect();
+    height_field(nx, nz, size, |u, v| {
+        let i = (u * f64::from(nx)).round() as u32;
+        let j = (v * f64::from(nz)).round() as u32;
+        hs[(j * (nx + 1) + i) as usize]
+    })
+}
+
+pub fn tetrahedron(center: DVec3, size: f64) -> Mesh {
+    let pos = [
+        DVec3::new(1.0, 1.0, 1.0),
+        DVec3::new(1.0, -1.0, -1.0),
+        DVec3::new(-1.0, 1.0, -1.0),
+        DVec3::new(-1.0, -1.0, 1.0),
+    ]
+    .map(|p| center + size * p)
+    .to_vec();
+    Mesh {
+        pos,
+        tris: vec![[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]],
+    }
+}
+
+/// Octahedron subdivided `levels` times (each triangle into four), projected on a sphere:
+/// `8 * 4^levels` triangles.
+pub fn sphere(levels: u32, radius: f64, center: DVec3) -> Mesh {
+    let mut pos = vec![
+        DVec3::X,
+        -DVec3::X,
+        DVec3::Y,
+        -DVec3::Y,
+        DVec3::Z,
+        -DVec3::Z,
+    ];
+    let mut tris: Vec<[u32; 3]> = Vec::new();
+    for (x, y) in [(0, 2), (2, 1), (1, 3), (3, 0)] {
+        tris.push([x, y, 4]);
+        tris.push([y, x, 5]);
+    }
+    for _ in 0..levels {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        for t in &tris {
+            let mut m = [0u32; 3];
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    pos.push((pos[a as usize] + pos[b as usize]).normalize());
+                    pos.len() as u32 - 1
+                });
+            }
+            next.extend([
+                [t[0], m[0], m[2]],
+                [m[0], t[1], m[1]],
+                [m[2], m[1], t[2]],
+                m,
+            ]);
+        }
+        tris = next;
+    }
+    Mesh {
+        pos: pos.into_iter().map(|p| center + radius * p).collect(),
+        tris,
+    }
+}
+
+/// How the mesh is fed: sweep axis and direction, slab thickness (rank = floor(coord / slab)),
+/// and how many batches each slab is split into.
+#[derive(Debug, Clone)]
+pub struct Sweep {
+    pub axis: usize,
+    pub reverse: bool,
+    pub slab: f64,
+    pub batches_per_slab: usize,
+}
+
+impl Default for Sweep {
+    fn default() -> Self {
+        Sweep {
+            axis: 2,
+            reverse: false,
+            slab: 1.0,
+            batches_per_slab: 1,
+        }
+    }
+}
+
+pub fn config(policy: Policy, retire_lag: u32) -> SimplifyConfig {
+    SimplifyConfig {
+        policy,
+        retire_lag,
+        max_resident_faces: usize::MAX,
+        attributes: 0,
+    }
+}
+
+pub fn rate(rate: f64, batch: u64) -> Policy {
+    Policy::Rate {
+        rate,
+        batch,
+        initial_rate: rate.max(0.5),
+    }
+}
+
+/// The collected output of one run.
+#[derive(Debug, Clone)]
+pub struct Run {
+    pub mesh: Mesh,
+    pub attrs: Vec<f32>,
+    pub stats: SimplifyStats,
+    /// The raw output, for determinism checks.
+    pub out: OutBatch,
+    /// Faces resident after each `end_batch`.
+    pub resident: Vec<usize>,
+}
+
+impl Run {
+    pub fn check(&self) -> Report {
+        self.mesh.check()
+    }
+}
+
+/// Plays the detector: vertices sorted along the sweep get increasing ids, each triangle is added
+/// in the slab of its highest vertex, a vertex becomes modifiable after the batch holding its
+/// last triangle, and `end_batch(k)` follows every batch of slab `k`. Attribute 0 (if any) is the
+/// vertex's z coordinate.
+pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
+    let attributes = config.attributes;
+    let mut s = Simplifier::new(config).expect("valid config");
+    let coord = |p: DVec3| {
+        if sweep.reverse {
+            -p[sweep.axis]
+        } else {
+            p[sweep.axis]
+        }
+    };
+    let min = mesh
+        .pos
+        .iter()
+        .map(|&p| coord(p))
+        .fold(f64::INFINITY, f64::min);
+    let rank: Vec<u32> = mesh
+        .pos
+        .iter()
+        .map(|&p| ((coord(p) - min) / sweep.slab).floor() as u32)
+        .collect();
+    let mut order: Vec<usize> = (0..mesh.pos.len()).collect();
+    order.sort_by(|&a, &b| {
+        coord(mesh.pos[a])
+            .total_cmp(&coord(mesh.pos[b]))
+            .then(a.cmp(&b))
+    });
+    let mut id = vec![0u64; mesh.pos.len()];
+    for (k, &v) in order.iter().enumerate() {
+        id[v] = k as u64;
+    }
+    let max_rank = rank.iter().copied().max().unwrap_or(0);
+    let mut tris_by_slab: Vec<Vec<[u32; 3]>> = vec![Vec::new(); max_rank as usize + 1];
+    let mut remaining = vec![0usize; mesh.pos.len()];
+    for t in &mesh.tris {
+        let r = t.iter().map(|&v| rank[v as usize]).max().unwrap_or(0);
+        tris_by_slab[r as usize].push(*t);
+        for &v in t {
+            remaining[v as usize] += 1;
+        }
+    }
+    let mut out = OutBatch::default();
+    let mut resident = Vec::new();
+    let mut next_vertex = 0;
+    for (k, tris) in tris_by_slab.iter().enumerate() {
+        while next_vertex < order.len() && rank[order[next_vertex]] as usize == k {
+            let v = order[next_vertex];
+            let attrs = [mesh.pos[v].z as f32];
+            s.add_vertex(id[v], mesh.pos[v], rank[v], &attrs[..attributes.min(1)]);
+            next_vertex += 1;
+        }
+        let per_batch = tris.len().div_ceil(sweep.batches_per_slab).max(1);
+        let mut chunks: Vec<&[[u32; 3]]> = tris.chunks(per_batch).collect();
+        if chunks.is_empty() {
+            chunks.push(&[]);
+        }
+        for chunk in chunks {
+            let mut done = Vec::new();
+            for t in chunk {
+                s.add_triangle(t.map(|v| id[v as usize]));
+                for &v in t {
+                    remaining[v as usize] -= 1;
+                    if remaining[v as usize] == 0 {
+                        done.push(id[v as usize]);
+                    }
+                }
+            }
+            done.sort_unstable();
+            for v in done {
+                s.set_modifiable(v);
+            }
+            s.end_batch(k as u32, &mut out);
+            resident.push(s.stats().faces_resident);
+        }
+    }
+    s.finish(&mut out);
+    let stats = s.stats();
+    assert_eq!(stats.faces_resident, 0, "everything emitted");
+    let (mesh, attrs) = collect(&out, attributes);
+    Run {
+        mesh,
+        attrs,
+        stats,
+        out,
+        resident,
+    }
+}
+
+/// Reads the output, checking compact pre-order: every vertex is emitted right before the first
+/// triangle using it, and finalized (`last_use`) exactly once, after which it is never used.
+pub fn collect(out: &OutBatch, attributes: usize) -> (Mesh, Vec<f32>) {
+    let mut mesh = Mesh::default();
+    let mut used = Vec::new();
+    let mut finalized = Vec::new();
+    let mut pending: Vec<u64> = Vec::new();
+    for e in &out.elements {
+        match e {
+            OutElement::Vertex { pos } => {
+                pending.push(mesh.pos.len() as u64);
+                mesh.pos.push(*pos);
+                used.push(false);
+                finalized.push(false);
+            }
+            OutElement::Triangle { v, last_use } => {
+                for &x in v {
+                    let i = x as usize;
+                    assert!(i < mesh.pos.len(), "vertex {x} used before it was emitted");
+                    assert!(!finalized[i], "vertex {x} used after its last use");
+                    assert!(
+                        used[i] || pending.contains(&x),
+                        "vertex {x} not emitted right before its first triangle"
+                    );
+                    used[i] = true;
+                }
+                assert!(
+                    pending.iter().all(|p| v.contains(p)),
+                    "vertices {pending:?} emitted but not used by the next triangle"
+                );
+                pending.clear();
+                for (&x, &last) in v.iter().zip(last_use) {
+                    if last {
+                        finalized[x as usize] = true;
+                    }
+                }
+                mesh.tris.push(v.map(|x| x as u32));
+            }
+        }
+    }
+    assert!(pending.is_empty(), "vertices emitted without a triangle");
+    assert!(finalized.iter().all(|&f| f), "every vertex is finalized");
+    assert_eq!(out.attrs.len(), mesh.pos.len() * attributes);
+    (mesh, out.attrs.clone())
+}
+
+/// Topology is preserved: valid (oriented, no duplicates), closed stays closed, the same
+/// Euler characteristic per component, no zero-area triangles.
+pub fn assert_same_topology(input: &Mesh, run: &Run) {
+    let (a, b) = (input.check(), run.check());
+    assert!(b.is_valid_manifold(), "{b:?}");
+    assert_eq!(
+        a.boundary_edges == 0,
+        b.boundary_edges == 0,
+        "closed stays closed: {b:?}"
+    );
+    assert_eq!(a.sorted_eulers(), b.sorted_eulers(), "{b:?}");
+    assert_eq!(b.zero_area_triangles, 0, "{b:?}");
+}
