@@ -62,6 +62,9 @@ pub struct DetectStats {
     pub triangles: u64,
     /// Most vertices waiting in the front map at once.
     pub peak_front: u64,
+    /// Vertices Table 1 never released, freed by the end of the stream instead. Always 0 when
+    /// the table is complete; kept as a diagnostic because a non-zero value means lost editing.
+    pub released_at_end: u64,
 }
 
 /// Streaming soup-to-indexed conversion with Table 1 modifiability.
@@ -117,7 +120,8 @@ impl Detector {
 
             let [x, y, z] = cube.coord;
             for &(offset, axis) in modifiable_lines(CubeKind::of(cube.coord, self.dims)) {
-                let key = EdgeKey::new(x + offset[0], y + offset[1], z + offset[2], axis, self.dims);
+                let key =
+                    EdgeKey::new(x + offset[0], y + offset[1], z + offset[2], axis, self.dims);
                 if let Some(id) = self.front.remove(&key) {
                     out.modifiable.push(id);
                 }
@@ -132,6 +136,7 @@ impl Detector {
             // vertex can never stay unmodifiable at the end of the stream.
             let mut rest: Vec<u64> = self.front.drain().map(|(_, id)| id).collect();
             rest.sort_unstable();
+            self.stats.released_at_end += rest.len() as u64;
             out.modifiable.extend(rest);
             out.end_of_volume = true;
         }

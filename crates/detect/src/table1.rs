@@ -90,7 +90,9 @@ impl CubeKind {
 /// A paper line as (lower-corner offset, axis 0/1/2).
 fn line_as_edge(line: usize) -> ([u64; 3], u8) {
     let [a, b] = PAPER_LINES[line].map(|c| PAPER_CORNER_OFFSET[c]);
-    let axis = (0..3).find(|&i| a[i] != b[i]).expect("a line joins two corners") as u8;
+    let axis = (0..3)
+        .find(|&i| a[i] != b[i])
+        .expect("a line joins two corners") as u8;
     let lower = [a[0].min(b[0]), a[1].min(b[1]), a[2].min(b[2])];
     (lower, axis)
 }
