@@ -88,7 +88,7 @@ impl CubeKind {
 }
 
 /// A paper line as (lower-corner offset, axis 0/1/2).
-fn line_as_edge(line: usize) -> ([u64; 3], u8) {
+fn line_as_edge(line: usize) -> Line {
     let [a, b] = PAPER_LINES[line].map(|c| PAPER_CORNER_OFFSET[c]);
     let axis = (0..3)
         .find(|&i| a[i] != b[i])
@@ -97,7 +97,10 @@ fn line_as_edge(line: usize) -> ([u64; 3], u8) {
     (lower, axis)
 }
 
-static TABLE: std::sync::LazyLock<[Vec<([u64; 3], u8)>; 8]> = std::sync::LazyLock::new(|| {
+/// A cube edge as (lower-corner offset, axis).
+type Line = ([u64; 3], u8);
+
+static TABLE: std::sync::LazyLock<[Vec<Line>; 8]> = std::sync::LazyLock::new(|| {
     [
         CubeKind::Internal,
         CubeKind::RightBound,
@@ -113,7 +116,7 @@ static TABLE: std::sync::LazyLock<[Vec<([u64; 3], u8)>; 8]> = std::sync::LazyLoc
 
 /// The cube edges (lower-corner offset, axis) whose vertices become modifiable once a cube of
 /// this kind has been extracted.
-pub fn modifiable_lines(kind: CubeKind) -> &'static [([u64; 3], u8)] {
+pub fn modifiable_lines(kind: CubeKind) -> &'static [Line] {
     &TABLE[kind as usize]
 }
 
