@@ -12,6 +12,7 @@ mod dtype;
 mod error;
 mod grid;
 mod memory;
+mod nifti;
 mod nrrd;
 mod open;
 mod options;

@@ -1,6 +1,6 @@
 //! Format detection: one entry point from a path (and job-file options) to a source.
 
-use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nrrd, vti, vtk};
+use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nifti, nrrd, vti, vtk};
 use std::io::Read;
 use std::path::Path;
 
@@ -11,6 +11,7 @@ enum Format {
     Nrrd,
     Vtk,
     Vti,
+    Nifti,
 }
 
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
@@ -21,6 +22,7 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
         Format::Nrrd => nrrd::open(path, opts),
         Format::Vtk => vtk::open(path, opts),
         Format::Vti => vti::open(path, opts),
+        Format::Nifti => nifti::open(path, opts),
     }
 }
 
@@ -35,6 +37,9 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         (".raw", Format::Raw),
         (".vtk", Format::Vtk),
         (".vti", Format::Vti),
+        (".nii", Format::Nifti),
+        (".nii.gz", Format::Nifti),
+        (".hdr", Format::Nifti),
     ];
     if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
         return Ok(*f);
@@ -50,6 +55,8 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         Format::Vtk
     } else if head.starts_with(b"<?xml") || head.starts_with(b"<VTKFile") {
         Format::Vti
+    } else if head.starts_with(&348i32.to_le_bytes()) || head.starts_with(&348i32.to_be_bytes()) {
+        Format::Nifti
     } else {
         Format::Raw
     })

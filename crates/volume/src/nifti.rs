@@ -1,0 +1,240 @@
+//! NIfTI-1 single files (`.nii`, `.nii.gz`) and `.hdr`/`.img` pairs, with `scl_slope` /
+//! `scl_inter` scaling and `pixdim` voxel sizes.
+//!
+//! The header is a fixed 348-byte struct, so we read the dozen fields we need by offset instead
+//! of pulling the `nifti` crate, whose ndarray dependency would pin ndarray for the whole workspace
+//! and whose volume API loads whole arrays. `.nii` payloads are memory-mapped; `.nii.gz` streams.
+//!
+//! Orientation: only the translation of the sform (else qform) becomes the grid origin; axis
+//! flips and rotations are ignored (isostream grids are axis-aligned), so meshes come out in
+//! voxel-index orientation scaled by `pixdim`.
+
+use crate::raw::{Payload, RawVolume};
+use crate::stream::{Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
+use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
+use flate2::read::MultiGzDecoder;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+const HEADER: usize = 348;
+
+#[derive(Debug)]
+struct Header {
+    endian: Endian,
+    dims: [u64; 3],
+    dtype: Dtype,
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    vox_offset: u64,
+    slope: f32,
+    inter: f32,
+    /// `ni1`: the voxels are in a separate `.img` file.
+    pair: bool,
+}
+
+/// Opens a NIfTI-1 file; `.gz` names are decompressed as a stream.
+pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    opts.reject_raw_params(path, "NIfTI-1")?;
+    opts.reject_array(path, "NIfTI-1")?;
+    let gz = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("gz"));
+    let mut bytes = [0u8; HEADER];
+    let read = |r: &mut dyn Read, bytes: &mut [u8]| {
+        r.read_exact(bytes).map_err(|e| {
+            VolumeError::format(path, "header", "a 348-byte NIfTI-1 header", e.to_string())
+        })
+    };
+    if gz {
+        read(&mut MultiGzDecoder::new(open_at(path, 0)?), &mut bytes)?;
+    } else {
+        read(&mut open_at(path, 0)?, &mut bytes)?;
+    }
+    let h = parse(path, &bytes)?;
+    let grid = opts.grid(path, h.dims, h.spacing, h.origin)?;
+    let inner: Box<dyn VolumeSource> = if h.pair {
+        let img = path.with_extension("img");
+        Box::new(raw(&img, &h, grid)?)
+    } else if gz {
+        let owned: PathBuf = path.to_path_buf();
+        let skip = h.vox_offset;
+        Box::new(StreamVolume::new(StreamSpec {
+            path: path.to_path_buf(),
+            what: "gzip NIfTI voxels",
+            grid,
+            dtype: h.dtype,
+            stored: h.dtype,
+            endian: h.endian,
+            open: Box::new(move || {
+                let mut s: Stream = Box::new(MultiGzDecoder::new(open_at(&owned, 0)?));
+                skip_bytes(&mut s, skip).map_err(|e| {
+                    VolumeError::format(
+                        &owned,
+                        "vox_offset",
+                        format!("{skip} header bytes"),
+                        e.to_string(),
+                    )
+                })?;
+                Ok(s)
+            }),
+        })?)
+    } else {
+        Box::new(raw(path, &h, grid)?)
+    };
+    // scl_slope 0 means "no scaling" in NIfTI-1; identity scaling is skipped for speed.
+    if h.slope == 0.0 || !h.slope.is_finite() || (h.slope == 1.0 && h.inter == 0.0) {
+        return Ok(inner);
+    }
+    Ok(Box::new(Scaled {
+        inner,
+        slope: h.slope,
+        inter: if h.inter.is_finite() { h.inter } else { 0.0 },
+    }))
+}
+
+fn raw(data: &Path, h: &Header, grid: Grid) -> Result<RawVolume, VolumeError> {
+    RawVolume::open_payload(Payload {
+        path: data,
+        grid,
+        dtype: h.dtype,
+        endian: h.endian,
+        offset: h.vox_offset,
+        trailing_ok: true,
+        hint: "check the NIfTI header's dim, datatype and vox_offset",
+    })
+}
+
+fn parse(path: &Path, b: &[u8; HEADER]) -> Result<Header, VolumeError> {
+    let at = |field: &str| format!("header field {field}");
+    let err = |field: &str, expected: &str, found: String| {
+        VolumeError::format(path, at(field), expected, found)
+    };
+    let le = i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+    let endian = match (le, i32::from_be_bytes([b[0], b[1], b[2], b[3]])) {
+        (348, _) => Endian::Little,
+        (_, 348) => Endian::Big,
+        (540, _) | (_, 540) => {
+            return Err(err(
+                "sizeof_hdr",
+                "348 (NIfTI-1; NIfTI-2 is not supported)",
+                "540".into(),
+            ));
+        }
+        _ => return Err(err("sizeof_hdr", "348 (NIfTI-1)", le.to_string())),
+    };
+    let i16_at = |o: usize| {
+        let a = [b[o], b[o + 1]];
+        match endian {
+            Endian::Little => i16::from_le_bytes(a),
+            Endian::Big => i16::from_be_bytes(a),
+        }
+    };
+    let f32_at = |o: usize| {
+        let a = [b[o], b[o + 1], b[o + 2], b[o + 3]];
+        match endian {
+            Endian::Little => f32::from_le_bytes(a),
+            Endian::Big => f32::from_be_bytes(a),
+        }
+    };
+    let magic = &b[344..348];
+    let pair = match magic {
+        b"n+1\0" => false,
+        b"ni1\0" => true,
+        _ => {
+            return Err(err(
+                "magic",
+                "\"n+1\" or \"ni1\"",
+                String::from_utf8_lossy(magic).into_owned(),
+            ));
+        }
+    };
+    let dim: Vec<i16> = (0..8).map(|k| i16_at(40 + 2 * k)).collect();
+    let rank = dim[0];
+    if !(3..=7).contains(&rank) || dim[4..rank as usize + 1].iter().any(|&d| d != 1) {
+        return Err(err(
+            "dim",
+            "a 3D volume (dim[0] >= 3 and dim[4..] = 1)",
+            format!("{:?}", &dim[..(rank.clamp(0, 7) as usize + 1)]),
+        ));
+    }
+    let mut dims = [0u64; 3];
+    for a in 0..3 {
+        dims[a] = u64::try_from(dim[a + 1])
+            .map_err(|_| err("dim", "positive sizes", format!("{:?}", &dim[1..4])))?;
+    }
+    let code = i16_at(70);
+    let dtype = match code {
+        2 => Dtype::U8,
+        4 => Dtype::I16,
+        8 => Dtype::I32,
+        16 => Dtype::F32,
+        64 => Dtype::F64,
+        256 => Dtype::I8,
+        512 => Dtype::U16,
+        768 => Dtype::U32,
+        _ => {
+            return Err(err(
+                "datatype",
+                "a scalar type code (2, 4, 8, 16, 64, 256, 512, 768)",
+                code.to_string(),
+            ));
+        }
+    };
+    let spacing = [1, 2, 3].map(|k| f64::from(f32_at(76 + 4 * k)).abs());
+    let vox = f32_at(108);
+    let min_offset = if pair { 0.0 } else { HEADER as f32 };
+    if !vox.is_finite() || vox < min_offset || vox.fract() != 0.0 {
+        return Err(err(
+            "vox_offset",
+            &format!("a whole number of bytes >= {min_offset}"),
+            vox.to_string(),
+        ));
+    }
+    let origin = if i16_at(254) > 0 {
+        [280, 296, 312].map(|o| f64::from(f32_at(o + 12)))
+    } else if i16_at(252) > 0 {
+        [268, 272, 276].map(|o| f64::from(f32_at(o)))
+    } else {
+        [0.0; 3]
+    };
+    Ok(Header {
+        endian,
+        dims,
+        dtype,
+        spacing,
+        origin,
+        vox_offset: vox as u64,
+        slope: f32_at(112),
+        inter: f32_at(116),
+        pair,
+    })
+}
+
+/// Applies `value * slope + inter` (NIfTI's scl_slope / scl_inter) to every voxel.
+struct Scaled {
+    inner: Box<dyn VolumeSource>,
+    slope: f32,
+    inter: f32,
+}
+
+impl VolumeSource for Scaled {
+    fn grid(&self) -> Grid {
+        self.inner.grid()
+    }
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+        self.inner.read_slice(z, out)?;
+        for v in out.iter_mut() {
+            *v = *v * self.slope + self.inter;
+        }
+        Ok(())
+    }
+    fn dtype(&self) -> Option<Dtype> {
+        self.inner.dtype()
+    }
+}
+
+#[cfg(test)]
+mod tests;

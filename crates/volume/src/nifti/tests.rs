@@ -1,0 +1,301 @@
+use super::*;
+use crate::dtype::tests::{ALL, encode, sample_values};
+use crate::open_path;
+use flate2::Compression;
+use flate2::write::GzEncoder;
+use std::io::Write;
+
+fn code(d: Dtype) -> i16 {
+    match d {
+        Dtype::U8 => 2,
+        Dtype::I16 => 4,
+        Dtype::I32 => 8,
+        Dtype::F32 => 16,
+        Dtype::F64 => 64,
+        Dtype::I8 => 256,
+        Dtype::U16 => 512,
+        Dtype::U32 => 768,
+    }
+}
+
+/// A NIfTI-1 header for a 3x2x4 volume; `edit` may change fields before encoding.
+struct Hdr {
+    endian: Endian,
+    dim: [i16; 8],
+    datatype: i16,
+    pixdim: [f32; 8],
+    vox_offset: f32,
+    slope: f32,
+    inter: f32,
+    sform: Option<[f32; 3]>,
+    magic: &'static [u8; 4],
+    sizeof_hdr: i32,
+}
+
+impl Hdr {
+    fn new(d: Dtype, endian: Endian) -> Self {
+        Hdr {
+            endian,
+            dim: [3, 3, 2, 4, 1, 1, 1, 1],
+            datatype: code(d),
+            pixdim: [1.0, 0.5, 2.0, 1.5, 1.0, 0.0, 0.0, 0.0],
+            vox_offset: 352.0,
+            slope: 0.0,
+            inter: 0.0,
+            sform: None,
+            magic: b"n+1\0",
+            sizeof_hdr: 348,
+        }
+    }
+
+    fn bytes(&self) -> Vec<u8> {
+        let mut b = vec![0u8; 352];
+        let big = self.endian == Endian::Big;
+        let mut put = |o: usize, v: &[u8]| b[o..o + v.len()].copy_from_slice(v);
+        macro_rules! enc {
+            ($v:expr) => {
+                if big {
+                    $v.to_be_bytes()
+                } else {
+                    $v.to_le_bytes()
+                }
+            };
+        }
+        put(0, &enc!(self.sizeof_hdr));
+        for (k, d) in self.dim.iter().enumerate() {
+            put(40 + 2 * k, &enc!(*d));
+        }
+        put(70, &enc!(self.datatype));
+        for (k, p) in self.pixdim.iter().enumerate() {
+            put(76 + 4 * k, &enc!(*p));
+        }
+        put(108, &enc!(self.vox_offset));
+        put(112, &enc!(self.slope));
+        put(116, &enc!(self.inter));
+        if let Some(t) = self.sform {
+            put(254, &enc!(1i16));
+            for (k, v) in t.iter().enumerate() {
+                put(280 + 16 * k + 12, &enc!(*v));
+            }
+        }
+        put(344, self.magic);
+        b
+    }
+}
+
+fn gzip(bytes: &[u8]) -> Vec<u8> {
+    let mut e = GzEncoder::new(Vec::new(), Compression::fast());
+    e.write_all(bytes).unwrap();
+    e.finish().unwrap()
+}
+
+fn read_all(path: &Path) -> Result<Vec<f32>, VolumeError> {
+    let mut v = open_path(path, &OpenOptions::default())?;
+    let g = v.grid();
+    let mut all = Vec::new();
+    let mut out = vec![0.0f32; g.slice_len()];
+    for z in 0..g.dims[2] {
+        v.read_slice(z, &mut out)?;
+        all.extend_from_slice(&out);
+    }
+    Ok(all)
+}
+
+#[test]
+fn every_type_endian_and_compression() {
+    let dir = tempfile::tempdir().unwrap();
+    for d in ALL {
+        for e in [Endian::Little, Endian::Big] {
+            let values = sample_values(d, 24);
+            let mut file = Hdr::new(d, e).bytes();
+            file.extend(encode(d, e, &values));
+            let want: Vec<f32> = values.iter().map(|&x| x as f32).collect();
+            for (name, bytes) in [("v.nii", file.clone()), ("v.nii.gz", gzip(&file))] {
+                let p = dir.path().join(name);
+                std::fs::write(&p, bytes).unwrap();
+                assert_eq!(read_all(&p).unwrap(), want, "{d} {e:?} {name}");
+                let v = open_path(&p, &OpenOptions::default()).unwrap();
+                assert_eq!(v.grid().spacing, [0.5, 2.0, 1.5]);
+                assert_eq!(v.dtype(), Some(d));
+            }
+        }
+    }
+}
+
+#[test]
+fn scaling_origin_and_pairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = Hdr::new(Dtype::I16, Endian::Little);
+    h.slope = 0.5;
+    h.inter = -10.0;
+    h.sform = Some([-90.0, 126.0, -72.0]);
+    let values: Vec<f64> = (0..24).map(|i| i as f64 * 4.0).collect();
+    let mut file = h.bytes();
+    file.extend(encode(Dtype::I16, Endian::Little, &values));
+    let p = dir.path().join("s.nii");
+    std::fs::write(&p, &file).unwrap();
+    let want: Vec<f32> = values.iter().map(|&x| (x * 0.5 - 10.0) as f32).collect();
+    assert_eq!(read_all(&p).unwrap(), want);
+    assert_eq!(
+        open_path(&p, &OpenOptions::default())
+            .unwrap()
+            .grid()
+            .origin,
+        [-90.0, 126.0, -72.0]
+    );
+    // Pair: header in .hdr, voxels in .img from vox_offset 0.
+    h.magic = b"ni1\0";
+    h.vox_offset = 0.0;
+    std::fs::write(dir.path().join("p.hdr"), &h.bytes()[..348]).unwrap();
+    std::fs::write(
+        dir.path().join("p.img"),
+        encode(Dtype::I16, Endian::Little, &values),
+    )
+    .unwrap();
+    assert_eq!(read_all(&dir.path().join("p.hdr")).unwrap(), want);
+}
+
+#[test]
+fn bad_files_give_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = encode(Dtype::U8, Endian::Little, &[1.0; 24]);
+    let with = |edit: &dyn Fn(&mut Hdr)| {
+        let mut h = Hdr::new(Dtype::U8, Endian::Little);
+        edit(&mut h);
+        let mut f = h.bytes();
+        f.extend(&data);
+        f
+    };
+    let good = with(&|_| {});
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        (
+            "a.nii",
+            good[..200].to_vec(),
+            "header: expected a 348-byte NIfTI-1 header, found \"failed to fill whole buffer\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.sizeof_hdr = 12),
+            "header field sizeof_hdr: expected 348 (NIfTI-1), found \"12\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.sizeof_hdr = 540),
+            "header field sizeof_hdr: expected 348 (NIfTI-1; NIfTI-2 is not supported), found \"540\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.magic = b"abc\0"),
+            "header field magic: expected \"n+1\" or \"ni1\", found \"abc\\0\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.dim = [4, 3, 2, 4, 5, 1, 1, 1]),
+            "header field dim: expected a 3D volume (dim[0] >= 3 and dim[4..] = 1), found \"[4, 3, 2, 4, 5]\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.datatype = 1024),
+            "header field datatype: expected a scalar type code (2, 4, 8, 16, 64, 256, 512, 768), found \"1024\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.vox_offset = 100.0),
+            "header field vox_offset: expected a whole number of bytes >= 348, found \"100\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.dim = [3, 3, 0, 4, 1, 1, 1, 1]),
+            "dims 3x0x4 need at least 2 voxels per axis; check the dims",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.dim = [3, 3, -2, 4, 1, 1, 1, 1]),
+            "header field dim: expected positive sizes, found \"[3, -2, 4]\"",
+        ),
+        (
+            "a.nii",
+            with(&|h| h.pixdim[2] = 0.0),
+            "spacing [0.5, 0.0, 1.5] must be finite and > 0 on every axis; check the spacing",
+        ),
+        (
+            "a.nii",
+            good[..370].to_vec(),
+            "file is 370 bytes but dims 3x2x4 of u8 plus 352 header bytes need 376; check the NIfTI header's dim, datatype and vox_offset",
+        ),
+        (
+            "a.nii.gz",
+            gzip(&good[..370]),
+            "gzip NIfTI voxels voxel 18 (slice 3): expected 24 voxels of u8 for dims 3x2x4, found \"end of data (truncated file?)\"",
+        ),
+        (
+            "a.nii.gz",
+            {
+                let mut g = gzip(&good);
+                let n = g.len();
+                g[n - 20..n - 10].fill(0xAA);
+                g
+            },
+            "header: expected a 348-byte NIfTI-1 header, found \"incomplete deflate stream\"",
+        ),
+    ];
+    let mut wrong = Vec::new();
+    for (name, file, want) in cases {
+        let p = dir.path().join(name);
+        std::fs::write(&p, &file).unwrap();
+        let got = match read_all(&p) {
+            Ok(_) => "Ok".to_string(),
+            Err(e) => e.to_string(),
+        };
+        assert!(!got.contains('\n'));
+        let want = format!("{}: {want}", p.display());
+        if got != want {
+            wrong.push(format!("got  {got}\nwant {want}"));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+fn check_real(rel: &str, dims: [u64; 3], dtype: Dtype, spacing: [f64; 3], mean: f64, max: f32) {
+    let p = Path::new("/work/shared/data").join(rel);
+    if !p.exists() {
+        eprintln!("skipping: {} not present", p.display());
+        return;
+    }
+    let v = open_path(&p, &OpenOptions::default()).unwrap();
+    assert_eq!(v.grid().dims, dims);
+    assert_eq!(v.dtype(), Some(dtype));
+    let got = v.grid().spacing;
+    assert!(
+        got.iter().zip(spacing).all(|(g, w)| (g - w).abs() < 1e-6),
+        "{got:?}"
+    );
+    let all = read_all(&p).unwrap();
+    let m = all.iter().map(|&x| x as f64).sum::<f64>() / all.len() as f64;
+    assert!((m - mean).abs() < 1e-3, "{rel} mean {m}");
+    assert_eq!(all.iter().fold(f32::MIN, |a, &x| a.max(x)), max);
+}
+
+#[test]
+fn mni152_when_present() {
+    check_real(
+        "mni152/mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz",
+        [197, 233, 189],
+        Dtype::U8,
+        [1.0; 3],
+        38.4389,
+        255.0,
+    );
+}
+
+#[test]
+fn mean_head_when_present() {
+    check_real(
+        "mean_head/mean_reg2mean.nii.gz",
+        [176, 256, 256],
+        Dtype::I16,
+        [1.0, 0.9765625, 0.9765625],
+        87.7297,
+        646.0,
+    );
+}
