@@ -32,9 +32,9 @@ use std::sync::LazyLock;
 
 use crate::cube::{edge_between, edge_corners, edge_midpoint, edges_share_face, face_cycle};
 
-/// Most triangles in one case: a loop of n vertices gives n - 2 triangles and at most 12 edges
-/// cross, so at most 10 (the generated table needs far fewer; the bound only sizes the array).
-pub const MAX_TRIANGLES: usize = 10;
+/// Most triangles in one case (a test checks the generated table reaches exactly this).
+/// Consumers can size per-cube buffers with it; vertices per cube are at most 12.
+pub const MAX_TRIANGLES: usize = 5;
 
 /// One entry of the case table: the crossing edges of a sign configuration and its triangles.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -407,6 +407,74 @@ mod tests {
         let c = case(!0b0000_1001);
         assert_eq!(c.triangles().len(), 4);
         assert_eq!(loops(!0b0000_1001usize & 0xff).len(), 1);
+    }
+
+    /// Every triangulation of the chain i..=j closed by the chord (i, j), as index triples.
+    fn all_triangulations(i: usize, j: usize) -> Vec<Vec<[usize; 3]>> {
+        if j - i < 2 {
+            return vec![Vec::new()];
+        }
+        let mut all = Vec::new();
+        for k in i + 1..j {
+            for left in all_triangulations(i, k) {
+                for right in all_triangulations(k, j) {
+                    let mut t = left.clone();
+                    t.extend(&right);
+                    t.push([i, k, j]);
+                    all.push(t);
+                }
+            }
+        }
+        all
+    }
+
+    #[test]
+    fn every_loop_gets_the_best_allowed_triangulation() {
+        // Brute force over all triangulations of every loop of every case: at least one avoids
+        // diagonals on cube faces, and the generated one has the largest minimum angle of those.
+        let mut longest = 0;
+        for index in 0..256 {
+            for lp in loops(index) {
+                let n = lp.len();
+                longest = longest.max(n);
+                let allowed = |t: &[[usize; 3]]| {
+                    t.iter()
+                        .flat_map(|&[a, b, c]| [(a, b), (b, c), (a, c)])
+                        .all(|(a, b)| {
+                            b - a == 1 || (a == 0 && b == n - 1) || !edges_share_face(lp[a], lp[b])
+                        })
+                };
+                let quality = |t: &[[usize; 3]]| {
+                    t.iter()
+                        .map(|&[a, b, c]| min_angle(lp[a], lp[b], lp[c]))
+                        .fold(f64::INFINITY, f64::min)
+                };
+                let best = all_triangulations(0, n - 1)
+                    .iter()
+                    .filter(|t| allowed(t))
+                    .map(|t| quality(t))
+                    .fold(f64::NEG_INFINITY, f64::max);
+                assert!(
+                    best > 0.0,
+                    "case {index}: loop {lp:?} has no allowed triangulation"
+                );
+                let chosen = triangulate(&lp);
+                assert_eq!(chosen.len(), n - 2);
+                let q = chosen
+                    .iter()
+                    .map(|&[a, b, c]| min_angle(a, b, c))
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(q, best, "case {index}: loop {lp:?}");
+            }
+        }
+        // The face rule keeps loops short: a hexagon-plus-one at most, as in classic MC.
+        assert_eq!(longest, 7);
+    }
+
+    #[test]
+    fn max_triangles_is_tight() {
+        let most = (0..=255u8).map(|i| case(i).triangles().len()).max();
+        assert_eq!(most, Some(MAX_TRIANGLES));
     }
 
     #[test]
