@@ -71,10 +71,11 @@ impl Bvh {
         Bvh { nodes, triangles }
     }
 
-    /// Distance from `p` to the closest triangle, if one is strictly closer than `limit`.
-    pub(crate) fn nearest_within(&self, p: DVec3, limit: f64) -> Option<f64> {
+    /// Distance from `p` to the closest triangle and that triangle's index, if one is strictly
+    /// closer than `limit`.
+    pub(crate) fn nearest_within(&self, p: DVec3, limit: f64) -> Option<(f64, usize)> {
         let mut best = limit * limit;
-        let mut found = false;
+        let mut found = None;
         let mut stack = Vec::with_capacity(64);
         if let Some(root) = self.nodes.first() {
             stack.push((0usize, root.bounds.distance_squared(p)));
@@ -86,11 +87,14 @@ impl Bvh {
             let node = self.nodes[index];
             if node.count > 0 {
                 let first = node.first as usize;
-                for t in &self.triangles[first..first + node.count as usize] {
+                for (i, t) in self.triangles[first..first + node.count as usize]
+                    .iter()
+                    .enumerate()
+                {
                     let d = closest_point(p, t).distance_squared(p);
                     if d < best {
                         best = d;
-                        found = true;
+                        found = Some(first + i);
                     }
                 }
                 continue;
@@ -107,13 +111,29 @@ impl Bvh {
                 stack.push((right, dr));
             }
         }
-        found.then(|| best.sqrt())
+        found.map(|i| (best.sqrt(), i))
     }
 
-    /// Distance from `p` to the closest triangle (infinite for an empty hierarchy).
-    pub(crate) fn nearest(&self, p: DVec3) -> f64 {
-        self.nearest_within(p, f64::INFINITY)
-            .unwrap_or(f64::INFINITY)
+    /// Distance from `p` to the closest triangle (infinite for an empty hierarchy). `hint` is the
+    /// index of a triangle likely to be near, and is updated to the closest one: consecutive
+    /// queries of nearby points then start from a tight bound and visit few nodes.
+    pub(crate) fn nearest(&self, p: DVec3, hint: &mut usize) -> f64 {
+        let Some(t) = self.triangles.get(*hint) else {
+            return self
+                .nearest_within(p, f64::INFINITY)
+                .map_or(f64::INFINITY, |(d, i)| {
+                    *hint = i;
+                    d
+                });
+        };
+        let bound = closest_point(p, t).distance(p);
+        match self.nearest_within(p, bound) {
+            Some((d, i)) => {
+                *hint = i;
+                d
+            }
+            None => bound,
+        }
     }
 }
 
@@ -177,13 +197,15 @@ mod tests {
         let mut rng = SplitMix64::new(7);
         let tris = random_triangles(&mut rng, 500);
         let bvh = Bvh::new(tris.clone());
+        let mut hint = 0;
         for _ in 0..300 {
             let p = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 14.0 - 2.0;
             let brute = tris
                 .iter()
                 .map(|t| closest_point(p, t).distance(p))
                 .fold(f64::INFINITY, f64::min);
-            assert!((bvh.nearest(p) - brute).abs() < 1e-12, "{p}");
+            assert!((bvh.nearest(p, &mut hint) - brute).abs() < 1e-12, "{p}");
+            assert!((bvh.nearest(p, &mut usize::MAX.clone()) - brute).abs() < 1e-12);
             assert_eq!(bvh.nearest_within(p, brute * 0.999), None);
         }
     }
@@ -192,6 +214,6 @@ mod tests {
     fn empty_hierarchy_finds_nothing() {
         let bvh = Bvh::new(Vec::new());
         assert_eq!(bvh.nearest_within(DVec3::ZERO, 1.0), None);
-        assert_eq!(bvh.nearest(DVec3::ZERO), f64::INFINITY);
+        assert_eq!(bvh.nearest(DVec3::ZERO, &mut 0), f64::INFINITY);
     }
 }

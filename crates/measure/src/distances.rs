@@ -4,15 +4,23 @@
 //! Metro does, and the undirected distance as the larger of the two directions.
 //!
 //! The output mesh is in memory and indexed once by a BVH. The full-resolution surface arrives in
-//! batches (slab by slab) and is dropped after each batch, so memory is bounded by one batch:
+//! batches in z order (slab by slab), each with the `front`: the lowest z any later triangle can
+//! have. Memory is bounded by a window of batches `2 r` high, `r = max_distance`:
 //!
 //! * full -> output: every batch triangle is sampled and each sample queries the output BVH.
-//! * output -> full: the output mesh is sampled up front and the samples sorted by z. A sample can
-//!   only have its nearest full-resolution point within `r = max_distance` in a batch whose z-range
-//!   reaches within `r` of it, and the minimum over the whole surface is the minimum over batches;
-//!   so each batch gets its own small BVH and updates the running nearest distance of just the
-//!   samples in `[z_min - r, z_max + r]`. A window of one batch suffices. Samples with nothing
-//!   within `r` are reported at `r` and counted as clipped.
+//! * output -> full: the output mesh is sampled up front and the samples sorted by z. A sample at
+//!   height `z` can only have full-resolution points within `r` in `[z - r, z + r]`, so once the
+//!   front passes `z + r` every candidate is in the window: the sample is measured then, against
+//!   the window's batches (each with its own small BVH), those spanning `z` first, so the bound
+//!   found in its own slab prunes the others by their vertical gap. Batches entirely below the lowest pending
+//!   sample's `z - r` leave the window. Samples with nothing within `r` are reported at `r` and
+//!   counted as clipped.
+//!
+//! Measuring each sample against every batch as it passed would need no window at all, but then a
+//! sample meets the slabs below it first, with nothing but `r` to prune the search: on a 256^3
+//! gyroid that was several times slower.
+
+use std::collections::VecDeque;
 
 use glam::DVec3;
 use serde::Serialize;
@@ -133,12 +141,31 @@ pub(crate) struct DistanceStream {
     radius: f64,
     rng: SplitMix64,
     full_to_output: Accumulator,
-    /// Output samples sorted by z, and their nearest full-resolution distance so far (capped at
-    /// `radius`).
+    /// Output triangle nearest to the last full-resolution sample: the next is likely near it.
+    output_hint: usize,
+    /// Output samples sorted by z; those before `next` are measured.
     samples: Vec<DVec3>,
-    nearest: Vec<f64>,
+    next: usize,
+    output_to_full: Accumulator,
+    clipped_samples: u64,
+    window: VecDeque<WindowBatch>,
     full_triangles: u64,
     bounds: (DVec3, DVec3),
+}
+
+/// A batch of full-resolution triangles kept while output samples within `r` may need it.
+#[derive(Debug)]
+struct WindowBatch {
+    z_min: f64,
+    z_max: f64,
+    bvh: Bvh,
+}
+
+impl WindowBatch {
+    /// Vertical gap from `z` to the batch: a lower bound on the distance to its triangles.
+    fn gap(&self, z: f64) -> f64 {
+        (self.z_min - z).max(z - self.z_max).max(0.0)
+    }
 }
 
 impl DistanceStream {
@@ -184,44 +211,76 @@ impl DistanceStream {
             radius,
             rng: SplitMix64::new(opts.seed ^ 0x5EED_F011_0000_0001),
             full_to_output: Accumulator::default(),
-            nearest: vec![radius; samples.len()],
+            output_hint: 0,
             samples,
+            next: 0,
+            output_to_full: Accumulator::default(),
+            clipped_samples: 0,
+            window: VecDeque::new(),
             full_triangles: 0,
             bounds,
         })
     }
 
-    /// Takes the next batch of full-resolution triangles (any grouping works; slabs keep the
-    /// number of output samples each batch must look at small).
-    pub(crate) fn add_batch(&mut self, batch: Vec<Triangle>) {
-        if batch.is_empty() {
-            return;
-        }
-        self.full_triangles += batch.len() as u64;
-        let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
-        for t in &batch {
-            for &p in t {
-                self.bounds = (self.bounds.0.min(p), self.bounds.1.max(p));
-                z_min = z_min.min(p.z);
-                z_max = z_max.max(p.z);
+    /// Takes the next batch of full-resolution triangles. `front` is a lower bound on the z of
+    /// every triangle of later batches (the bottom slice of the slab still to come).
+    pub(crate) fn add_batch(&mut self, batch: Vec<Triangle>, front: f64) {
+        if !batch.is_empty() {
+            self.full_triangles += batch.len() as u64;
+            let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
+            for t in &batch {
+                for &p in t {
+                    self.bounds = (self.bounds.0.min(p), self.bounds.1.max(p));
+                    z_min = z_min.min(p.z);
+                    z_max = z_max.max(p.z);
+                }
+                let (output, acc, hint) = (
+                    &self.output,
+                    &mut self.full_to_output,
+                    &mut self.output_hint,
+                );
+                sample_triangle(t, self.density, &mut self.rng, |p| {
+                    acc.add(output.nearest(p, hint));
+                });
             }
-            let (output, acc) = (&self.output, &mut self.full_to_output);
-            sample_triangle(t, self.density, &mut self.rng, |p| {
-                acc.add(output.nearest(p))
+            self.window.push_back(WindowBatch {
+                z_min,
+                z_max,
+                bvh: Bvh::new(batch),
             });
         }
+        self.advance(front);
+    }
 
-        let first = self.samples.partition_point(|p| p.z < z_min - self.radius);
-        let end = self.samples.partition_point(|p| p.z <= z_max + self.radius);
-        let slab = Bvh::new(batch);
-        for (p, nearest) in self.samples[first..end]
-            .iter()
-            .zip(&mut self.nearest[first..end])
-        {
-            if let Some(d) = slab.nearest_within(*p, *nearest) {
-                *nearest = d;
+    /// Measures the samples whose every candidate is now in the window, then drops the batches
+    /// no pending sample can reach.
+    fn advance(&mut self, front: f64) {
+        while let Some(&p) = self.samples.get(self.next) {
+            if p.z + self.radius > front {
+                break;
             }
+            // Batches spanning the sample's height first: the bound they give prunes the rest by
+            // their vertical gap alone.
+            let mut best = self.radius;
+            for spanning in [true, false] {
+                for b in &self.window {
+                    let gap = b.gap(p.z);
+                    if (gap == 0.0) != spanning || gap >= best {
+                        continue;
+                    }
+                    if let Some((d, _)) = b.bvh.nearest_within(p, best) {
+                        best = d;
+                    }
+                }
+            }
+            self.output_to_full.add(best);
+            if best >= self.radius {
+                self.clipped_samples += 1;
+            }
+            self.next += 1;
         }
+        let lowest = self.samples.get(self.next).map_or(f64::INFINITY, |p| p.z);
+        self.window.retain(|b| b.z_max + self.radius >= lowest);
     }
 
     /// The output mesh's samples, sorted by z.
@@ -230,19 +289,12 @@ impl DistanceStream {
         &self.samples
     }
 
-    pub(crate) fn finish(self) -> Result<Distances, MeasureError> {
+    pub(crate) fn finish(mut self) -> Result<Distances, MeasureError> {
+        self.advance(f64::INFINITY);
         if self.full_to_output.count == 0 {
             return Err(MeasureError::EmptySurface);
         }
-        let mut output_to_full = Accumulator::default();
-        let mut clipped_samples = 0;
-        for &d in &self.nearest {
-            output_to_full.add(d);
-            if d >= self.radius {
-                clipped_samples += 1;
-            }
-        }
-        let (f2o, o2f) = (self.full_to_output.finish(), output_to_full.finish());
+        let (f2o, o2f) = (self.full_to_output.finish(), self.output_to_full.finish());
         let (mean, rms, hausdorff) = (
             f2o.mean.max(o2f.mean),
             f2o.rms.max(o2f.rms),
@@ -261,7 +313,7 @@ impl DistanceStream {
             hausdorff,
             diagonal,
             full_resolution_triangles: self.full_triangles,
-            clipped_samples,
+            clipped_samples: self.clipped_samples,
             max_distance: self.radius,
             samples_per_area: self.density,
         })
@@ -335,8 +387,9 @@ pub(crate) mod tests {
                 .or_default()
                 .push(*t);
         }
-        for (_, b) in batches {
-            s.add_batch(b);
+        // Bucket k holds triangles whose lowest corner is in [k slab, (k + 1) slab).
+        for (k, b) in batches {
+            s.add_batch(b, (k + 1) as f64 * slab);
         }
         s.finish().unwrap()
     }

@@ -44,10 +44,17 @@ pub fn surface_distances(
     let mut pending: Vec<Triangle> = Vec::new();
     for z in 0..grid.dims[2] - 1 {
         volume.read_slice(z + 1, &mut upper)?;
+        // Later triangles of this slab lie above slice z, those of later slabs above slice z + 1.
+        let (slab_bottom, slab_top) = (
+            grid.position(0.0, 0.0, z as f64).z,
+            grid.position(0.0, 0.0, (z + 1) as f64).z,
+        );
         let emit = |batch: CubeBatch| -> Result<(), MeasureError> {
             append_triangles(&batch, &mut pending);
-            if batch.end_of_slab || pending.len() >= MAX_BATCH_TRIANGLES {
-                stream.add_batch(std::mem::take(&mut pending));
+            if batch.end_of_slab {
+                stream.add_batch(std::mem::take(&mut pending), slab_top);
+            } else if pending.len() >= MAX_BATCH_TRIANGLES {
+                stream.add_batch(std::mem::take(&mut pending), slab_bottom);
             }
             Ok(())
         };
