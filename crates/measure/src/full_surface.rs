@@ -30,13 +30,24 @@ pub fn surface_distances(
     triangles: &[[u32; 3]],
     opts: &MeasureOptions,
 ) -> Result<Distances, MeasureError> {
-    let grid = volume.grid();
-    let voxel_diagonal = DVec3::from(grid.spacing).length();
+    let voxel_diagonal = DVec3::from(volume.grid().spacing).length();
     let radius = opts
         .max_distance
         .unwrap_or(DEFAULT_SEARCH_VOXEL_DIAGONALS * voxel_diagonal);
     let mut stream = DistanceStream::new(positions, triangles, opts, radius)?;
+    feed(volume, iso, &mut stream, MAX_BATCH_TRIANGLES)?;
+    stream.finish()
+}
 
+/// Extracts the volume slab by slab into `stream`, in batches of a slab or of at least
+/// `max_batch` triangles, each with the lowest z any later triangle can have.
+fn feed(
+    volume: &mut dyn VolumeSource,
+    iso: f32,
+    stream: &mut DistanceStream,
+    max_batch: usize,
+) -> Result<(), MeasureError> {
+    let grid = volume.grid();
     let mut extractor = Extractor::new(grid, iso);
     let n = grid.slice_len();
     let (mut lower, mut upper) = (vec![0.0f32; n], vec![0.0f32; n]);
@@ -45,23 +56,21 @@ pub fn surface_distances(
     for z in 0..grid.dims[2] - 1 {
         volume.read_slice(z + 1, &mut upper)?;
         // Later triangles of this slab lie above slice z, those of later slabs above slice z + 1.
-        let (slab_bottom, slab_top) = (
-            grid.position(0.0, 0.0, z as f64).z,
-            grid.position(0.0, 0.0, (z + 1) as f64).z,
-        );
+        let slice_height = |k: u64| grid.position(0.0, 0.0, k as f64).z;
+        let (slab_bottom, slab_top) = (slice_height(z), slice_height(z + 1));
         let emit = |batch: CubeBatch| -> Result<(), MeasureError> {
             append_triangles(&batch, &mut pending);
             if batch.end_of_slab {
                 stream.add_batch(std::mem::take(&mut pending), slab_top);
-            } else if pending.len() >= MAX_BATCH_TRIANGLES {
+            } else if pending.len() >= max_batch {
                 stream.add_batch(std::mem::take(&mut pending), slab_bottom);
             }
             Ok(())
         };
-        extractor.extract_slab(z, &lower, &upper, MAX_BATCH_TRIANGLES, emit)?;
+        extractor.extract_slab(z, &lower, &upper, max_batch, emit)?;
         std::mem::swap(&mut lower, &mut upper);
     }
-    stream.finish()
+    Ok(())
 }
 
 fn append_triangles(batch: &CubeBatch, out: &mut Vec<Triangle>) {
@@ -157,6 +166,58 @@ mod tests {
         let q = crate::mesh_quality(&full.position_arrays(), &full.triangles);
         assert!(q.closed);
         assert!(q.directional_bias < 0.02, "{}", q.directional_bias);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+
+        /// On random small volumes, with batches cut mid-slab or not, the windowed output -> full
+        /// direction equals a brute-force search over the whole extracted surface, sample by
+        /// sample (mean, RMS, Hausdorff and clipping at the radius).
+        #[test]
+        fn windowed_stream_equals_brute_force(
+            dims in proptest::array::uniform3(3u64..7),
+            spacing in proptest::array::uniform3(0.5f64..2.0),
+            seed in 0u64..1000,
+            radius in 0.2f64..2.0,
+            max_batch in proptest::sample::select(vec![1usize, 7, 1 << 20]),
+        ) {
+            let grid = Grid::new(dims, spacing, [-1.0, 2.0, 0.5]).unwrap();
+            let mut rng = crate::sampling::SplitMix64::new(seed);
+            let values: Vec<f32> =
+                (0..grid.voxel_count()).map(|_| rng.next_f64() as f32).collect();
+            let volume = MemoryVolume::new(grid, values).unwrap();
+            let full = extract_indexed(&mut volume.clone(), 0.5).unwrap();
+            proptest::prop_assume!(!full.triangles.is_empty());
+            let full_positions = full.position_arrays();
+            // The "simplified" mesh: the same surface with every vertex moved up to 0.4 voxel.
+            let jitter = 0.4 * spacing.iter().cloned().fold(f64::INFINITY, f64::min);
+            let output: Vec<[f64; 3]> = full_positions
+                .iter()
+                .map(|p| p.map(|c| c + jitter * (2.0 * rng.next_f64() - 1.0)))
+                .collect();
+            let opts = MeasureOptions { seed, ..MeasureOptions::default() };
+            let Ok(mut stream) = DistanceStream::new(&output, &full.triangles, &opts, radius) else {
+                return Ok(()); // every jittered triangle degenerate: nothing to sample
+            };
+            feed(&mut volume.clone(), 0.5, &mut stream, max_batch).unwrap();
+            let expected: Vec<f64> = stream
+                .samples()
+                .iter()
+                .map(|p| brute_nearest(*p, &full_positions, &full.triangles).min(radius))
+                .collect();
+            let d = stream.finish().unwrap();
+            let n = expected.len() as f64;
+            let mean = expected.iter().sum::<f64>() / n;
+            let rms = (expected.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
+            let max = expected.iter().cloned().fold(0.0, f64::max);
+            let clipped = expected.iter().filter(|&&x| x >= radius).count() as u64;
+            proptest::prop_assert!((d.output_to_full.mean - mean).abs() <= 1e-9 * mean.max(1e-9));
+            proptest::prop_assert!((d.output_to_full.rms - rms).abs() <= 1e-9 * rms.max(1e-9));
+            proptest::prop_assert_eq!(d.output_to_full.hausdorff, max);
+            proptest::prop_assert_eq!(d.clipped_samples, clipped);
+            proptest::prop_assert_eq!(d.full_resolution_triangles, full.triangles.len() as u64);
+        }
     }
 
     #[test]
