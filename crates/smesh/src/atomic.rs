@@ -60,11 +60,9 @@ impl AtomicFile {
         SmeshError::io(&self.path, "write", e)
     }
 
-    /// Copies everything from `spill` (rewound first) to the end of the output.
+    /// Copies the rest of `spill` (see `rewind_spill`) to the end of the output.
     pub(crate) fn append(&mut self, spill: &mut File) -> Result<(), SmeshError> {
-        spill
-            .seek(SeekFrom::Start(0))
-            .and_then(|_| io::copy(spill, &mut self.out))
+        io::copy(spill, &mut self.out)
             .map(|_| ())
             .map_err(|e| SmeshError::io(&self.path, "copy spilled data into", e))
     }
@@ -132,4 +130,17 @@ pub(crate) fn spill_file(path: &Path) -> Result<BufWriter<File>, SmeshError> {
                 e,
             )
         })
+}
+
+/// Flushes a spill and rewinds it for reading back; returns it with its length.
+pub(crate) fn rewind_spill(path: &Path, spill: BufWriter<File>) -> Result<(File, u64), SmeshError> {
+    let res = spill
+        .into_inner()
+        .map_err(|e| e.into_error())
+        .and_then(|mut f| {
+            let len = f.stream_position()?;
+            f.seek(SeekFrom::Start(0))?;
+            Ok((f, len))
+        });
+    res.map_err(|e| SmeshError::io(path, "read back scratch data for", e))
 }

@@ -11,13 +11,18 @@ use crate::obj::ObjSink;
 use crate::ply::{PlyEncoding, PlySink};
 use crate::validate::CheckedStream;
 use crate::{
-    Element, Format, Header, MeshSink, SmeshError, StreamWriter, WriteStats, read_indexed,
+    Element, Format, GlbSink, Header, MeshSink, SmeshError, StlSink, StreamWriter, WriteStats,
+    read_indexed,
 };
 
 /// Choices that only some output formats have.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ConvertOptions {
+    /// PLY body encoding (default binary little-endian).
     pub ply_encoding: PlyEncoding,
+    /// GLB: also write area-weighted per-vertex normals (default off: viewers then shade flat,
+    /// which shows the simplified triangles as they are).
+    pub normals: bool,
 }
 
 /// What `convert` did.
@@ -41,11 +46,13 @@ pub fn create_sink(
         Format::Sma | Format::Smb => Box::new(StreamWriter::create(path, header)?),
         Format::Ply => Box::new(PlySink::create(path, header, options.ply_encoding)?),
         Format::Obj => Box::new(ObjSink::create(path, header)?),
+        Format::Stl => Box::new(StlSink::create(path, header)?),
+        Format::Glb => Box::new(GlbSink::create(path, header, options.normals)?),
     })
 }
 
-/// Converts between SMA, SMB, PLY (binary little-endian) and OBJ, streaming when the input is a
-/// streaming mesh; the output is written temp-then-rename.
+/// Converts between SMA, SMB, PLY (binary little-endian), OBJ, STL and GLB, streaming when the
+/// input is a streaming mesh; the output is written temp-then-rename.
 pub fn convert(input: &Path, output: &Path) -> Result<ConvertStats, SmeshError> {
     convert_with(input, output, &ConvertOptions::default())
 }

@@ -85,7 +85,7 @@ pub enum SmeshError {
         what: String,
         source: io::Error,
     },
-    #[error("{}: unknown mesh format: expected extension .sma, .smb, .ply or .obj", path.display())]
+    #[error("{}: unknown mesh format: expected extension .sma, .smb, .ply, .obj, .stl or .glb", path.display())]
     UnknownFormat { path: PathBuf },
     #[error("{}: {subject} {fault}", path.display())]
     Stream {

@@ -16,6 +16,10 @@ pub enum Format {
     Ply,
     /// Wavefront OBJ (positions and triangles only).
     Obj,
+    /// Binary STL (triangles as corner positions; read back with identical corners welded).
+    Stl,
+    /// Binary glTF 2.0: positions, indices, optional normals, attributes as `_NAME` accessors.
+    Glb,
 }
 
 impl Format {
@@ -30,6 +34,8 @@ impl Format {
             Some("smb") => Ok(Format::Smb),
             Some("ply") => Ok(Format::Ply),
             Some("obj") => Ok(Format::Obj),
+            Some("stl") => Ok(Format::Stl),
+            Some("glb") => Ok(Format::Glb),
             _ => Err(SmeshError::UnknownFormat {
                 path: path.to_path_buf(),
             }),
@@ -56,6 +62,8 @@ mod tests {
         assert_eq!(Format::from_path(Path::new("b.sma")).unwrap(), Format::Sma);
         assert_eq!(Format::from_path(Path::new("b.ply")).unwrap(), Format::Ply);
         assert_eq!(Format::from_path(Path::new("b.obj")).unwrap(), Format::Obj);
+        assert_eq!(Format::from_path(Path::new("b.stl")).unwrap(), Format::Stl);
+        assert_eq!(Format::from_path(Path::new("b.glb")).unwrap(), Format::Glb);
         let err = Format::from_path(Path::new("out/b.txt")).unwrap_err();
         assert!(
             err.to_string()

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use crate::validate::CheckedStream;
-use crate::{Element, Format, MeshSink, SmeshError, obj, ply};
+use crate::{Element, Format, MeshSink, SmeshError, glb, obj, ply, stl};
 
 /// A whole mesh in memory.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -23,6 +23,8 @@ pub fn read_indexed(path: &Path) -> Result<IndexedMesh, SmeshError> {
         Format::Sma | Format::Smb => read_stream(path),
         Format::Ply => ply::read(path),
         Format::Obj => obj::read(path),
+        Format::Stl => stl::read(path),
+        Format::Glb => glb::read(path),
     }
 }
 

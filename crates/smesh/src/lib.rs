@@ -7,7 +7,7 @@
 //! - `StreamWriter` / `StreamReader`: SMA (ASCII) and SMB (binary), see `sma` and `smb` for the
 //!   layouts, with per-vertex attributes as an SMA superset;
 //! - `validate`: the streaming rules checked on a file, plus stream width and skip;
-//! - `MeshSink`: one writing interface for every output format (SMA, SMB, PLY, OBJ), each written
+//! - `MeshSink`: one writing interface for every output format (SMA, SMB, PLY, OBJ, STL, GLB), each written
 //!   to a temporary file and renamed when complete;
 //! - `convert` and `read_indexed` for moving between formats and loading small meshes.
 #![deny(unsafe_code)]
@@ -16,6 +16,7 @@ mod atomic;
 mod convert;
 mod error;
 mod format;
+mod glb;
 mod index;
 mod indexed;
 mod obj;
@@ -24,6 +25,7 @@ mod reader;
 mod sink;
 mod sma;
 mod smb;
+mod stl;
 mod track;
 mod validate;
 mod writer;
@@ -31,10 +33,12 @@ mod writer;
 pub use convert::{ConvertOptions, ConvertStats, convert, convert_with, create_sink};
 pub use error::{Place, SmeshError, StreamFault, Subject};
 pub use format::Format;
+pub use glb::GlbSink;
 pub use indexed::{IndexedMesh, read_indexed};
 pub use obj::ObjSink;
 pub use ply::{PlyEncoding, PlySink};
 pub use reader::{Element, ReadHeader, StreamReader};
 pub use sink::{Header, MeshSink, WriteStats};
+pub use stl::StlSink;
 pub use validate::{ValidationReport, validate};
 pub use writer::StreamWriter;

@@ -8,13 +8,13 @@
 //! final bytes. Per-vertex attributes become extra `float` vertex properties.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
+use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
 use ply_rs_bw::parser::Parser;
 use ply_rs_bw::ply::{DefaultElement, Property};
 
-use crate::atomic::{AtomicFile, spill_file};
+use crate::atomic::{AtomicFile, rewind_spill, spill_file};
 use crate::sink::{MeshSink, SinkCore};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
@@ -157,13 +157,8 @@ impl MeshSink for PlySink {
             faces,
             header: meta,
         } = this;
-        let rewound = |w: BufWriter<File>| {
-            w.into_inner()
-                .map_err(|e| e.into_error())
-                .and_then(|mut f| f.seek(SeekFrom::Start(0)).map(|_| f))
-                .map_err(|e| SmeshError::io(&core.path, "read back scratch data for", e))
-        };
-        let (mut vertices, mut faces) = (rewound(vertices)?, rewound(faces)?);
+        let (mut vertices, _) = rewind_spill(&core.path, vertices)?;
+        let (mut faces, _) = rewind_spill(&core.path, faces)?;
         out.write_all(header.as_bytes())?;
         match encoding {
             PlyEncoding::BinaryLittleEndian => {

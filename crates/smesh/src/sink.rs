@@ -89,7 +89,12 @@ impl SinkCore {
         Ok(self.tracker.vertex(pos))
     }
 
-    pub(crate) fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
+    /// Checks and registers a triangle; returns its corner positions.
+    pub(crate) fn triangle(
+        &mut self,
+        v: [u64; 3],
+        last_use: [bool; 3],
+    ) -> Result<[[f32; 3]; 3], SmeshError> {
         let subject = Subject::Triangle(self.tracker.triangles(), Place::Written);
         self.tracker
             .triangle(v, last_use)

@@ -61,9 +61,15 @@ impl Tracker {
 
     /// Checks a triangle (all three vertices written and still active) before changing anything,
     /// then finalizes the flagged ones. A vertex repeated within the triangle is finalized once.
-    pub(crate) fn triangle(&mut self, v: [u64; 3], finalize: [bool; 3]) -> Result<(), StreamFault> {
-        for &x in &v {
-            self.check_active(x)?;
+    /// Returns the corner positions (sinks that store triangles as positions need them).
+    pub(crate) fn triangle(
+        &mut self,
+        v: [u64; 3],
+        finalize: [bool; 3],
+    ) -> Result<[[f32; 3]; 3], StreamFault> {
+        let mut corners = [[0.0; 3]; 3];
+        for (c, &x) in corners.iter_mut().zip(&v) {
+            *c = self.active_position(x)?;
         }
         let oldest = v.iter().copied().min().unwrap_or(0);
         self.max_skip = self.max_skip.max(self.vertices - 1 - oldest);
@@ -73,12 +79,12 @@ impl Tracker {
                 self.active.remove(&x);
             }
         }
-        Ok(())
+        Ok(corners)
     }
 
     /// An explicit finalization (SMA `x` line).
     pub(crate) fn finalize(&mut self, v: u64) -> Result<(), StreamFault> {
-        self.check_active(v)?;
+        self.active_position(v)?;
         self.active.remove(&v);
         Ok(())
     }
@@ -94,16 +100,17 @@ impl Tracker {
         }
     }
 
-    fn check_active(&self, v: u64) -> Result<(), StreamFault> {
+    fn active_position(&self, v: u64) -> Result<[f32; 3], StreamFault> {
         if v >= self.vertices {
             Err(StreamFault::Forward {
                 vertex: v,
                 available: self.vertices,
             })
-        } else if !self.active.contains_key(&v) {
-            Err(StreamFault::UseAfterFinalize { vertex: v })
         } else {
-            Ok(())
+            self.active
+                .get(&v)
+                .copied()
+                .ok_or(StreamFault::UseAfterFinalize { vertex: v })
         }
     }
 }
@@ -139,7 +146,10 @@ mod tests {
                 others: 2
             })
         );
-        t.triangle([1, 2, 3], [true; 3]).unwrap();
+        assert_eq!(
+            t.triangle([1, 2, 3], [true; 3]).unwrap()[2],
+            [3.0, 0.0, 0.0]
+        );
         assert_eq!(t.finish(), Ok(()));
         assert_eq!(t.triangles(), 2);
         assert_eq!(t.bbox(), Some(([0.0; 3], [3.0, 0.0, 0.0])));

@@ -54,6 +54,7 @@ impl CheckedStream {
                 let subject = Subject::Triangle(self.tracker.triangles(), place);
                 self.tracker
                     .triangle(*v, *finalized)
+                    .map(|_| ())
                     .map_err(|f| (subject, f))
             }
             Element::Finalize(v) => self

@@ -326,7 +326,7 @@ fn unfinished_writer_leaves_nothing_behind() {
 #[test]
 fn missing_directory_gives_one_line_error_naming_the_path() {
     let dir = tempfile::tempdir().unwrap();
-    for name in ["a.smb", "a.ply", "a.obj"] {
+    for name in ["a.smb", "a.sma", "a.ply", "a.obj", "a.stl", "a.glb"] {
         let p = dir.path().join("missing").join(name);
         let e = isostream_smesh::create_sink(&p, &Header::default(), &ConvertOptions::default())
             .err()
@@ -352,7 +352,61 @@ fn empty_mesh_round_trips() {
         let r = validate(&p).unwrap();
         assert_eq!((r.vertices, r.triangles, r.header.bbox), (0, 0, None));
         assert_eq!(r.header.nverts, Some(0));
+        for out in ["e.ply", "e.obj", "e.stl", "e.glb"] {
+            let out = dir.path().join(out);
+            convert(&p, &out).unwrap();
+            assert_eq!(
+                read_indexed(&out).unwrap(),
+                IndexedMesh::default(),
+                "{}",
+                out.display()
+            );
+        }
     }
+}
+
+#[test]
+fn stl_and_glb_layouts() {
+    let dir = tempfile::tempdir().unwrap();
+    let stl = dir.path().join("t.stl");
+    let stats = convert(&data("tetrahedron.smb"), &stl).unwrap();
+    let bytes = std::fs::read(&stl).unwrap();
+    assert_eq!(stats.written.bytes, 84 + 4 * 50);
+    assert_eq!(bytes.len(), 84 + 4 * 50);
+    assert!(!bytes.starts_with(b"solid"));
+    assert_eq!(u32::from_le_bytes(bytes[80..84].try_into().unwrap()), 4);
+    // First facet (0,2,1) faces -z.
+    let f = |at: usize| f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    assert_eq!([f(84), f(88), f(92)], [0.0, 0.0, -1.0]);
+    assert_eq!(read_indexed(&stl).unwrap().positions.len(), 4);
+
+    let glb = dir.path().join("t.glb");
+    let opts = ConvertOptions {
+        normals: true,
+        ..ConvertOptions::default()
+    };
+    convert_with(&data("tetrahedron.sma"), &glb, &opts).unwrap();
+    let bytes = std::fs::read(&glb).unwrap();
+    assert_eq!(&bytes[..4], b"glTF");
+    assert_eq!(
+        u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize,
+        bytes.len()
+    );
+    let doc = gltf::Gltf::from_slice(&bytes).unwrap();
+    let blob = doc.blob.as_deref();
+    let prim = doc.meshes().next().unwrap().primitives().next().unwrap();
+    let reader = prim.reader(|_| blob);
+    let normals: Vec<[f32; 3]> = reader.read_normals().unwrap().collect();
+    // Vertex 0 at the origin touches three right triangles of equal area facing -x, -y, -z.
+    let s = -(1.0f32 / 3.0).sqrt();
+    for (a, b) in normals[0].iter().zip([s, s, s]) {
+        assert!((a - b).abs() < 1e-6, "{normals:?}");
+    }
+    for n in &normals {
+        assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0).abs() < 1e-6);
+    }
+    let comments = doc.document.as_json().asset.extras.as_ref().unwrap().get();
+    assert!(comments.contains("tetrahedron"), "{comments}");
 }
 
 // ---------------------------------------------------------------- generated streams
@@ -476,9 +530,15 @@ proptest! {
         };
 
         // Attributes survive SMA -> PLY (binary and ascii) -> SMA.
-        for (i, enc) in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii].into_iter().enumerate() {
-            let ply = dir.path().join(format!("a{i}.ply"));
-            convert_with(&src, &ply, &ConvertOptions { ply_encoding: enc }).unwrap();
+        let outputs = [
+            ("a.ply", PlyEncoding::BinaryLittleEndian, false),
+            ("b.ply", PlyEncoding::Ascii, false),
+            ("c.glb", PlyEncoding::default(), false),
+            ("d.glb", PlyEncoding::default(), true),
+        ];
+        for (i, (name, ply_encoding, normals)) in outputs.into_iter().enumerate() {
+            let ply = dir.path().join(name);
+            convert_with(&src, &ply, &ConvertOptions { ply_encoding, normals }).unwrap();
             prop_assert_eq!(&corners(&read_indexed(&ply).unwrap()), &original);
             let back = dir.path().join(format!("b{i}.sma"));
             convert(&ply, &back).unwrap();
@@ -487,7 +547,10 @@ proptest! {
         }
 
         // Positions survive every chain of formats, streaming or not.
-        let chain = ["c.obj", "d.smb", "e.ply", "f.smb", "g.obj", "h.sma", "i.ply", "j.obj", "k.sma"];
+        let chain = [
+            "c.obj", "d.smb", "e.ply", "f.smb", "g.obj", "h.sma", "i.ply", "j.obj", "k.stl", "l.sma",
+            "m.stl", "n.glb", "o.smb", "p.glb", "q.stl", "r.ply", "s.glb", "t.obj", "u.sma",
+        ];
         let mut prev = src.clone();
         for name in chain {
             let next = dir.path().join(name);

@@ -1,0 +1,117 @@
+//! Binary STL: an 80-byte header, a u32 triangle count, then per triangle a unit normal, three
+//! corner positions (f32) and a u16 attribute byte count of 0.
+//!
+//! STL stores positions per triangle, so the sink needs the positions of active vertices only:
+//! the tracker keeps them until finalization, memory stays bounded by the stream width. The count
+//! is patched in place on finish. Reading goes through `stl_io` (ascii or binary), which welds
+//! identical corners back into shared vertices.
+
+use std::fs::File;
+use std::io::BufReader;
+use std::path::Path;
+
+use crate::atomic::AtomicFile;
+use crate::sink::{MeshSink, SinkCore};
+use crate::{Header, IndexedMesh, SmeshError, WriteStats};
+
+const COUNT_AT: u64 = 80;
+
+/// Streaming binary STL writer. Attributes are dropped (STL has none).
+pub struct StlSink {
+    core: SinkCore,
+    out: AtomicFile,
+}
+
+impl StlSink {
+    pub fn create(path: &Path, header: &Header) -> Result<StlSink, SmeshError> {
+        let core = SinkCore::new(path, header)?;
+        let mut out = AtomicFile::create(path)?;
+        // Must not start with "solid": readers would take the file for ASCII STL.
+        let mut text = String::from("binary STL by isostream");
+        for c in &header.comments {
+            text.push_str("; ");
+            text.push_str(c);
+        }
+        let mut head = [b' '; 80];
+        let n = text.len().min(80);
+        head[..n].copy_from_slice(&text.as_bytes()[..n]);
+        out.write_all(&head)?;
+        out.write_all(&0u32.to_le_bytes())?;
+        Ok(StlSink { core, out })
+    }
+}
+
+/// Unit normal of a counter-clockwise triangle (zero for a degenerate one), computed in f64.
+pub(crate) fn face_normal(c: [[f32; 3]; 3]) -> [f64; 3] {
+    let p = c.map(|v| v.map(f64::from));
+    let u = [0, 1, 2].map(|i| p[1][i] - p[0][i]);
+    let w = [0, 1, 2].map(|i| p[2][i] - p[0][i]);
+    [
+        u[1] * w[2] - u[2] * w[1],
+        u[2] * w[0] - u[0] * w[2],
+        u[0] * w[1] - u[1] * w[0],
+    ]
+}
+
+pub(crate) fn normalized(n: [f64; 3]) -> Option<[f32; 3]> {
+    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    (len > 0.0 && len.is_finite()).then(|| n.map(|x| (x / len) as f32))
+}
+
+impl MeshSink for StlSink {
+    fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
+        self.core.vertex(pos, attrs).map(|_| ())
+    }
+
+    fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
+        if self.core.tracker.triangles() >= u64::from(u32::MAX) {
+            return Err(SmeshError::Unsupported {
+                path: self.core.path.clone(),
+                message: "more than 4294967295 triangles do not fit binary STL's u32 count".into(),
+            });
+        }
+        let corners = self.core.triangle(v, last_use)?;
+        let normal = normalized(face_normal(corners)).unwrap_or([0.0; 3]);
+        let mut rec = [0u8; 50];
+        for (i, x) in normal.iter().chain(corners.as_flattened()).enumerate() {
+            rec[4 * i..4 * i + 4].copy_from_slice(&x.to_le_bytes());
+        }
+        self.out.write_all(&rec)
+    }
+
+    fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {
+        self.core.finalize(v)
+    }
+
+    fn finish(mut self: Box<Self>) -> Result<WriteStats, SmeshError> {
+        self.core.finish()?;
+        let count = self.core.tracker.triangles() as u32;
+        self.out.patch(COUNT_AT, &count.to_le_bytes())?;
+        let bytes = self.out.finish()?;
+        Ok(self.core.stats(bytes))
+    }
+}
+
+/// Loads an STL file (ascii or binary) with identical corners welded.
+pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
+    let file = File::open(path).map_err(|e| SmeshError::io(path, "open", e))?;
+    let stl = stl_io::read_stl(&mut BufReader::new(file))
+        .map_err(|e| SmeshError::foreign(path, format!("invalid STL: {e}")))?;
+    let mut mesh = IndexedMesh {
+        positions: stl.vertices.iter().map(|v| v.0.map(f64::from)).collect(),
+        ..IndexedMesh::default()
+    };
+    for f in &stl.faces {
+        let t = f.vertices.map(u32::try_from);
+        match t {
+            [Ok(a), Ok(b), Ok(c)] => mesh.triangles.push([a, b, c]),
+            _ => {
+                return Err(SmeshError::foreign(
+                    path,
+                    "more than 2^32 distinct STL corners",
+                ));
+            }
+        }
+    }
+    Ok(mesh)
+}
