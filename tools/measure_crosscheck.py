@@ -127,7 +127,10 @@ def main():
     if args.compare:
         with open(args.compare) as f:
             rust = json.load(f)
-        rust = rust.get("distances") or rust
+        if "quality" in rust:  # a whole MeasureReport
+            rust = rust["distances"]
+            if rust is None:
+                sys.exit(f"{args.compare}: the report has no distances; run measure with a volume")
         result["comparison"], failures = compare(result, rust, args.tolerance)
         result["agrees"] = not failures
     json.dump(result, sys.stdout, indent=2)

