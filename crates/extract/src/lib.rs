@@ -20,6 +20,34 @@
 //!   identified by [`EdgeKey`]; it sits at `t = (iso - va) / (vb - va)` along the edge (clamped
 //!   to [0, 1], 0.5 when a value is non-finite), mapped through the grid's spacing and origin.
 //!
+//! # Example
+//!
+//! The pipeline feeds slices in z order and forwards each batch to the detector:
+//!
+//! ```
+//! use isostream_extract::{Extractor, extract_indexed};
+//! use isostream_volume::{Grid, MemoryVolume};
+//!
+//! let grid = Grid::new([3, 3, 3], [1.0; 3], [0.0; 3]).unwrap();
+//! let mut data = vec![0.0f32; 27];
+//! data[13] = 1.0; // only the centre voxel is inside at iso 0.5
+//! let mut extractor = Extractor::new(grid, 0.5);
+//! let mut triangles = 0;
+//! for z in 0..2 {
+//!     let (lower, upper) = (&data[z * 9..][..9], &data[(z + 1) * 9..][..9]);
+//!     let sent = extractor.extract_slab(z as u64, lower, upper, 1024, |batch| {
+//!         triangles += batch.triangle_count();
+//!         Ok::<_, ()>(()) // a closed channel would be an Err here, stopping the slab
+//!     });
+//!     sent.unwrap();
+//! }
+//! assert_eq!(triangles, 8);
+//!
+//! // The in-memory reference builds the same surface, indexed (an octahedron).
+//! let surface = extract_indexed(&mut MemoryVolume::new(grid, data).unwrap(), 0.5).unwrap();
+//! assert_eq!((surface.positions.len(), surface.triangles.len()), (6, 8));
+//! ```
+//!
 //! # Modules
 //!
 //! - [`cube`]: corner, edge and face numbering of one cube.

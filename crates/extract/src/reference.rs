@@ -106,6 +106,35 @@ mod tests {
         assert_eq!(report.euler(), 2);
     }
 
+    /// A source whose slices after the first cannot be read.
+    struct Truncated(Grid);
+
+    impl VolumeSource for Truncated {
+        fn grid(&self) -> Grid {
+            self.0
+        }
+        fn describe(&self) -> String {
+            "truncated".to_string()
+        }
+        fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+            if z > 0 {
+                return Err(VolumeError::Contract {
+                    origin: self.describe(),
+                    problem: format!("slice {z} is missing"),
+                });
+            }
+            out.fill(1.0);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn read_errors_are_returned() {
+        let grid = Grid::new([2, 2, 3], [1.0; 3], [0.0; 3]).unwrap();
+        let e = extract_indexed(&mut Truncated(grid), 0.5).unwrap_err();
+        assert!(e.to_string().contains("slice 1 is missing"), "{e}");
+    }
+
     #[test]
     fn nothing_inside_gives_nothing() {
         let grid = Grid::new([2, 2, 2], [1.0; 3], [0.0; 3]).unwrap();

@@ -185,6 +185,17 @@ proptest! {
         let r = report(&s);
         prop_assert!(r.is_valid_manifold(), "{:?}", r);
         prop_assert_eq!(r.repeated_index_triangles, 0);
+        // Every vertex lies on its grid edge.
+        for (key, pos) in s.keys.iter().zip(&s.positions) {
+            let (start, axis) = key.decode(grid.dims);
+            let mut end = start;
+            end[axis as usize] += 1;
+            let p = |v: [u64; 3]| grid.position(v[0] as f64, v[1] as f64, v[2] as f64);
+            let (a, b) = (p(start), p(end));
+            let t = (*pos - a).dot(b - a) / (b - a).length_squared();
+            prop_assert!((-1e-12..=1.0 + 1e-12).contains(&t), "{:?} at t = {}", key, t);
+            prop_assert!((*pos - a.lerp(b, t)).length() < 1e-9 * (1.0 + a.length()), "{:?} off its edge", key);
+        }
         for [a, b] in boundary_edges(&s) {
             let shared = (0..3).any(|axis| {
                 [false, true].into_iter().any(|side| {
