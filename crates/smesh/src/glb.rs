@@ -13,7 +13,9 @@
 //!
 //! Reading goes through the `gltf` crate, which validates the document.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
+
+use rustc_hash::FxHashMap;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::Path;
@@ -35,7 +37,7 @@ const MAX_ATTRIBUTES: usize = 60;
 /// Accumulates area-weighted normals of active vertices and emits them in vertex order.
 #[derive(Default)]
 struct Normals {
-    sums: HashMap<u64, [f64; 3]>,
+    sums: FxHashMap<u64, [f64; 3]>,
     ready: BTreeMap<u64, [f32; 3]>,
     next: u64,
 }

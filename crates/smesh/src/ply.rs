@@ -11,8 +11,8 @@ use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::Path;
 
-use ply_rs_bw::parser::Parser;
-use ply_rs_bw::ply::{DefaultElement, Property};
+use ply_rs_bw::parser::{Parser, Reader};
+use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult, PropertyType};
 
 use crate::atomic::{AtomicFile, rewind_spill, spill_file};
 use crate::sink::{MeshSink, SinkCore};
@@ -195,69 +195,116 @@ fn scalar(p: &Property) -> Option<f64> {
     }
 }
 
+/// A vertex as the parser hands it over: its scalar properties in header order (the parser sets
+/// them in that order), without the per-element map `DefaultElement` would allocate.
+#[derive(Default)]
+struct PlyVertex(Vec<f64>);
+
+impl PropertyAccess for PlyVertex {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, _name: &str, p: Property) -> PropertyAccessResult {
+        match scalar(&p) {
+            Some(x) => {
+                self.0.push(x);
+                PropertyAccessResult::Set
+            }
+            None => PropertyAccessResult::Ignored,
+        }
+    }
+}
+
+/// A face: its vertex index list, whatever its integer type.
+#[derive(Default)]
+struct PlyFace(Option<Vec<u32>>);
+
+impl PropertyAccess for PlyFace {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, name: &str, p: Property) -> PropertyAccessResult {
+        if matches!(name, "vertex_indices" | "vertex_index") {
+            self.0 = p.to_u32_list();
+        }
+        PropertyAccessResult::Ignored
+    }
+}
+
+/// Elements other than vertex and face, read only to get past them.
+struct Skip;
+
+impl PropertyAccess for Skip {
+    fn new() -> Self {
+        Skip
+    }
+}
+
 /// Loads a PLY file (ascii or binary, any scalar types): `x y z` and every other scalar vertex
 /// property as an attribute; faces from `vertex_indices` (or `vertex_index`), polygons fanned
 /// into triangles.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let file = File::open(path).map_err(|e| SmeshError::io(path, "open", e))?;
-    let mut input = BufReader::new(file);
-    let ply = Parser::<DefaultElement>::new()
-        .read_ply(&mut input)
-        .map_err(|e| SmeshError::foreign(path, format!("invalid PLY: {e}")))?;
-    let bad = |what: String| SmeshError::Foreign {
-        path: path.to_path_buf(),
-        message: what,
-    };
+    let mut input = Reader::new(BufReader::with_capacity(1 << 16, file));
+    let invalid =
+        |e: ply_rs_bw::parser::ParseError| SmeshError::foreign(path, format!("invalid PLY: {e}"));
+    let bad = |m: String| SmeshError::foreign(path, m);
+    let header = Parser::<Skip>::new()
+        .read_header(&mut input)
+        .map_err(invalid)?;
     let mut mesh = IndexedMesh::default();
-    let vertex_def = ply
-        .header
-        .elements
-        .get("vertex")
-        .ok_or_else(|| bad("PLY has no `vertex` element".into()))?;
-    let is_scalar = |k: &str| {
-        matches!(
-            vertex_def.properties[k].data_type,
-            ply_rs_bw::ply::PropertyType::Scalar(_)
-        )
-    };
-    mesh.attribute_names = vertex_def
-        .properties
-        .keys()
-        .filter(|k| !["x", "y", "z"].contains(&k.as_str()) && is_scalar(k))
-        .cloned()
-        .collect();
-    let empty = Vec::new();
-    for (i, v) in ply
-        .payload
-        .get("vertex")
-        .unwrap_or(&empty)
-        .iter()
-        .enumerate()
-    {
-        let get = |k: &str| {
-            v.get(k)
-                .and_then(scalar)
-                .ok_or_else(|| bad(format!("vertex {i} has no scalar `{k}`")))
-        };
-        mesh.positions.push([get("x")?, get("y")?, get("z")?]);
-        for name in &mesh.attribute_names {
-            mesh.attrs.push(get(name)? as f32);
-        }
-    }
-    let n = mesh.positions.len();
-    for (i, f) in ply.payload.get("face").unwrap_or(&empty).iter().enumerate() {
-        let list = f
-            .get("vertex_indices")
-            .or_else(|| f.get("vertex_index"))
-            .and_then(Property::to_u32_list)
-            .ok_or_else(|| bad(format!("face {i} has no integer list `vertex_indices`")))?;
-        if let Some(&v) = list.iter().find(|&&v| v as usize >= n) {
-            return Err(bad(format!(
-                "face {i} references vertex {v} but the file has {n} vertices"
-            )));
-        }
-        for k in 2..list.len() {
-            mesh.triangles.push([list[0], list[k - 1], list[k]]);
+    for (name, def) in &header.elements {
+        match name.as_str() {
+            "vertex" => {
+                let scalars: Vec<&str> = def
+                    .properties
+                    .iter()
+                    .filter(|(_, p)| matches!(p.data_type, PropertyType::Scalar(_)))
+                    .map(|(k, _)| k.as_str())
+                    .collect();
+                let slot = |k: &str| {
+                    scalars
+                        .iter()
+                        .position(|s| *s == k)
+                        .ok_or_else(|| bad(format!("PLY vertices have no scalar `{k}`")))
+                };
+                let xyz = [slot("x")?, slot("y")?, slot("z")?];
+                let attrs: Vec<usize> = (0..scalars.len()).filter(|i| !xyz.contains(i)).collect();
+                mesh.attribute_names = attrs.iter().map(|&i| scalars[i].to_string()).collect();
+                let vertices = Parser::<PlyVertex>::new()
+                    .read_payload_for_element(&mut input, def, &header)
+                    .map_err(invalid)?;
+                for v in vertices {
+                    mesh.positions.push(xyz.map(|i| v.0[i]));
+                    mesh.attrs.extend(attrs.iter().map(|&i| v.0[i] as f32));
+                }
+            }
+            "face" => {
+                let faces = Parser::<PlyFace>::new()
+                    .read_payload_for_element(&mut input, def, &header)
+                    .map_err(invalid)?;
+                let n = mesh.positions.len();
+                for (i, f) in faces.into_iter().enumerate() {
+                    let list = f.0.ok_or_else(|| {
+                        bad(format!("face {i} has no integer list `vertex_indices`"))
+                    })?;
+                    if let Some(&v) = list.iter().find(|&&v| v as usize >= n) {
+                        return Err(bad(format!(
+                            "face {i} references vertex {v} but the file has {n} vertices before it"
+                        )));
+                    }
+                    for k in 2..list.len() {
+                        mesh.triangles.push([list[0], list[k - 1], list[k]]);
+                    }
+                }
+            }
+            _ => {
+                Parser::<Skip>::new()
+                    .read_payload_for_element(&mut input, def, &header)
+                    .map_err(invalid)?;
+            }
         }
     }
     Ok(mesh)

@@ -5,7 +5,7 @@
 //! Memory is bounded by the stream width: only active (written, not yet finalized) vertices are
 //! remembered, with their positions because some sinks (STL, normals) need them.
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 use crate::StreamFault;
 
@@ -13,7 +13,7 @@ use crate::StreamFault;
 pub(crate) struct Tracker {
     vertices: u64,
     triangles: u64,
-    active: HashMap<u64, [f32; 3]>,
+    active: FxHashMap<u64, [f32; 3]>,
     max_active: u64,
     max_skip: u64,
     bbox: Option<([f32; 3], [f32; 3])>,
