@@ -205,7 +205,8 @@ mod tests {
                 .map(|t| closest_point(p, t).distance(p))
                 .fold(f64::INFINITY, f64::min);
             assert!((bvh.nearest(p, &mut hint) - brute).abs() < 1e-12, "{p}");
-            assert!((bvh.nearest(p, &mut usize::MAX.clone()) - brute).abs() < 1e-12);
+            let mut no_hint = usize::MAX;
+            assert!((bvh.nearest(p, &mut no_hint) - brute).abs() < 1e-12);
             assert_eq!(bvh.nearest_within(p, brute * 0.999), None);
         }
     }

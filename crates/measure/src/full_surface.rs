@@ -53,7 +53,7 @@ fn feed(
     let (mut lower, mut upper) = (vec![0.0f32; n], vec![0.0f32; n]);
     volume.read_slice(0, &mut lower)?;
     let mut pending: Vec<Triangle> = Vec::new();
-    for z in 0..grid.dims[2] - 1 {
+    for z in 0..grid.dims[2].saturating_sub(1) {
         volume.read_slice(z + 1, &mut upper)?;
         // Later triangles of this slab lie above slice z, those of later slabs above slice z + 1.
         let slice_height = |k: u64| grid.position(0.0, 0.0, k as f64).z;
