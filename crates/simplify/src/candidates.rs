@@ -88,6 +88,12 @@ impl Candidates {
         self.queue.pop().map(|c| c.0)
     }
 
+    /// Keeps only the entries (queued or waiting) satisfying `keep`.
+    pub(crate) fn retain(&mut self, keep: impl Fn(&Candidate) -> bool) {
+        self.queue.retain(|c| keep(&c.0));
+        self.waiting.retain(|c| keep(&c.0));
+    }
+
     pub(crate) fn len(&self) -> usize {
         self.queue.len() + self.waiting.len()
     }

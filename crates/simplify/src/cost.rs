@@ -156,9 +156,7 @@ mod tests {
             for i in 0..n {
                 let (x, y) = (i as f64, j as f64);
                 let z = 0.3 * (1.3 * x).sin() * (0.7 * y).cos() + 0.05 * x * y;
-                let mut v = Vertex::new(DVec3::new(x, y, z), j as u32, &[]);
-                v.modifiable = true;
-                s.insert_vertex(j * n + i, v);
+                s.insert_vertex(j * n + i, Vertex::new(DVec3::new(x, y, z), j as u32, &[]));
             }
         }
         for j in 0..n - 1 {

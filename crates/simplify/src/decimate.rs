@@ -7,7 +7,7 @@ use glam::DVec3;
 use crate::Simplifier;
 use crate::candidates::Candidate;
 use crate::cost::Eval;
-use crate::store::Vertex;
+use crate::store::{Store, Vertex};
 use crate::topology;
 
 /// Where a decimation run stops (besides running out of candidates).
@@ -35,7 +35,7 @@ impl Simplifier {
             let Some(c) = self.candidates.pop() else {
                 break;
             };
-            if !self.is_current(&c) {
+            if !is_current(&self.store, &c) {
                 continue;
             }
             let eval = if objective.reads_neighbourhood() {
@@ -101,6 +101,16 @@ impl Simplifier {
         }
     }
 
+    /// Drops stale heap entries once they outnumber the live ones by far. Retired vertices'
+    /// edges would otherwise stay in the heap for good (the costly ones are never popped), and the
+    /// heap would grow with the surface instead of the band.
+    pub(crate) fn compact_candidates(&mut self) {
+        if self.candidates.len() > 4 * self.store.resident() + 4096 {
+            let store = &self.store;
+            self.candidates.retain(|c| is_current(store, c));
+        }
+    }
+
     /// A vertex that kept absorbing neighbours ahead of it would ride along with the front (its
     /// highest rank never falls behind), never retire, and keep ever more retired neighbours
     /// resident: on a straight tube along the sweep, contractions along the axis cost nothing.
@@ -117,16 +127,6 @@ impl Simplifier {
     /// The front edges are held back behind, when the time-lag is on.
     fn lag_front(&self) -> Option<f64> {
         self.time_lag.then_some(self.front)
-    }
-
-    fn is_current(&self, c: &Candidate) -> bool {
-        [(c.a, c.stamps[0]), (c.b, c.stamps[1])]
-            .iter()
-            .all(|&(id, stamp)| {
-                self.store
-                    .vertex(id)
-                    .is_some_and(|v| v.is_free() && v.stamp == stamp)
-            })
     }
 
     /// `ab -> c` at `pos`. The younger id `b` survives as `c` (its slot is nearer the front, so the
@@ -170,6 +170,7 @@ impl Simplifier {
         k.pos = pos;
         k.quadric += g.quadric;
         k.area += g.area;
+        k.boundary |= g.boundary;
         k.stamp = k.stamp.wrapping_add(1);
         let rank_moved = g.rank_max > k.rank_max;
         k.rank_max = k.rank_max.max(g.rank_max);
@@ -183,6 +184,17 @@ impl Simplifier {
         self.stats.max_shape_error = self.stats.max_shape_error.max(eval.shape_error);
         self.push_edges(keep);
     }
+}
+
+/// Both endpoints unchanged since the candidate was evaluated, and still free to move.
+fn is_current(store: &Store, c: &Candidate) -> bool {
+    [(c.a, c.stamps[0]), (c.b, c.stamps[1])]
+        .iter()
+        .all(|&(id, stamp)| {
+            store
+                .vertex(id)
+                .is_some_and(|v| v.is_free() && v.stamp == stamp)
+        })
 }
 
 /// Attributes of `c` by linear interpolation along the edge, at the projection of `c`.

@@ -215,13 +215,15 @@ impl Simplifier {
     /// All triangles of `id` exist: it may move from now on, and its edges to other modifiable
     /// vertices become candidates (Hou and Chen 4.1, "Vertex modifiability detection").
     pub fn set_modifiable(&mut self, id: u64) {
+        if self.store.vertex(id).is_none_or(|v| v.modifiable) {
+            return;
+        }
+        let boundary = topology::on_boundary(&self.store, id);
         let Some(v) = self.store.vertex_mut(id) else {
             return;
         };
-        if v.modifiable {
-            return;
-        }
         v.modifiable = true;
+        v.boundary = boundary;
         let tris = v.tris.clone();
         for t in tris {
             let tri = self.store.tri_mut(t);
@@ -256,6 +258,7 @@ impl Simplifier {
             self.retire_behind(front, out);
         }
         self.retire_for_memory(out);
+        self.compact_candidates();
     }
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.

@@ -37,6 +37,11 @@ pub(crate) struct Vertex {
     pub(crate) modifiable: bool,
     /// Behind the front: never moves again, its edges are no candidates.
     pub(crate) retired: bool,
+    /// On the surface boundary. Known once the vertex is modifiable (its fan is complete) and
+    /// inherited through contractions: the boundary rule only ever places a merged vertex on the
+    /// boundary when an endpoint was on it, and the link condition keeps interior vertices
+    /// interior.
+    pub(crate) boundary: bool,
     /// Bumped whenever the vertex changes, to invalidate heap entries lazily.
     pub(crate) stamp: u32,
     /// Output number once emitted.
@@ -58,6 +63,7 @@ impl Vertex {
             rad: 1.0,
             modifiable: false,
             retired: false,
+            boundary: false,
             stamp: 0,
             out: None,
             tris: Vec::new(),

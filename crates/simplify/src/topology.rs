@@ -49,6 +49,11 @@ fn is_boundary(ring: &[(u64, u8)]) -> bool {
     boundary_neighbours(ring).next().is_some()
 }
 
+/// Whether `v` has an edge with a single triangle (meaningful once its fan is complete).
+pub(crate) fn on_boundary(store: &Store, v: u64) -> bool {
+    is_boundary(&ring(store, v))
+}
+
 /// Triangles of `a` that contain `b`, i.e. the triangles on edge `ab`.
 fn edge_triangles(store: &Store, a: u64, b: u64) -> Vec<Tri> {
     store.vertex(a).map_or_else(Vec::new, |v| {
@@ -131,12 +136,12 @@ pub(crate) fn link_ok(store: &Store, a: u64, b: u64) -> bool {
 /// `None`: no admissible position.
 pub(crate) fn sites(store: &Store, a: u64, b: u64) -> Option<Sites> {
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
-    let (ra, rb) = (ring(store, a), ring(store, b));
-    match (is_boundary(&ra), is_boundary(&rb)) {
+    match (va.boundary, vb.boundary) {
         (false, false) => Some(Sites::Free),
         (true, false) => Some(Sites::Fixed([Some(va.pos), None])),
         (false, true) => Some(Sites::Fixed([Some(vb.pos), None])),
         (true, true) => {
+            let (ra, rb) = (ring(store, a), ring(store, b));
             let boundary_edge = ra.iter().any(|&(x, n)| x == b && n == 1);
             if !boundary_edge {
                 return None;
@@ -236,6 +241,20 @@ pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
     })
 }
 
+/// Test support: marks every vertex modifiable, with its boundary flag, as `set_modifiable`
+/// does once all triangles are in.
+#[cfg(test)]
+pub(crate) fn complete(store: &mut Store) {
+    let ids: Vec<u64> = store.ids().collect();
+    for id in ids {
+        let boundary = on_boundary(store, id);
+        if let Some(v) = store.vertex_mut(id) {
+            v.modifiable = true;
+            v.boundary = boundary;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -249,6 +268,7 @@ mod tests {
         for &v in tris {
             s.add_triangle(Tri { v, unmodifiable: 0 });
         }
+        complete(&mut s);
         s
     }
 
