@@ -65,6 +65,8 @@ pub enum StreamFault {
         declared: u64,
         found: u64,
     },
+    #[error("exceeds the {declared} {what} the header declares")]
+    BeyondDeclared { what: &'static str, declared: u64 },
     #[error("has {found} attribute values but the header names {expected} attributes")]
     AttributeCount { expected: usize, found: usize },
     #[error(

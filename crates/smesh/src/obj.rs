@@ -57,7 +57,8 @@ impl MeshSink for ObjSink {
 }
 
 /// Loads an OBJ file: positions and faces (polygons fanned into triangles; texture and normal
-/// indices ignored), all objects and groups concatenated.
+/// indices ignored), all objects and groups concatenated. `tobj` numbers the vertices of each
+/// object in order of first use by a face and leaves out unused ones.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let options = tobj::LoadOptions {
         triangulate: true,

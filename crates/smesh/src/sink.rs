@@ -11,7 +11,7 @@ use crate::{Place, SmeshError, StreamFault, Subject};
 pub struct Header {
     /// Free text, one line each (no line breaks).
     pub comments: Vec<String>,
-    /// Names of the per-vertex attributes passed to `vertex` (no whitespace in a name).
+    /// Names of the per-vertex attributes passed to `vertex`: unique, not x/y/z, no whitespace.
     pub attribute_names: Vec<String>,
 }
 
@@ -32,7 +32,7 @@ pub struct WriteStats {
 /// Every implementation checks the streaming rules (index written, not yet finalized, all
 /// finalized at the end) and writes temp-then-rename, so an invalid or unfinished output never
 /// appears under its final name.
-pub trait MeshSink {
+pub trait MeshSink: Send {
     fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError>;
     fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError>;
     /// Finalizes a vertex without a triangle (an SMA `x` line; an isolated vertex).
@@ -66,6 +66,16 @@ impl SinkCore {
         {
             return Err(unsupported(format!(
                 "attribute name {n:?} must be non-empty without whitespace"
+            )));
+        }
+        let names = &header.attribute_names;
+        if let Some((i, n)) = names
+            .iter()
+            .enumerate()
+            .find(|(i, n)| ["x", "y", "z"].contains(&n.as_str()) || names[..*i].contains(n))
+        {
+            return Err(unsupported(format!(
+                "attribute name {n:?} (number {i}) repeats a coordinate or an earlier attribute"
             )));
         }
         Ok(SinkCore {

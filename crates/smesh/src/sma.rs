@@ -227,7 +227,7 @@ impl SmaDecoder {
                 let mut v = [0; 3];
                 let mut finalized = [false; 3];
                 for i in 0..3 {
-                    (v[i], finalized[i]) = self.decode(path, subject, n[i], line)?;
+                    (v[i], finalized[i]) = self.decode(path, (subject, place), n[i], line)?;
                 }
                 self.triangles += 1;
                 Ok(Element::Triangle { v, finalized })
@@ -236,7 +236,7 @@ impl SmaDecoder {
                 let [n]: [i64; 1] = parse_n(rest).ok_or_else(|| {
                     SmeshError::syntax(path, place, "`x k` with one nonzero integer", line)
                 })?;
-                let (v, _) = self.decode(path, Subject::Finalization(place), n, line)?;
+                let (v, _) = self.decode(path, (Subject::Finalization(place), place), n, line)?;
                 Ok(Element::Finalize(v))
             }
             _ => Err(SmeshError::syntax(
@@ -251,14 +251,10 @@ impl SmaDecoder {
     fn decode(
         &self,
         path: &Path,
-        subject: Subject,
+        (subject, place): (Subject, Place),
         n: i64,
         line: &str,
     ) -> Result<(u64, bool), SmeshError> {
-        let place = match subject {
-            Subject::Triangle(_, p) | Subject::Finalization(p) | Subject::Vertex(_, p) => p,
-            Subject::EndOfStream => Place::Written,
-        };
         match index::decode(n, self.vertices) {
             None => Err(SmeshError::syntax(
                 path,

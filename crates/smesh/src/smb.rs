@@ -408,10 +408,9 @@ impl SmbDecoder {
                 return Err(SmeshError::stream(
                     path,
                     Subject::Vertex(self.vertices, place),
-                    StreamFault::CountMismatch {
+                    StreamFault::BeyondDeclared {
                         what: "vertices",
                         declared: nv,
-                        found: nv + 1,
                     },
                 ));
             }
@@ -426,10 +425,9 @@ impl SmbDecoder {
             return Err(SmeshError::stream(
                 path,
                 subject,
-                StreamFault::CountMismatch {
+                StreamFault::BeyondDeclared {
                     what: "triangles",
                     declared: nf,
-                    found: nf + 1,
                 },
             ));
         }

@@ -95,6 +95,39 @@ fn golden_fixtures_are_written_byte_for_byte_and_read_back() {
 }
 
 #[test]
+fn golden_ply_and_obj_are_what_conversion_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = ConvertOptions {
+        ply_encoding: PlyEncoding::Ascii,
+        ..ConvertOptions::default()
+    };
+    for name in ["tetrahedron.ply", "tetrahedron.obj"] {
+        let out = dir.path().join(name);
+        convert_with(&data("tetrahedron.smb"), &out, &opts).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            std::fs::read_to_string(data(name)).unwrap()
+        );
+        let expected = corners(&read_indexed(&data("tetrahedron.smb")).unwrap());
+        assert_eq!(corners(&read_indexed(&data(name)).unwrap()), expected);
+    }
+}
+
+#[test]
+fn sinks_can_move_to_another_thread() {
+    fn send<T: Send>(_: &T) {}
+    let dir = tempfile::tempdir().unwrap();
+    let sink = isostream_smesh::create_sink(
+        &dir.path().join("a.glb"),
+        &Header::default(),
+        &ConvertOptions::default(),
+    )
+    .unwrap();
+    send(&sink);
+    send(&StreamReader::open(&data("tetrahedron.smb")).unwrap());
+}
+
+#[test]
 fn golden_smb_matches_the_spec_layout() {
     // Built field by field from DESIGN.md section 3, independently of the fixture script.
     let mut b = vec![0u8, 0, 0, 0];
@@ -246,6 +279,18 @@ fn validate_rejects_truncated_and_foreign_smb() {
             p.display()
         )
     );
+    // Counts that fit the size but not the stream: 3 vertices and 5 triangles declared.
+    let mut wrong = golden.clone();
+    wrong[23..31].copy_from_slice(&[3, 0, 0, 0, 5, 0, 0, 0]);
+    std::fs::write(&p, &wrong).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert_eq!(
+        msg,
+        format!(
+            "{}: vertex 3 at byte 108 exceeds the 3 vertices the header declares",
+            p.display()
+        )
+    );
     let p = dir.path().join("magic.smb");
     std::fs::write(&p, b"ply\nformat ascii 1.0\n").unwrap();
     let msg = validate(&p).unwrap_err().to_string();
@@ -256,6 +301,30 @@ fn validate_rejects_truncated_and_foreign_smb() {
         )),
         "{msg}"
     );
+}
+
+#[test]
+fn header_is_checked_before_anything_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("h.sma");
+    let bad = [
+        (vec!["two\nlines".to_string()], vec![]),
+        (vec![], vec!["has space".to_string()]),
+        (vec![], vec!["x".to_string()]),
+        (vec![], vec!["t".to_string(), "t".to_string()]),
+    ];
+    for (comments, attribute_names) in bad {
+        let h = Header {
+            comments,
+            attribute_names,
+        };
+        let e = StreamWriter::create(&p, &h).err().unwrap().to_string();
+        assert!(
+            e.starts_with(&format!("{}: ", p.display())) && !e.contains('\n'),
+            "{e}"
+        );
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
 #[test]
