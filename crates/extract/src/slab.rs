@@ -428,6 +428,29 @@ mod tests {
     }
 
     #[test]
+    fn keys_and_stats_are_64_bit() {
+        // A volume far beyond 2^32 voxels: only its last slab is extracted.
+        let nz = 1u64 << 33;
+        let grid = Grid::new([3, 3, nz], [1.0; 3], [0.0; 3]).unwrap();
+        let (_, data) = blob();
+        let mut ex = Extractor::new(grid, 1.0);
+        let z = nz - 2;
+        let mut batches = Vec::new();
+        ex.extract_slab(z, &data[9..18], &data[18..], usize::MAX, |b| {
+            batches.push(b);
+            Ok::<_, ()>(())
+        })
+        .unwrap();
+        assert!(batches[0].end_of_volume);
+        for v in &batches[0].vertices {
+            assert!(v.key.0 > u64::from(u32::MAX));
+            let ([_, _, vz], axis) = v.key.decode(grid.dims);
+            assert!(vz == z || (vz == z + 1 && axis != 2), "{vz} {axis}");
+            assert!(v.pos.z >= z as f64 && v.pos.z <= (z + 1) as f64);
+        }
+    }
+
+    #[test]
     #[should_panic(expected = "slab 2 outside")]
     fn rejects_slabs_outside_the_grid() {
         let (grid, data) = blob();
