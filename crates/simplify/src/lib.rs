@@ -15,6 +15,24 @@
 //! * `decimate`: the one contraction loop;
 //! * `retire`: retirement behind the front or for the memory budget, and emission.
 //!
+//! Decisions (the why is at each item's definition):
+//! * **Surface boundary**: boundary vertices never move. An interior vertex may merge into a
+//!   boundary vertex's position; two boundary vertices only along a boundary edge, into one
+//!   endpoint, when the removed one sits on a straight piece of boundary. The boundary polyline
+//!   keeps its exact shape; closed surfaces are not restricted (`topology::sites`).
+//! * **Tiny components**: the full link condition (vertices, edges and the boundary vertex `ω`)
+//!   never lets a closed component drop below a tetrahedron (4 triangles) nor an open one lose
+//!   its last triangle; such components count toward the face budget as they are.
+//! * **Ill-conditioning**: when `|det A| < 1e-9 (trace A / 3)^3` or the optimum lies farther
+//!   than 4 edge lengths from the midpoint, the best of the endpoints and the midpoint is taken;
+//!   coincident endpoints are merged in place.
+//! * **Rate policy with retirement**: retirement runs after a decimation pass only, so every
+//!   vertex is offered to the heap before it leaves; the initial phase also ends when output
+//!   starts. The target is met (within a few %) once `retire_lag` leaves the band room (about 3
+//!   slabs for rates down to 0.1, 5 to 8 below) and `batch` is small against the surface.
+//! * **Bounded band**: the rank span of every preimage is at most `2 retire_lag + 2` slabs, so
+//!   no vertex rides along with the front; stale heap entries are compacted away.
+//!
 //! Architecture invariants: no I/O, no threads; only modifiable, unretired vertices move; every
 //! contraction passes the link condition and the geometry checks; memory is bounded by the
 //! unretired band.
@@ -72,6 +90,8 @@ pub struct SimplifyStats {
     pub vertices_out: u64,
     pub faces_resident: usize,
     pub peak_resident_faces: usize,
+    /// Vertex slots in memory (live vertices of the band and holes between them).
+    pub vertices_resident: usize,
     /// Faces in memory with a vertex that is not modifiable yet (`F_u`).
     pub faces_unmodifiable: usize,
     pub contractions: u64,
@@ -288,6 +308,7 @@ impl Simplifier {
     pub fn stats(&self) -> SimplifyStats {
         SimplifyStats {
             faces_resident: self.store.resident(),
+            vertices_resident: self.store.vertex_slots(),
             candidates: self.candidates.len(),
             ..self.stats.clone()
         }

@@ -181,6 +181,11 @@ impl Store {
         self.resident
     }
 
+    /// Vertex slots held: live vertices and the holes between them.
+    pub(crate) fn vertex_slots(&self) -> usize {
+        self.verts.len()
+    }
+
     /// Adds a triangle and links it into its vertices' lists. The vertices must exist.
     pub(crate) fn add_triangle(&mut self, tri: Tri) -> TriId {
         let t = match self.free_tris.pop() {

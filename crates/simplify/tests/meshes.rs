@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{Policy, SimplifyConfig};
+use isostream_simplify::{Policy, SimplifyConfig, SimplifyStats};
 
 /// Output faces within 10% of `rate * input`.
 fn assert_rate_met(input: &Mesh, run: &Run, rate: f64) {
@@ -219,18 +219,33 @@ fn output_is_deterministic() {
 
 #[test]
 fn memory_is_bounded_by_the_band_not_the_length() {
-    let peak = |len: u32| {
+    // Highest faces, vertex slots and heap entries held after any batch.
+    let peaks = |len: u32| {
         let input = tube(24, len, 4.0, f64::from(len));
         let run = run(&input, config(rate(0.25, 200), 3), &Sweep::default());
         assert_same_topology(&input, &run);
         assert_rate_met(&input, &run, 0.25);
-        run.stats.peak_resident_faces
+        let max = |f: fn(&SimplifyStats) -> usize| run.trace.iter().map(f).max().unwrap_or(0);
+        (
+            run.stats.peak_resident_faces,
+            max(|s| s.vertices_resident),
+            max(|s| s.candidates),
+        )
     };
-    let (short, long) = (peak(100), peak(1600));
-    // One slab of this tube has 48 faces; the band holds the lag, the bounded preimage span and a
-    // batch: the peak does not grow with the length beyond a slab or two of jitter.
-    assert!(long <= short + 96, "short {short}, long {long}");
-    assert!(long < 600, "{long}");
+    let (short, long) = (peaks(100), peaks(1600));
+    // One slab of this tube has 48 faces and 24 vertices; the band holds the lag, the bounded
+    // preimage span and a batch: nothing grows with the length beyond a slab or two of jitter.
+    assert!(
+        long.0 <= short.0 + 96,
+        "faces: short {short:?}, long {long:?}"
+    );
+    assert!(long.0 < 600, "{long:?}");
+    assert!(
+        long.1 <= short.1 + 48,
+        "vertices: short {short:?}, long {long:?}"
+    );
+    // The heap is compacted at 4 entries per resident face plus 4096.
+    assert!(long.2 <= 4 * long.0 + 4096, "candidates: {long:?}");
 }
 
 #[test]
@@ -251,13 +266,9 @@ fn memory_budget_forces_early_retirement() {
     );
     assert_same_topology(&input, &run);
     assert!(run.stats.forced_retirements > 0);
-    // After each batch the simplifier is back under budget unless only non-modifiable vertices
-    // remain; here every slab is small, so a slab's faces bound the excess.
-    assert!(
-        run.resident.iter().all(|&r| r <= budget),
-        "{:?}",
-        run.resident
-    );
+    // After each batch the simplifier is back under budget (slabs are small against it, so there
+    // are always modifiable vertices to retire).
+    assert!(run.trace.iter().all(|s| s.faces_resident <= budget));
 }
 
 #[test]
@@ -322,4 +333,50 @@ fn time_lag_holds_contractions_until_the_front_passes() {
     assert_same_topology(&input, &run);
     assert!(run.stats.contractions > 1000);
     assert_eq!(run.stats.lag_violations, 0);
+}
+
+/// Anisotropy of seed 000 section 4: one minus the mean aspect ratio `sqrt(lambda2 / lambda1)` of
+/// `M = (aa^T + bb^T + cc^T) / 3` (vertices relative to the centroid).
+fn anisotropy(m: &Mesh) -> f64 {
+    let sum: f64 = m
+        .tris
+        .iter()
+        .map(|t| {
+            let p = t.map(|v| m.pos[v as usize]);
+            let c = (p[0] + p[1] + p[2]) / 3.0;
+            let mat = p.iter().fold(glam::DMat3::ZERO, |acc, x| {
+                let d = *x - c;
+                acc + glam::DMat3::from_cols(d * d.x, d * d.y, d * d.z) / 3.0
+            });
+            // Rank 2: lambda1 + lambda2 = trace, lambda1 * lambda2 = sum of principal 2x2 minors.
+            let (a, b, cc) = (mat.x_axis, mat.y_axis, mat.z_axis);
+            let trace = a.x + b.y + cc.z;
+            let minors = a.x * b.y - a.y * b.x + a.x * cc.z - a.z * cc.x + b.y * cc.z - b.z * cc.y;
+            let disc = (trace * trace - 4.0 * minors).max(0.0).sqrt();
+            let (l1, l2) = ((trace + disc) / 2.0, (trace - disc) / 2.0);
+            (l2.max(0.0) / l1).sqrt()
+        })
+        .sum();
+    1.0 - sum / m.tris.len() as f64
+}
+
+#[test]
+fn isotropy_improves_triangle_shape_within_the_error_bound() {
+    let input = torus(96, 32, 12.0, 4.0);
+    let go = |isotropy| {
+        let policy = Policy::Error {
+            e0: 0.05,
+            time_lag: true,
+            isotropy,
+        };
+        let run = run(&input, config(policy, 4), &Sweep::default());
+        assert_same_topology(&input, &run);
+        assert!(run.stats.max_shape_error <= 0.05);
+        (anisotropy(&run.mesh), run.mesh.tris.len())
+    };
+    let (plain, iso) = (go(0.0), go(0.5));
+    assert!(
+        iso.0 < plain.0,
+        "anisotropy with alpha 0.5 {iso:?}, alpha 0 {plain:?}"
+    );
 }

@@ -214,8 +214,8 @@ pub struct Run {
     pub stats: SimplifyStats,
     /// The raw output, for determinism checks.
     pub out: OutBatch,
-    /// Faces resident after each `end_batch`.
-    pub resident: Vec<usize>,
+    /// Statistics after each `end_batch`.
+    pub trace: Vec<SimplifyStats>,
 }
 
 impl Run {
@@ -269,7 +269,7 @@ pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
         }
     }
     let mut out = OutBatch::default();
-    let mut resident = Vec::new();
+    let mut trace = Vec::new();
     let mut next_vertex = 0;
     for (k, tris) in tris_by_slab.iter().enumerate() {
         while next_vertex < order.len() && rank[order[next_vertex]] as usize == k {
@@ -299,7 +299,7 @@ pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
                 s.set_modifiable(v);
             }
             s.end_batch(k as u32, &mut out);
-            resident.push(s.stats().faces_resident);
+            trace.push(s.stats());
         }
     }
     s.finish(&mut out);
@@ -311,7 +311,7 @@ pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
         attrs,
         stats,
         out,
-        resident,
+        trace,
     }
 }
 
