@@ -20,6 +20,7 @@ mod procedural;
 mod raw;
 mod source;
 mod stream;
+mod tiff;
 mod vti;
 mod vtk;
 mod xml;

@@ -1,6 +1,8 @@
 //! Format detection: one entry point from a path (and job-file options) to a source.
 
-use crate::{OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nifti, nrrd, vti, vtk};
+use crate::{
+    OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nifti, nrrd, tiff, vti, vtk,
+};
 use std::io::Read;
 use std::path::Path;
 
@@ -12,6 +14,7 @@ enum Format {
     Vtk,
     Vti,
     Nifti,
+    Tiff,
 }
 
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
@@ -23,6 +26,7 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
         Format::Vtk => vtk::open(path, opts),
         Format::Vti => vti::open(path, opts),
         Format::Nifti => nifti::open(path, opts),
+        Format::Tiff => tiff::open(path, opts),
     }
 }
 
@@ -40,9 +44,14 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         (".nii", Format::Nifti),
         (".nii.gz", Format::Nifti),
         (".hdr", Format::Nifti),
+        (".tif", Format::Tiff),
+        (".tiff", Format::Tiff),
     ];
     if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
         return Ok(*f);
+    }
+    if path.is_dir() {
+        return Ok(Format::Tiff);
     }
     let mut head = [0u8; 16];
     let n = std::fs::File::open(path)
@@ -57,6 +66,8 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         Format::Vti
     } else if head.starts_with(&348i32.to_le_bytes()) || head.starts_with(&348i32.to_be_bytes()) {
         Format::Nifti
+    } else if head.starts_with(b"II*\0") || head.starts_with(b"MM\0*") {
+        Format::Tiff
     } else {
         Format::Raw
     })

@@ -1,0 +1,250 @@
+//! TIFF stacks: one multi-page `.tif`/`.tiff` (page k = slice z = k) or a directory of
+//! single-page TIFFs in natural name order (`slice2.tif` before `slice10.tif`). Grayscale pages
+//! only. One page is decoded per slice; TIFF carries no reliable voxel size, so spacing and origin
+//! come from [`OpenOptions`] (default 1 and 0).
+
+use crate::grid::dims_text;
+use crate::source::check_request;
+use crate::{Dtype, Grid, OpenOptions, VolumeError, VolumeSource};
+use std::fs::File;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+use tiff::ColorType;
+use tiff::decoder::{Decoder, DecodingResult, Limits};
+
+type TiffDecoder = Decoder<BufReader<File>>;
+
+enum Pages {
+    /// One file per slice.
+    Files(Vec<PathBuf>),
+    /// Pages of one file; the decoder is kept open and seeks between pages.
+    MultiPage(Option<Box<TiffDecoder>>),
+}
+
+/// A stack of grayscale TIFF pages.
+pub(crate) struct TiffStack {
+    path: PathBuf,
+    grid: Grid,
+    dtype: Dtype,
+    pages: Pages,
+}
+
+/// Opens a multi-page TIFF file or a directory of TIFF files.
+pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    opts.reject_raw_params(path, "TIFF")?;
+    opts.reject_array(path, "TIFF")?;
+    let (first, count, pages) = if path.is_dir() {
+        let files = list_dir(path)?;
+        let first = files[0].clone();
+        (first, files.len() as u64, Pages::Files(files))
+    } else {
+        let mut d = decoder(path)?;
+        let mut count = 1u64;
+        while d.more_images() {
+            d.next_image().map_err(|e| page_err(path, count, e))?;
+            count += 1;
+        }
+        (path.to_path_buf(), count, Pages::MultiPage(None))
+    };
+    // Decode the first page once: it fixes the slice size and tells the stored type.
+    let mut d = decoder(&first)?;
+    let (w, h) = d.dimensions().map_err(|e| page_err(&first, 0, e))?;
+    let dims = [u64::from(w), u64::from(h), count];
+    let grid = opts.grid(path, dims, [1.0; 3], [0.0; 3])?;
+    let mut scratch = vec![0.0f32; grid.slice_len()];
+    let dtype = read_page(&first, 0, &mut d, (w, h), &mut scratch)?;
+    Ok(Box::new(TiffStack {
+        path: path.to_path_buf(),
+        grid,
+        dtype,
+        pages,
+    }))
+}
+
+/// TIFF files of a directory in natural order; at least one.
+fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, VolumeError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| VolumeError::io(dir, "list", e))?;
+    let mut files = Vec::new();
+    for entry in entries {
+        let p = entry.map_err(|e| VolumeError::io(dir, "list", e))?.path();
+        let ext = p
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        if matches!(ext.as_deref(), Some("tif" | "tiff")) {
+            files.push(p);
+        }
+    }
+    if files.is_empty() {
+        return Err(VolumeError::format(
+            dir,
+            "directory",
+            "at least one .tif or .tiff file",
+            "none",
+        ));
+    }
+    files.sort_by_key(|p| natural_key(&p.file_name().unwrap_or_default().to_string_lossy()));
+    Ok(files)
+}
+
+/// Splits a name into text and number runs so that "s2" sorts before "s10".
+fn natural_key(name: &str) -> Vec<(String, u128)> {
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = name.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut num = c.to_digit(10).map(u128::from).unwrap_or(0);
+            while let Some(d) = chars.peek().and_then(|d| d.to_digit(10)) {
+                num = num.saturating_mul(10).saturating_add(u128::from(d));
+                chars.next();
+            }
+            key.push((std::mem::take(&mut text), num));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
+}
+
+fn decoder(path: &Path) -> Result<TiffDecoder, VolumeError> {
+    let f = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
+    // Our memory bound is one slice; the crate's default limits would refuse large slices.
+    Decoder::new(BufReader::new(f))
+        .map(|d| d.with_limits(Limits::unlimited()))
+        .map_err(|e| VolumeError::format(path, "file header", "a TIFF file", e.to_string()))
+}
+
+fn page_err(path: &Path, page: u64, e: tiff::TiffError) -> VolumeError {
+    VolumeError::format(
+        path,
+        format!("page {page}"),
+        "a readable TIFF page",
+        e.to_string(),
+    )
+}
+
+/// Decodes the current page of `d` into `out`, checking it matches the stack; returns its type.
+fn read_page(
+    path: &Path,
+    page: u64,
+    d: &mut TiffDecoder,
+    (w, h): (u32, u32),
+    out: &mut [f32],
+) -> Result<Dtype, VolumeError> {
+    let at = || format!("page {page}");
+    let size = d.dimensions().map_err(|e| page_err(path, page, e))?;
+    if size != (w, h) {
+        return Err(VolumeError::format(
+            path,
+            at(),
+            format!("{w}x{h} pixels like the first page"),
+            format!("{}x{}", size.0, size.1),
+        ));
+    }
+    let color = d.colortype().map_err(|e| page_err(path, page, e))?;
+    if !matches!(color, ColorType::Gray(_)) {
+        return Err(VolumeError::format(
+            path,
+            at(),
+            "a single-channel grayscale page",
+            format!("{color:?}"),
+        ));
+    }
+    let image = d.read_image().map_err(|e| page_err(path, page, e))?;
+    fn copy<T: Copy>(src: &[T], out: &mut [f32], f: impl Fn(T) -> f32) {
+        for (o, &v) in out.iter_mut().zip(src) {
+            *o = f(v);
+        }
+    }
+    let (dtype, len) = match &image {
+        DecodingResult::U8(v) => (Dtype::U8, v.len()),
+        DecodingResult::I8(v) => (Dtype::I8, v.len()),
+        DecodingResult::U16(v) => (Dtype::U16, v.len()),
+        DecodingResult::I16(v) => (Dtype::I16, v.len()),
+        DecodingResult::U32(v) => (Dtype::U32, v.len()),
+        DecodingResult::I32(v) => (Dtype::I32, v.len()),
+        DecodingResult::F32(v) => (Dtype::F32, v.len()),
+        DecodingResult::F64(v) => (Dtype::F64, v.len()),
+        other => {
+            return Err(VolumeError::format(
+                path,
+                at(),
+                "8/16/32-bit integer or 32/64-bit float samples",
+                format!("{:?}", std::mem::discriminant(other)),
+            ));
+        }
+    };
+    if len != out.len() {
+        return Err(VolumeError::format(
+            path,
+            at(),
+            format!("{} samples", out.len()),
+            len.to_string(),
+        ));
+    }
+    match &image {
+        DecodingResult::U8(v) => copy(v, out, f32::from),
+        DecodingResult::I8(v) => copy(v, out, f32::from),
+        DecodingResult::U16(v) => copy(v, out, f32::from),
+        DecodingResult::I16(v) => copy(v, out, f32::from),
+        DecodingResult::U32(v) => copy(v, out, |x| x as f32),
+        DecodingResult::I32(v) => copy(v, out, |x| x as f32),
+        DecodingResult::F32(v) => copy(v, out, |x| x),
+        DecodingResult::F64(v) => copy(v, out, |x| x as f32),
+        _ => {}
+    }
+    Ok(dtype)
+}
+
+impl VolumeSource for TiffStack {
+    fn grid(&self) -> Grid {
+        self.grid
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "{} ({} TIFF stack)",
+            self.path.display(),
+            dims_text(self.grid.dims)
+        )
+    }
+
+    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+        check_request(self, z, out)?;
+        // Grid dims 0 and 1 came from a u32 page size.
+        let size = (self.grid.dims[0] as u32, self.grid.dims[1] as u32);
+        let (file, got) = match &mut self.pages {
+            Pages::Files(files) => {
+                let file = &files[z as usize];
+                let mut d = decoder(file)?;
+                (file.clone(), read_page(file, 0, &mut d, size, out)?)
+            }
+            Pages::MultiPage(slot) => {
+                let d = match slot {
+                    Some(d) => d,
+                    None => slot.insert(Box::new(decoder(&self.path)?)),
+                };
+                d.seek_to_image(z as usize)
+                    .map_err(|e| page_err(&self.path, z, e))?;
+                (self.path.clone(), read_page(&self.path, z, d, size, out)?)
+            }
+        };
+        if got != self.dtype {
+            return Err(VolumeError::format(
+                &file,
+                format!("page {z}"),
+                format!("{} samples like the first page", self.dtype),
+                got.name(),
+            ));
+        }
+        Ok(())
+    }
+
+    fn dtype(&self) -> Option<Dtype> {
+        Some(self.dtype)
+    }
+}
+
+#[cfg(test)]
+mod tests;

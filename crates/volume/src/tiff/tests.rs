@@ -1,0 +1,158 @@
+use super::*;
+use crate::open_path;
+use tiff::encoder::{TiffEncoder, colortype};
+
+fn read_all(path: &Path, opts: &OpenOptions) -> Result<Vec<f32>, VolumeError> {
+    let mut v = open_path(path, opts)?;
+    let g = v.grid();
+    let mut all = Vec::new();
+    let mut out = vec![0.0f32; g.slice_len()];
+    for z in 0..g.dims[2] {
+        v.read_slice(z, &mut out)?;
+        all.extend_from_slice(&out);
+    }
+    Ok(all)
+}
+
+/// Writes 16-bit pages of 3x2 pixels valued z * 100 + i.
+fn pages(path: &Path, n: u16) {
+    let mut e = TiffEncoder::new(File::create(path).unwrap()).unwrap();
+    for z in 0..n {
+        let data: Vec<u16> = (0..6).map(|i| z * 100 + i).collect();
+        e.write_image::<colortype::Gray16>(3, 2, &data).unwrap();
+    }
+}
+
+fn want(n: u16) -> Vec<f32> {
+    (0..n)
+        .flat_map(|z| (0..6).map(move |i| f32::from(z * 100 + i)))
+        .collect()
+}
+
+#[test]
+fn multi_page_file_and_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("stack.tif");
+    pages(&p, 4);
+    let opts = OpenOptions {
+        spacing: Some([0.5, 0.5, 2.0]),
+        ..Default::default()
+    };
+    assert_eq!(read_all(&p, &opts).unwrap(), want(4));
+    let mut v = open_path(&p, &opts).unwrap();
+    assert_eq!(v.grid().dims, [3, 2, 4]);
+    assert_eq!(v.grid().spacing, [0.5, 0.5, 2.0]);
+    assert_eq!(v.dtype(), Some(Dtype::U16));
+    // Going back works.
+    let mut out = [0.0f32; 6];
+    v.read_slice(3, &mut out).unwrap();
+    v.read_slice(1, &mut out).unwrap();
+    assert_eq!(out[0], 100.0);
+
+    let stack = dir.path().join("slices");
+    std::fs::create_dir(&stack).unwrap();
+    for z in 0..12u16 {
+        let mut e =
+            TiffEncoder::new(File::create(stack.join(format!("s{z}.tiff"))).unwrap()).unwrap();
+        let data: Vec<f32> = (0..6).map(|i| f32::from(z * 100 + i)).collect();
+        e.write_image::<colortype::Gray32Float>(3, 2, &data)
+            .unwrap();
+    }
+    std::fs::write(stack.join("notes.txt"), "ignored").unwrap();
+    assert_eq!(read_all(&stack, &OpenOptions::default()).unwrap(), want(12));
+    assert_eq!(
+        open_path(&stack, &OpenOptions::default()).unwrap().dtype(),
+        Some(Dtype::F32)
+    );
+}
+
+#[test]
+fn natural_order() {
+    let mut names = vec!["s10.tif", "s2.tif", "s1.tif", "a.tif"];
+    names.sort_by_key(|n| natural_key(n));
+    assert_eq!(names, ["a.tif", "s1.tif", "s2.tif", "s10.tif"]);
+}
+
+#[test]
+fn bad_stacks_give_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let name = |p: &Path| p.display().to_string();
+    // Not a TIFF.
+    let p = dir.path().join("x.tif");
+    std::fs::write(&p, b"not a tiff at all").unwrap();
+    let e = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with(&format!(
+            "{}: file header: expected a TIFF file, found ",
+            name(&p)
+        )),
+        "{e}"
+    );
+    // Colour pages.
+    let mut enc = TiffEncoder::new(File::create(&p).unwrap()).unwrap();
+    enc.write_image::<colortype::RGB8>(2, 2, &[0u8; 12])
+        .unwrap();
+    enc.write_image::<colortype::RGB8>(2, 2, &[0u8; 12])
+        .unwrap();
+    drop(enc);
+    let e = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: page 0: expected a single-channel grayscale page, found \"RGB(8)\"",
+            name(&p)
+        )
+    );
+    // Pages of different sizes.
+    let mut enc = TiffEncoder::new(File::create(&p).unwrap()).unwrap();
+    enc.write_image::<colortype::Gray8>(2, 2, &[0u8; 4])
+        .unwrap();
+    enc.write_image::<colortype::Gray8>(3, 2, &[0u8; 6])
+        .unwrap();
+    drop(enc);
+    let e = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: page 1: expected 2x2 pixels like the first page, found \"3x2\"",
+            name(&p)
+        )
+    );
+    // A truncated file.
+    pages(&p, 3);
+    let bytes = std::fs::read(&p).unwrap();
+    std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+    let e = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with(&name(&p)) && !e.contains('\n'), "{e}");
+    // Empty directory, raw-only options.
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let e = read_all(&empty, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: directory: expected at least one .tif or .tiff file, found \"none\"",
+            name(&empty)
+        )
+    );
+    let opts = OpenOptions {
+        dtype: Some(Dtype::U8),
+        ..Default::default()
+    };
+    assert!(
+        read_all(&empty, &opts)
+            .unwrap_err()
+            .to_string()
+            .contains("apply only to .raw files")
+    );
+}
