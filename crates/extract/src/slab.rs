@@ -147,7 +147,7 @@ impl Extractor {
         }
     }
 
-    /// Extracts slab z (cubes between slices z and z+1, z in 0..dims[2]-1). Emits batches
+    /// Extracts slab z (cubes between slices z and z+1, z in `0..dims[2] - 1`). Emits batches
     /// holding whole rows, flushing when a batch reaches `max_triangles` (at least one row per
     /// batch, and never an empty batch before the last); the last batch of the slab has
     /// `end_of_slab = true` (an empty one if needed), and on the last slab
