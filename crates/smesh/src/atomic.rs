@@ -45,6 +45,11 @@ impl AtomicFile {
         })
     }
 
+    /// The final path, for error messages.
+    pub(crate) fn path(&self) -> &Path {
+        &self.path
+    }
+
     pub(crate) fn write_all(&mut self, bytes: &[u8]) -> Result<(), SmeshError> {
         self.out
             .write_all(bytes)

@@ -25,9 +25,11 @@ const COUNT_WIDTH: usize = 20;
 const BBOX_WIDTH: usize = 50;
 const ATTRIBUTES_KEY: &str = "vertex_attributes";
 
-pub(crate) struct SmaEncoder {
-    reserved_at: u64,
-}
+/// Header comment keys the reader interprets; a free comment must not start with one.
+const KEYS: [&str; 5] = ["nverts", "nfaces", "bb_min", "bb_max", ATTRIBUTES_KEY];
+
+/// Writes SMA; the reserved header block starts the file (offset 0).
+pub(crate) struct SmaEncoder;
 
 /// One reserved header line: `# key value`, padded; `#` and spaces when there is no value.
 fn reserved_line(key: &str, value: Option<String>, width: usize) -> String {
@@ -59,7 +61,13 @@ fn reserved_block(counts: Option<(u64, u64)>, bbox: Option<([f32; 3], [f32; 3])>
 
 impl SmaEncoder {
     pub(crate) fn begin(out: &mut AtomicFile, header: &Header) -> Result<SmaEncoder, SmeshError> {
-        let reserved_at = 0;
+        let keyword = |c: &String| KEYS.contains(&c.split_whitespace().next().unwrap_or(""));
+        if let Some(c) = header.comments.iter().find(|c| keyword(c)) {
+            return Err(SmeshError::Unsupported {
+                path: out.path().to_path_buf(),
+                message: format!("header comment {c:?} starts with a key SMA readers interpret"),
+            });
+        }
         out.write_all(reserved_block(None, None).as_bytes())?;
         let mut text = String::new();
         if !header.attribute_names.is_empty() {
@@ -72,7 +80,7 @@ impl SmaEncoder {
             text.push_str(&format!("# {c}\n"));
         }
         out.write_all(text.as_bytes())?;
-        Ok(SmaEncoder { reserved_at })
+        Ok(SmaEncoder)
     }
 
     pub(crate) fn vertex(
@@ -103,7 +111,7 @@ impl SmaEncoder {
             Some((tracker.vertices(), tracker.triangles())),
             tracker.bbox(),
         );
-        out.patch(self.reserved_at, block.as_bytes())
+        out.patch(0, block.as_bytes())
     }
 }
 
