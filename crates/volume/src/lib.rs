@@ -18,8 +18,12 @@ mod open;
 mod options;
 mod procedural;
 mod raw;
+#[cfg(test)]
+mod real_data;
 mod source;
 mod stream;
+#[cfg(test)]
+mod testutil;
 mod tiff;
 mod vti;
 mod vtk;

@@ -98,11 +98,12 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         })?;
         return Ok(Box::new(raw));
     }
-    if h.byte_skip < 0 && (h.encoding != Encoding::Raw || files.len() > 1) {
+    // The fast path above handled the one case where teem allows -1.
+    if h.byte_skip < 0 {
         return Err(VolumeError::format(
             path,
             "byte skip line",
-            "byte skip -1 only with raw encoding and one data file (as teem requires)",
+            "byte skip -1 only with raw encoding, one data file and no line skip",
             h.byte_skip.to_string(),
         ));
     }
@@ -251,8 +252,12 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
         if text.is_empty() {
             break;
         }
-        if !raw.ends_with(b"\n") && got as u64 == MAX_HEADER {
-            return Err(err(lines.len() + 1, "a header shorter than 1 MiB", "more"));
+        if len >= MAX_HEADER {
+            return Err(err(
+                lines.len() + 1,
+                "a header shorter than 1 MiB",
+                "more text",
+            ));
         }
         lines.push(text);
     }

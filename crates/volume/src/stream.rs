@@ -57,6 +57,13 @@ impl StreamVolume {
                     dims_text(spec.grid.dims)
                 ),
             })?;
+        let bytes = zeroed(slice_bytes).ok_or_else(|| VolumeError::Grid {
+            origin: spec.path.display().to_string(),
+            problem: format!(
+                "a slice of dims {} needs {slice_bytes} bytes, more than this machine can allocate; check the dims",
+                dims_text(spec.grid.dims)
+            ),
+        })?;
         Ok(StreamVolume {
             path: spec.path,
             what: spec.what,
@@ -67,7 +74,7 @@ impl StreamVolume {
             open: spec.open,
             reader: None,
             next_z: 0,
-            bytes: vec![0; slice_bytes],
+            bytes,
         })
     }
 
@@ -159,6 +166,15 @@ impl VolumeSource for StreamVolume {
     fn dtype(&self) -> Option<Dtype> {
         Some(self.stored)
     }
+}
+
+/// A zero-filled buffer, or None when the allocator refuses: dims from a corrupt header must end
+/// in an error, not an abort.
+pub(crate) fn zeroed<T: Clone + Default>(n: usize) -> Option<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).ok()?;
+    v.resize(n, T::default());
+    Some(v)
 }
 
 /// Opens `path` and skips `skip` bytes: the start of most streams.

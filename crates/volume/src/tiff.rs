@@ -5,6 +5,7 @@
 
 use crate::grid::dims_text;
 use crate::source::check_request;
+use crate::stream::zeroed;
 use crate::{Dtype, Grid, OpenOptions, VolumeError, VolumeSource};
 use std::fs::File;
 use std::io::BufReader;
@@ -51,7 +52,10 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     let (w, h) = d.dimensions().map_err(|e| page_err(&first, 0, e))?;
     let dims = [u64::from(w), u64::from(h), count];
     let grid = opts.grid(path, dims, [1.0; 3], [0.0; 3])?;
-    let mut scratch = vec![0.0f32; grid.slice_len()];
+    let mut scratch = zeroed(grid.slice_len()).ok_or_else(|| VolumeError::Grid {
+        origin: path.display().to_string(),
+        problem: format!("a {w}x{h} page is larger than this machine can allocate; check the file"),
+    })?;
     let dtype = read_page(&first, 0, &mut d, (w, h), &mut scratch)?;
     Ok(Box::new(TiffStack {
         path: path.to_path_buf(),

@@ -70,7 +70,7 @@ impl<R: Read> ZlibBlocks<R> {
         let mut raw = (&mut self.inner).take(csize);
         self.block.clear();
         let got = ZlibDecoder::new(&mut raw)
-            .take(want + 1)
+            .take(want.saturating_add(1))
             .read_to_end(&mut self.block)
             .map_err(|e| invalid(format!("zlib block {i}: {e}")))?;
         if got as u64 != want {

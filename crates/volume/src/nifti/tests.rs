@@ -1,9 +1,7 @@
 use super::*;
 use crate::dtype::tests::{ALL, encode, sample_values};
 use crate::open_path;
-use flate2::Compression;
-use flate2::write::GzEncoder;
-use std::io::Write;
+use crate::testutil::{assert_all_equal, gzip, outcome, read_all};
 
 fn code(d: Dtype) -> i16 {
     match d {
@@ -83,24 +81,6 @@ impl Hdr {
     }
 }
 
-fn gzip(bytes: &[u8]) -> Vec<u8> {
-    let mut e = GzEncoder::new(Vec::new(), Compression::fast());
-    e.write_all(bytes).unwrap();
-    e.finish().unwrap()
-}
-
-fn read_all(path: &Path) -> Result<Vec<f32>, VolumeError> {
-    let mut v = open_path(path, &OpenOptions::default())?;
-    let g = v.grid();
-    let mut all = Vec::new();
-    let mut out = vec![0.0f32; g.slice_len()];
-    for z in 0..g.dims[2] {
-        v.read_slice(z, &mut out)?;
-        all.extend_from_slice(&out);
-    }
-    Ok(all)
-}
-
 #[test]
 fn every_type_endian_and_compression() {
     let dir = tempfile::tempdir().unwrap();
@@ -113,7 +93,11 @@ fn every_type_endian_and_compression() {
             for (name, bytes) in [("v.nii", file.clone()), ("v.nii.gz", gzip(&file))] {
                 let p = dir.path().join(name);
                 std::fs::write(&p, bytes).unwrap();
-                assert_eq!(read_all(&p).unwrap(), want, "{d} {e:?} {name}");
+                assert_eq!(
+                    read_all(&p, &OpenOptions::default()).unwrap(),
+                    want,
+                    "{d} {e:?} {name}"
+                );
                 let v = open_path(&p, &OpenOptions::default()).unwrap();
                 assert_eq!(v.grid().spacing, [0.5, 2.0, 1.5]);
                 assert_eq!(v.dtype(), Some(d));
@@ -135,7 +119,7 @@ fn scaling_origin_and_pairs() {
     let p = dir.path().join("s.nii");
     std::fs::write(&p, &file).unwrap();
     let want: Vec<f32> = values.iter().map(|&x| (x * 0.5 - 10.0) as f32).collect();
-    assert_eq!(read_all(&p).unwrap(), want);
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want);
     assert_eq!(
         open_path(&p, &OpenOptions::default())
             .unwrap()
@@ -152,7 +136,10 @@ fn scaling_origin_and_pairs() {
         encode(Dtype::I16, Endian::Little, &values),
     )
     .unwrap();
-    assert_eq!(read_all(&dir.path().join("p.hdr")).unwrap(), want);
+    assert_eq!(
+        read_all(&dir.path().join("p.hdr"), &OpenOptions::default()).unwrap(),
+        want
+    );
 }
 
 #[test]
@@ -239,63 +226,9 @@ fn bad_files_give_one_line_errors() {
             "header: expected a 348-byte NIfTI-1 header, found \"incomplete deflate stream\"",
         ),
     ];
-    let mut wrong = Vec::new();
-    for (name, file, want) in cases {
+    assert_all_equal(cases.into_iter().map(|(name, file, want)| {
         let p = dir.path().join(name);
         std::fs::write(&p, &file).unwrap();
-        let got = match read_all(&p) {
-            Ok(_) => "Ok".to_string(),
-            Err(e) => e.to_string(),
-        };
-        assert!(!got.contains('\n'));
-        let want = format!("{}: {want}", p.display());
-        if got != want {
-            wrong.push(format!("got  {got}\nwant {want}"));
-        }
-    }
-    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
-}
-
-fn check_real(rel: &str, dims: [u64; 3], dtype: Dtype, spacing: [f64; 3], mean: f64, max: f32) {
-    let p = Path::new("/work/shared/data").join(rel);
-    if !p.exists() {
-        eprintln!("skipping: {} not present", p.display());
-        return;
-    }
-    let v = open_path(&p, &OpenOptions::default()).unwrap();
-    assert_eq!(v.grid().dims, dims);
-    assert_eq!(v.dtype(), Some(dtype));
-    let got = v.grid().spacing;
-    assert!(
-        got.iter().zip(spacing).all(|(g, w)| (g - w).abs() < 1e-6),
-        "{got:?}"
-    );
-    let all = read_all(&p).unwrap();
-    let m = all.iter().map(|&x| x as f64).sum::<f64>() / all.len() as f64;
-    assert!((m - mean).abs() < 1e-3, "{rel} mean {m}");
-    assert_eq!(all.iter().fold(f32::MIN, |a, &x| a.max(x)), max);
-}
-
-#[test]
-fn mni152_when_present() {
-    check_real(
-        "mni152/mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz",
-        [197, 233, 189],
-        Dtype::U8,
-        [1.0; 3],
-        38.4389,
-        255.0,
-    );
-}
-
-#[test]
-fn mean_head_when_present() {
-    check_real(
-        "mean_head/mean_reg2mean.nii.gz",
-        [176, 256, 256],
-        Dtype::I16,
-        [1.0, 0.9765625, 0.9765625],
-        87.7297,
-        646.0,
-    );
+        (outcome(&p), format!("{}: {want}", p.display()))
+    }));
 }

@@ -1,18 +1,7 @@
 use super::*;
 use crate::open_path;
+use crate::testutil::read_all;
 use tiff::encoder::{TiffEncoder, colortype};
-
-fn read_all(path: &Path, opts: &OpenOptions) -> Result<Vec<f32>, VolumeError> {
-    let mut v = open_path(path, opts)?;
-    let g = v.grid();
-    let mut all = Vec::new();
-    let mut out = vec![0.0f32; g.slice_len()];
-    for z in 0..g.dims[2] {
-        v.read_slice(z, &mut out)?;
-        all.extend_from_slice(&out);
-    }
-    Ok(all)
-}
 
 /// Writes 16-bit pages of 3x2 pixels valued z * 100 + i.
 fn pages(path: &Path, n: u16) {

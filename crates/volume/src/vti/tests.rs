@@ -2,6 +2,7 @@ use super::*;
 use crate::codec::tests::compress;
 use crate::dtype::tests::{encode, sample_values};
 use crate::open_path;
+use crate::testutil::{assert_all_equal, outcome, read_all};
 
 /// Test-side base64 encoder (the inverse of `Base64Reader`).
 fn b64(bytes: &[u8]) -> String {
@@ -128,18 +129,6 @@ fn vti(dtype: Dtype, vti_type: &str, values: &[f64], c: Case) -> Vec<u8> {
     }
     out.extend(b"</VTKFile>\n");
     out
-}
-
-fn read_all(path: &Path, opts: &OpenOptions) -> Result<Vec<f32>, VolumeError> {
-    let mut v = open_path(path, opts)?;
-    let g = v.grid();
-    let mut all = Vec::new();
-    let mut out = vec![0.0f32; g.slice_len()];
-    for z in 0..g.dims[2] {
-        v.read_slice(z, &mut out)?;
-        all.extend_from_slice(&out);
-    }
-    Ok(all)
 }
 
 fn cases() -> Vec<Case> {
@@ -320,100 +309,8 @@ fn bad_files_give_one_line_errors() {
             "DataArray \"v\" header: expected a 4-byte block header, found \"base64 text, found '*' at character 3\"",
         ),
     ];
-    let mut wrong = Vec::new();
-    for (file, want) in cases {
+    assert_all_equal(cases.into_iter().map(|(file, want)| {
         std::fs::write(&p, &file).unwrap();
-        let got = match read_all(&p, &OpenOptions::default()) {
-            Ok(_) => "Ok".to_string(),
-            Err(e) => e.to_string(),
-        };
-        let want = format!("{}: {want}", p.display());
-        if got != want {
-            wrong.push(format!("got  {got}\nwant {want}"));
-        }
-    }
-    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
-}
-
-const DATA: &str = "/work/shared/data";
-
-fn present(rel: &str) -> Option<std::path::PathBuf> {
-    let p = Path::new(DATA).join(rel);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not present", p.display());
-        None
-    }
-}
-
-#[test]
-fn engine_vti_equals_engine_raw() {
-    let (Some(vti), Some(raw)) = (
-        present("engine/engine.vti"),
-        present("engine/engine_256x256x128_uint8.raw"),
-    ) else {
-        return;
-    };
-    let opts = OpenOptions {
-        dims: Some([256, 256, 128]),
-        dtype: Some(Dtype::U8),
-        ..Default::default()
-    };
-    let mut a = open_path(&vti, &OpenOptions::default()).unwrap();
-    let mut b = open_path(&raw, &opts).unwrap();
-    assert_eq!(a.grid(), b.grid());
-    assert_eq!(a.dtype(), Some(Dtype::U8));
-    let (mut sa, mut sb) = (vec![0.0f32; 65536], vec![0.0f32; 65536]);
-    for z in 0..128 {
-        a.read_slice(z, &mut sa).unwrap();
-        b.read_slice(z, &mut sb).unwrap();
-        assert!(sa == sb, "slice {z} differs");
-    }
-}
-
-fn mean_max(rel: &str) -> Option<(Box<dyn VolumeSource>, f64, f32)> {
-    let p = present(rel)?;
-    let all = read_all(&p, &OpenOptions::default()).unwrap();
-    let mean = all.iter().map(|&x| x as f64).sum::<f64>() / all.len() as f64;
-    Some((
-        open_path(&p, &OpenOptions::default()).unwrap(),
-        mean,
-        all.iter().fold(f32::MIN, |m, &x| m.max(x)),
-    ))
-}
-
-#[test]
-fn real_vti_files_when_present() {
-    for (rel, dims, dtype, mean, max) in [
-        (
-            "bonsai/bonsai.vti",
-            [256, 256, 256],
-            Dtype::U8,
-            13.7114,
-            255.0,
-        ),
-        (
-            "aneurism/aneurism.vti",
-            [256, 256, 256],
-            Dtype::U8,
-            1.0692,
-            255.0,
-        ),
-        (
-            "hydrogen/hydrogen.vti",
-            [64, 64, 64],
-            Dtype::F32,
-            0.0185,
-            1.0,
-        ),
-    ] {
-        let Some((v, m, mx)) = mean_max(rel) else {
-            continue;
-        };
-        assert_eq!(v.grid().dims, dims, "{rel}");
-        assert_eq!(v.dtype(), Some(dtype), "{rel}");
-        assert!((m - mean).abs() < 1e-3, "{rel} mean {m}");
-        assert!((mx - max).abs() < 1e-6, "{rel} max {mx}");
-    }
+        (outcome(&p), format!("{}: {want}", p.display()))
+    }));
 }

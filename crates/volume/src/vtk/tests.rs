@@ -1,6 +1,7 @@
 use super::*;
 use crate::dtype::tests::{ALL, encode, sample_values};
 use crate::open_path;
+use crate::testutil::{as_f32, assert_all_equal, outcome, read_all};
 
 fn type_name(d: Dtype) -> &'static str {
     match d {
@@ -19,22 +20,6 @@ fn head(mode: &str) -> String {
     format!(
         "# vtk DataFile Version 3.0\ntitle\n{mode}\nDATASET STRUCTURED_POINTS\nDIMENSIONS 3 2 4\nSPACING 1 2 0.5\nORIGIN -1 0 1\nPOINT_DATA 24\n"
     )
-}
-
-fn read_all(path: &Path, opts: &OpenOptions) -> Result<Vec<f32>, VolumeError> {
-    let mut v = open_path(path, opts)?;
-    let g = v.grid();
-    let mut all = Vec::new();
-    let mut out = vec![0.0f32; g.slice_len()];
-    for z in 0..g.dims[2] {
-        v.read_slice(z, &mut out)?;
-        all.extend_from_slice(&out);
-    }
-    Ok(all)
-}
-
-fn as_f32(v: &[f64]) -> Vec<f32> {
-    v.iter().map(|&x| x as f32).collect()
 }
 
 #[test]
@@ -176,32 +161,8 @@ fn bad_files_give_one_line_errors() {
             "dims 3x0x4 need at least 2 voxels per axis; check the dims",
         ),
     ];
-    let mut wrong = Vec::new();
-    for (file, want) in cases {
+    assert_all_equal(cases.into_iter().map(|(file, want)| {
         std::fs::write(&p, &file).unwrap();
-        let got = read_all(&p, &OpenOptions::default())
-            .unwrap_err()
-            .to_string();
-        let want = format!("{}: {want}", p.display());
-        if got != want {
-            wrong.push(format!("got  {got}\nwant {want}"));
-        }
-    }
-    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
-}
-
-#[test]
-fn ironprot_when_present() {
-    let p = Path::new("/work/shared/data/ironprot/ironProt.vtk");
-    if !p.exists() {
-        eprintln!("skipping: {} not present", p.display());
-        return;
-    }
-    let v = open_path(p, &OpenOptions::default()).unwrap();
-    assert_eq!(v.grid().dims, [68, 68, 68]);
-    assert_eq!(v.dtype(), Some(Dtype::U8));
-    let all = read_all(p, &OpenOptions::default()).unwrap();
-    let mean = all.iter().map(|&x| x as f64).sum::<f64>() / all.len() as f64;
-    assert!((mean - 13.1383).abs() < 1e-3, "{mean}");
-    assert_eq!(all.iter().fold(0.0f32, |m, &x| m.max(x)), 255.0);
+        (outcome(&p), format!("{}: {want}", p.display()))
+    }));
 }
