@@ -103,10 +103,6 @@ impl GlbSink {
         })
     }
 
-    fn spill_error(&self, e: std::io::Error) -> SmeshError {
-        SmeshError::io(&self.core.path, "write scratch data for", e)
-    }
-
     /// The JSON chunk for `n` vertices and `t` triangles laid out as
     /// [vertex records][normals][indices] in the binary chunk.
     fn document(&self, n: u64, t: u64) -> serde_json::Value {
@@ -175,26 +171,11 @@ impl GlbSink {
 
 impl MeshSink for GlbSink {
     fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
-        self.core.vertex(pos, attrs)?;
-        let res = pos
-            .iter()
-            .chain(attrs)
-            .try_for_each(|x| self.vertices.write_all(&x.to_le_bytes()));
-        res.map_err(|e| self.spill_error(e))
+        self.core.spill_vertex(&mut self.vertices, pos, attrs)
     }
 
     fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
-        let corners = self.core.triangle(v, last_use)?;
-        let Ok(idx) = v
-            .map(u32::try_from)
-            .into_iter()
-            .collect::<Result<Vec<u32>, _>>()
-        else {
-            return Err(SmeshError::Unsupported {
-                path: self.core.path.clone(),
-                message: format!("triangle {v:?} needs indices beyond glTF's 32-bit indices"),
-            });
-        };
+        let (idx, corners) = self.core.triangle_u32(v, last_use, "glTF's u32 indices")?;
         let mut res = idx
             .iter()
             .try_for_each(|x| self.indices.write_all(&x.to_le_bytes()));
@@ -206,7 +187,7 @@ impl MeshSink for GlbSink {
                 }
             }
         }
-        res.map_err(|e| self.spill_error(e))
+        res.map_err(|e| self.core.scratch_error(e))
     }
 
     fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {
@@ -215,7 +196,7 @@ impl MeshSink for GlbSink {
             Some((normals, spill)) => normals.done(v, spill),
             None => Ok(()),
         };
-        res.map_err(|e| self.spill_error(e))
+        res.map_err(|e| self.core.scratch_error(e))
     }
 
     fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {

@@ -56,10 +56,6 @@ impl PlySink {
         })
     }
 
-    fn spill_error(&self, e: std::io::Error) -> SmeshError {
-        SmeshError::io(&self.core.path, "write scratch data for", e)
-    }
-
     fn header_text(&self) -> String {
         let format = match self.encoding {
             PlyEncoding::BinaryLittleEndian => "binary_little_endian",
@@ -113,32 +109,17 @@ fn le_words(b: &[u8]) -> impl Iterator<Item = [u8; 4]> + '_ {
 
 impl MeshSink for PlySink {
     fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
-        self.core.vertex(pos, attrs)?;
-        let res = pos
-            .iter()
-            .chain(attrs)
-            .try_for_each(|x| self.vertices.write_all(&x.to_le_bytes()));
-        res.map_err(|e| self.spill_error(e))
+        self.core.spill_vertex(&mut self.vertices, pos, attrs)
     }
 
     fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
-        self.core.triangle(v, last_use)?;
-        let Ok(idx) = v
-            .map(u32::try_from)
-            .into_iter()
-            .collect::<Result<Vec<u32>, _>>()
-        else {
-            return Err(SmeshError::Unsupported {
-                path: self.core.path.clone(),
-                message: format!("triangle {v:?} needs indices beyond the 32 bits of PLY's uint"),
-            });
-        };
+        let (idx, _) = self.core.triangle_u32(v, last_use, "PLY's uint")?;
         let mut rec = [3u8; 13];
         for (i, x) in idx.iter().enumerate() {
             rec[1 + 4 * i..5 + 4 * i].copy_from_slice(&x.to_le_bytes());
         }
         let res = self.faces.write_all(&rec);
-        res.map_err(|e| self.spill_error(e))
+        res.map_err(|e| self.core.scratch_error(e))
     }
 
     fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {

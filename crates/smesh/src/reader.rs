@@ -83,7 +83,7 @@ impl StreamReader {
                     .map_err(|e| SmeshError::io(path, "read", e))?;
                 let file = &mut file;
                 std::io::Seek::rewind(file).map_err(|e| SmeshError::io(path, "rewind", e))?;
-                if n == 4 && magic[0] == 0 && magic[1] <= 1 && magic[2..] == [0, 0] {
+                if crate::smb::is_magic(&magic[..n]) {
                     Format::Smb
                 } else {
                     Format::Sma

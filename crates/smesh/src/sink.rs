@@ -1,6 +1,7 @@
 //! What every mesh writer shares: the element calls of a streaming mesh (so the pipeline and
 //! `convert` can write any format the same way) and the checks behind them.
 
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
 use crate::track::Tracker;
@@ -109,6 +110,43 @@ impl SinkCore {
         self.tracker
             .triangle(v, last_use)
             .map_err(|f| self.fault(subject, f))
+    }
+
+    /// `triangle` for formats with u32 indices (PLY, GLB); returns the indices and corners.
+    pub(crate) fn triangle_u32(
+        &mut self,
+        v: [u64; 3],
+        last_use: [bool; 3],
+        format: &str,
+    ) -> Result<([u32; 3], [[f32; 3]; 3]), SmeshError> {
+        let corners = self.triangle(v, last_use)?;
+        match v.map(u32::try_from) {
+            [Ok(a), Ok(b), Ok(c)] => Ok(([a, b, c], corners)),
+            _ => Err(SmeshError::Unsupported {
+                path: self.path.clone(),
+                message: format!("triangle {v:?} needs indices beyond the 32 bits {format} has"),
+            }),
+        }
+    }
+
+    /// `vertex` plus its little-endian f32 record (x y z attributes) appended to a scratch file:
+    /// the vertex layout PLY and GLB share.
+    pub(crate) fn spill_vertex(
+        &mut self,
+        spill: &mut impl Write,
+        pos: [f32; 3],
+        attrs: &[f32],
+    ) -> Result<(), SmeshError> {
+        self.vertex(pos, attrs)?;
+        let res = pos
+            .iter()
+            .chain(attrs)
+            .try_for_each(|x| spill.write_all(&x.to_le_bytes()));
+        res.map_err(|e| self.scratch_error(e))
+    }
+
+    pub(crate) fn scratch_error(&self, e: io::Error) -> SmeshError {
+        SmeshError::io(&self.path, "write scratch data for", e)
     }
 
     pub(crate) fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {

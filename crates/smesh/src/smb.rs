@@ -113,6 +113,11 @@ impl SmbEncoder {
     }
 }
 
+/// Whether `bytes` start like an SMB file: version 0, endianness 0 or 1, two zero bytes.
+pub(crate) fn is_magic(bytes: &[u8]) -> bool {
+    bytes.len() >= 4 && bytes[0] == 0 && bytes[1] <= 1 && bytes[2..4] == [0, 0]
+}
+
 /// The header fields as parsed under one byte order.
 #[derive(Debug)]
 struct Parsed {
@@ -258,9 +263,7 @@ impl SmbDecoder {
             .take(1 << 20)
             .read_to_end(&mut prefix)
             .map_err(io_err)?;
-        let magic_ok =
-            prefix.len() >= 4 && prefix[0] == 0 && prefix[1] <= 1 && prefix[2..4] == [0, 0];
-        if !magic_ok {
+        if !is_magic(&prefix) {
             return Err(SmeshError::BadMagic {
                 path: path.to_path_buf(),
                 found: prefix.iter().take(4).copied().collect(),

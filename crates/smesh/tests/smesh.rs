@@ -382,9 +382,11 @@ fn writer_rejects_invalid_calls() {
 #[test]
 fn unfinished_writer_leaves_nothing_behind() {
     let dir = tempfile::tempdir().unwrap();
-    for name in ["a.sma", "a.smb"] {
+    for name in ["a.sma", "a.smb", "a.ply", "a.obj", "a.stl", "a.glb"] {
         let p = dir.path().join(name);
-        let mut w = StreamWriter::create(&p, &Header::default()).unwrap();
+        let mut w =
+            isostream_smesh::create_sink(&p, &Header::default(), &ConvertOptions::default())
+                .unwrap();
         w.vertex([0.0; 3], &[]).unwrap();
         assert!(!p.exists());
         drop(w);
