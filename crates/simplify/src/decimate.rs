@@ -105,7 +105,7 @@ impl Simplifier {
     /// edges would otherwise stay in the heap for good (the costly ones are never popped), and the
     /// heap would grow with the surface instead of the band.
     pub(crate) fn compact_candidates(&mut self) {
-        if self.candidates.len() > 4 * self.store.resident() + 4096 {
+        if self.candidates.len() > 2 * self.store.resident() + 1024 {
             let store = &self.store;
             self.candidates.retain(|c| is_current(store, c));
         }

@@ -244,8 +244,8 @@ fn memory_is_bounded_by_the_band_not_the_length() {
         long.1 <= short.1 + 48,
         "vertices: short {short:?}, long {long:?}"
     );
-    // The heap is compacted at 4 entries per resident face plus 4096.
-    assert!(long.2 <= 4 * long.0 + 4096, "candidates: {long:?}");
+    // The heap is compacted at 2 entries per resident face plus 1024.
+    assert!(long.2 <= 2 * long.0 + 1024, "candidates: {long:?}");
 }
 
 #[test]
