@@ -20,10 +20,7 @@ pub(crate) struct AtomicFile {
 
 impl AtomicFile {
     pub(crate) fn create(path: &Path) -> Result<AtomicFile, SmeshError> {
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
+        let dir = dir_of(path);
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -115,17 +112,28 @@ impl AtomicFile {
             .len();
         tmp.persist(&path)
             .map_err(|e| SmeshError::io(&path, "rename the temporary file to", e.error))?;
+        // Make the rename itself durable. Best effort: not every platform can open a directory.
+        #[cfg(unix)]
+        if let Ok(dir) = File::open(dir_of(&path)) {
+            dir.sync_all()
+                .map_err(|e| SmeshError::io(&path, "fsync the directory of", e))?;
+        }
         Ok(bytes)
+    }
+}
+
+/// The directory `path` is in ("." for a bare file name).
+fn dir_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
     }
 }
 
 /// An anonymous scratch file next to `path` (same disk as the output), deleted when dropped:
 /// where converters park data that must come later in the output than it arrives.
 pub(crate) fn spill_file(path: &Path) -> Result<BufWriter<File>, SmeshError> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
+    let dir = dir_of(path);
     tempfile::tempfile_in(dir)
         .map(|f| BufWriter::with_capacity(1 << 16, f))
         .map_err(|e| {

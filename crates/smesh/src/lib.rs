@@ -10,6 +10,8 @@
 //! - `MeshSink`: one writing interface for every output format (SMA, SMB, PLY, OBJ, STL, GLB), each written
 //!   to a temporary file and renamed when complete;
 //! - `convert` and `read_indexed` for moving between formats and loading small meshes.
+//!
+//! FORMATS.md (next to this crate's Cargo.toml) records the layouts we write and our SMA superset.
 #![deny(unsafe_code)]
 
 mod atomic;
