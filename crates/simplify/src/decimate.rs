@@ -210,3 +210,23 @@ fn interpolate_attrs(keep: &mut [f32], gone: &[f32], p_gone: DVec3, p_keep: DVec
         *k = (f64::from(*g) + t * (f64::from(*k) - f64::from(*g))) as f32;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn attributes_interpolate_at_the_projection_onto_the_edge() {
+        let mut keep = [10.0_f32, 0.0];
+        let gone = [0.0_f32, 4.0];
+        let (pg, pk) = (DVec3::ZERO, DVec3::new(2.0, 0.0, 0.0));
+        interpolate_attrs(&mut keep, &gone, pg, pk, DVec3::new(0.5, 3.0, 0.0));
+        assert_eq!(keep, [2.5, 3.0]);
+        let mut beyond = [10.0_f32];
+        interpolate_attrs(&mut beyond, &[0.0], pg, pk, DVec3::new(9.0, 0.0, 0.0));
+        assert_eq!(beyond, [10.0], "clamped to the edge");
+        let mut same = [1.0_f32];
+        interpolate_attrs(&mut same, &[3.0], pg, pg, pg);
+        assert_eq!(same, [2.0], "coincident endpoints: the mean");
+    }
+}

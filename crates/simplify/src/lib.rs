@@ -125,7 +125,7 @@ pub struct OutBatch {
 pub enum OutElement {
     /// Next output vertex; output vertices are numbered 0,1,2,... in emission order.
     Vertex { pos: DVec3 },
-    /// Triangle by output vertex numbers, CCW; last_use[i]: this is the last triangle using v[i]
+    /// Triangle by output vertex numbers, CCW; `last_use[i]`: this is the last triangle using `v[i]`
     /// (the writer finalizes it).
     Triangle { v: [u64; 3], last_use: [bool; 3] },
 }
@@ -325,5 +325,96 @@ impl Simplifier {
 
     fn note_resident(&mut self) {
         self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(self.store.resident());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(policy: Policy) -> SimplifyConfig {
+        SimplifyConfig {
+            policy,
+            retire_lag: 1,
+            max_resident_faces: 100,
+            attributes: 2,
+        }
+    }
+
+    #[test]
+    fn configuration_is_validated() {
+        assert!(Simplifier::new(config(Policy::None)).is_ok());
+        let bad = Policy::Rate {
+            rate: 0.0,
+            batch: 1,
+            initial_rate: 1.0,
+        };
+        assert!(matches!(
+            Simplifier::new(config(bad)),
+            Err(SimplifyError::InvalidPolicy(_))
+        ));
+        let zero = SimplifyConfig {
+            max_resident_faces: 0,
+            ..config(Policy::None)
+        };
+        assert!(matches!(
+            Simplifier::new(zero),
+            Err(SimplifyError::ZeroFaceBudget)
+        ));
+    }
+
+    /// One triangle, pass-through: vertices right before it, all finalized by it, attributes
+    /// padded to `attributes` per vertex.
+    #[test]
+    fn a_lone_triangle_streams_out_in_pre_order() {
+        let mut s = Simplifier::new(config(Policy::None)).unwrap();
+        s.add_vertex(7, DVec3::ZERO, 0, &[1.0]);
+        s.add_vertex(8, DVec3::X, 0, &[2.0, 3.0, 4.0]);
+        s.add_vertex(9, DVec3::Y, 1, &[]);
+        s.add_triangle([7, 8, 9]);
+        let mut out = OutBatch::default();
+        s.end_batch(1, &mut out);
+        assert!(
+            out.elements.is_empty(),
+            "nothing modifiable, nothing retired"
+        );
+        assert_eq!(s.stats().faces_unmodifiable, 1);
+        for id in [7, 8, 9] {
+            s.set_modifiable(id);
+        }
+        assert_eq!(s.stats().faces_unmodifiable, 0);
+        s.end_batch(3, &mut out);
+        let vertex = |pos| OutElement::Vertex { pos };
+        assert_eq!(
+            out.elements,
+            vec![
+                vertex(DVec3::ZERO),
+                vertex(DVec3::X),
+                vertex(DVec3::Y),
+                OutElement::Triangle {
+                    v: [0, 1, 2],
+                    last_use: [true; 3]
+                },
+            ]
+        );
+        assert_eq!(out.attrs, vec![1.0, 0.0, 2.0, 3.0, 0.0, 0.0]);
+        let st = s.stats();
+        assert_eq!(
+            (
+                st.faces_out,
+                st.vertices_out,
+                st.faces_resident,
+                st.vertices_resident
+            ),
+            (1, 3, 0, 0)
+        );
+    }
+
+    #[test]
+    #[should_panic(expected = "unknown or retired vertex")]
+    fn triangles_on_unknown_vertices_are_a_contract_violation() {
+        let mut s = Simplifier::new(config(Policy::None)).unwrap();
+        s.add_vertex(0, DVec3::ZERO, 0, &[]);
+        s.add_triangle([0, 1, 2]);
     }
 }

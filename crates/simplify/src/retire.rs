@@ -178,3 +178,43 @@ impl Simplifier {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use super::*;
+    use crate::store::Vertex;
+
+    fn store(ranks: &[u32]) -> Store {
+        let mut s = Store::default();
+        for (id, &r) in ranks.iter().enumerate() {
+            s.insert_vertex(id as u64, Vertex::new(DVec3::ZERO, r, &[]));
+        }
+        s
+    }
+
+    #[test]
+    fn buckets_pop_in_rank_order_below_the_limit() {
+        let mut s = store(&[3, 5, 3, 4]);
+        let mut b = RankBuckets::default();
+        for (id, r) in [(0, 3), (1, 5), (2, 3), (3, 4)] {
+            b.push(r, id, &mut s);
+        }
+        assert_eq!(b.pop_below(4), Some((3, vec![0, 2])));
+        assert_eq!(b.pop_below(4), None);
+        assert_eq!(b.pop_below(u32::MAX), Some((4, vec![3])));
+        b.restore(4, vec![3]);
+        assert_eq!(b.pop_below(5), Some((4, vec![3])));
+    }
+
+    #[test]
+    fn ranks_behind_the_oldest_bucket_are_clamped_and_recorded() {
+        let mut s = store(&[7, 2]);
+        let mut b = RankBuckets::default();
+        b.push(7, 0, &mut s);
+        b.push(2, 1, &mut s);
+        assert_eq!(s.vertex(1).map(|v| v.bucket), Some(7));
+        assert_eq!(b.pop_below(8), Some((7, vec![0, 1])));
+    }
+}
