@@ -20,6 +20,8 @@ mod procedural;
 mod raw;
 #[cfg(test)]
 mod real_data;
+#[cfg(test)]
+mod robustness;
 mod source;
 mod stream;
 #[cfg(test)]

@@ -237,4 +237,4 @@ impl VolumeSource for Scaled {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

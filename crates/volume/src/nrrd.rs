@@ -475,4 +475,4 @@ fn printf_d(pattern: &str, v: i64) -> Option<String> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -251,4 +251,4 @@ impl VolumeSource for TiffStack {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -442,4 +442,4 @@ fn vti_type(s: &str) -> Option<Dtype> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -238,4 +238,4 @@ fn vtk_type(s: &str) -> Option<Dtype> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

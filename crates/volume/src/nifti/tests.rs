@@ -232,3 +232,15 @@ fn bad_files_give_one_line_errors() {
         (outcome(&p), format!("{}: {want}", p.display()))
     }));
 }
+
+/// Valid small files for the robustness checks: `.nii` and `.nii.gz`.
+pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
+    let mut nii = Hdr::new(Dtype::U16, Endian::Little).bytes();
+    nii.extend(encode(
+        Dtype::U16,
+        Endian::Little,
+        &sample_values(Dtype::U16, 24),
+    ));
+    let gz = gzip(&nii);
+    vec![("sample.nii", nii), ("sample.nii.gz", gz)]
+}

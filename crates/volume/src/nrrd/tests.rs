@@ -237,3 +237,21 @@ fn bad_files_give_one_line_errors() {
             .map(|(file, want)| (error_of(&file), want.to_string())),
     );
 }
+
+/// Valid small files for the robustness checks: attached raw and gzip.
+pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
+    let values = sample_values(Dtype::I16, 24);
+    let data = encode(Dtype::I16, Endian::Big, &values);
+    ["raw", "gzip"]
+        .into_iter()
+        .map(|enc| {
+            let mut f = header(Dtype::I16, Endian::Big, enc, "spacings: 1 1 1\n\n").into_bytes();
+            f.extend(if enc == "raw" {
+                data.clone()
+            } else {
+                gzip(&data)
+            });
+            ("sample.nrrd", f)
+        })
+        .collect()
+}

@@ -145,3 +145,13 @@ fn bad_stacks_give_one_line_errors() {
             .contains("apply only to .raw files")
     );
 }
+
+/// A valid small multi-page file for the robustness checks.
+pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    let mut e = TiffEncoder::new(&mut bytes).unwrap();
+    for z in 0..4u8 {
+        e.write_image::<colortype::Gray8>(3, 2, &[z; 6]).unwrap();
+    }
+    vec![("sample.tif", bytes.into_inner())]
+}

@@ -314,3 +314,21 @@ fn bad_files_give_one_line_errors() {
         (outcome(&p), format!("{}: {want}", p.display()))
     }));
 }
+
+/// Valid small files for the robustness checks: one per array form, zlib where it applies.
+pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
+    let values = sample_values(Dtype::I16, 24);
+    ["ascii", "binary", "appended-raw", "appended-base64"]
+        .into_iter()
+        .flat_map(|format| [false, true].map(|zlib| (format, zlib)))
+        .map(|(format, zlib)| {
+            let c = Case {
+                format,
+                zlib,
+                u64_header: zlib,
+                endian: Endian::Little,
+            };
+            ("sample.vti", vti(Dtype::I16, "Int16", &values, c))
+        })
+        .collect()
+}

@@ -166,3 +166,14 @@ fn bad_files_give_one_line_errors() {
         (outcome(&p), format!("{}: {want}", p.display()))
     }));
 }
+
+/// Valid small files for the robustness checks: binary and ASCII.
+pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
+    let values = sample_values(Dtype::F32, 24);
+    let mut binary =
+        format!("{}SCALARS s float\nLOOKUP_TABLE default\n", head("BINARY")).into_bytes();
+    binary.extend(encode(Dtype::F32, Endian::Big, &values));
+    let text: Vec<String> = values.iter().map(|v| v.to_string()).collect();
+    let ascii = format!("{}SCALARS s float\n{}\n", head("ASCII"), text.join(" "));
+    vec![("sample.vtk", binary), ("sample.vtk", ascii.into_bytes())]
+}
