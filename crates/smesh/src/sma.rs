@@ -4,7 +4,8 @@
 //!
 //! Our superset: a `# vertex_attributes name...` header line names extra values that follow
 //! x y z on every `v` line. Reference readers take only three floats from a `v` line and skip
-//! comments, so such files stay readable by them.
+//! comments, so such files stay readable by them; likewise our reader ignores extra values on
+//! `v` lines of files that declare no attributes.
 //!
 //! The writer learns the counts and bounding box only at the end, so it reserves the four header
 //! lines at the top with fixed width (space padded) and overwrites them in place on finish: no
@@ -211,7 +212,13 @@ impl SmaDecoder {
                     .map(str::parse::<f32>)
                     .collect::<Result<Vec<f32>, _>>();
                 match values {
-                    Ok(mut values) if values.len() == 3 + self.attributes => {
+                    // Without declared attributes, extra values are ignored as reference readers
+                    // do; with them, the count must match.
+                    Ok(mut values)
+                        if values.len() == 3 + self.attributes
+                            || (self.attributes == 0 && values.len() > 3) =>
+                    {
+                        values.truncate(3 + self.attributes);
                         let attrs = values.split_off(3);
                         self.vertices += 1;
                         Ok(Element::Vertex {

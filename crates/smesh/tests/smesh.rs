@@ -676,6 +676,24 @@ proptest! {
 }
 
 #[test]
+fn sma_attributes_are_declared_or_ignored() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("a.sma");
+    std::fs::write(&p, "v 0 0 0 7\nv 1 0 0 8\nv 0 1 0 9\nf -3 -2 -1\n").unwrap();
+    let m = read_indexed(&p).unwrap();
+    assert!(m.attribute_names.is_empty() && m.attrs.is_empty());
+    std::fs::write(&p, "# vertex_attributes t u\nv 0 0 0 7\n").unwrap();
+    let e = validate(&p).unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: line 2: expected `v x y z` with 2 attribute values, found v 0 0 0 7",
+            p.display()
+        )
+    );
+}
+
+#[test]
 fn explicit_finalization_cannot_become_smb() {
     let dir = tempfile::tempdir().unwrap();
     let src = dir.path().join("x.sma");
