@@ -39,12 +39,6 @@ pub(crate) struct Eval {
 }
 
 impl Objective {
-    /// Whether the cost depends on more than the two endpoints. Such heap entries can go stale
-    /// without either endpoint changing, so they are re-evaluated when popped.
-    pub(crate) fn reads_neighbourhood(&self) -> bool {
-        matches!(*self, Objective::Shape { alpha, .. } if alpha > 0.0)
-    }
-
     /// `None` when the edge is no candidate: no admissible site, or above the error threshold.
     pub(crate) fn evaluate(
         &self,

@@ -38,22 +38,19 @@ impl Simplifier {
             if !is_current(&self.store, &c) {
                 continue;
             }
-            let eval = if objective.reads_neighbourhood() {
-                match objective.evaluate(&self.store, c.a, c.b, self.rank_spacing) {
-                    None => {
-                        self.stats.rejected_other += 1;
-                        continue;
-                    }
-                    Some(eval) if eval.cost > c.eval.cost => {
-                        self.candidates
-                            .push(Candidate { eval, ..c }, self.lag_front());
-                        continue;
-                    }
-                    Some(eval) => eval,
-                }
-            } else {
-                c.eval
+            // Re-evaluated: the placement is not stored in the heap, and objectives reading the
+            // neighbourhood (isotropy) may have changed without a stamp change.
+            let Some(eval) = objective.evaluate(&self.store, c.a, c.b, self.rank_spacing) else {
+                self.stats.rejected_other += 1;
+                continue;
             };
+            if eval.cost > c.cost {
+                self.candidates.push(Candidate {
+                    cost: eval.cost,
+                    ..c
+                });
+                continue;
+            }
             if !topology::link_ok(&self.store, c.a, c.b) {
                 self.stats.rejected_link += 1;
             } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
@@ -93,10 +90,20 @@ impl Simplifier {
             if !self.span_ok(a, b) {
                 continue;
             }
-            if let Some(eval) = objective.evaluate(&self.store, a, b, self.rank_spacing) {
-                let stamps = [a, b].map(|x| self.store.vertex(x).map_or(0, |x| x.stamp));
-                self.candidates
-                    .push(Candidate { a, b, stamps, eval }, self.lag_front());
+            let Some(eval) = objective.evaluate(&self.store, a, b, self.rank_spacing) else {
+                continue;
+            };
+            let stamps = [a, b].map(|x| self.store.vertex(x).map_or(0, |x| x.stamp));
+            let c = Candidate {
+                cost: eval.cost,
+                a,
+                b,
+                stamps,
+            };
+            if self.time_lag && eval.reach > self.front {
+                self.candidates.delay(c, eval.reach);
+            } else {
+                self.candidates.push(c);
             }
         }
     }
@@ -122,11 +129,6 @@ impl Simplifier {
             (Some(va), Some(vb)) => va.merged_span(vb) <= max_span,
             _ => false,
         }
-    }
-
-    /// The front edges are held back behind, when the time-lag is on.
-    fn lag_front(&self) -> Option<f64> {
-        self.time_lag.then_some(self.front)
     }
 
     /// `ab -> c` at `pos`. The younger id `b` survives as `c` (its slot is nearer the front, so the

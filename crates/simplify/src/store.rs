@@ -9,11 +9,16 @@
 use std::collections::VecDeque;
 
 use glam::DVec3;
+use smallvec::SmallVec;
 
 use crate::quadric::Quadric;
 
 /// Index of a triangle slot in the slab.
 pub(crate) type TriId = u32;
+
+/// The triangles around a vertex: about six on a marching-cubes surface, a few more after
+/// contractions; stored inline to save an allocation per vertex.
+pub(crate) type TriList = SmallVec<[TriId; 8]>;
 
 #[derive(Debug, Clone)]
 pub(crate) struct Vertex {
@@ -46,7 +51,7 @@ pub(crate) struct Vertex {
     pub(crate) stamp: u32,
     /// Output number once emitted.
     pub(crate) out: Option<u64>,
-    pub(crate) tris: Vec<TriId>,
+    pub(crate) tris: TriList,
     pub(crate) attrs: Box<[f32]>,
 }
 
@@ -66,7 +71,7 @@ impl Vertex {
             boundary: false,
             stamp: 0,
             out: None,
-            tris: Vec::new(),
+            tris: TriList::new(),
             attrs: attrs.into(),
         }
     }
@@ -244,7 +249,7 @@ mod tests {
             v: [10, 11, 13],
             unmodifiable: 3,
         });
-        assert_eq!(s.vertex(13).unwrap().tris, vec![t]);
+        assert_eq!(s.vertex(13).unwrap().tris.as_slice(), &[t]);
         s.remove_triangle(t);
         assert_eq!(s.resident(), 0);
         assert!(s.vertex(11).unwrap().tris.is_empty());

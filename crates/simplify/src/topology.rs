@@ -10,6 +10,7 @@
 //! fans are complete even when some neighbours are not (yet).
 
 use glam::DVec3;
+use smallvec::SmallVec;
 
 use crate::store::{Store, Tri, TriId};
 
@@ -21,17 +22,20 @@ const DEGENERATE_FRACTION: f64 = 1e-6;
 /// A boundary vertex lies on a straight boundary when the sine of its turning angle is below this.
 const STRAIGHT_SINE: f64 = 1e-6;
 
+/// Neighbours with edge multiplicities, inline for the usual small degrees.
+pub(crate) type Ring = SmallVec<[(u64, u8); 16]>;
+
 /// Neighbours of `v` with the number of `v`'s triangles on edge `v-x` (1: boundary edge),
 /// sorted by id.
-pub(crate) fn ring(store: &Store, v: u64) -> Vec<(u64, u8)> {
-    let mut all: Vec<u64> = Vec::with_capacity(16);
+pub(crate) fn ring(store: &Store, v: u64) -> Ring {
+    let mut all: SmallVec<[u64; 32]> = SmallVec::new();
     if let Some(vx) = store.vertex(v) {
         for &t in &vx.tris {
             all.extend(store.tri(t).v.iter().copied().filter(|&x| x != v));
         }
     }
     all.sort_unstable();
-    let mut ring: Vec<(u64, u8)> = Vec::with_capacity(all.len() / 2 + 1);
+    let mut ring = Ring::new();
     for x in all {
         match ring.last_mut() {
             Some((y, n)) if *y == x => *n = n.saturating_add(1),
@@ -186,14 +190,14 @@ pub(crate) enum Sites {
 
 /// `T_ab`: the triangles containing `a` or `b` (each once), whose union is the patch replaced by
 /// the contraction.
-pub(crate) fn patch(store: &Store, a: u64, b: u64) -> Vec<TriId> {
+pub(crate) fn patch(store: &Store, a: u64, b: u64) -> SmallVec<[TriId; 32]> {
     let fan = |v: u64| {
         store
             .vertex(v)
             .into_iter()
             .flat_map(|x| x.tris.iter().copied())
     };
-    let mut tris: Vec<TriId> = fan(a).chain(fan(b)).collect();
+    let mut tris: SmallVec<[TriId; 32]> = fan(a).chain(fan(b)).collect();
     tris.sort_unstable();
     tris.dedup();
     tris
