@@ -10,7 +10,7 @@ use crate::codec::AsciiValues;
 use crate::grid::dims_text;
 use crate::raw::{Payload, RawVolume, payload_bytes};
 use crate::stream::{Opener, Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
-use crate::{Dtype, Endian, OpenOptions, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
 use flate2::read::MultiGzDecoder;
 use std::io::{self, BufRead, Read};
 use std::path::{Path, PathBuf};
@@ -74,20 +74,19 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     } else {
         h.files.clone()
     };
+    let mut lens = Vec::with_capacity(files.len());
     for f in &files {
-        std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read the size of", e))?;
+        let meta = std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read the size of", e))?;
+        lens.push(meta.len());
     }
     let start = if attached { h.len } else { 0 };
     if h.encoding == Encoding::Raw && files.len() == 1 && h.line_skip == 0 {
-        let len = std::fs::metadata(&files[0])
-            .map_err(|e| VolumeError::io(&files[0], "read the size of", e))?
-            .len();
         let offset = if h.byte_skip < 0 {
-            len.saturating_sub(payload).max(start)
+            lens[0].saturating_sub(payload).max(start)
         } else {
             start.saturating_add(h.byte_skip as u64)
         };
-        let raw = RawVolume::open_payload(Payload {
+        return Ok(Box::new(RawVolume::open_payload(Payload {
             path: &files[0],
             grid,
             dtype: h.dtype,
@@ -95,10 +94,9 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             offset,
             trailing_ok: true,
             hint: "check the NRRD header's sizes, type, byte skip and data file",
-        })?;
-        return Ok(Box::new(raw));
+        })?));
     }
-    // The fast path above handled the one case where teem allows -1.
+    // The memory-mapped path above handled the one case where teem allows -1.
     if h.byte_skip < 0 {
         return Err(VolumeError::format(
             path,
@@ -108,9 +106,37 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         ));
     }
     if h.encoding == Encoding::Raw {
-        check_total(path, &files, start, &h, payload)?;
+        let skip = start.saturating_add(h.byte_skip as u64);
+        let total = lens
+            .iter()
+            .fold(0u64, |t, len| t.saturating_add(len.saturating_sub(skip)));
+        if total < payload {
+            return Err(VolumeError::format(
+                path,
+                "data file line",
+                format!(
+                    "{payload} payload bytes in {} file(s) for dims {} of {}",
+                    files.len(),
+                    dims_text(h.dims),
+                    h.dtype
+                ),
+                format!("{total} bytes"),
+            ));
+        }
     }
-    let (encoding, line_skip, byte_skip) = (h.encoding, h.line_skip, h.byte_skip as u64);
+    Ok(Box::new(streamed(path, &h, grid, endian, files, start)?))
+}
+
+/// A source reading the data files one after the other through the header's encoding.
+fn streamed(
+    path: &Path,
+    h: &Header,
+    grid: Grid,
+    endian: Endian,
+    files: Vec<PathBuf>,
+    start: u64,
+) -> Result<StreamVolume, VolumeError> {
+    let (encoding, line_skip, byte_skip) = (h.encoding, h.line_skip, h.byte_skip.max(0) as u64);
     let open_one = move |f: &Path| -> Result<Stream, VolumeError> {
         let mut r = open_at(f, start)?;
         for _ in 0..line_skip {
@@ -134,11 +160,6 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         })?;
         Ok(s)
     };
-    let what = match encoding {
-        Encoding::Raw => "raw NRRD payload",
-        Encoding::Gzip => "gzip NRRD payload",
-        Encoding::Ascii => "ascii NRRD payload",
-    };
     let open: Opener = Box::new(move || {
         Ok(Box::new(FileChain {
             files: files.clone(),
@@ -147,55 +168,21 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             open_one,
         }) as Stream)
     });
-    let decode_as = if encoding == Encoding::Ascii {
-        Dtype::F64
-    } else {
-        h.dtype
+    // AsciiValues re-emits text numbers as little-endian f64.
+    let (what, dtype, endian) = match encoding {
+        Encoding::Raw => ("raw NRRD payload", h.dtype, endian),
+        Encoding::Gzip => ("gzip NRRD payload", h.dtype, endian),
+        Encoding::Ascii => ("ascii NRRD payload", Dtype::F64, Endian::Little),
     };
-    Ok(Box::new(StreamVolume::new(StreamSpec {
+    StreamVolume::new(StreamSpec {
         path: path.to_path_buf(),
         what,
         grid,
-        dtype: decode_as,
+        dtype,
         stored: h.dtype,
-        endian: if encoding == Encoding::Ascii {
-            Endian::Little
-        } else {
-            endian
-        },
+        endian,
         open,
-    })?))
-}
-
-/// A raw payload split over files must add up to exactly the volume.
-fn check_total(
-    path: &Path,
-    files: &[PathBuf],
-    start: u64,
-    h: &Header,
-    payload: u64,
-) -> Result<(), VolumeError> {
-    let mut total: u64 = 0;
-    for f in files {
-        let len = std::fs::metadata(f)
-            .map_err(|e| VolumeError::io(f, "read the size of", e))?
-            .len();
-        total = total.saturating_add(len.saturating_sub(start.saturating_add(h.byte_skip as u64)));
-    }
-    if total < payload {
-        return Err(VolumeError::format(
-            path,
-            "data file line",
-            format!(
-                "{payload} payload bytes in {} file(s) for dims {} of {}",
-                files.len(),
-                dims_text(h.dims),
-                h.dtype
-            ),
-            format!("{total} bytes"),
-        ));
-    }
-    Ok(())
+    })
 }
 
 /// Reads the data files one after the other, opening each only when the previous one is done
@@ -226,8 +213,9 @@ impl<F: Fn(&Path) -> Result<Stream, VolumeError>> Read for FileChain<F> {
     }
 }
 
-/// Parses the header text of `path`.
-fn parse(path: &Path) -> Result<Header, VolumeError> {
+/// The header's lines up to the blank line that starts attached data (or the end of a detached
+/// header), and the byte length of that text.
+fn header_lines(path: &Path) -> Result<(Vec<String>, u64), VolumeError> {
     let f = std::fs::File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
     let mut r = io::BufReader::new(f).take(MAX_HEADER);
     let err = |n: usize, expected: &str, found: &str| {
@@ -268,6 +256,15 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
             "an empty file",
         ));
     }
+    Ok((lines, len))
+}
+
+/// Parses the header text of `path`.
+fn parse(path: &Path) -> Result<Header, VolumeError> {
+    let (lines, len) = header_lines(path)?;
+    let err = |n: usize, expected: &str, found: &str| {
+        VolumeError::format(path, format!("header line {n}"), expected, found)
+    };
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut dims = None;
     let mut dtype = None;
