@@ -70,7 +70,7 @@ pub enum StreamFault {
     #[error("has {found} attribute values but the header names {expected} attributes")]
     AttributeCount { expected: usize, found: usize },
     #[error(
-        "would be vertex number {count} but SMA/SMB indices are 32-bit signed (at most 2147483647 vertices per file)"
+        "would be vertex number {count} but SMB indices are 32-bit signed (at most 2147483647 vertices per file; SMA has no such limit)"
     )]
     TooManyVertices { count: u64 },
     #[error(

@@ -1,6 +1,6 @@
 //! The triangle index encoding shared by SMA and SMB: a positive n is the 1-based absolute index
 //! of a vertex that stays active; a negative n counts back from the latest vertex (-1) and marks
-//! the vertex's last use. Both formats store 32-bit signed indices.
+//! the vertex's last use. SMB stores 32-bit signed indices; SMA text can hold any i64.
 
 use crate::StreamFault;
 
@@ -24,7 +24,7 @@ pub(crate) fn decode(n: i64, available: u64) -> Option<Result<(u64, bool), Strea
     }
 }
 
-/// The largest vertex count whose indices all fit an i32 (absolute 1-based and relative).
+/// The largest SMB vertex count whose indices all fit an i32 (absolute 1-based and relative).
 pub(crate) const MAX_VERTICES: u64 = i32::MAX as u64;
 
 #[cfg(test)]

@@ -47,12 +47,14 @@ impl StreamWriter {
         Ok(StreamWriter { core, out, encoder })
     }
 
-    /// Appends a vertex; vertices are numbered 0, 1, 2, ... in call order. `attrs.len()` must equal
+    /// Appends a vertex; vertices are numbered 0, 1, 2, ... in call order. SMB holds at most
+    /// 2^31 - 1 vertices (i32 indices); SMA is text and writes larger indices as they are
+    /// (readable by us, not by 32-bit reference readers). `attrs.len()` must equal
     /// `header.attribute_names.len()`. SMA writes them after x y z on the `v` line; SMB cannot
     /// store them and ignores them (the names are lost too: write SMA to keep attributes).
     pub fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
         let count = self.core.tracker.vertices();
-        if count >= index::MAX_VERTICES {
+        if count >= index::MAX_VERTICES && matches!(self.encoder, Encoder::Smb(_)) {
             return Err(self.core.fault(
                 Subject::Vertex(count, Place::Written),
                 StreamFault::TooManyVertices { count },
