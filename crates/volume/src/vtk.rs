@@ -59,146 +59,146 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     })?))
 }
 
-/// Parses the header and returns a reader positioned at the first value of the wanted array.
-fn locate(path: &Path, want: Option<&str>) -> Result<(Header, BufReader<File>), VolumeError> {
-    let f = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
-    let mut r = BufReader::new(f);
-    let mut n = 0usize;
-    let err = |n: usize, expected: &str, found: &str| {
-        VolumeError::format(path, format!("line {n}"), expected, found)
-    };
-    // Reads the next non-blank line; None at end of file.
-    let next = |r: &mut BufReader<File>, n: &mut usize| -> Result<Option<String>, VolumeError> {
+/// The header's lines, numbered for messages.
+struct Lines<'a> {
+    path: &'a Path,
+    r: BufReader<File>,
+    n: usize,
+}
+
+impl Lines<'_> {
+    fn err(&self, expected: &str, found: &str) -> VolumeError {
+        VolumeError::format(self.path, format!("line {}", self.n), expected, found)
+    }
+
+    fn io(&self, e: std::io::Error) -> VolumeError {
+        VolumeError::io(self.path, "read", e)
+    }
+
+    /// The next line, trimmed; blank lines are skipped after the title. None at end of file.
+    fn next(&mut self) -> Result<Option<String>, VolumeError> {
         loop {
             let mut raw = Vec::new();
-            let got = r
-                .by_ref()
+            let got = (&mut self.r)
                 .take(MAX_LINE)
                 .read_until(b'\n', &mut raw)
-                .map_err(|e| VolumeError::io(path, "read", e))?;
+                .map_err(|e| self.io(e))?;
             if got == 0 {
                 return Ok(None);
             }
-            *n += 1;
+            self.n += 1;
             let line = String::from_utf8_lossy(&raw).trim().to_string();
-            if !line.is_empty() || *n <= 2 {
+            if !line.is_empty() || self.n <= 2 {
                 return Ok(Some(line));
             }
         }
-    };
-    let magic = next(&mut r, &mut n)?.unwrap_or_default();
-    if !magic.starts_with("# vtk DataFile") {
-        return Err(err(1, "\"# vtk DataFile Version x.x\"", &magic));
     }
-    next(&mut r, &mut n)?; // title
-    let binary = match next(&mut r, &mut n)?
-        .unwrap_or_default()
-        .to_ascii_uppercase()
-        .as_str()
-    {
+
+    /// Consumes a `LOOKUP_TABLE` line if one follows (the format makes it optional).
+    fn skip_lookup_table(&mut self) -> Result<(), VolumeError> {
+        let before = self.r.stream_position().map_err(|e| self.io(e))?;
+        let mut peek = Vec::new();
+        (&mut self.r)
+            .take(MAX_LINE)
+            .read_until(b'\n', &mut peek)
+            .map_err(|e| self.io(e))?;
+        let text = String::from_utf8_lossy(&peek)
+            .trim_start()
+            .to_ascii_uppercase();
+        if text.starts_with("LOOKUP_TABLE") {
+            self.n += 1;
+            return Ok(());
+        }
+        self.r
+            .seek(std::io::SeekFrom::Start(before))
+            .map(|_| ())
+            .map_err(|e| self.io(e))
+    }
+}
+
+/// Parses the header and returns a reader positioned at the first value of the wanted array.
+fn locate(path: &Path, want: Option<&str>) -> Result<(Header, BufReader<File>), VolumeError> {
+    let f = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
+    let mut l = Lines {
+        path,
+        r: BufReader::new(f),
+        n: 0,
+    };
+    let magic = l.next()?.unwrap_or_default();
+    if !magic.starts_with("# vtk DataFile") {
+        return Err(l.err("\"# vtk DataFile Version x.x\"", &magic));
+    }
+    l.next()?; // title
+    let binary = match l.next()?.unwrap_or_default().to_ascii_uppercase().as_str() {
         "BINARY" => true,
         "ASCII" => false,
-        other => return Err(err(n, "ASCII or BINARY", other)),
+        other => return Err(l.err("ASCII or BINARY", other)),
     };
     let (mut dims, mut spacing, mut origin, mut count) = (None, [1.0; 3], [0.0; 3], None);
     let mut seen = Vec::new();
-    loop {
-        let Some(line) = next(&mut r, &mut n)? else {
-            let expected = match want {
-                Some(w) => format!("a SCALARS array named {w:?} (arrays: {})", seen.join(", ")),
-                None => "a SCALARS array".to_string(),
-            };
-            return Err(VolumeError::format(path, "end of file", expected, "none"));
-        };
+    while let Some(line) = l.next()? {
         let words: Vec<&str> = line.split_whitespace().collect();
-        let key = words[0].to_ascii_uppercase();
-        let args = &words[1..];
+        let (key, args) = (words[0].to_ascii_uppercase(), &words[1..]);
         match key.as_str() {
-            "DATASET" => {
-                if args.first().map(|s| s.to_ascii_uppercase()) != Some("STRUCTURED_POINTS".into())
-                {
-                    return Err(err(n, "DATASET STRUCTURED_POINTS (a regular grid)", &line));
-                }
+            "DATASET"
+                if args.first().map(|s| s.to_ascii_uppercase()).as_deref()
+                    != Some("STRUCTURED_POINTS") =>
+            {
+                return Err(l.err("DATASET STRUCTURED_POINTS (a regular grid)", &line));
             }
+            "DATASET" => {}
             "DIMENSIONS" => {
-                dims = Some(three::<u64>(args).ok_or_else(|| err(n, "DIMENSIONS nx ny nz", &line))?)
+                dims = Some(three::<u64>(args).ok_or_else(|| l.err("DIMENSIONS nx ny nz", &line))?)
             }
             "SPACING" | "ASPECT_RATIO" => {
-                spacing = three::<f64>(args).ok_or_else(|| err(n, "SPACING sx sy sz", &line))?
+                spacing = three::<f64>(args).ok_or_else(|| l.err("SPACING sx sy sz", &line))?
             }
-            "ORIGIN" => origin = three::<f64>(args).ok_or_else(|| err(n, "ORIGIN x y z", &line))?,
+            "ORIGIN" => origin = three::<f64>(args).ok_or_else(|| l.err("ORIGIN x y z", &line))?,
             "POINT_DATA" => {
-                count = Some(
-                    args.first()
-                        .and_then(|c| c.parse::<u64>().ok())
-                        .ok_or_else(|| err(n, "POINT_DATA count", &line))?,
-                )
+                let c = args.first().and_then(|c| c.parse::<u64>().ok());
+                count = Some(c.ok_or_else(|| l.err("POINT_DATA count", &line))?);
             }
             "SCALARS" => {
-                let d = dims.ok_or_else(|| err(n, "DIMENSIONS before the data", &line))?;
-                let c = count.ok_or_else(|| err(n, "POINT_DATA before SCALARS", &line))?;
+                let d = dims.ok_or_else(|| l.err("DIMENSIONS before the data", &line))?;
+                let c = count.ok_or_else(|| l.err("POINT_DATA before SCALARS", &line))?;
                 if Some(c) != d[0].checked_mul(d[1]).and_then(|s| s.checked_mul(d[2])) {
-                    return Err(err(
-                        n,
+                    return Err(l.err(
                         &format!("POINT_DATA equal to dims {}", dims_text(d)),
                         &c.to_string(),
                     ));
                 }
                 let [name, ty, rest @ ..] = args else {
-                    return Err(err(n, "SCALARS name type", &line));
+                    return Err(l.err("SCALARS name type", &line));
                 };
                 let dtype = vtk_type(ty).ok_or_else(|| {
-                    err(n, "a type among unsigned_char/char/unsigned_short/short/unsigned_int/int/float/double", ty)
+                    l.err("a type among unsigned_char/char/unsigned_short/short/unsigned_int/int/float/double", ty)
                 })?;
                 if rest.first().is_some_and(|c| *c != "1") {
-                    return Err(err(n, "one component per voxel", &line));
+                    return Err(l.err("one component per voxel", &line));
                 }
-                // An optional LOOKUP_TABLE line precedes the values.
-                let before = (
-                    r.stream_position()
-                        .map_err(|e| VolumeError::io(path, "read", e))?,
-                    n,
-                );
-                let mut peek = Vec::new();
-                r.by_ref()
-                    .take(MAX_LINE)
-                    .read_until(b'\n', &mut peek)
-                    .map_err(|e| VolumeError::io(path, "read", e))?;
-                if String::from_utf8_lossy(&peek)
-                    .trim_start()
-                    .to_ascii_uppercase()
-                    .starts_with("LOOKUP_TABLE")
-                {
-                    n += 1;
-                } else {
-                    r.seek(std::io::SeekFrom::Start(before.0))
-                        .map_err(|e| VolumeError::io(path, "seek in", e))?;
-                }
+                l.skip_lookup_table()?;
                 if want.is_none_or(|w| w == *name) {
-                    return Ok((
-                        Header {
-                            dims: d,
-                            spacing,
-                            origin,
-                            dtype,
-                            binary,
-                        },
-                        r,
-                    ));
+                    let header = Header {
+                        dims: d,
+                        spacing,
+                        origin,
+                        dtype,
+                        binary,
+                    };
+                    return Ok((header, l.r));
                 }
                 seen.push(name.to_string());
-                skip_values(&mut r, binary, c, dtype)
-                    .map_err(|e| err(n, &format!("{c} values of {name}"), &e.to_string()))?;
+                skip_values(&mut l.r, binary, c, dtype)
+                    .map_err(|e| l.err(&format!("{c} values of {name}"), &e.to_string()))?;
             }
-            _ => {
-                return Err(err(
-                    n,
-                    "DIMENSIONS, SPACING, ORIGIN, POINT_DATA or SCALARS",
-                    &line,
-                ));
-            }
+            _ => return Err(l.err("DIMENSIONS, SPACING, ORIGIN, POINT_DATA or SCALARS", &line)),
         }
     }
+    let expected = match want {
+        Some(w) => format!("a SCALARS array named {w:?} (arrays: {})", seen.join(", ")),
+        None => "a SCALARS array".to_string(),
+    };
+    Err(VolumeError::format(path, "end of file", expected, "none"))
 }
 
 /// Skips the values of an array that was not asked for.
