@@ -1,5 +1,6 @@
 //! Throughput on a synthetic surface: `cargo run --release -p isostream-simplify --example
-//! throughput [faces_millions] [policy]` where policy is `rate`, `error`, `tandem` or `none`.
+//! throughput [faces_millions] [policy] [retire_lag]` where policy is `rate`, `error`, `tandem`
+//! or `none`.
 //! Feeds a bumpy torus slab by slab (the same feeder as the tests) and prints faces/s.
 
 #[path = "../tests/common/mod.rs"]
@@ -32,6 +33,7 @@ fn main() {
             initial_rate: 0.5,
         },
     };
+    let lag: u32 = args.next().and_then(|a| a.parse().ok()).unwrap_or(4);
     // A torus standing along z (the sweep axis), with ripples so that quadrics are not flat;
     // about one grid unit per edge, like a marching-cubes surface.
     let minor = 128u32;
@@ -46,11 +48,11 @@ fn main() {
     });
     let faces = mesh.tris.len();
     let start = Instant::now();
-    let result = run(&mesh, config(policy.clone(), 4), &Sweep::default());
+    let result = run(&mesh, config(policy.clone(), lag), &Sweep::default());
     let secs = start.elapsed().as_secs_f64();
     let s = &result.stats;
     println!(
-        "{policy:?}: {faces} faces in, {} out, {:.2} s (including the test feeder and output \
+        "{policy:?}, lag {lag}: {faces} faces in, {} out, {:.2} s (including the test feeder and output \
          checks), {:.0} faces/s; peak resident {} faces, {} contractions, rejected link {} flip {}",
         s.faces_out,
         secs,

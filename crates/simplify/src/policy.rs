@@ -23,7 +23,9 @@ pub enum Policy {
     /// candidate's shape measure `eps0(c) = sqrt(c^T H_c c / W_c)` is at most `e0` (a length, in
     /// the units of the vertex positions). `time_lag` delays contractions whose patch reaches
     /// beyond the front; `isotropy` (alpha in [0, 1]) mixes in the anisotropy measure for
-    /// placement and priority, while still only contracting when `eps0 <= e0`.
+    /// placement and priority, while still only contracting when `eps0 <= e0`. With the
+    /// time-lag, `retire_lag` should exceed the patch radii reached (about 8 slabs at moderate
+    /// `e0`): edges still waiting when their vertices retire are never contracted.
     Error {
         e0: f64,
         time_lag: bool,
