@@ -79,6 +79,7 @@ pub enum StreamFault {
     SmbExplicitFinalize { vertex: u64 },
 }
 
+/// Every error of this crate; its message is one line starting with the file concerned.
 #[derive(Debug, thiserror::Error)]
 pub enum SmeshError {
     #[error("{}: cannot {what}: {source}", path.display())]

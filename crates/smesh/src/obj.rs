@@ -17,6 +17,8 @@ pub struct ObjSink {
 }
 
 impl ObjSink {
+    /// Starts writing `path` (via a temporary file beside it); fails naming `path` if its
+    /// directory is missing or not writable.
     pub fn create(path: &Path, header: &Header) -> Result<ObjSink, SmeshError> {
         let core = SinkCore::new(path, header)?;
         let mut out = AtomicFile::create(path)?;

@@ -39,6 +39,8 @@ pub struct PlySink {
 }
 
 impl PlySink {
+    /// Starts writing `path` (via a temporary file beside it); fails naming `path` if its
+    /// directory is missing or not writable.
     pub fn create(
         path: &Path,
         header: &Header,

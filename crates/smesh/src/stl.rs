@@ -23,6 +23,8 @@ pub struct StlSink {
 }
 
 impl StlSink {
+    /// Starts writing `path` (via a temporary file beside it); fails naming `path` if its
+    /// directory is missing or not writable.
     pub fn create(path: &Path, header: &Header) -> Result<StlSink, SmeshError> {
         let core = SinkCore::new(path, header)?;
         let mut out = AtomicFile::create(path)?;
