@@ -23,18 +23,11 @@ pub enum Command {
         quiet: bool,
     },
     /// Check a job file (keys, values, input file, output folder) without running it.
-    Validate {
-        job: PathBuf,
-    },
+    Validate { job: PathBuf },
     /// Convert a mesh between SMB, SMA, PLY and OBJ (streaming for SMB/SMA inputs).
-    Convert {
-        input: PathBuf,
-        output: PathBuf,
-    },
+    Convert { input: PathBuf, output: PathBuf },
     /// Check a streaming mesh file: indices, finalization, header counts, stream width.
-    Check {
-        mesh: PathBuf,
-    },
+    Check { mesh: PathBuf },
     /// Measure an output mesh: quality, topology, and distances to the full-resolution surface.
     Measure {
         /// The job file whose volume and iso value define the full-resolution surface.

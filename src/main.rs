@@ -45,7 +45,10 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 _ => 1,
             };
         }
-        if cause.downcast_ref::<isostream_pipeline::ConfigError>().is_some() {
+        if cause
+            .downcast_ref::<isostream_pipeline::ConfigError>()
+            .is_some()
+        {
             return 2;
         }
     }

@@ -18,12 +18,15 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use isostream_simplify::{Policy, SimplifyConfig as SimplifierConfig, Simplifier};
+use isostream_simplify::{Policy, Simplifier, SimplifyConfig as SimplifierConfig};
 use isostream_smesh::Header;
 use serde::Serialize;
 use tracing::info;
 
-pub use config::{ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat, Mode, OutputConfig, PipelineConfig, SimplifyConfig};
+pub use config::{
+    ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat, Mode, OutputConfig,
+    PipelineConfig, SimplifyConfig,
+};
 pub use error::{ConfigError, RunError};
 pub use rss::peak_rss_bytes;
 pub use sink::SinkStats;
@@ -80,6 +83,14 @@ pub fn run(
         ],
         attribute_names: Vec::new(),
     };
+    output::create_output_dir(&job.output.path).map_err(|e| {
+        RunError::Config(ConfigError::Invalid {
+            path: job_path.to_path_buf(),
+            key: "output.path".into(),
+            expected: "a folder that can be created".into(),
+            got: format!("{}: {e}", job.output.path.display()),
+        })
+    })?;
     let sink = sink::Sink::create(&job.output.path, &header)?;
     let outputs = stages::Stages {
         source,
@@ -110,7 +121,7 @@ pub fn run(
         seconds: started.elapsed().as_secs_f64(),
         stage_seconds: outputs.seconds,
         peak_rss_bytes: peak_rss_bytes(),
-        peak_resident_faces: outputs.simplify.peak_resident_faces,
+        peak_resident_faces: outputs.simplify.peak_resident_faces as u64,
         extract: outputs.extract,
         detect: outputs.detect,
         simplify: outputs.simplify,
@@ -151,7 +162,10 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
         path: path.to_path_buf(),
         reason,
     };
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
     let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| fail(e.to_string()))?;
     serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;
     tmp.persist(path).map_err(|e| fail(e.to_string()))?;

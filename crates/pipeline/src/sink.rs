@@ -36,7 +36,10 @@ impl Sink {
                 convert_to: None,
             }),
             _ => {
-                let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+                let dir = path
+                    .parent()
+                    .filter(|d| !d.as_os_str().is_empty())
+                    .unwrap_or(Path::new("."));
                 let tmp = tempfile::Builder::new()
                     .prefix(".isostream-")
                     .suffix(if attributes > 0 { ".sma" } else { ".smb" })

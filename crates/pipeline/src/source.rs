@@ -6,7 +6,10 @@ use crate::config::InputConfig;
 use crate::error::{ConfigError, RunError};
 
 /// Opens the volume a job names. Raw files need `dims` and `dtype`; procedural shapes `size`.
-pub fn open_source(input: &InputConfig, job: &std::path::Path) -> Result<Box<dyn VolumeSource>, RunError> {
+pub fn open_source(
+    input: &InputConfig,
+    job: &std::path::Path,
+) -> Result<Box<dyn VolumeSource>, RunError> {
     if let Some(shape) = input.shape {
         let size = input.size.unwrap_or([2; 3]);
         let p = Procedural::new(shape, size, input.spacing, input.origin)?;
@@ -22,7 +25,9 @@ pub fn open_source(input: &InputConfig, job: &std::path::Path) -> Result<Box<dyn
         })
     };
     let dims = input.dims.ok_or_else(|| missing("dims", "[nx, ny, nz]"))?;
-    let dtype = input.dtype.ok_or_else(|| missing("dtype", "one of u8 i8 u16 i16 u32 i32 f32 f64"))?;
+    let dtype = input
+        .dtype
+        .ok_or_else(|| missing("dtype", "one of u8 i8 u16 i16 u32 i32 f32 f64"))?;
     let spec = RawSpec {
         path,
         dims,

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender, bounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats, Extractor};
-use isostream_simplify::{OutBatch, OutElement, SimplifyStats, Simplifier};
+use isostream_simplify::{OutBatch, OutElement, Simplifier, SimplifyStats};
 use isostream_volume::{Grid, VolumeSource};
 use tracing::{debug, info, info_span};
 
@@ -125,21 +125,25 @@ impl Stages<'_> {
             let simplify = join(simplifier, "simplify");
             let write = join(writer, "write");
             match (read, extract, detect, simplify, write) {
-                (Ok(read), Ok((extract_s, extract)), Ok((detect_s, detect)), Ok((simplify_s, simplify)), Ok((write_s, sink))) => {
-                    Ok(StageOutputs {
-                        seconds: StageSeconds {
-                            read,
-                            extract: extract_s,
-                            detect: detect_s,
-                            simplify: simplify_s,
-                            write: write_s,
-                        },
-                        extract,
-                        detect,
-                        simplify,
-                        sink,
-                    })
-                }
+                (
+                    Ok(read),
+                    Ok((extract_s, extract)),
+                    Ok((detect_s, detect)),
+                    Ok((simplify_s, simplify)),
+                    Ok((write_s, sink)),
+                ) => Ok(StageOutputs {
+                    seconds: StageSeconds {
+                        read,
+                        extract: extract_s,
+                        detect: detect_s,
+                        simplify: simplify_s,
+                        write: write_s,
+                    },
+                    extract,
+                    detect,
+                    simplify,
+                    sink,
+                }),
                 (read, extract, detect, simplify, write) => Err(first_failure([
                     read.err(),
                     extract.err(),
@@ -166,7 +170,10 @@ fn first_failure(stops: [Option<Stop>; 5]) -> RunError {
         })
 }
 
-fn join<T>(h: std::thread::ScopedJoinHandle<'_, StageResult<T>>, stage: &'static str) -> StageResult<T> {
+fn join<T>(
+    h: std::thread::ScopedJoinHandle<'_, StageResult<T>>,
+    stage: &'static str,
+) -> StageResult<T> {
     h.join().unwrap_or_else(|panic| {
         let reason = panic
             .downcast_ref::<String>()
@@ -236,7 +243,11 @@ fn extract_stage(
     Err(Stop::Disconnected)
 }
 
-fn detect_stage(grid: Grid, rx: Receiver<CubeBatch>, tx: Sender<MeshDelta>) -> StageResult<(f64, DetectStats)> {
+fn detect_stage(
+    grid: Grid,
+    rx: Receiver<CubeBatch>,
+    tx: Sender<MeshDelta>,
+) -> StageResult<(f64, DetectStats)> {
     let _span = info_span!("detect").entered();
     let mut detector = Detector::new(grid.dims);
     let mut busy = Duration::ZERO;
@@ -296,7 +307,7 @@ fn simplify_stage(
                 slabs_total,
                 faces_in: st.faces_in,
                 faces_out: st.faces_out,
-                resident_faces: st.faces_resident,
+                resident_faces: st.faces_resident as u64,
                 queued: [depth.cubes.len(), depth.deltas.len(), depth.out.len()],
             };
             observer(&progress);
@@ -320,7 +331,10 @@ fn simplify_stage(
     Err(Stop::Disconnected)
 }
 
-fn write_stage(mut sink: Sink, rx: Receiver<ToWriter>) -> StageResult<(f64, crate::sink::SinkStats)> {
+fn write_stage(
+    mut sink: Sink,
+    rx: Receiver<ToWriter>,
+) -> StageResult<(f64, crate::sink::SinkStats)> {
     let _span = info_span!("write").entered();
     let mut busy = Duration::ZERO;
     for msg in rx.iter() {
@@ -349,7 +363,11 @@ pub(crate) fn write_elements(
     for e in &batch.elements {
         match e {
             OutElement::Vertex { pos } => {
-                let attrs = if attributes == 0 { &[][..] } else { attr_chunks.next().unwrap_or(&[]) };
+                let attrs = if attributes == 0 {
+                    &[][..]
+                } else {
+                    attr_chunks.next().unwrap_or(&[])
+                };
                 writer.vertex(pos.as_vec3().to_array(), attrs)?;
             }
             OutElement::Triangle { v, last_use } => writer.triangle(*v, *last_use)?,
