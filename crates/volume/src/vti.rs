@@ -11,7 +11,7 @@ use crate::grid::dims_text;
 use crate::raw::{MapReader, Payload, RawVolume, map_file, payload_bytes};
 use crate::stream::{Stream, StreamSpec, StreamVolume};
 use crate::xml::{Tag, Tags};
-use crate::{Dtype, Endian, OpenOptions, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
 use memmap2::Mmap;
 use std::io::Read;
 use std::path::Path;
@@ -42,131 +42,12 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     opts.reject_raw_params(path, "VTK XML ImageData")?;
     let map = map_file(path)?;
     let doc = Doc::scan(path, &map)?;
-    let ferr =
-        |at: &str, expected: &str, found: &str| VolumeError::format(path, at, expected, found);
-    let root = &doc.root;
-    if root.attr("type") != Some("ImageData") {
-        return Err(ferr(
-            "VTKFile tag",
-            "type=\"ImageData\"",
-            root.attr("type").unwrap_or("none"),
-        ));
-    }
-    let endian = match root.attr("byte_order") {
-        None | Some("LittleEndian") => Endian::Little,
-        Some("BigEndian") => Endian::Big,
-        Some(o) => {
-            return Err(ferr(
-                "VTKFile tag",
-                "byte_order LittleEndian or BigEndian",
-                o,
-            ));
-        }
-    };
-    let header_u64 = match root.attr("header_type") {
-        None | Some("UInt32") => false,
-        Some("UInt64") => true,
-        Some(h) => return Err(ferr("VTKFile tag", "header_type UInt32 or UInt64", h)),
-    };
-    let compressed = match root.attr("compressor") {
-        None | Some("") => false,
-        Some("vtkZLibDataCompressor") => true,
-        Some(c) => {
-            return Err(ferr(
-                "VTKFile tag",
-                "no compressor or vtkZLibDataCompressor",
-                c,
-            ));
-        }
-    };
-    let image = doc
-        .image
-        .as_ref()
-        .ok_or_else(|| ferr("document", "an ImageData tag", "none"))?;
-    let extent = numbers::<i64, 6>(image.attr("WholeExtent").unwrap_or("")).ok_or_else(|| {
-        ferr(
-            "ImageData tag",
-            "WholeExtent=\"x0 x1 y0 y1 z0 z1\"",
-            image.attr("WholeExtent").unwrap_or("none"),
-        )
-    })?;
-    let spacing = match image.attr("Spacing") {
-        None => [1.0; 3],
-        Some(s) => {
-            numbers::<f64, 3>(s).ok_or_else(|| ferr("ImageData tag", "Spacing=\"sx sy sz\"", s))?
-        }
-    };
-    let origin = match image.attr("Origin") {
-        None => [0.0; 3],
-        Some(s) => {
-            numbers::<f64, 3>(s).ok_or_else(|| ferr("ImageData tag", "Origin=\"x y z\"", s))?
-        }
-    };
-    if doc.pieces != 1 {
-        return Err(ferr(
-            "ImageData tag",
-            "exactly one Piece",
-            &doc.pieces.to_string(),
-        ));
-    }
-    let mut dims = [0u64; 3];
-    for a in 0..3 {
-        let n = extent[2 * a + 1]
-            .checked_sub(extent[2 * a])
-            .and_then(|d| d.checked_add(1));
-        dims[a] = n.and_then(|n| u64::try_from(n).ok()).unwrap_or(0);
-    }
-    // VTK places point (i, j, k) of the extent at Origin + Spacing * (x0 + i, ...).
-    let origin = [0, 1, 2].map(|a| origin[a] + spacing[a] * extent[2 * a] as f64);
-    let grid = opts.grid(path, dims, spacing, origin)?;
-
+    let (endian, header_u64, compressed) = file_settings(path, &doc.root)?;
+    let grid = image_grid(path, &doc, opts)?;
+    let dims = grid.dims;
     let array = doc.pick(path, opts.array.as_deref())?;
-    let name = array.tag.attr("Name").unwrap_or("").to_string();
-    let at = format!("DataArray {name:?}");
-    let ty = array.tag.attr("type").unwrap_or("none");
-    let dtype = vti_type(ty).ok_or_else(|| {
-        ferr(
-            &at,
-            "type Int8/UInt8/Int16/UInt16/Int32/UInt32/Float32/Float64",
-            ty,
-        )
-    })?;
-    if let Some(c) = array.tag.attr("NumberOfComponents").filter(|c| *c != "1") {
-        return Err(ferr(&at, "NumberOfComponents=\"1\" (a scalar array)", c));
-    }
-    let (form, start) = match array.tag.attr("format") {
-        Some("ascii") => (Form::Ascii, array.tag.end),
-        Some("binary") => (Form::Base64, array.tag.end),
-        Some("appended") => {
-            let (base, raw) = doc.appended.ok_or_else(|| {
-                ferr(
-                    &at,
-                    "an AppendedData section for format=\"appended\"",
-                    "none",
-                )
-            })?;
-            let off = array.tag.attr("offset").unwrap_or("0");
-            let off: usize = off.parse().map_err(|_| ferr(&at, "a byte offset", off))?;
-            let start = base
-                .checked_add(off)
-                .filter(|&s| s <= map.len())
-                .ok_or_else(|| {
-                    ferr(
-                        &at,
-                        &format!("an offset inside the {}-byte file", map.len()),
-                        &off.to_string(),
-                    )
-                })?;
-            (if raw { Form::Raw } else { Form::Base64 }, start)
-        }
-        other => {
-            return Err(ferr(
-                &at,
-                "format ascii, binary or appended",
-                other.unwrap_or("none"),
-            ));
-        }
-    };
+    let at = format!("DataArray {:?}", array.attr("Name").unwrap_or(""));
+    let (dtype, form, start) = array_form(path, &at, &array, doc.appended, map.len())?;
     let layout = Layout {
         form,
         start,
@@ -214,6 +95,114 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         },
         open: Box::new(move || open_stream(&owned, &at, &map, layout, payload).map(|(s, _)| s)),
     })?))
+}
+
+/// Byte order, header word size and compression from the `VTKFile` tag.
+fn file_settings(path: &Path, root: &Tag) -> Result<(Endian, bool, bool), VolumeError> {
+    let err =
+        |expected: &str, found: &str| VolumeError::format(path, "VTKFile tag", expected, found);
+    if root.attr("type") != Some("ImageData") {
+        return Err(err(
+            "type=\"ImageData\"",
+            root.attr("type").unwrap_or("none"),
+        ));
+    }
+    let endian = match root.attr("byte_order") {
+        None | Some("LittleEndian") => Endian::Little,
+        Some("BigEndian") => Endian::Big,
+        Some(o) => return Err(err("byte_order LittleEndian or BigEndian", o)),
+    };
+    let header_u64 = match root.attr("header_type") {
+        None | Some("UInt32") => false,
+        Some("UInt64") => true,
+        Some(h) => return Err(err("header_type UInt32 or UInt64", h)),
+    };
+    let compressed = match root.attr("compressor") {
+        None | Some("") => false,
+        Some("vtkZLibDataCompressor") => true,
+        Some(c) => return Err(err("no compressor or vtkZLibDataCompressor", c)),
+    };
+    Ok((endian, header_u64, compressed))
+}
+
+/// The grid of the `ImageData` tag, with the job's overrides. VTK places point (i, j, k) of the extent at
+/// Origin + Spacing * (x0 + i, y0 + j, z0 + k), so the extent start moves the origin.
+fn image_grid(path: &Path, doc: &Doc, opts: &OpenOptions) -> Result<Grid, VolumeError> {
+    let err =
+        |expected: &str, found: &str| VolumeError::format(path, "ImageData tag", expected, found);
+    let image = doc
+        .image
+        .as_ref()
+        .ok_or_else(|| VolumeError::format(path, "document", "an ImageData tag", "none"))?;
+    let attr = |key: &str, default: &str, expected: &str| -> Result<Vec<f64>, VolumeError> {
+        let text = image.attr(key).unwrap_or(default);
+        text.split_whitespace()
+            .map(|t| t.parse().ok())
+            .collect::<Option<Vec<f64>>>()
+            .filter(|v| v.len() == expected.split(' ').count())
+            .ok_or_else(|| err(&format!("{key}=\"{expected}\""), text))
+    };
+    let extent = attr("WholeExtent", "", "x0 x1 y0 y1 z0 z1")?;
+    let spacing = attr("Spacing", "1 1 1", "sx sy sz")?;
+    let origin = attr("Origin", "0 0 0", "x y z")?;
+    if doc.pieces != 1 {
+        return Err(err("exactly one Piece", &doc.pieces.to_string()));
+    }
+    // Extents are integers in the file; as f64 they stay exact up to 2^53.
+    let dims = [0, 1, 2].map(|a| {
+        let n = extent[2 * a + 1] - extent[2 * a] + 1.0;
+        if n.fract() == 0.0 && n >= 0.0 && n < u64::MAX as f64 {
+            n as u64
+        } else {
+            0
+        }
+    });
+    let origin = [0, 1, 2].map(|a| origin[a] + spacing[a] * extent[2 * a]);
+    opts.grid(path, dims, [spacing[0], spacing[1], spacing[2]], origin)
+}
+
+/// The stored type of the chosen array, its form and where its bytes start in the file.
+fn array_form(
+    path: &Path,
+    at: &str,
+    array: &Tag,
+    appended: Option<(usize, bool)>,
+    file_len: usize,
+) -> Result<(Dtype, Form, usize), VolumeError> {
+    let err = |expected: &str, found: &str| VolumeError::format(path, at, expected, found);
+    let ty = array.attr("type").unwrap_or("none");
+    let dtype = vti_type(ty).ok_or_else(|| {
+        err(
+            "type Int8/UInt8/Int16/UInt16/Int32/UInt32/Float32/Float64",
+            ty,
+        )
+    })?;
+    if let Some(c) = array.attr("NumberOfComponents").filter(|c| *c != "1") {
+        return Err(err("NumberOfComponents=\"1\" (a scalar array)", c));
+    }
+    let (form, start) = match array.attr("format") {
+        Some("ascii") => (Form::Ascii, array.end),
+        Some("binary") => (Form::Base64, array.end),
+        Some("appended") => {
+            let (base, raw) = appended
+                .ok_or_else(|| err("an AppendedData section for format=\"appended\"", "none"))?;
+            let off = array.attr("offset").unwrap_or("0");
+            let start = off
+                .parse::<usize>()
+                .ok()
+                .and_then(|o| base.checked_add(o))
+                .filter(|&s| s <= file_len)
+                .ok_or_else(|| err(&format!("an offset inside the {file_len}-byte file"), off))?;
+            (if raw { Form::Raw } else { Form::Base64 }, start)
+        }
+        other => {
+            return Err(err(
+                "format ascii, binary or appended",
+                other.unwrap_or("none"),
+            ));
+        }
+    };
+    Ok((dtype, form, start))
 }
 
 /// Checks the array's header against the grid; returns where uncompressed raw data starts.
@@ -294,11 +283,6 @@ fn open_stream(
         ));
     }
     Ok((Box::new(ZlibBlocks::new(encoded, zl)), l.start))
-}
-
-/// A chosen DataArray tag.
-struct Array {
-    tag: Tag,
 }
 
 /// The tags of a VTI document that matter.
@@ -394,7 +378,7 @@ impl Doc {
     }
 
     /// The array named by the job, else PointData's active scalars, else the first array.
-    fn pick(&self, path: &Path, wanted: Option<&str>) -> Result<Array, VolumeError> {
+    fn pick(&self, path: &Path, wanted: Option<&str>) -> Result<Tag, VolumeError> {
         let names: Vec<&str> = self
             .arrays
             .iter()
@@ -405,7 +389,7 @@ impl Doc {
             Some(w) => self.arrays.iter().find(|a| a.attr("Name") == Some(w)),
             None => self.arrays.first(),
         };
-        found.cloned().map(|tag| Array { tag }).ok_or_else(|| {
+        found.cloned().ok_or_else(|| {
             VolumeError::format(
                 path,
                 "PointData",
@@ -417,14 +401,6 @@ impl Doc {
             )
         })
     }
-}
-
-fn numbers<T: std::str::FromStr, const N: usize>(s: &str) -> Option<[T; N]> {
-    let v: Vec<T> = s
-        .split_whitespace()
-        .map(|t| t.parse().ok())
-        .collect::<Option<_>>()?;
-    v.try_into().ok()
 }
 
 fn vti_type(s: &str) -> Option<Dtype> {
