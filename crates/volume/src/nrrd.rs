@@ -8,7 +8,7 @@
 
 use crate::codec::AsciiValues;
 use crate::grid::dims_text;
-use crate::raw::{Payload, RawVolume, payload_bytes};
+use crate::raw::{Payload, RawVolume, checked_payload};
 use crate::stream::{Opener, Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
 use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
 use flate2::read::MultiGzDecoder;
@@ -60,14 +60,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             ));
         }
     };
-    let payload = payload_bytes(h.dims, h.dtype).ok_or_else(|| VolumeError::Grid {
-        origin: path.display().to_string(),
-        problem: format!(
-            "dims {} of {} need more than 2^64 bytes; check the sizes line",
-            dims_text(h.dims),
-            h.dtype
-        ),
-    })?;
+    let payload = checked_payload(path, h.dims, h.dtype, 0, "the sizes line")?;
     let attached = h.files.is_empty();
     let files: Vec<PathBuf> = if attached {
         vec![path.to_path_buf()]

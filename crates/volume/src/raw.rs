@@ -76,16 +76,7 @@ impl RawVolume {
 
     pub(crate) fn open_payload(p: Payload<'_>) -> Result<Self, VolumeError> {
         let name = p.path.display().to_string();
-        let expected = payload_bytes(p.grid.dims, p.dtype)
-            .and_then(|b| b.checked_add(p.offset))
-            .ok_or_else(|| VolumeError::Grid {
-                origin: name.clone(),
-                problem: format!(
-                    "dims {} of {} need more than 2^64 bytes; check the dims",
-                    dims_text(p.grid.dims),
-                    p.dtype
-                ),
-            })?;
+        let expected = checked_payload(p.path, p.grid.dims, p.dtype, p.offset, "the dims")?;
         let file = File::open(p.path).map_err(|e| VolumeError::io(p.path, "open", e))?;
         let actual = file
             .metadata()
@@ -204,6 +195,25 @@ pub(crate) fn payload_bytes(dims: [u64; 3], dtype: Dtype) -> Option<u64> {
         .checked_mul(dims[1])?
         .checked_mul(dims[2])?
         .checked_mul(dtype.size_bytes() as u64)
+}
+
+/// [`payload_bytes`] plus `offset`, or the error naming `path` and the header field to `check`.
+pub(crate) fn checked_payload(
+    path: &Path,
+    dims: [u64; 3],
+    dtype: Dtype,
+    offset: u64,
+    check: &str,
+) -> Result<u64, VolumeError> {
+    payload_bytes(dims, dtype)
+        .and_then(|b| b.checked_add(offset))
+        .ok_or_else(|| VolumeError::Grid {
+            origin: path.display().to_string(),
+            problem: format!(
+                "dims {} of {dtype} need more than 2^64 bytes; check {check}",
+                dims_text(dims)
+            ),
+        })
 }
 
 impl VolumeSource for RawVolume {

@@ -7,8 +7,7 @@
 //! (VTK writes 32 KiB blocks) in memory. `Direction` is ignored: grids are axis-aligned.
 
 use crate::codec::{AsciiValues, Base64Reader, ZlibBlocks, ZlibLayout};
-use crate::grid::dims_text;
-use crate::raw::{MapReader, Payload, RawVolume, map_file, payload_bytes};
+use crate::raw::{MapReader, Payload, RawVolume, checked_payload, map_file};
 use crate::stream::{Stream, StreamSpec, StreamVolume};
 use crate::xml::{Tag, Tags};
 use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
@@ -44,7 +43,6 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     let doc = Doc::scan(path, &map)?;
     let (endian, header_u64, compressed) = file_settings(path, &doc.root)?;
     let grid = image_grid(path, &doc, opts)?;
-    let dims = grid.dims;
     let array = doc.pick(path, opts.array.as_deref())?;
     let at = format!("DataArray {:?}", array.attr("Name").unwrap_or(""));
     let (dtype, form, start) = array_form(path, &at, &array, doc.appended, map.len())?;
@@ -55,13 +53,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         header_u64,
         compressed: compressed && form != Form::Ascii,
     };
-    let payload = payload_bytes(dims, dtype).ok_or_else(|| VolumeError::Grid {
-        origin: path.display().to_string(),
-        problem: format!(
-            "dims {} of {dtype} need more than 2^64 bytes; check WholeExtent",
-            dims_text(dims)
-        ),
-    })?;
+    let payload = checked_payload(path, grid.dims, dtype, 0, "WholeExtent")?;
     // Read the block header once now, so a broken header fails at open time with its own message.
     let data_start = check_header(path, &at, &map, layout, payload)?;
     if layout.form == Form::Raw && !layout.compressed {
