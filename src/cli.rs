@@ -24,15 +24,16 @@ pub enum Command {
     },
     /// Check a job file (keys, values, input file, output folder) without running it.
     Validate { job: PathBuf },
-    /// Convert a mesh between SMB, SMA, PLY and OBJ (streaming for SMB/SMA inputs).
+    /// Convert a mesh between SMB, SMA, PLY, OBJ, STL and GLB (streaming for SMB/SMA inputs).
     Convert { input: PathBuf, output: PathBuf },
     /// Check a streaming mesh file: indices, finalization, header counts, stream width.
     Check { mesh: PathBuf },
-    /// Measure an output mesh: quality, topology, and distances to the full-resolution surface.
+    /// Measure a mesh: topology, triangle quality, anisotropy, directional bias, and with
+    /// `--volume` the mean/RMS/Hausdorff distances to the full-resolution surface.
     Measure {
         /// The job file whose volume and iso value define the full-resolution surface.
         #[arg(long)]
-        volume: PathBuf,
+        volume: Option<PathBuf>,
         /// The mesh to measure (.smb, .sma, .ply, .obj).
         mesh: PathBuf,
         /// Print JSON instead of text.
@@ -41,9 +42,9 @@ pub enum Command {
         /// Surface samples per unit area (physical units squared).
         #[arg(long)]
         samples_per_area: Option<f64>,
-        /// Random seed for the sample positions.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        /// Random seed for the sample positions (a fixed default keeps reports repeatable).
+        #[arg(long)]
+        seed: Option<u64>,
     },
 }
 
@@ -60,7 +61,9 @@ impl Command {
                 json,
                 samples_per_area,
                 seed,
-            } => crate::measure_cmd::measure(&volume, &mesh, json, samples_per_area, seed),
+            } => {
+                crate::measure_cmd::measure(volume.as_deref(), &mesh, json, samples_per_area, seed)
+            }
         }
     }
 }

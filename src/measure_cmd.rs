@@ -1,13 +1,61 @@
-//! `measure`: quality of an output mesh against the full-resolution surface of its job's volume.
+//! `measure`: quality of an output mesh, and with `--volume` its distances to the
+//! full-resolution surface of that job's volume (regenerated as a stream).
 
 use std::path::Path;
 
+use anyhow::Context;
+use isostream_measure::{MeasureOptions, MeasureReport, mesh_quality, surface_distances};
+use isostream_pipeline::{JobConfig, open_source, summary_path};
+
 pub fn measure(
-    _job: &Path,
-    _mesh: &Path,
-    _json: bool,
-    _samples_per_area: Option<f64>,
-    _seed: u64,
+    job_path: Option<&Path>,
+    mesh_path: &Path,
+    json: bool,
+    samples_per_area: Option<f64>,
+    seed: Option<u64>,
 ) -> anyhow::Result<()> {
-    anyhow::bail!("measure is not wired yet")
+    let mesh = isostream_smesh::read_indexed(mesh_path)?;
+    let quality = mesh_quality(&mesh.positions, &mesh.triangles);
+    let distances = match job_path {
+        None => None,
+        Some(job_path) => {
+            let job = JobConfig::load(job_path)?;
+            let mut source = open_source(&job.input, job_path)?;
+            let defaults = MeasureOptions::default();
+            let opts = MeasureOptions {
+                samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),
+                seed: seed.unwrap_or(defaults.seed),
+                ..defaults
+            };
+            Some(
+                surface_distances(
+                    &mut *source,
+                    job.extract.iso as f32,
+                    &mesh.positions,
+                    &mesh.triangles,
+                    &opts,
+                )
+                .with_context(|| format!("measuring {}", mesh_path.display()))?,
+            )
+        }
+    };
+    let report = MeasureReport {
+        quality,
+        distances,
+        shape_error: shape_error_from_run(mesh_path),
+    };
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", report.to_text());
+    }
+    Ok(())
+}
+
+/// The shape error `max eps0` is only known to the run that simplified; it is in the run
+/// summary next to the mesh when that run bounded it (mode = "error").
+fn shape_error_from_run(mesh: &Path) -> Option<f64> {
+    let text = std::fs::read_to_string(summary_path(mesh)).ok()?;
+    let summary: serde_json::Value = serde_json::from_str(&text).ok()?;
+    summary.get("shape_error")?.as_f64()
 }

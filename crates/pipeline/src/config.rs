@@ -68,6 +68,9 @@ pub enum Mode {
     Rate,
     /// No simplification: the full-resolution surface, streamed.
     None,
+    /// Attali, Cohen-Steiner and Edelsbrunner's Tandem algorithm: contract while the shape
+    /// measure eps0 stays at most `error` (E0), with optional time-lag and isotropy.
+    Error,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -87,6 +90,15 @@ pub struct SimplifyConfig {
     /// Slabs a vertex stays editable behind the front before it is retired and written.
     #[serde(default = "default_retire_lag")]
     pub retire_lag: u32,
+    /// E0 for mode = "error": the bound on the shape measure eps0, a length in the volume's
+    /// physical units.
+    pub error: Option<f64>,
+    /// Mode "error": delay contractions whose patch reaches beyond the front (Tandem time-lag).
+    #[serde(default = "yes")]
+    pub time_lag: bool,
+    /// Mode "error": isotropy parameter alpha in [0, 1]; 0 is pure shape measure.
+    #[serde(default)]
+    pub isotropy: f64,
 }
 
 fn default_rate() -> f64 {
@@ -110,6 +122,9 @@ impl Default for SimplifyConfig {
             batch: default_batch(),
             initial_rate: default_initial_rate(),
             retire_lag: default_retire_lag(),
+            error: None,
+            time_lag: true,
+            isotropy: 0.0,
         }
     }
 }
@@ -301,6 +316,26 @@ impl JobConfig {
                 "simplify.initial_rate",
                 "a value in (0, 1]",
                 s.initial_rate.to_string(),
+            ));
+        }
+        if s.mode == Mode::Error {
+            match s.error {
+                Some(e) if e > 0.0 && e.is_finite() => {}
+                Some(e) => return Err(bad("simplify.error", "a length > 0", e.to_string())),
+                None => {
+                    return Err(bad(
+                        "simplify.error",
+                        "E0, a length in the volume's units, for mode = \"error\"",
+                        "nothing".into(),
+                    ));
+                }
+            }
+        }
+        if !(0.0..=1.0).contains(&s.isotropy) {
+            return Err(bad(
+                "simplify.isotropy",
+                "a value in [0, 1]",
+                s.isotropy.to_string(),
             ));
         }
         if s.batch == 0 {

@@ -49,6 +49,9 @@ pub struct RunSummary {
     pub stage_seconds: StageSeconds,
     pub peak_rss_bytes: Option<u64>,
     pub peak_resident_faces: u64,
+    /// Tandem section 4: Error(K) = max eps0 over the vertices made by contractions (0 when
+    /// nothing was contracted). Bounded by E0 in mode = "error".
+    pub shape_error: f64,
     pub extract: isostream_extract::ExtractStats,
     pub detect: isostream_detect::DetectStats,
     pub simplify: isostream_simplify::SimplifyStats,
@@ -68,7 +71,7 @@ pub fn run(
     let input = source.describe();
     info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");
 
-    let simplifier = Simplifier::new(simplifier_config(job)).map_err(|e| {
+    let mut simplifier = Simplifier::new(simplifier_config(job)).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
             path: job_path.to_path_buf(),
             key: "simplify".into(),
@@ -76,6 +79,7 @@ pub fn run(
             got: e.to_string(),
         })
     })?;
+    simplifier.set_rank_spacing(grid.spacing[2]);
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
@@ -104,10 +108,7 @@ pub fn run(
     }
     .run()?;
 
-    let mut sink_stats = outputs.sink;
-    if sink_stats.path.as_os_str().is_empty() {
-        sink_stats.path = job.output.path.clone();
-    }
+    let sink_stats = outputs.sink;
     let summary = RunSummary {
         input,
         dims: grid.dims,
@@ -122,6 +123,7 @@ pub fn run(
         stage_seconds: outputs.seconds,
         peak_rss_bytes: peak_rss_bytes(),
         peak_resident_faces: outputs.simplify.peak_resident_faces as u64,
+        shape_error: outputs.simplify.max_shape_error,
         extract: outputs.extract,
         detect: outputs.detect,
         simplify: outputs.simplify,
@@ -142,6 +144,11 @@ fn simplifier_config(job: &JobConfig) -> SimplifierConfig {
                 rate: s.rate,
                 batch: s.batch,
                 initial_rate: s.initial_rate,
+            },
+            Mode::Error => Policy::Error {
+                e0: s.error.unwrap_or(f64::INFINITY),
+                time_lag: s.time_lag,
+                isotropy: s.isotropy,
             },
         },
         retire_lag: s.retire_lag,

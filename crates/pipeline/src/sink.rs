@@ -1,11 +1,10 @@
-//! Where the simplified stream goes. Streaming formats (SMB, SMA) are written directly; any other
-//! format `smesh` supports is produced by writing SMB to a temporary file beside the target and
-//! converting it at the end, so the stage itself stays streaming.
+//! Where the simplified stream goes: any format `smesh` writes (SMB, SMA, PLY, OBJ, STL, GLB),
+//! all as streaming sinks that write to a temporary name and rename when finished.
 
 use std::path::{Path, PathBuf};
 
-use isostream_simplify::OutBatch;
-use isostream_smesh::{Format, Header, StreamWriter, WriteStats};
+use isostream_simplify::{OutBatch, OutElement};
+use isostream_smesh::{ConvertOptions, Header, MeshSink, WriteStats};
 
 use crate::error::RunError;
 
@@ -20,47 +19,34 @@ pub struct SinkStats {
 }
 
 pub(crate) struct Sink {
-    writer: StreamWriter,
+    inner: Box<dyn MeshSink>,
     attributes: usize,
-    /// Final target when the stream is converted at the end.
-    convert_to: Option<(tempfile::TempPath, PathBuf)>,
+    path: PathBuf,
 }
 
 impl Sink {
     pub fn create(path: &Path, header: &Header) -> Result<Self, RunError> {
-        let attributes = header.attribute_names.len();
-        match Format::from_path(path)? {
-            Format::Sma | Format::Smb => Ok(Self {
-                writer: StreamWriter::create(path, header)?,
-                attributes,
-                convert_to: None,
-            }),
-            _ => {
-                let dir = path
-                    .parent()
-                    .filter(|d| !d.as_os_str().is_empty())
-                    .unwrap_or(Path::new("."));
-                let tmp = tempfile::Builder::new()
-                    .prefix(".isostream-")
-                    .suffix(if attributes > 0 { ".sma" } else { ".smb" })
-                    .tempfile_in(dir)
-                    .map_err(|e| RunError::Summary {
-                        path: path.to_path_buf(),
-                        reason: format!("cannot create a temporary stream beside it: {e}"),
-                    })?
-                    .into_temp_path();
-                let writer = StreamWriter::create(&tmp, header)?;
-                Ok(Self {
-                    writer,
-                    attributes,
-                    convert_to: Some((tmp, path.to_path_buf())),
-                })
-            }
-        }
+        Ok(Self {
+            inner: isostream_smesh::create_sink(path, header, &ConvertOptions::default())?,
+            attributes: header.attribute_names.len(),
+            path: path.to_path_buf(),
+        })
     }
 
     pub fn write(&mut self, batch: &OutBatch) -> Result<(), RunError> {
-        crate::stages::write_elements(&mut self.writer, batch, self.attributes)?;
+        let mut attrs = batch.attrs.chunks(self.attributes.max(1));
+        for e in &batch.elements {
+            match e {
+                OutElement::Vertex { pos } => {
+                    let a = match self.attributes {
+                        0 => &[][..],
+                        _ => attrs.next().unwrap_or(&[]),
+                    };
+                    self.inner.vertex(pos.as_vec3().to_array(), a)?;
+                }
+                OutElement::Triangle { v, last_use } => self.inner.triangle(*v, *last_use)?,
+            }
+        }
         Ok(())
     }
 
@@ -71,22 +57,13 @@ impl Sink {
             bytes,
             max_active_vertices,
             ..
-        } = self.writer.finish()?;
-        let mut stats = SinkStats {
+        } = self.inner.finish()?;
+        Ok(SinkStats {
             vertices,
             triangles,
             bytes,
             max_active_vertices,
-            path: PathBuf::new(),
-        };
-        match self.convert_to {
-            None => {}
-            Some((tmp, target)) => {
-                isostream_smesh::convert(&tmp, &target)?;
-                stats.bytes = std::fs::metadata(&target).map(|m| m.len()).unwrap_or(0);
-                stats.path = target;
-            }
-        }
-        Ok(stats)
+            path: self.path,
+        })
     }
 }

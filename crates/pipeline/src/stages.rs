@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender, bounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats, Extractor};
-use isostream_simplify::{OutBatch, OutElement, Simplifier, SimplifyStats};
+use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
 use isostream_volume::{Grid, VolumeSource};
 use tracing::{debug, info, info_span};
 
@@ -351,27 +351,4 @@ fn write_stage(
     }
     // Upstream hung up before the end: dropping the sink removes the partial file.
     Err(Stop::Disconnected)
-}
-
-/// Writes simplifier output elements to the streaming mesh writer.
-pub(crate) fn write_elements(
-    writer: &mut isostream_smesh::StreamWriter,
-    batch: &OutBatch,
-    attributes: usize,
-) -> Result<(), isostream_smesh::SmeshError> {
-    let mut attr_chunks = batch.attrs.chunks(attributes.max(1));
-    for e in &batch.elements {
-        match e {
-            OutElement::Vertex { pos } => {
-                let attrs = if attributes == 0 {
-                    &[][..]
-                } else {
-                    attr_chunks.next().unwrap_or(&[])
-                };
-                writer.vertex(pos.as_vec3().to_array(), attrs)?;
-            }
-            OutElement::Triangle { v, last_use } => writer.triangle(*v, *last_use)?,
-        }
-    }
-    Ok(())
 }
