@@ -1,10 +1,31 @@
 //! isostream-volume: scalar volumes read slice by slice in increasing z.
 //!
 //! Every source implements [`VolumeSource`]; the extractor only ever holds two slices, so a
-//! source must not hold the whole volume either (raw files are memory-mapped with pages released
-//! behind the front, procedural shapes are computed per slice). [`MemoryVolume`] is the exception
-//! for tests and small inputs. Errors are [`VolumeError`] values whose message is one line naming
-//! the file and what to check.
+//! source must not hold the whole volume either. [`open_path`] picks a reader from the file name
+//! or its first bytes:
+//!
+//! | input | reader | memory |
+//! |---|---|---|
+//! | `.raw` (+ dims/dtype in [`OpenOptions`]) | [`RawVolume`], memory-mapped | pages behind the front are released |
+//! | `.nrrd` / `.nhdr` (raw, gzip, ascii; `data file` lists) | NRRD | raw single file mapped, else one slice |
+//! | `.vtk` legacy `STRUCTURED_POINTS` (binary, ascii) | VTK | binary mapped, ascii one slice |
+//! | `.vti` (ascii, base64, appended; zlib) | VTK XML | appended raw mapped, else one slice + one 32 KiB block |
+//! | `.nii` / `.nii.gz` / `.hdr`+`.img` | NIfTI-1 | `.nii` mapped, `.nii.gz` one slice |
+//! | `.tif` / `.tiff` / a directory of them | TIFF stack | one page |
+//!
+//! No reader decodes a whole array up front ([`VolumeSource::loads_whole_volume`] is false for
+//! all of them). [`Procedural`] shapes are computed per slice; [`MemoryVolume`] holds everything
+//! and is meant for tests and small inputs. Errors are [`VolumeError`] values whose message is one
+//! line naming the file, where in it the problem is, and what was expected.
+//!
+//! ```
+//! use isostream_volume::{Procedural, Shape, VolumeSource};
+//!
+//! let mut sphere = Procedural::new(Shape::Sphere, [32, 32, 32], [1.0; 3], [0.0; 3]).unwrap();
+//! let mut slice = vec![0.0f32; sphere.grid().slice_len()];
+//! sphere.read_slice(16, &mut slice).unwrap();
+//! assert!(slice[16 * 32 + 16] > 0.0, "the centre is inside");
+//! ```
 #![deny(unsafe_code)]
 
 mod codec;

@@ -230,6 +230,14 @@ fn bad_files_give_one_line_errors() {
                 .into_bytes(),
             "DIR/bad.nrrd: dims 4294967296x1048576x1024 of f64 need more than 2^64 bytes; check the sizes line",
         ),
+        (
+            // Fits u64 but no machine can hold one slice of it: must be an error, not an abort.
+            with_data(
+                ok("\n", "gzip").replace("sizes: 3 2 4", "sizes: 2147483648 2147483648 2"),
+                &gzip(&[0; 8]),
+            ),
+            "DIR/bad.nrrd: a slice of dims 2147483648x2147483648x2 needs 4611686018427387904 bytes, more than this machine can allocate; check the dims",
+        ),
     ];
     assert_all_equal(
         cases
