@@ -89,6 +89,10 @@ impl Candidates {
         }
     }
 
+    pub(crate) fn peek(&self) -> Option<&Candidate> {
+        self.queue.peek().map(|c| &c.0)
+    }
+
     pub(crate) fn pop(&mut self) -> Option<Candidate> {
         self.queue.pop().map(|c| c.0)
     }

@@ -15,6 +15,12 @@ use crate::topology::{self, Sites};
 /// like an ill-conditioned one: nearly flat neighbourhoods put the exact minimum far away.
 const FAR_FACTOR: f64 = 4.0;
 
+/// Priority of an edge between coincident vertices (marching cubes makes them when a voxel value
+/// equals the iso value). Merging them changes no geometry, so they go before every other edge
+/// (costs are never negative), and the rate policy contracts them even past its target so that
+/// their zero-area triangles do not reach the output.
+pub(crate) const COINCIDENT: f64 = -1.0;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Objective {
     /// Garland and Heckbert: `M = Q_a + Q_b` (area-weighted plane quadrics), cost `M(c)`.
@@ -74,8 +80,9 @@ impl Objective {
             .min_by(|x, y| x.1.total_cmp(&y.1))?;
         let shape_error = shape_measure(&h, w, pos);
         let cost = match *self {
-            Objective::Quadric => value,
             Objective::Shape { e0, .. } if shape_error > e0 => return None,
+            _ if pa == pb => COINCIDENT,
+            Objective::Quadric => value,
             Objective::Shape { .. } => shape_measure(&m, w, pos),
         };
         let (height, rad) = va.merged_patch(vb, rank_spacing);

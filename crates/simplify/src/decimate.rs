@@ -6,7 +6,7 @@ use glam::DVec3;
 
 use crate::Simplifier;
 use crate::candidates::Candidate;
-use crate::cost::Eval;
+use crate::cost::{COINCIDENT, Eval};
 use crate::store::{Store, Vertex};
 use crate::topology;
 
@@ -31,7 +31,7 @@ impl Simplifier {
         let Some(objective) = self.objective else {
             return;
         };
-        while !self.reached(until) {
+        while !self.reached(until) || self.next_is_coincident() {
             let Some(c) = self.candidates.pop() else {
                 break;
             };
@@ -59,6 +59,11 @@ impl Simplifier {
                 self.contract(c.a, c.b, eval);
             }
         }
+    }
+
+    /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
+    fn next_is_coincident(&self) -> bool {
+        self.candidates.peek().is_some_and(|c| c.cost == COINCIDENT)
     }
 
     /// Queues the edges from `v` to its free neighbours.

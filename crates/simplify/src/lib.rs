@@ -103,7 +103,8 @@ pub struct SimplifyStats {
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
     pub forced_retirements: u64,
-    /// Highest cost of a performed contraction (objective units).
+    /// Highest cost of a performed contraction (objective units; merging coincident vertices
+    /// counts as -1).
     pub max_cost: f64,
     /// Highest shape measure `eps0` of a vertex created by a contraction (position units).
     pub max_shape_error: f64,
