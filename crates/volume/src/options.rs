@@ -110,4 +110,14 @@ mod tests {
             .unwrap();
         assert_eq!((g.spacing, g.origin), ([2.0; 3], [5.0; 3]));
     }
+
+    #[test]
+    fn options_deserialize_strictly() {
+        let o: OpenOptions =
+            serde_json::from_str(r#"{"dims":[2,3,4],"dtype":"u16","endian":"big","array":"v"}"#)
+                .unwrap();
+        assert_eq!(o.dims, Some([2, 3, 4]));
+        assert_eq!(o.endian, Some(Endian::Big));
+        assert!(serde_json::from_str::<OpenOptions>(r#"{"dimz":[2,3,4]}"#).is_err());
+    }
 }

@@ -210,4 +210,13 @@ mod tests {
             "procedural torus: dims 1x5x3 need at least 2 voxels per axis; check the dims"
         );
     }
+
+    #[test]
+    fn shapes_are_named_in_lowercase_in_job_files() {
+        for shape in ALL {
+            let json = serde_json::to_string(&shape).unwrap();
+            assert_eq!(json, format!("\"{}\"", shape.name()));
+            assert_eq!(serde_json::from_str::<Shape>(&json).unwrap(), shape);
+        }
+    }
 }
