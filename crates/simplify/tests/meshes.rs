@@ -31,28 +31,7 @@ fn none_policy_reproduces_the_input_triangles() {
             ..Sweep::default()
         },
     );
-    let key = |p: DVec3| p.to_array().map(f64::to_bits);
-    let index: HashMap<[u64; 3], u32> = input
-        .pos
-        .iter()
-        .enumerate()
-        .map(|(i, &p)| (key(p), i as u32))
-        .collect();
-    // Triangles as vertex index triples rotated to start at the smallest (keeps orientation).
-    let canon = |t: [u32; 3]| {
-        let i = (0..3).min_by_key(|&i| t[i]).unwrap_or(0);
-        [t[i], t[(i + 1) % 3], t[(i + 2) % 3]]
-    };
-    let mut want: Vec<[u32; 3]> = input.tris.iter().map(|&t| canon(t)).collect();
-    let mut got: Vec<[u32; 3]> = run
-        .mesh
-        .tris
-        .iter()
-        .map(|t| canon(t.map(|v| index[&key(run.mesh.pos[v as usize])])))
-        .collect();
-    want.sort_unstable();
-    got.sort_unstable();
-    assert_eq!(want, got);
+    assert_eq!(input.oriented_triangles(), run.mesh.oriented_triangles());
     assert_eq!(run.stats.contractions, 0);
     assert_eq!(run.stats.vertices_out as usize, input.pos.len());
 }

@@ -30,6 +30,24 @@ impl Mesh {
         self
     }
 
+    /// The triangles as sorted position triples, each rotated to start at its smallest corner
+    /// (orientation kept): equal for two meshes with the same oriented triangles, whatever the
+    /// vertex numbering.
+    pub fn oriented_triangles(&self) -> Vec<[[u64; 3]; 3]> {
+        let key = |v: u32| self.pos[v as usize].to_array().map(f64::to_bits);
+        let mut tris: Vec<[[u64; 3]; 3]> = self
+            .tris
+            .iter()
+            .map(|t| {
+                let k = t.map(key);
+                let i = (0..3).min_by_key(|&i| k[i]).unwrap_or(0);
+                [k[i], k[(i + 1) % 3], k[(i + 2) % 3]]
+            })
+            .collect();
+        tris.sort_unstable();
+        tris
+    }
+
     pub fn check(&self) -> Report {
         let pos: Vec<[f64; 3]> = self.pos.iter().map(|p| p.to_array()).collect();
         isostream_meshcheck::check(&pos, &self.tris)
