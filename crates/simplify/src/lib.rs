@@ -30,6 +30,11 @@
 //!   vertex is offered to the heap before it leaves; the initial phase also ends when output
 //!   starts. The target is met (within a few %) once `retire_lag` leaves the band room (about 3
 //!   slabs for rates down to 0.1, 5 to 8 below) and `batch` is small against the surface.
+//! * **Coincident vertices** (marching cubes at value == iso): their edges sort before all
+//!   others and are contracted even past the rate target, so zero-area triangles only survive
+//!   where the link condition forbids the merge.
+//! * **Retirement** only takes modifiable vertices (one that may still gain triangles could not
+//!   be finalized); one due earlier retires as soon as it becomes modifiable.
 //! * **Bounded band**: the rank span of every preimage is at most `2 retire_lag + 2` slabs, so
 //!   no vertex rides along with the front; stale heap entries are compacted away.
 //!

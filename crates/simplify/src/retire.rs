@@ -8,8 +8,7 @@
 
 use std::collections::VecDeque;
 
-use crate::store::Store;
-use crate::store::TriId;
+use crate::store::{Store, TriId};
 use crate::{OutBatch, OutElement, Simplifier};
 
 /// Vertices filed by highest rank in a ring of per-rank lists. A contraction that raises a
