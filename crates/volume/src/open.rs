@@ -66,7 +66,11 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         Format::Vti
     } else if head.starts_with(&348i32.to_le_bytes()) || head.starts_with(&348i32.to_be_bytes()) {
         Format::Nifti
-    } else if head.starts_with(b"II*\0") || head.starts_with(b"MM\0*") {
+    } else if [b"II*\0", b"MM\0*", b"II+\0", b"MM\0+"]
+        .iter()
+        .any(|m| head.starts_with(*m))
+    {
+        // Classic and BigTIFF, both byte orders.
         Format::Tiff
     } else {
         Format::Raw

@@ -29,6 +29,7 @@ const LINK_TUBE: f64 = 0.15;
 const GYROID_K: f64 = 2.0 * PI * 1.5;
 
 impl Shape {
+    /// Lower-case name, as written in job files and logs.
     pub fn name(self) -> &'static str {
         match self {
             Shape::Sphere => "sphere",

@@ -6,6 +6,7 @@ use crate::{Dtype, Grid, VolumeError};
 /// (an encoding that forces it says so in its docs), because the memory bound of the whole
 /// pipeline starts here.
 pub trait VolumeSource: Send {
+    /// Geometry of the whole volume; constant for the life of the source.
     fn grid(&self) -> Grid;
     /// Human-readable origin for logs and errors: the file path, or e.g. "procedural sphere 64x64x64".
     fn describe(&self) -> String;
