@@ -94,7 +94,7 @@ proptest! {
 
 proptest! {
     // Larger meshes: fewer cases.
-    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 100, ..ProptestConfig::default() })]
 
     /// On closed surfaces with enough lag, no memory pressure and batches small against the
     /// surface (at most 5%: the faces retired during the initial phase keep its rate), the rate
