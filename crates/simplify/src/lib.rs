@@ -187,8 +187,11 @@ impl Simplifier {
 
     /// A new vertex. `attrs` holds `attributes` values (missing ones are 0, extra ones dropped).
     ///
+    /// Ids should arrive in increasing order (the store is indexed by `id - base`); others are
+    /// accepted at the cost of empty slots.
+    ///
     /// # Panics
-    /// If `id` is not larger than every id added before.
+    /// If a live vertex already has this id.
     pub fn add_vertex(&mut self, id: u64, pos: DVec3, rank: u32, attrs: &[f32]) {
         let mut values = vec![0.0; self.config.attributes];
         for (v, a) in values.iter_mut().zip(attrs) {

@@ -147,21 +147,26 @@ impl Store {
             .filter_map(|(id, v)| v.as_ref().map(|_| id))
     }
 
+    /// Stores a vertex under `id`. Ids normally arrive in increasing order (then this is a push at
+    /// the back); an id below the band or into a hole is accepted too, at the cost of slots.
+    ///
     /// # Panics
-    /// If `id` is not above every id seen so far (the detector assigns them in increasing order).
+    /// If a live vertex already has this id.
     pub(crate) fn insert_vertex(&mut self, id: u64, v: Vertex) {
         if self.verts.is_empty() {
             self.base = id;
         }
-        let end = self.base + self.verts.len() as u64;
-        assert!(
-            id >= end,
-            "vertex id {id} arrived out of order (next expected >= {end})"
-        );
-        for _ in end..id {
-            self.verts.push_back(None);
+        while id < self.base {
+            self.verts.push_front(None);
+            self.base -= 1;
         }
-        self.verts.push_back(Some(v));
+        let i = usize::try_from(id - self.base).expect("vertex band fits in memory");
+        if i >= self.verts.len() {
+            self.verts.resize_with(i + 1, || None);
+        }
+        let slot = &mut self.verts[i];
+        assert!(slot.is_none(), "vertex id {id} added twice");
+        *slot = Some(v);
     }
 
     pub(crate) fn remove_vertex(&mut self, id: u64) -> Option<Vertex> {
@@ -265,8 +270,17 @@ mod tests {
     }
 
     #[test]
-    #[should_panic(expected = "out of order")]
-    fn ids_must_increase() {
+    fn ids_out_of_order_are_accepted() {
+        let mut s = Store::default();
+        for id in [5, 8, 3, 6] {
+            s.insert_vertex(id, Vertex::new(DVec3::ZERO, 0, &[]));
+        }
+        assert_eq!(s.ids().collect::<Vec<_>>(), vec![3, 5, 6, 8]);
+    }
+
+    #[test]
+    #[should_panic(expected = "added twice")]
+    fn ids_are_unique() {
         let mut s = Store::default();
         s.insert_vertex(5, Vertex::new(DVec3::ZERO, 0, &[]));
         s.insert_vertex(5, Vertex::new(DVec3::ZERO, 0, &[]));
