@@ -7,10 +7,10 @@
 //! | input | reader | memory |
 //! |---|---|---|
 //! | `.raw` (+ dims/dtype in [`OpenOptions`]) | [`RawVolume`], memory-mapped | pages behind the front are released |
-//! | `.nrrd` / `.nhdr` (raw, gzip, ascii; `data file` lists) | NRRD | raw single file mapped, else one slice |
-//! | `.vtk` legacy `STRUCTURED_POINTS` (binary, ascii) | VTK | binary mapped, ascii one slice |
-//! | `.vti` (ascii, base64, appended; zlib) | VTK XML | appended raw mapped, else one slice + one 32 KiB block |
-//! | `.nii` / `.nii.gz` / `.hdr`+`.img` | NIfTI-1 | `.nii` mapped, `.nii.gz` one slice |
+//! | `.nrrd` / `.nhdr` (raw, gzip, ascii; `data file` lists) | NRRD | raw single file mapped, else two slices |
+//! | `.vtk` legacy `STRUCTURED_POINTS` (binary, ascii) | VTK | binary mapped, ascii two slices |
+//! | `.vti` (ascii, base64, appended; zlib) | VTK XML | appended raw mapped, else two slices + one 32 KiB block |
+//! | `.nii` / `.nii.gz` / `.hdr`+`.img` | NIfTI-1 | `.nii` mapped, `.nii.gz` two slices |
 //! | `.tif` / `.tiff` / a directory of them | TIFF stack | one page |
 //!
 //! No reader decodes a whole array up front ([`VolumeSource::loads_whole_volume`] is false for

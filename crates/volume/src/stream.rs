@@ -1,6 +1,6 @@
 //! Sources whose payload can only be read front to back: compressed (gzip, zlib blocks), encoded
 //! (base64, ASCII numbers) or split over many files. They decode one slice at a time from a
-//! `Read`, so memory stays at one slice of bytes whatever the volume size.
+//! `Read`, so memory stays at two slices of bytes whatever the volume size.
 
 use crate::dtype::decode;
 use crate::grid::dims_text;
@@ -30,8 +30,10 @@ pub(crate) struct StreamVolume {
     reader: Option<Stream>,
     /// Slice index the reader is positioned at.
     next_z: u64,
-    /// Bytes of slice `next_z - 1`, kept so re-reading the previous slice costs nothing.
+    /// Bytes of slices `next_z - 1` and `next_z - 2`: a caller going back to the slice before
+    /// the one it just read (as a two-slice sweep may) gets it without reopening the stream.
     bytes: Vec<u8>,
+    prev: Vec<u8>,
 }
 
 pub(crate) struct StreamSpec {
@@ -64,6 +66,7 @@ impl StreamVolume {
                 dims_text(spec.grid.dims)
             ),
         })?;
+        let prev = bytes.clone();
         Ok(StreamVolume {
             path: spec.path,
             what: spec.what,
@@ -75,6 +78,7 @@ impl StreamVolume {
             reader: None,
             next_z: 0,
             bytes,
+            prev,
         })
     }
 
@@ -86,8 +90,11 @@ impl StreamVolume {
             None => self.reader.insert((self.open)()?),
         };
         let z = self.next_z;
+        std::mem::swap(&mut self.bytes, &mut self.prev);
         if let Err((filled, e)) = read_full(reader, &mut self.bytes) {
+            // Start over on the next request: the buffers hold a partial slice.
             self.reader = None;
+            self.next_z = 0;
             let slice_len = self.grid.slice_len();
             let voxel = z
                 .saturating_mul(slice_len as u64)
@@ -150,14 +157,16 @@ impl VolumeSource for StreamVolume {
 
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
         check_request(self, z, out)?;
-        if z + 1 != self.next_z {
-            if z < self.next_z {
-                self.reader = None;
-                self.next_z = 0;
-            }
-            while self.next_z <= z {
-                self.advance()?;
-            }
+        if z + 2 == self.next_z {
+            decode(self.dtype, self.endian, &self.prev, out);
+            return Ok(());
+        }
+        if z + 1 < self.next_z {
+            self.reader = None;
+            self.next_z = 0;
+        }
+        while self.next_z <= z {
+            self.advance()?;
         }
         decode(self.dtype, self.endian, &self.bytes, out);
         Ok(())
@@ -222,7 +231,7 @@ mod tests {
     }
 
     #[test]
-    fn forward_back_one_and_rewind() {
+    fn back_one_is_cached_and_further_back_rewinds() {
         let (mut v, opens) = volume((0..16).collect(), [2, 2, 4]);
         let mut out = [0.0f32; 4];
         v.read_slice(0, &mut out).unwrap();
@@ -230,16 +239,17 @@ mod tests {
         assert_eq!(out, [4.0, 5.0, 6.0, 7.0]);
         v.read_slice(0, &mut out).unwrap();
         assert_eq!(out, [0.0, 1.0, 2.0, 3.0]);
-        assert_eq!(
-            opens.load(Ordering::SeqCst),
-            2,
-            "going back re-opens the stream"
-        );
+        v.read_slice(2, &mut out).unwrap();
         v.read_slice(3, &mut out).unwrap();
         assert_eq!(out, [12.0, 13.0, 14.0, 15.0]);
-        v.read_slice(3, &mut out).unwrap();
-        assert_eq!(out[0], 12.0);
-        assert_eq!(opens.load(Ordering::SeqCst), 2);
+        assert_eq!(
+            opens.load(Ordering::SeqCst),
+            1,
+            "z - 1 comes from the cache"
+        );
+        v.read_slice(1, &mut out).unwrap();
+        assert_eq!(out, [4.0, 5.0, 6.0, 7.0]);
+        assert_eq!(opens.load(Ordering::SeqCst), 2, "z - 2 re-opens the stream");
     }
 
     #[test]
@@ -252,5 +262,43 @@ mod tests {
             e.to_string(),
             "mem.bin: test payload voxel 14 (slice 3): expected 16 voxels of u8 for dims 2x2x4, found \"end of data (truncated file?)\""
         );
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+
+        /// Any order of slice requests returns the same slices as an in-memory volume; the pipeline's
+        /// pattern (forward, sometimes z - 1 again) never reopens the stream.
+        #[test]
+        fn any_request_order_matches_memory(
+            dims in proptest::array::uniform3(2u64..6),
+            requests in proptest::collection::vec(0u64..64, 1..20),
+        ) {
+            let n = (dims[0] * dims[1] * dims[2]) as usize;
+            let bytes: Vec<u8> = (0..n).map(|i| (i * 7 % 256) as u8).collect();
+            let grid = Grid::new(dims, [1.0; 3], [0.0; 3]).unwrap();
+            let mut mem = crate::MemoryVolume::new(grid, bytes.iter().map(|&b| f32::from(b)).collect())
+                .unwrap();
+            let (mut v, _) = volume(bytes, dims);
+            let (mut a, mut b) = (vec![0.0f32; grid.slice_len()], vec![0.0f32; grid.slice_len()]);
+            for z in requests.into_iter().map(|z| z % dims[2]) {
+                v.read_slice(z, &mut a).unwrap();
+                mem.read_slice(z, &mut b).unwrap();
+                proptest::prop_assert_eq!(&a, &b);
+            }
+        }
+
+        #[test]
+        fn pipeline_order_opens_once(dims in proptest::array::uniform3(2u64..6)) {
+            let n = (dims[0] * dims[1] * dims[2]) as usize;
+            let (mut v, opens) = volume(vec![1; n], dims);
+            let mut out = vec![0.0f32; (dims[0] * dims[1]) as usize];
+            for z in 0..dims[2] {
+                v.read_slice(z, &mut out).unwrap();
+                v.read_slice(z.saturating_sub(1), &mut out).unwrap();
+                v.read_slice(z, &mut out).unwrap();
+            }
+            proptest::prop_assert_eq!(opens.load(Ordering::SeqCst), 1);
+        }
     }
 }
