@@ -1,0 +1,169 @@
+//! Criterion benches of the three hot paths, on procedural volumes (no data files):
+//!
+//! * `extract/gyroid128`: `Extractor::extract_slab` over a 128^3 gyroid whose slices are computed
+//!   before timing (throughput in extracted triangles);
+//! * `simplify/gyroid128_rate0.2`: `Simplifier` fed with the extractor + detector output of the same
+//!   gyroid, recorded before timing, Hou and Chen's rate policy at R = 0.2 (throughput in input
+//!   triangles);
+//! * `pipeline/sphere128_rate0.1`: a whole `isostream_pipeline::run` (five threads, SMB written to
+//!   a temporary folder) on a 128^3 procedural sphere.
+//!
+//! Run: `cargo bench --bench pipeline` (about 30 s in all; add `-- extract` to pick one group).
+//! Sample counts are small on purpose: the machine is shared, read medians and their spread.
+
+use std::hint::black_box;
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use isostream_detect::{Detector, MeshDelta};
+use isostream_extract::{CubeBatch, Extractor};
+use isostream_pipeline::JobConfig;
+use isostream_simplify::{OutBatch, Policy, Simplifier, SimplifyConfig};
+use isostream_volume::{Grid, Procedural, Shape, VolumeSource};
+
+const N: u64 = 128;
+const BATCH_TRIANGLES: usize = 8192;
+
+/// All slices of a procedural volume, computed once.
+fn slices(shape: Shape, n: u64) -> (Grid, Vec<Vec<f32>>) {
+    let mut source = Procedural::new(shape, [n; 3], [1.0; 3], [0.0; 3]).unwrap();
+    let grid = source.grid();
+    let slices = (0..n)
+        .map(|z| {
+            let mut s = vec![0.0f32; grid.slice_len()];
+            source.read_slice(z, &mut s).unwrap();
+            s
+        })
+        .collect();
+    (grid, slices)
+}
+
+/// Runs the extractor over every slab, handing each batch to `sink`; returns the triangle count.
+fn extract_all(grid: Grid, slices: &[Vec<f32>], mut sink: impl FnMut(CubeBatch)) -> u64 {
+    let mut extractor = Extractor::new(grid, 0.0);
+    let mut triangles = 0u64;
+    for z in 0..slices.len() - 1 {
+        extractor
+            .extract_slab(
+                z as u64,
+                &slices[z],
+                &slices[z + 1],
+                BATCH_TRIANGLES,
+                |batch| {
+                    triangles += batch.triangle_count() as u64;
+                    sink(batch);
+                    Ok::<_, ()>(())
+                },
+            )
+            .unwrap();
+    }
+    triangles
+}
+
+fn extraction(c: &mut Criterion) {
+    let (grid, slices) = slices(Shape::Gyroid, N);
+    let triangles = extract_all(grid, &slices, |_| {});
+    let mut group = c.benchmark_group("extract");
+    group.throughput(Throughput::Elements(triangles));
+    group.bench_function("gyroid128", |b| {
+        b.iter(|| black_box(extract_all(grid, &slices, |batch| drop(black_box(batch)))))
+    });
+    group.finish();
+}
+
+fn simplification(c: &mut Criterion) {
+    let (grid, slices) = slices(Shape::Gyroid, N);
+    let mut detector = Detector::new(grid.dims);
+    let mut deltas = Vec::new();
+    let triangles = extract_all(grid, &slices, |batch| {
+        let mut delta = MeshDelta::default();
+        detector.process(&batch, &mut delta);
+        deltas.push(delta);
+    });
+    drop(slices);
+    let config = SimplifyConfig {
+        policy: Policy::Rate {
+            rate: 0.2,
+            batch: 10_000,
+            initial_rate: 0.5,
+        },
+        retire_lag: 8,
+        max_resident_faces: usize::MAX / 2,
+        attributes: 0,
+    };
+    let mut group = c.benchmark_group("simplify");
+    group.throughput(Throughput::Elements(triangles));
+    group.bench_function("gyroid128_rate0.2", |b| {
+        b.iter(|| {
+            let mut simplifier = Simplifier::new(config.clone()).unwrap();
+            simplifier.set_rank_spacing(grid.spacing[2]);
+            let mut out = OutBatch::default();
+            for delta in &deltas {
+                for v in &delta.vertices {
+                    simplifier.add_vertex(v.id, v.pos, v.rank, &[]);
+                }
+                for &t in &delta.triangles {
+                    simplifier.add_triangle(t);
+                }
+                for &id in &delta.modifiable {
+                    simplifier.set_modifiable(id);
+                }
+                if delta.end_of_volume {
+                    simplifier.finish(&mut out);
+                } else {
+                    simplifier.end_batch(delta.front, &mut out);
+                }
+                out.elements.clear();
+                out.attrs.clear();
+            }
+            black_box(simplifier.stats())
+        })
+    });
+    group.finish();
+}
+
+fn whole_run(c: &mut Criterion) {
+    let dir = tempfile::tempdir().unwrap();
+    let job_path = dir.path().join("sphere.toml");
+    std::fs::write(
+        &job_path,
+        format!(
+            "[input]\nshape = \"sphere\"\nsize = [{N}, {N}, {N}]\n\n[extract]\niso = 0.0\n\n\
+             [simplify]\nmode = \"rate\"\nrate = 0.1\n\n[output]\npath = \"sphere.smb\"\n\
+             summary = false\n"
+        ),
+    )
+    .unwrap();
+    let job = JobConfig::load(&job_path).unwrap();
+    let cancel = AtomicBool::new(false);
+    let first = run(&job, &job_path, &cancel);
+    let mut group = c.benchmark_group("pipeline");
+    group.throughput(Throughput::Elements(first));
+    group.bench_function("sphere128_rate0.1", |b| {
+        b.iter(|| black_box(run(&job, &job_path, &cancel)))
+    });
+    group.finish();
+}
+
+/// One whole run; returns the extracted face count.
+fn run(job: &JobConfig, job_path: &Path, cancel: &AtomicBool) -> u64 {
+    isostream_pipeline::run(job, job_path, cancel, &|_| {})
+        .unwrap()
+        .faces_extracted
+}
+
+fn config() -> Criterion {
+    Criterion::default()
+        .sample_size(10)
+        .warm_up_time(Duration::from_secs(1))
+        .measurement_time(Duration::from_secs(5))
+}
+
+criterion_group! {
+    name = benches;
+    config = config();
+    targets = extraction, simplification, whole_run
+}
+criterion_main!(benches);
