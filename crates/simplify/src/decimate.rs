@@ -127,11 +127,12 @@ impl Simplifier {
     /// highest rank never falls behind), never retire, and keep ever more retired neighbours
     /// resident: on a straight tube along the sweep, contractions along the axis cost nothing.
     /// Bounding the rank span of every preimage to `2 * retire_lag + 2` slabs bounds the life of
-    /// every vertex, and so the resident band, independently of the surface.
+    /// every vertex, and so the resident band, independently of the surface. Coincident vertices
+    /// are exempt: merging them moves nothing, and leaving them would leave zero-area triangles.
     fn span_ok(&self, a: u64, b: u64) -> bool {
         let max_span = self.config.retire_lag.saturating_mul(2).saturating_add(2);
         match (self.store.vertex(a), self.store.vertex(b)) {
-            (Some(va), Some(vb)) => va.merged_span(vb) <= max_span,
+            (Some(va), Some(vb)) => va.pos == vb.pos || va.merged_span(vb) <= max_span,
             _ => false,
         }
     }

@@ -359,3 +359,44 @@ fn isotropy_improves_triangle_shape_within_the_error_bound() {
         "anisotropy with alpha 0.5 {iso:?}, alpha 0 {plain:?}"
     );
 }
+
+/// Closest to what the extractor sends: grid-edge vertices, z slabs, and many grid values exactly
+/// at the iso value (integer fields), which put several vertices on one point.
+#[test]
+fn marching_tetrahedra_surfaces_with_exact_iso_values() {
+    let c = DVec3::new(20.0, 20.0, 20.0);
+    let sphere_field = |p: DVec3| (p - c).length_squared();
+    let torus_field = |p: DVec3| {
+        let d = p - c;
+        let ring = (d.x * d.x + d.y * d.y).sqrt() - 12.0;
+        (ring * ring + d.z * d.z).round()
+    };
+    let cases = [
+        marching_tetrahedra([40, 40, 40], 225.0, sphere_field),
+        marching_tetrahedra([40, 40, 40], 25.0, torus_field),
+    ];
+    for input in &cases {
+        let before = input.check();
+        assert!(
+            before.is_closed_manifold() && before.zero_area_triangles > 0,
+            "{before:?}"
+        );
+        let policies = [
+            rate(0.1, 2000),
+            Policy::Error {
+                e0: 0.1,
+                time_lag: true,
+                isotropy: 0.2,
+            },
+        ];
+        for policy in policies {
+            let run = run(input, config(policy.clone(), 8), &Sweep::default());
+            assert_same_topology(input, &run);
+            assert_eq!(run.check().zero_area_triangles, 0, "{:?}", run.stats);
+            if let Policy::Rate { rate, .. } = policy {
+                assert_rate_met(input, &run, rate);
+            }
+            assert_eq!(run.stats.lag_violations, 0);
+        }
+    }
+}

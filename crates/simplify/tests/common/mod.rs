@@ -380,7 +380,7 @@ pub fn collect(out: &OutBatch, attributes: usize) -> (Mesh, Vec<f32>) {
 }
 
 /// Topology is preserved: valid (oriented, no duplicates), closed stays closed, the same
-/// Euler characteristic per component, no zero-area triangles.
+/// Euler characteristic per component, and no zero-area triangle unless the input had some.
 pub fn assert_same_topology(input: &Mesh, run: &Run) {
     let (a, b) = (input.check(), run.check());
     assert!(b.is_valid_manifold(), "{b:?}");
@@ -390,5 +390,90 @@ pub fn assert_same_topology(input: &Mesh, run: &Run) {
         "closed stays closed: {b:?}"
     );
     assert_eq!(a.sorted_eulers(), b.sorted_eulers(), "{b:?}");
-    assert_eq!(b.zero_area_triangles, 0, "{b:?}");
+    assert!(
+        a.zero_area_triangles > 0 || b.zero_area_triangles == 0,
+        "{b:?}"
+    );
+}
+
+/// Marching tetrahedra over the grid `0..n` (six tetrahedra per cube around the main diagonal):
+/// a watertight, consistently oriented surface whose vertices are keyed by grid edge, like the
+/// extractor's. Where a grid value equals `iso` several vertices land on one point (zero-length
+/// edges, zero-area triangles), as with marching cubes.
+pub fn marching_tetrahedra(n: [u32; 3], iso: f64, f: impl Fn(DVec3) -> f64) -> Mesh {
+    let corner = |i: u32| DVec3::new(f64::from(i & 1), f64::from((i >> 1) & 1), f64::from(i >> 2));
+    // Cube corners 0 and 7 are opposite; each tetrahedron is 0-7 plus two adjacent corners.
+    const TETS: [[u32; 4]; 6] = [
+        [0, 1, 3, 7],
+        [0, 3, 2, 7],
+        [0, 2, 6, 7],
+        [0, 6, 4, 7],
+        [0, 4, 5, 7],
+        [0, 5, 1, 7],
+    ];
+    let mut mesh = Mesh::default();
+    let mut ids: HashMap<([i64; 3], [i64; 3]), u32> = HashMap::new();
+    let key = |p: DVec3| p.to_array().map(|c| c as i64);
+    for z in 0..n[2] {
+        for y in 0..n[1] {
+            for x in 0..n[0] {
+                let base = DVec3::new(f64::from(x), f64::from(y), f64::from(z));
+                for tet in TETS {
+                    let p = tet.map(|c| base + corner(c));
+                    let inside: Vec<usize> = (0..4).filter(|&i| f(p[i]) < iso).collect();
+                    if inside.is_empty() || inside.len() == 4 {
+                        continue;
+                    }
+                    let outside: Vec<usize> = (0..4).filter(|i| !inside.contains(i)).collect();
+                    let mut vertex = |a: usize, b: usize| {
+                        let (ka, kb) = (key(p[a]), key(p[b]));
+                        let k = if ka < kb { (ka, kb) } else { (kb, ka) };
+                        let pos = &mut mesh.pos;
+                        let (va, vb) = (f(p[a]), f(p[b]));
+                        *ids.entry(k).or_insert_with(|| {
+                            let t = (iso - va) / (vb - va);
+                            pos.push(p[a] + t * (p[b] - p[a]));
+                            pos.len() as u32 - 1
+                        })
+                    };
+                    // Crossing edges, in cyclic order around the section.
+                    let (cross, mid_in, mid_out): (Vec<(usize, usize)>, DVec3, DVec3) = {
+                        let c =
+                            |s: &[usize]| s.iter().map(|&i| p[i]).sum::<DVec3>() / s.len() as f64;
+                        let e = match (inside.len(), outside.len()) {
+                            (1, 3) => outside.iter().map(|&o| (inside[0], o)).collect(),
+                            (3, 1) => inside.iter().map(|&i| (i, outside[0])).collect(),
+                            _ => vec![
+                                (inside[0], outside[0]),
+                                (inside[0], outside[1]),
+                                (inside[1], outside[1]),
+                                (inside[1], outside[0]),
+                            ],
+                        };
+                        (e, c(&inside), c(&outside))
+                    };
+                    let verts: Vec<u32> = cross.iter().map(|&(a, b)| vertex(a, b)).collect();
+                    // Orientation from edge midpoints (never degenerate): normals point outside.
+                    let mids: Vec<DVec3> =
+                        cross.iter().map(|&(a, b)| 0.5 * (p[a] + p[b])).collect();
+                    let flip = (mids[1] - mids[0])
+                        .cross(mids[2] - mids[0])
+                        .dot(mid_out - mid_in)
+                        < 0.0;
+                    let mut emit = |i: usize, j: usize, k: usize| {
+                        mesh.tris.push(if flip {
+                            [verts[i], verts[k], verts[j]]
+                        } else {
+                            [verts[i], verts[j], verts[k]]
+                        });
+                    };
+                    emit(0, 1, 2);
+                    if verts.len() == 4 {
+                        emit(0, 2, 3);
+                    }
+                }
+            }
+        }
+    }
+    mesh
 }
