@@ -20,7 +20,7 @@ pub fn measure(
         None => None,
         Some(job_path) => {
             let job = JobConfig::load(job_path)?;
-            let mut source = open_source(&job.input, job_path)?;
+            let mut source = open_source(&job.input)?;
             let defaults = MeasureOptions::default();
             let opts = MeasureOptions {
                 samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),

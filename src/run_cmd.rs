@@ -12,7 +12,7 @@ use isostream_pipeline::{JobConfig, Progress, RunSummary};
 pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
     // Opening the source checks the input file (exists, size matches dims and type).
-    let source = isostream_pipeline::open_source(&job.input, job_path)?;
+    let source = isostream_pipeline::open_source(&job.input)?;
     let grid = source.grid();
     println!(
         "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",

@@ -29,27 +29,43 @@ pub struct JobConfig {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct InputConfig {
-    /// A volume file (relative paths are relative to the job file). Exclusive with `shape`.
+    /// A volume file (relative paths are relative to the job file): raw, NRRD (.nrrd/.nhdr),
+    /// NIfTI (.nii/.nii.gz), VTK (.vti/.vtk) or TIFF (a file or a folder of slices), chosen by
+    /// extension or magic bytes. Exclusive with `shape`.
     pub path: Option<PathBuf>,
     /// A procedural volume instead of a file.
     pub shape: Option<Shape>,
     /// Grid size of a procedural volume.
     pub size: Option<[u64; 3]>,
-    /// Voxel dimensions of a raw file (x y z).
+    /// Voxel dimensions of a raw file (x y z); formats with a header define their own.
     pub dims: Option<[u64; 3]>,
+    /// Voxel type of a raw file.
     pub dtype: Option<Dtype>,
-    #[serde(default)]
-    pub endian: Endian,
-    #[serde(default = "unit_spacing")]
-    pub spacing: [f64; 3],
-    #[serde(default)]
-    pub origin: [f64; 3],
-    #[serde(default)]
-    pub header_bytes: u64,
+    /// Byte order of a raw file (default little).
+    pub endian: Option<Endian>,
+    /// Bytes to skip at the start of a raw file (default 0).
+    pub header_bytes: Option<u64>,
+    /// Voxel size; overrides the file header (default: the header's, else 1 1 1).
+    pub spacing: Option<[f64; 3]>,
+    /// Position of voxel (0,0,0); overrides the file header (default: the header's, else 0).
+    pub origin: Option<[f64; 3]>,
+    /// The array to read from a multi-array file (VTK), by name.
+    pub array: Option<String>,
 }
 
-fn unit_spacing() -> [f64; 3] {
-    [1.0; 3]
+impl InputConfig {
+    /// What a file reader needs besides the path.
+    pub fn open_options(&self) -> isostream_volume::OpenOptions {
+        isostream_volume::OpenOptions {
+            dims: self.dims,
+            dtype: self.dtype,
+            endian: self.endian,
+            header_bytes: self.header_bytes,
+            spacing: self.spacing,
+            origin: self.origin,
+            array: self.array.clone(),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -282,19 +298,18 @@ impl JobConfig {
             }
             (Some(_), None) => {}
         }
-        if i.spacing.iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+        if let Some(sp) = i
+            .spacing
+            .filter(|sp| sp.iter().any(|s| !(s.is_finite() && *s > 0.0)))
+        {
             return Err(bad(
                 "input.spacing",
                 "three finite values > 0",
-                format!("{:?}", i.spacing),
+                format!("{sp:?}"),
             ));
         }
-        if i.origin.iter().any(|s| !s.is_finite()) {
-            return Err(bad(
-                "input.origin",
-                "three finite values",
-                format!("{:?}", i.origin),
-            ));
+        if let Some(o) = i.origin.filter(|o| o.iter().any(|s| !s.is_finite())) {
+            return Err(bad("input.origin", "three finite values", format!("{o:?}")));
         }
         if !self.extract.iso.is_finite() {
             return Err(bad(
@@ -396,7 +411,7 @@ mod tests {
         let job = parse(MINIMAL).unwrap();
         assert_eq!(job.simplify.mode, Mode::Rate);
         assert_eq!(job.pipeline.channel_capacity, 8);
-        assert_eq!(job.input.spacing, [1.0; 3]);
+        assert_eq!(job.input.spacing, None);
     }
 
     #[test]
@@ -443,7 +458,7 @@ mod tests {
 
     #[test]
     fn output_extension_is_checked() {
-        let text = MINIMAL.replace(".smb", ".stl");
+        let text = MINIMAL.replace(".smb", ".xyz");
         let err = parse(&text).unwrap_err().to_string();
         assert!(err.contains("output.path"), "{err}");
     }

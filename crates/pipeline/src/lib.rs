@@ -66,7 +66,7 @@ pub fn run(
     observer: &(dyn Fn(&Progress) + Sync),
 ) -> Result<RunSummary, RunError> {
     let started = Instant::now();
-    let source = open_source(&job.input, job_path)?;
+    let source = open_source(&job.input)?;
     let grid = source.grid();
     let input = source.describe();
     info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");

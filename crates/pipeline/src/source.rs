@@ -1,42 +1,22 @@
 //! Turns `[input]` into a volume source.
 
-use isostream_volume::{Procedural, RawSpec, RawVolume, VolumeError, VolumeSource};
+use isostream_volume::{Procedural, VolumeSource};
 
 use crate::config::InputConfig;
-use crate::error::{ConfigError, RunError};
+use crate::error::RunError;
 
-/// Opens the volume a job names. Raw files need `dims` and `dtype`; procedural shapes `size`.
-pub fn open_source(
-    input: &InputConfig,
-    job: &std::path::Path,
-) -> Result<Box<dyn VolumeSource>, RunError> {
+/// Opens the volume a job names: a procedural shape, or a file in any format `volume` reads.
+pub fn open_source(input: &InputConfig) -> Result<Box<dyn VolumeSource>, RunError> {
     if let Some(shape) = input.shape {
         let size = input.size.unwrap_or([2; 3]);
-        let p = Procedural::new(shape, size, input.spacing, input.origin)?;
+        let p = Procedural::new(
+            shape,
+            size,
+            input.spacing.unwrap_or([1.0; 3]),
+            input.origin.unwrap_or([0.0; 3]),
+        )?;
         return Ok(Box::new(p));
     }
     let path = input.path.clone().unwrap_or_default();
-    let missing = |key: &str, what: &str| {
-        RunError::Config(ConfigError::Invalid {
-            path: job.to_path_buf(),
-            key: format!("input.{key}"),
-            expected: format!("{what} for the raw file {}", path.display()),
-            got: "nothing".into(),
-        })
-    };
-    let dims = input.dims.ok_or_else(|| missing("dims", "[nx, ny, nz]"))?;
-    let dtype = input
-        .dtype
-        .ok_or_else(|| missing("dtype", "one of u8 i8 u16 i16 u32 i32 f32 f64"))?;
-    let spec = RawSpec {
-        path,
-        dims,
-        dtype,
-        endian: input.endian,
-        spacing: input.spacing,
-        origin: input.origin,
-        header_bytes: input.header_bytes,
-    };
-    let raw: Result<RawVolume, VolumeError> = RawVolume::open(&spec);
-    Ok(Box::new(raw?))
+    Ok(isostream_volume::open_path(&path, &input.open_options())?)
 }
