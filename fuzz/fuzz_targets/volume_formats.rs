@@ -1,0 +1,43 @@
+//! Every volume reader on arbitrary bytes: the first byte picks the format (by file extension),
+//! the rest is the file. Readers must return an error, never panic, hang or over-allocate.
+#![no_main]
+
+use std::io::Write;
+
+use isostream_volume::{Dtype, OpenOptions, open_path};
+use libfuzzer_sys::fuzz_target;
+
+const EXTENSIONS: [&str; 7] = ["nrrd", "vtk", "vti", "nii", "nii.gz", "tif", "raw"];
+
+fuzz_target!(|data: &[u8]| {
+    let Some((&pick, body)) = data.split_first() else {
+        return;
+    };
+    let ext = EXTENSIONS[pick as usize % EXTENSIONS.len()];
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = dir.path().join(format!("input.{ext}"));
+    std::fs::File::create(&path)
+        .and_then(|mut f| f.write_all(body))
+        .expect("write input");
+    let opts = if ext == "raw" {
+        OpenOptions {
+            dims: Some([4, 4, 2]),
+            dtype: Some(Dtype::U8),
+            ..OpenOptions::default()
+        }
+    } else {
+        OpenOptions::default()
+    };
+    if let Ok(mut source) = open_path(&path, &opts) {
+        let grid = source.grid();
+        // Bound the work on huge claimed dims: read a few slices of a bounded size only.
+        if grid.slice_len() <= 1 << 20 {
+            let mut slice = vec![0f32; grid.slice_len()];
+            for z in 0..grid.dims[2].min(4) {
+                if source.read_slice(z, &mut slice).is_err() {
+                    break;
+                }
+            }
+        }
+    }
+});
