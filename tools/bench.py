@@ -22,7 +22,8 @@ What is measured (every number is the median of --runs runs, default 3):
    * `skimage-open3d` (not in the default --peers: about 70 s per run on engine): scikit-image
      `marching_cubes` + Open3D `simplify_quadric_decimation(T)`.
    Each run is a fresh child process (peers: `python3 tools/bench.py --worker ...`), timed from the
-   parent as a whole process; peak RSS is the child's own `ru_maxrss` from `os.wait4`. A peer's
+   parent as a whole process; peak RSS is the child's maximum resident set from GNU
+   `/usr/bin/time -f %M` (the child is forked from `time`, so nothing of this script is counted). A peer's
    whole-process time includes the Python interpreter and library imports; its worker also reports
    the in-process seconds of load / extract / simplify, shown separately.
    Every output is checked: `isostream measure` (no --volume) on the mesh (SMB for isostream, a
@@ -68,6 +69,7 @@ NUMPY_DTYPE = {"u8": "<u1", "i8": "<i1", "u16": "<u2", "i16": "<i2", "u32": "<u4
                "f32": "<f4", "f64": "<f8"}
 PEERS = ["skimage-meshopt", "vtk", "skimage-open3d"]
 RATE = 0.2
+TIME = "/usr/bin/time"  # GNU time: -f %M is the peak RSS in KiB
 
 
 # ---------------------------------------------------------------------------------------------
@@ -271,17 +273,23 @@ def worker(args):
 # Parent: processes, measurements, tables
 
 def run_child(argv, log):
-    """Runs argv as a fresh child; returns (wall seconds, peak RSS MiB) from os.wait4."""
+    """Runs argv as a fresh child under /usr/bin/time; returns (wall seconds, peak RSS MiB).
+
+    The child is forked from `time` (a 2 MB process), not from this script: Linux keeps ru_maxrss
+    across exec, so a child forked straight from a Python parent that has imported numpy, VTK or
+    Open3D would report the parent's size as its own peak.
+    """
+    rss_file = Path(str(log) + ".rss")
     with open(log, "wb") as out:
         t = time.perf_counter()
-        p = subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT)
-        _, status, ru = os.wait4(p.pid, 0)
+        p = subprocess.run([TIME, "-f", "%M", "-o", str(rss_file), *map(str, argv)],
+                           stdout=out, stderr=subprocess.STDOUT)
         wall = time.perf_counter() - t
-    p.returncode = os.waitstatus_to_exitcode(status)
     if p.returncode != 0:
         sys.exit(f"{' '.join(map(str, argv))} failed ({p.returncode}); see {log}:\n"
                  + Path(log).read_text(errors="replace")[-2000:])
-    return wall, ru.ru_maxrss / 1024.0  # Linux: KiB
+    kib = int(rss_file.read_text().split()[-1])
+    return wall, kib / 1024.0
 
 
 def prepare_raw(name, work):
