@@ -2,8 +2,6 @@
 //! check topology and geometry, contract, re-queue the new vertex's edges (Garland and Heckbert
 //! 1997; incremental as in Hou and Chen section 3.2).
 
-use glam::DVec3;
-
 use crate::Simplifier;
 use crate::candidates::Candidate;
 use crate::cost::{COINCIDENT, Eval};
@@ -40,7 +38,7 @@ impl Simplifier {
             }
             // Re-evaluated: the placement is not stored in the heap, and objectives reading the
             // neighbourhood (isotropy) may have changed without a stamp change.
-            let Some(eval) = objective.evaluate(&self.store, c.a, c.b, self.rank_spacing) else {
+            let Some(eval) = self.evaluate(objective, c.a, c.b) else {
                 self.stats.rejected_other += 1;
                 continue;
             };
@@ -95,7 +93,7 @@ impl Simplifier {
             if !self.span_ok(a, b) {
                 continue;
             }
-            let Some(eval) = objective.evaluate(&self.store, a, b, self.rank_spacing) else {
+            let Some(eval) = self.evaluate(objective, a, b) else {
                 continue;
             };
             let stamps = [a, b].map(|x| self.store.vertex(x).map_or(0, |x| x.stamp));
@@ -145,6 +143,7 @@ impl Simplifier {
         if self.time_lag && eval.reach > self.front {
             self.stats.lag_violations += 1;
         }
+        let merged = self.merged_data(gone, keep, pos);
         let tris = self
             .store
             .vertex(gone)
@@ -174,7 +173,8 @@ impl Simplifier {
             return;
         };
         (k.height, k.rad) = k.merged_patch(&g, rank_spacing);
-        interpolate_attrs(&mut k.attrs, &g.attrs, g.pos, k.pos, pos);
+        k.attrs = merged.attrs;
+        k.attr_quadric = merged.attr_quadric;
         k.pos = pos;
         k.quadric += g.quadric;
         k.area += g.area;
@@ -203,38 +203,4 @@ fn is_current(store: &Store, c: &Candidate) -> bool {
                 .vertex(id)
                 .is_some_and(|v| v.is_free() && v.stamp == stamp)
         })
-}
-
-/// Attributes of `c` by linear interpolation along the edge, at the projection of `c`.
-fn interpolate_attrs(keep: &mut [f32], gone: &[f32], p_gone: DVec3, p_keep: DVec3, c: DVec3) {
-    let d = p_keep - p_gone;
-    let len2 = d.length_squared();
-    let t = if len2 > 0.0 {
-        ((c - p_gone).dot(d) / len2).clamp(0.0, 1.0)
-    } else {
-        0.5
-    };
-    for (k, g) in keep.iter_mut().zip(gone) {
-        *k = (f64::from(*g) + t * (f64::from(*k) - f64::from(*g))) as f32;
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn attributes_interpolate_at_the_projection_onto_the_edge() {
-        let mut keep = [10.0_f32, 0.0];
-        let gone = [0.0_f32, 4.0];
-        let (pg, pk) = (DVec3::ZERO, DVec3::new(2.0, 0.0, 0.0));
-        interpolate_attrs(&mut keep, &gone, pg, pk, DVec3::new(0.5, 3.0, 0.0));
-        assert_eq!(keep, [2.5, 3.0]);
-        let mut beyond = [10.0_f32];
-        interpolate_attrs(&mut beyond, &[0.0], pg, pk, DVec3::new(9.0, 0.0, 0.0));
-        assert_eq!(beyond, [10.0], "clamped to the edge");
-        let mut same = [1.0_f32];
-        interpolate_attrs(&mut same, &[3.0], pg, pg, pg);
-        assert_eq!(same, [2.0], "coincident endpoints: the mean");
-    }
 }

@@ -43,10 +43,13 @@
 //! unretired band.
 #![deny(unsafe_code)]
 
+mod attribute_quadric;
 mod candidates;
 mod cost;
+mod data_dependent;
 mod decimate;
 mod policy;
+mod priority;
 mod quadric;
 mod retire;
 mod store;
@@ -56,6 +59,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 pub use policy::Policy;
+pub use priority::Priority;
 
 use candidates::Candidates;
 use cost::Objective;
@@ -140,6 +144,8 @@ pub enum OutElement {
 pub struct Simplifier {
     config: SimplifyConfig,
     objective: Option<Objective>,
+    /// Edge order and attribute merging (`priority`; set with [`Simplifier::set_priority`]).
+    priority: Priority,
     schedule: Schedule,
     time_lag: bool,
     rank_spacing: f64,
@@ -164,6 +170,7 @@ impl Simplifier {
             objective: config.policy.objective(),
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
+            priority: Priority::default(),
             rank_spacing: 1.0,
             config,
             store: Store::default(),
@@ -252,6 +259,7 @@ impl Simplifier {
             return;
         };
         v.modifiable = true;
+        self.add_attribute_quadric(v);
         v.boundary = boundary;
         let tris = v.tris.clone();
         for t in tris {

@@ -53,6 +53,8 @@ pub(crate) struct Vertex {
     pub(crate) out: Option<u64>,
     pub(crate) tris: TriList,
     pub(crate) attrs: Box<[f32]>,
+    /// Position-and-attribute quadric of the preimage (attribute-quadric priority only).
+    pub(crate) attr_quadric: Option<Box<crate::attribute_quadric::AttrQuadric>>,
 }
 
 impl Vertex {
@@ -73,6 +75,7 @@ impl Vertex {
             out: None,
             tris: TriList::new(),
             attrs: attrs.into(),
+            attr_quadric: None,
         }
     }
 

@@ -1,0 +1,264 @@
+//! Which edge goes first, and how vertex data merges: the data-aware priorities (issue 5).
+//!
+//! The mode ([`crate::Policy`]: rate, error, tandem time-lag) says how far to decimate; the
+//! [`Priority`] says in which order and, for the attribute quadric, where. Both plug into the one
+//! contraction loop in `decimate` through [`Simplifier::evaluate`] and
+//! [`Simplifier::merged_data`]; every topology and geometry check stays the same.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::attribute_quadric::{self, AttrQuadric};
+use crate::cost::{COINCIDENT, Eval, Objective};
+use crate::data_dependent;
+use crate::store::Vertex;
+use crate::{Simplifier, SimplifyError};
+
+/// Order (and for the attribute quadric, placement) of contractions.
+#[derive(Debug, Clone, PartialEq, Default, Deserialize, Serialize)]
+pub enum Priority {
+    /// The mode's own objective (Garland-Heckbert quadric error, or the Tandem measure).
+    #[default]
+    Geometric,
+    /// Seed 001 (data-dependent reduction): vertex weight
+    /// `lambda curv(v) + (1 - lambda) grad(v)`, `curv` the absolute angle deficit
+    /// (`2 pi - total angle`, `pi - total angle` on the boundary) and `grad` the largest
+    /// `|f_i - f|_1 / |x_i - x|_1` over the neighbours; an edge costs the sum of its endpoints'
+    /// weights. The placement is the mode's objective's.
+    DataDependent { lambda: f64 },
+    /// Garland and Heckbert 1998 quadrics over position and attributes, attribute `j` scaled by
+    /// `weights[j]`: placement and attributes minimise the summed squared distances to the
+    /// triangles' planes in R^(3+m), the cost is that minimum.
+    AttributeQuadric { weights: Vec<f64> },
+}
+
+impl Priority {
+    pub(crate) fn validate(&self, attributes: usize) -> Result<(), SimplifyError> {
+        let invalid = |why: String| Err(SimplifyError::InvalidPolicy(why));
+        match self {
+            Priority::Geometric => Ok(()),
+            Priority::DataDependent { lambda } if !(0.0..=1.0).contains(lambda) => {
+                invalid(format!("lambda must be in [0, 1], got {lambda}"))
+            }
+            Priority::DataDependent { .. } => Ok(()),
+            Priority::AttributeQuadric { weights } if weights.len() != attributes => {
+                invalid(format!(
+                    "{} attribute weights for {attributes} attributes",
+                    weights.len()
+                ))
+            }
+            Priority::AttributeQuadric { weights }
+                if weights.iter().any(|w| !(*w > 0.0 && w.is_finite())) =>
+            {
+                invalid("attribute weights must be positive and finite".into())
+            }
+            Priority::AttributeQuadric { .. } => Ok(()),
+        }
+    }
+}
+
+/// What a contraction gives the surviving vertex besides its position.
+pub(crate) struct Merged {
+    pub(crate) attrs: Box<[f32]>,
+    pub(crate) attr_quadric: Option<Box<AttrQuadric>>,
+}
+
+impl Simplifier {
+    /// Sets the priority. Call before the first vertex (the attribute quadric accumulates from the
+    /// first triangle on).
+    ///
+    /// # Errors
+    /// `lambda` outside [0, 1], or attribute weights not one positive number per attribute.
+    pub fn set_priority(&mut self, priority: Priority) -> Result<(), SimplifyError> {
+        priority.validate(self.config.attributes)?;
+        self.priority = priority;
+        Ok(())
+    }
+
+    pub fn priority(&self) -> &Priority {
+        &self.priority
+    }
+
+    /// Cost and placement of `ab -> c`: the objective's, re-ranked or re-placed by the priority.
+    pub(crate) fn evaluate(&self, objective: Objective, a: u64, b: u64) -> Option<Eval> {
+        let mut eval = objective.evaluate(&self.store, a, b, self.rank_spacing)?;
+        if eval.cost == COINCIDENT {
+            return Some(eval);
+        }
+        match &self.priority {
+            Priority::Geometric => {}
+            Priority::DataDependent { lambda } => {
+                eval.cost = data_dependent::weight(&self.store, a, *lambda)
+                    + data_dependent::weight(&self.store, b, *lambda);
+            }
+            Priority::AttributeQuadric { weights } => {
+                let e0 = match objective {
+                    Objective::Shape { e0, .. } => e0,
+                    Objective::Quadric => f64::INFINITY,
+                };
+                let (pos, cost, shape) = attribute_quadric::place(&self.store, a, b, weights)?;
+                if shape > e0 {
+                    return None;
+                }
+                eval.pos = pos;
+                eval.cost = cost;
+                eval.shape_error = shape;
+            }
+        }
+        Some(eval)
+    }
+
+    /// Attributes (and attribute quadric) of the vertex replacing `gone` and `keep` at `pos`.
+    /// Called before the contraction changes the store.
+    pub(crate) fn merged_data(&self, gone: u64, keep: u64, pos: DVec3) -> Merged {
+        let (Some(g), Some(k)) = (self.store.vertex(gone), self.store.vertex(keep)) else {
+            return Merged {
+                attrs: Box::default(),
+                attr_quadric: None,
+            };
+        };
+        match (&self.priority, &g.attr_quadric, &k.attr_quadric) {
+            (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
+                let q = qg.sum(qk);
+                let attrs = q
+                    .attributes_at(pos, weights)
+                    .unwrap_or_else(|| interpolated(g, k, pos));
+                Merged {
+                    attrs,
+                    attr_quadric: Some(Box::new(q)),
+                }
+            }
+            _ => Merged {
+                attrs: self
+                    .interpolated_in_patch(gone, keep, pos)
+                    .unwrap_or_else(|| interpolated(g, k, pos)),
+                attr_quadric: None,
+            },
+        }
+    }
+
+    /// Attributes at `c` by the barycentric weights of its projection in the patch triangle
+    /// (around `gone` and `keep`) that contains it best (the largest smallest coordinate;
+    /// clamped when `c` is outside them all). Exact for attributes linear in position on flat
+    /// patches, wherever the placement went (isotropy moves it off the edge). `None` when the
+    /// vertices carry no attributes or the patch has no proper triangle.
+    fn interpolated_in_patch(&self, gone: u64, keep: u64, c: DVec3) -> Option<Box<[f32]>> {
+        let m = self.config.attributes;
+        if m == 0 {
+            return None;
+        }
+        let mut best: Option<(f64, [u64; 3], [f64; 3])> = None;
+        for t in crate::topology::patch(&self.store, gone, keep) {
+            let tri = self.store.tri(t);
+            let [p0, p1, p2] = self.store.corners(tri);
+            let (e1, e2, d) = (p1 - p0, p2 - p0, c - p0);
+            let (a11, a12, a22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+            let det = a11 * a22 - a12 * a12;
+            if det.is_nan() || det <= 1e-12 * a11 * a22 {
+                continue;
+            }
+            let (b1, b2) = (d.dot(e1), d.dot(e2));
+            let u = (a22 * b1 - a12 * b2) / det;
+            let v = (a11 * b2 - a12 * b1) / det;
+            let w = [1.0 - u - v, u, v];
+            let score = w[0].min(w[1]).min(w[2]);
+            if best.is_none_or(|(s, _, _)| score > s) {
+                best = Some((score, tri.v, w));
+            }
+        }
+        let (score, ids, mut w) = best?;
+        if score < 0.0 {
+            w = w.map(|x| x.max(0.0));
+            let sum: f64 = w.iter().sum();
+            w = w.map(|x| x / sum);
+        }
+        let corners = ids.map(|id| self.store.vertex(id));
+        let mut out = vec![0.0f64; m];
+        for (wi, v) in w.iter().zip(corners) {
+            for (o, a) in out.iter_mut().zip(v?.attrs.iter()) {
+                *o += wi * f64::from(*a);
+            }
+        }
+        Some(out.into_iter().map(|x| x as f32).collect())
+    }
+
+    /// Adds triangle `v`'s attribute quadric to its corners (attribute-quadric priority only).
+    pub(crate) fn add_attribute_quadric(&mut self, v: [u64; 3]) {
+        let Priority::AttributeQuadric { weights } = &self.priority else {
+            return;
+        };
+        let corners = v.map(|id| self.store.vertex(id).map(|x| (x.pos, x.attrs.clone())));
+        let [Some(p0), Some(p1), Some(p2)] = corners else {
+            return;
+        };
+        let Some(q) = AttrQuadric::triangle([&p0, &p1, &p2], weights) else {
+            return;
+        };
+        for id in v {
+            if let Some(x) = self.store.vertex_mut(id) {
+                match &mut x.attr_quadric {
+                    Some(acc) => acc.add(&q),
+                    None => x.attr_quadric = Some(Box::new(q.clone())),
+                }
+            }
+        }
+    }
+}
+
+/// Attributes by linear interpolation along the edge, at the projection of `c` onto it: the
+/// fallback when the patch has no proper triangle.
+fn interpolated(gone: &Vertex, keep: &Vertex, c: DVec3) -> Box<[f32]> {
+    let d = keep.pos - gone.pos;
+    let len2 = d.length_squared();
+    let t = if len2 > 0.0 {
+        ((c - gone.pos).dot(d) / len2).clamp(0.0, 1.0)
+    } else {
+        0.5
+    };
+    keep.attrs
+        .iter()
+        .zip(gone.attrs.iter())
+        .map(|(k, g)| (f64::from(*g) + t * (f64::from(*k) - f64::from(*g))) as f32)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn vertex(pos: DVec3, attrs: &[f32]) -> Vertex {
+        Vertex::new(pos, 0, attrs)
+    }
+
+    #[test]
+    fn attributes_interpolate_at_the_projection_onto_the_edge() {
+        let (g, k) = (
+            vertex(DVec3::ZERO, &[0.0, 4.0]),
+            vertex(DVec3::new(2.0, 0.0, 0.0), &[10.0, 0.0]),
+        );
+        assert_eq!(
+            &*interpolated(&g, &k, DVec3::new(0.5, 3.0, 0.0)),
+            &[2.5, 3.0]
+        );
+        assert_eq!(
+            &*interpolated(&g, &k, DVec3::new(9.0, 0.0, 0.0)),
+            &[10.0, 0.0]
+        );
+        let (a, b) = (vertex(DVec3::ZERO, &[3.0]), vertex(DVec3::ZERO, &[1.0]));
+        assert_eq!(
+            &*interpolated(&a, &b, DVec3::ZERO),
+            &[2.0],
+            "coincident: the mean"
+        );
+    }
+
+    #[test]
+    fn priorities_are_validated() {
+        assert!(Priority::DataDependent { lambda: 0.5 }.validate(0).is_ok());
+        assert!(Priority::DataDependent { lambda: 1.5 }.validate(0).is_err());
+        let w = |weights: Vec<f64>| Priority::AttributeQuadric { weights };
+        assert!(w(vec![1.0]).validate(1).is_ok());
+        assert!(w(vec![1.0]).validate(2).is_err());
+        assert!(w(vec![0.0]).validate(1).is_err());
+    }
+}
