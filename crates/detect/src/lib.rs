@@ -37,6 +37,9 @@ pub struct NewVertex {
 #[derive(Debug, Clone, Default)]
 pub struct MeshDelta {
     pub vertices: Vec<NewVertex>,
+    /// Attribute values of the new vertices, vertex-major, as many per vertex as the batch had
+    /// (`CubeBatch::attrs`); empty without attributes.
+    pub attrs: Vec<f32>,
     /// Counter-clockwise seen from outside, by vertex id.
     pub triangles: Vec<[u64; 3]>,
     pub modifiable: Vec<u64>,
@@ -48,6 +51,7 @@ pub struct MeshDelta {
 impl MeshDelta {
     pub fn clear(&mut self) {
         self.vertices.clear();
+        self.attrs.clear();
         self.triangles.clear();
         self.modifiable.clear();
         self.front = 0;
@@ -89,11 +93,16 @@ impl Detector {
 
     /// Converts one batch, appending to `out` (which the caller clears or reuses).
     pub fn process(&mut self, batch: &CubeBatch, out: &mut MeshDelta) {
+        let stride = batch
+            .attrs
+            .len()
+            .checked_div(batch.vertices.len())
+            .unwrap_or(0);
         for cube in &batch.cubes {
             let first = cube.first_vertex as usize;
             let verts = &batch.vertices[first..first + cube.vertex_count as usize];
             let mut ids = [0u64; 12];
-            for (slot, v) in ids.iter_mut().zip(verts) {
+            for (k, (slot, v)) in ids.iter_mut().zip(verts).enumerate() {
                 *slot = match self.front.get(&v.key) {
                     Some(&id) => id,
                     None => {
@@ -107,6 +116,10 @@ impl Detector {
                             pos: v.pos,
                             rank: u32::try_from(rank).unwrap_or(u32::MAX),
                         });
+                        if stride > 0 {
+                            let at = (first + k) * stride;
+                            out.attrs.extend_from_slice(&batch.attrs[at..at + stride]);
+                        }
                         id
                     }
                 };

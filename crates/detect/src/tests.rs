@@ -124,3 +124,36 @@ fn front_stays_within_a_slab() {
     assert!(peak * 10 < total, "front {peak} of {total} vertices");
     assert!(peak <= 3 * (dims[0] * dims[1]) as usize);
 }
+
+/// Attributes of new vertices travel with them, in the order of `vertices`.
+#[test]
+fn attributes_follow_new_vertices() {
+    use isostream_extract::attributes::AttributeSlab;
+    let grid = Grid::new([4, 4, 4], [1.0; 3], [0.0; 3]).unwrap();
+    let mut data = vec![0.0f32; 64];
+    data[21] = 1.0;
+    data[22] = 1.0;
+    let attr: Vec<f32> = (0..64).map(|i| i as f32).collect();
+    let mut ex = Extractor::new(grid, 0.5);
+    let mut det = Detector::new(grid.dims);
+    let mut delta = MeshDelta::default();
+    for z in 0..3 {
+        let (lo, hi) = (&data[z * 16..][..16], &data[(z + 1) * 16..][..16]);
+        let a = [AttributeSlab {
+            lower: &attr[z * 16..][..16],
+            upper: &attr[(z + 1) * 16..][..16],
+        }];
+        ex.extract_slab_with_attributes(z as u64, lo, hi, &a, 1000, |b| {
+            det.process(&b, &mut delta);
+            Ok::<_, ()>(())
+        })
+        .unwrap();
+    }
+    assert!(!delta.vertices.is_empty());
+    assert_eq!(delta.attrs.len(), delta.vertices.len());
+    // attr = x + 4y + 16z (grid units), linear: exact at every vertex.
+    for (v, a) in delta.vertices.iter().zip(&delta.attrs) {
+        let want = v.pos.x + 4.0 * v.pos.y + 16.0 * v.pos.z;
+        assert!((f64::from(*a) - want).abs() < 1e-4, "{v:?} {a}");
+    }
+}

@@ -70,6 +70,7 @@
 //! is handed, no threads.
 #![deny(unsafe_code)]
 
+pub mod attributes;
 pub mod cube;
 pub mod interp;
 mod key;

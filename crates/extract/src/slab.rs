@@ -47,6 +47,9 @@ pub struct CubeBatch {
     pub cubes: Vec<Cube>,
     pub vertices: Vec<EdgeVertex>,
     pub triangles: Vec<[u8; 3]>,
+    /// Attribute values per vertex (the same count for every vertex, vertex-major), filled by
+    /// [`Extractor::extract_slab_with_attributes`]; empty without attributes.
+    pub attrs: Vec<f32>,
     pub end_of_slab: bool,
     pub end_of_volume: bool,
 }
@@ -58,6 +61,7 @@ impl CubeBatch {
         self.cubes.clear();
         self.vertices.clear();
         self.triangles.clear();
+        self.attrs.clear();
         self.end_of_slab = false;
         self.end_of_volume = false;
     }
@@ -95,6 +99,7 @@ impl CubeBatch {
             cubes: Vec::with_capacity(sizes[0]),
             vertices: Vec::with_capacity(sizes[1]),
             triangles: Vec::with_capacity(sizes[2]),
+            attrs: Vec::new(),
             end_of_slab: false,
             end_of_volume: false,
         }
@@ -207,6 +212,14 @@ impl Extractor {
         for (kept, size) in self.batch_sizes.iter_mut().zip(sizes) {
             *kept = (*kept).max(size);
         }
+    }
+
+    pub fn grid(&self) -> Grid {
+        self.grid
+    }
+
+    pub fn iso(&self) -> f32 {
+        self.iso
     }
 
     /// Counters over every slab extracted so far.

@@ -1,0 +1,206 @@
+//! Vertex attributes: extra scalar fields sampled at the surface vertices (issue 5).
+//!
+//! An attribute is a second field on the same grid (another volume, another array of the same
+//! file, or one derived from the iso volume such as [`gradient_magnitude_slice`]). At a vertex on
+//! the grid edge from voxel `a` to voxel `b` it takes the value `f_a + t (f_b - f_a)` with the same
+//! `t` that placed the vertex ([`crate::interp::crossing`]), so an attribute equal to the iso
+//! field itself is exactly the iso value everywhere, and a field linear along the edge is exact.
+
+use isostream_volume::Grid;
+
+use crate::interp::crossing;
+use crate::slab::{CubeBatch, Extractor};
+
+/// One attribute's values on the two slices of a slab (each `grid.slice_len()` values).
+#[derive(Debug, Clone, Copy)]
+pub struct AttributeSlab<'a> {
+    pub lower: &'a [f32],
+    pub upper: &'a [f32],
+}
+
+impl Extractor {
+    /// [`Extractor::extract_slab`], and every batch's `attrs` filled with the attributes'
+    /// values at its vertices (`attributes.len()` values per vertex, vertex-major).
+    ///
+    /// # Panics
+    /// As `extract_slab`, and if an attribute slice does not hold `grid.slice_len()` values.
+    pub fn extract_slab_with_attributes<E>(
+        &mut self,
+        z: u64,
+        lower: &[f32],
+        upper: &[f32],
+        attributes: &[AttributeSlab<'_>],
+        max_triangles: usize,
+        mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let (grid, iso) = (self.grid(), self.iso());
+        let n = grid.slice_len();
+        assert!(
+            attributes
+                .iter()
+                .all(|a| a.lower.len() == n && a.upper.len() == n),
+            "attribute slices must hold {n} values"
+        );
+        self.extract_slab(z, lower, upper, max_triangles, |mut batch| {
+            if !attributes.is_empty() {
+                sample(&grid, iso, z, [lower, upper], attributes, &mut batch);
+            }
+            emit(batch)
+        })
+    }
+}
+
+/// Fills `batch.attrs` from the slab's iso and attribute slices.
+fn sample(
+    grid: &Grid,
+    iso: f32,
+    z: u64,
+    iso_slices: [&[f32]; 2],
+    attributes: &[AttributeSlab<'_>],
+    batch: &mut CubeBatch,
+) {
+    let nx = grid.dims[0] as usize;
+    batch.attrs.clear();
+    batch.attrs.reserve(batch.vertices.len() * attributes.len());
+    for v in &batch.vertices {
+        let ([x, y, vz], axis) = v.key.decode(grid.dims);
+        let (x, y) = (x as usize, y as usize);
+        // Ends of the edge: (slice, index) with slice 0 = lower, 1 = upper.
+        let upper = usize::from(vz > z);
+        let a = (upper, x + nx * y);
+        let b = match axis {
+            0 => (upper, a.1 + 1),
+            1 => (upper, a.1 + nx),
+            _ => (1, a.1),
+        };
+        let t = crossing(iso_slices[a.0][a.1], iso_slices[b.0][b.1], iso);
+        for attr in attributes {
+            let s = [attr.lower, attr.upper];
+            let (fa, fb) = (f64::from(s[a.0][a.1]), f64::from(s[b.0][b.1]));
+            batch.attrs.push((fa + t * (fb - fa)) as f32);
+        }
+    }
+}
+
+/// `|grad f|` on slice `z` by central differences in physical units (`spacing`), one-sided at
+/// the volume's faces: `prev` and `next` are slices `z - 1` and `z + 1` (`None` at the ends).
+/// Non-finite neighbours give a non-finite value, as the data does.
+///
+/// # Panics
+/// If a slice or `out` does not hold `grid.slice_len()` values.
+pub fn gradient_magnitude_slice(
+    grid: &Grid,
+    prev: Option<&[f32]>,
+    cur: &[f32],
+    next: Option<&[f32]>,
+    out: &mut [f32],
+) {
+    let [nx, ny, _] = grid.dims.map(|d| d as usize);
+    let n = nx * ny;
+    assert!(
+        cur.len() == n && out.len() == n,
+        "slices must hold {n} values"
+    );
+    let [sx, sy, sz] = grid.spacing;
+    // (lower, upper, distance) of a difference along an axis with `len` samples at index `i`.
+    let span = |i: usize, len: usize, h: f64| {
+        let lo = i.saturating_sub(1);
+        let hi = (i + 1).min(len - 1);
+        (lo, hi, (hi - lo) as f64 * h)
+    };
+    let (zlo, zhi, dz) = match (prev, next) {
+        (Some(p), Some(q)) => (p, q, 2.0 * sz),
+        (None, Some(q)) => (cur, q, sz),
+        (Some(p), None) => (p, cur, sz),
+        (None, None) => (cur, cur, 0.0),
+    };
+    for y in 0..ny {
+        let (y0, y1, dy) = span(y, ny, sy);
+        for x in 0..nx {
+            let (x0, x1, dx) = span(x, nx, sx);
+            let i = x + nx * y;
+            let d = |a: f32, b: f32, h: f64| {
+                if h > 0.0 {
+                    (f64::from(b) - f64::from(a)) / h
+                } else {
+                    0.0
+                }
+            };
+            let gx = d(cur[x0 + nx * y], cur[x1 + nx * y], dx);
+            let gy = d(cur[x + nx * y0], cur[x + nx * y1], dy);
+            let gz = d(zlo[i], zhi[i], dz);
+            out[i] = (gx * gx + gy * gy + gz * gz).sqrt() as f32;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn slices(grid: &Grid, f: impl Fn(f64, f64, f64) -> f64) -> Vec<Vec<f32>> {
+        let [nx, ny, nz] = grid.dims;
+        (0..nz)
+            .map(|z| {
+                (0..ny)
+                    .flat_map(|y| (0..nx).map(move |x| (x, y)))
+                    .map(|(x, y)| {
+                        let p = grid.position(x as f64, y as f64, z as f64);
+                        f(p.x, p.y, p.z) as f32
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// A linear attribute is exact at every vertex; the iso field itself samples to iso.
+    #[test]
+    fn attributes_use_the_vertex_placement() {
+        let grid = Grid::new([6, 5, 4], [1.0, 0.5, 2.0], [1.0, 2.0, 3.0]).unwrap();
+        let centre = grid.position(2.5, 2.0, 1.5);
+        let iso_f = |x: f64, y: f64, z: f64| {
+            4.0 - ((x - centre.x).powi(2) + (y - centre.y).powi(2) + (z - centre.z).powi(2)).sqrt()
+        };
+        let lin = |x: f64, y: f64, z: f64| 2.0 * x - 3.0 * y + 0.5 * z;
+        let (iso_s, lin_s) = (slices(&grid, iso_f), slices(&grid, lin));
+        let mut ex = Extractor::new(grid, 1.5);
+        let mut vertices = 0;
+        for z in 0..3 {
+            let attrs = [
+                AttributeSlab {
+                    lower: &lin_s[z],
+                    upper: &lin_s[z + 1],
+                },
+                AttributeSlab {
+                    lower: &iso_s[z],
+                    upper: &iso_s[z + 1],
+                },
+            ];
+            ex.extract_slab_with_attributes(z as u64, &iso_s[z], &iso_s[z + 1], &attrs, 7, |b| {
+                assert_eq!(b.attrs.len(), 2 * b.vertices.len());
+                for (v, a) in b.vertices.iter().zip(b.attrs.chunks(2)) {
+                    let want = lin(v.pos.x, v.pos.y, v.pos.z);
+                    assert!((f64::from(a[0]) - want).abs() < 1e-4, "{a:?} {want}");
+                    assert!((a[1] - 1.5).abs() < 1e-5, "{a:?}");
+                    vertices += 1;
+                }
+                Ok::<_, ()>(())
+            })
+            .unwrap();
+        }
+        assert!(vertices > 20);
+    }
+
+    #[test]
+    fn gradient_magnitude_of_a_linear_field_is_its_slope_in_physical_units() {
+        let grid = Grid::new([5, 4, 3], [2.0, 0.5, 1.0], [0.0; 3]).unwrap();
+        let s = slices(&grid, |x, y, z| 3.0 * x + 4.0 * y + 12.0 * z);
+        let mut out = vec![0.0; grid.slice_len()];
+        for z in 0..3usize {
+            let prev = z.checked_sub(1).map(|p| s[p].as_slice());
+            let next = s.get(z + 1).map(Vec::as_slice);
+            gradient_magnitude_slice(&grid, prev, &s[z], next, &mut out);
+            assert!(out.iter().all(|g| (g - 13.0).abs() < 1e-4), "{out:?}");
+        }
+    }
+}
