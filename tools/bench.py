@@ -132,41 +132,46 @@ def self_intersections(vertices, faces, eps=1e-4):
 
     Every edge is cast as a ray (direction = the edge, so t in [0, 1] is on the edge) into an Open3D
     RaycastingScene (Embree, single precision) and all hits are listed; a hit with eps < t < 1 - eps
-    on a triangle that contains neither endpoint is a crossing, and both the crossed triangle and the
-    triangles of the edge count as self-intersecting. Two triangles in general position intersect
-    iff an edge of one crosses the other, so this finds every transversal intersection except
-    between triangles sharing a vertex (folds at a common vertex) and coplanar overlaps.
-    Returns the number of distinct self-intersecting triangles.
+    on a triangle of non-zero area that has no vertex at either endpoint's position is a crossing,
+    and both the crossed triangle and the triangles of the edge count as self-intersecting. Two
+    triangles in general position intersect iff an edge of one crosses the other, so this finds
+    every transversal intersection except folds between triangles sharing a vertex and coplanar
+    overlaps. Vertices are compared by position, not index, so surfaces that touch at coincident
+    vertices (marching cubes at an iso equal to voxel values) are not counted; zero-length edges
+    cast no ray. Returns the number of distinct self-intersecting triangles.
     """
     import open3d as o3d
+    _, canon = np.unique(vertices, axis=0, return_inverse=True)
+    canon = canon.reshape(-1)
+    welded = canon[faces]
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)),
                         o3d.core.Tensor(faces.astype(np.uint32)))
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    all_edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     owner = np.tile(np.arange(len(faces)), 3)
-    key = np.sort(e, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
-    e = e[first]
+    keys = np.sort(canon[all_edges], axis=1)
+    uniq, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    e = all_edges[first]
     p, q = vertices[e[:, 0]], vertices[e[:, 1]]
-    rays = np.concatenate([p, q - p], axis=1).astype(np.float32)
+    cast = np.flatnonzero(np.linalg.norm(q - p, axis=1) > 0)
+    rays = np.concatenate([p[cast], (q - p)[cast]], axis=1).astype(np.float32)
     hits = scene.list_intersections(o3d.core.Tensor(rays))
     splits = hits["ray_splits"].numpy().astype(np.int64)
     t = hits["t_hit"].numpy()
     prim = hits["primitive_ids"].numpy().astype(np.int64)
-    ray = np.repeat(np.arange(len(e)), np.diff(splits))
-    tri = faces[prim]
-    shares = ((tri == e[ray, 0:1]) | (tri == e[ray, 1:2])).any(axis=1)
-    crossing = (t > eps) & (t < 1 - eps) & ~shares
-    bad = set(prim[crossing].tolist())
-    # the triangles owning a crossing edge
-    crossing_keys = {tuple(k) for k in np.sort(e[np.unique(ray[crossing])], axis=1).tolist()}
-    if crossing_keys:
-        allkeys = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]),
-                          axis=1)
-        for i, k in enumerate(map(tuple, allkeys.tolist())):
-            if k in crossing_keys:
-                bad.add(int(owner[i]))
-    return len(bad)
+    ray = cast[np.repeat(np.arange(len(cast)), np.diff(splits))]
+    tri = welded[prim]
+    ends = uniq[ray]
+    shares = ((tri == ends[:, 0:1]) | (tri == ends[:, 1:2])).any(axis=1)
+    crossing = (t > eps) & (t < 1 - eps) & ~shares & (area[prim] > 0)
+    bad = np.zeros(len(faces), dtype=bool)
+    bad[prim[crossing]] = True
+    crossing_edge = np.zeros(len(uniq), dtype=bool)
+    crossing_edge[ray[crossing]] = True
+    bad[owner[crossing_edge[inverse.reshape(-1)]]] = True
+    return int(bad.sum())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -544,6 +549,7 @@ def main():
     work.mkdir(parents=True, exist_ok=True)
 
     started = time.time()
+    load_start = os.getloadavg()
     results = bench_volumes(args, binary, work) if args.volumes else {}
     scaling = [] if args.skip_scaling else bench_scaling(args, binary, work)
     report = {
@@ -551,6 +557,7 @@ def main():
                     "python": sys.version.split()[0]},
         "binary": str(binary), "runs": args.runs, "rate": RATE, "volumes": results,
         "scaling": scaling, "seconds": time.time() - started,
+        "loadavg_start": load_start, "loadavg_end": os.getloadavg(),
         "note": "median of runs; shared 2-core machine, expect noise",
     }
     Path(args.json).write_text(json.dumps(report, indent=1))
