@@ -30,8 +30,13 @@ pub(crate) type Ring = SmallVec<[(u64, u8); 16]>;
 pub(crate) fn ring(store: &Store, v: u64) -> Ring {
     let mut all: SmallVec<[u64; 32]> = SmallVec::new();
     if let Some(vx) = store.vertex(v) {
+        all.reserve(2 * vx.tris.len());
         for &t in &vx.tris {
-            all.extend(store.tri(t).v.iter().copied().filter(|&x| x != v));
+            for x in store.tri(t).v {
+                if x != v {
+                    all.push(x);
+                }
+            }
         }
     }
     all.sort_unstable();
@@ -59,8 +64,8 @@ pub(crate) fn on_boundary(store: &Store, v: u64) -> bool {
 }
 
 /// Triangles of `a` that contain `b`, i.e. the triangles on edge `ab`.
-fn edge_triangles(store: &Store, a: u64, b: u64) -> Vec<Tri> {
-    store.vertex(a).map_or_else(Vec::new, |v| {
+fn edge_triangles(store: &Store, a: u64, b: u64) -> SmallVec<[Tri; 4]> {
+    store.vertex(a).map_or_else(SmallVec::new, |v| {
         v.tris
             .iter()
             .map(|&t| *store.tri(t))
@@ -95,10 +100,10 @@ pub(crate) fn link_ok(store: &Store, a: u64, b: u64) -> bool {
     if on_edge.is_empty() || on_edge.len() > 2 {
         return false;
     }
-    let mut opposite: Vec<u64> = on_edge.iter().map(|t| t.third(a, b)).collect();
+    let mut opposite: SmallVec<[u64; 2]> = on_edge.iter().map(|t| t.third(a, b)).collect();
     opposite.sort_unstable();
     let (ra, rb) = (ring(store, a), ring(store, b));
-    let common: Vec<(u64, u8, u8)> = ra
+    let common: SmallVec<[(u64, u8, u8); 8]> = ra
         .iter()
         .filter_map(|&(x, na)| {
             let i = rb.binary_search_by_key(&x, |&(y, _)| y).ok()?;
@@ -163,7 +168,7 @@ fn removable_onto(store: &Store, ring: &[(u64, u8)], pr: DVec3, pk: DVec3) -> bo
     if pr == pk {
         return true;
     }
-    let bn: Vec<u64> = boundary_neighbours(ring).collect();
+    let bn: SmallVec<[u64; 4]> = boundary_neighbours(ring).collect();
     if bn.len() != 2 {
         return false;
     }
@@ -212,18 +217,25 @@ pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
     let cross = |p: [DVec3; 3]| (p[1] - p[0]).cross(p[2] - p[0]);
     let mut max_old = 0.0_f64;
     let mut reference = DVec3::ZERO;
-    for &t in &tris {
-        let n = cross(store.corners(store.tri(t)));
-        max_old = max_old.max(n.length());
-        reference += n;
-    }
+    // Corners, old normal and its length per triangle, read once (the store lookups dominate).
+    type Seen<'a> = (&'a Tri, [DVec3; 3], DVec3, f64);
+    let fan: SmallVec<[Seen; 32]> = tris
+        .iter()
+        .map(|&t| {
+            let tri = store.tri(t);
+            let old = store.corners(tri);
+            let n = cross(old);
+            let l = n.length();
+            max_old = max_old.max(l);
+            reference += n;
+            (tri, old, n, l)
+        })
+        .collect();
     let tiny = DEGENERATE_FRACTION * max_old;
-    tris.iter().all(|&t| {
-        let tri = store.tri(t);
+    fan.iter().all(|&(tri, old, n_old, l_old)| {
         if tri.contains(a) && tri.contains(b) {
             return true; // removed by the contraction
         }
-        let old = store.corners(tri);
         let mut new = old;
         for (p, &id) in new.iter_mut().zip(&tri.v) {
             if id == a || id == b {
@@ -233,8 +245,8 @@ pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
         if new == old {
             return true;
         }
-        let (n_old, n_new) = (cross(old), cross(new));
-        let (l_old, l_new) = (n_old.length(), n_new.length());
+        let n_new = cross(new);
+        let l_new = n_new.length();
         if l_new <= tiny {
             return l_old <= tiny;
         }
