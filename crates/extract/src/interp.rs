@@ -16,7 +16,18 @@ pub fn is_inside(value: f32, iso: f32) -> bool {
     value > iso && value != f32::INFINITY
 }
 
-/// Fraction `t` in [0, 1] of the way from value `va` to `vb` where the field crosses `iso`.
+/// Smallest distance (in edge fractions) a vertex keeps from a grid corner.
+///
+/// A voxel whose value equals iso counts as outside ([`is_inside`]): symbolically the surface is
+/// at iso + delta for an infinitesimal delta, so it passes strictly between the voxel and its
+/// inside neighbours and never through the voxel itself. Keeping `t` off the corner realises that
+/// perturbation geometrically: the vertices of the (up to six) edges meeting at such a voxel stay
+/// distinct instead of coinciding, so marching cubes emits no zero-area triangles and touching
+/// sheets stay apart. The shift is at most 1e-4 of a voxel.
+pub const CORNER_CLEARANCE: f64 = 1e-4;
+
+/// Fraction `t` in [CORNER_CLEARANCE, 1 - CORNER_CLEARANCE] of the way from value `va` to `vb`
+/// where the field crosses `iso`.
 ///
 /// Computed in f64 so that `vb - va` cannot overflow. When either value is non-finite the
 /// linear model means nothing, so the vertex goes to the edge midpoint (t = 0.5).
@@ -28,7 +39,11 @@ pub fn crossing(va: f32, vb: f32, iso: f32) -> f64 {
     let (va, vb) = (f64::from(va), f64::from(vb));
     let t = (f64::from(iso) - va) / (vb - va);
     // NaN only for va == vb == iso, which no crossing edge has; keep it deterministic anyway.
-    if t.is_nan() { 0.5 } else { t.clamp(0.0, 1.0) }
+    if t.is_nan() {
+        0.5
+    } else {
+        t.clamp(CORNER_CLEARANCE, 1.0 - CORNER_CLEARANCE)
+    }
 }
 
 /// Position of the vertex on the grid edge from `voxel` along `axis` whose end values are
@@ -65,12 +80,13 @@ mod tests {
     fn crossing_interpolates_linearly_and_clamps() {
         assert_eq!(crossing(0.0, 2.0, 0.5), 0.25);
         assert_eq!(crossing(2.0, 0.0, 0.5), 0.75);
-        assert_eq!(crossing(2.0, 1.0, 1.0), 1.0);
-        assert_eq!(crossing(1.0, 2.0, 1.0), 0.0);
+        // A voxel exactly at iso is outside: the vertex stays just off it, towards the inside.
+        assert_eq!(crossing(2.0, 1.0, 1.0), 1.0 - CORNER_CLEARANCE);
+        assert_eq!(crossing(1.0, 2.0, 1.0), CORNER_CLEARANCE);
         assert_eq!(crossing(f32::NAN, 2.0, 1.0), 0.5);
         assert_eq!(crossing(0.0, f32::INFINITY, 1.0), 0.5);
         assert_eq!(crossing(1.0, 1.0, 1.0), 0.5);
-        assert_eq!(crossing(1.0, 1.0, 5.0), 1.0);
+        assert_eq!(crossing(1.0, 1.0, 5.0), 1.0 - CORNER_CLEARANCE);
         // No overflow at the ends of the f32 range.
         assert_eq!(crossing(-f32::MAX, f32::MAX, 0.0), 0.5);
     }
