@@ -9,6 +9,9 @@
 //! Architecture invariant: no dependencies, no I/O, cannot fail; it only reports.
 #![deny(unsafe_code)]
 
+mod intersect;
+pub use intersect::{segment_crosses_triangle, self_intersections, triangles_intersect};
+
 use std::collections::HashMap;
 
 /// Per connected component (triangles connected through shared vertices).
