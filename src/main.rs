@@ -41,7 +41,9 @@ fn exit_code(err: &anyhow::Error) -> u8 {
         if let Some(run) = cause.downcast_ref::<RunError>() {
             return match run {
                 RunError::Cancelled => 130,
-                RunError::Config(_) | RunError::Volume(_) => 2,
+                RunError::Config(_)
+                | RunError::Volume(_)
+                | RunError::ClassicalOverBudget { .. } => 2,
                 _ => 1,
             };
         }

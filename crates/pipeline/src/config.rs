@@ -87,6 +87,10 @@ pub enum Mode {
     /// Attali, Cohen-Steiner and Edelsbrunner's Tandem algorithm: contract while the shape
     /// measure eps0 stays at most `error` (E0), with optional time-lag and isotropy.
     Error,
+    /// The Tandem paper's baseline: extract the whole surface, keep it in memory, then simplify
+    /// it with the same cost and rules as `error` (E0, isotropy; no time-lag). Stops with an
+    /// error when the surface outgrows `pipeline.memory_budget_mib`.
+    Classical,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -333,14 +337,14 @@ impl JobConfig {
                 s.initial_rate.to_string(),
             ));
         }
-        if s.mode == Mode::Error {
+        if matches!(s.mode, Mode::Error | Mode::Classical) {
             match s.error {
                 Some(e) if e > 0.0 && e.is_finite() => {}
                 Some(e) => return Err(bad("simplify.error", "a length > 0", e.to_string())),
                 None => {
                     return Err(bad(
                         "simplify.error",
-                        "E0, a length in the volume's units, for mode = \"error\"",
+                        "E0, a length in the volume's units, for mode = \"error\" or \"classical\"",
                         "nothing".into(),
                     ));
                 }
@@ -430,6 +434,15 @@ mod tests {
             err.contains("simplify.rate") && err.contains("(0, 1]"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn classical_needs_an_error_bound() {
+        let text = format!("{MINIMAL}\n[simplify]\nmode = \"classical\"\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("simplify.error"), "{err}");
+        let text = format!("{MINIMAL}\n[simplify]\nmode = \"classical\"\nerror = 0.1\n");
+        assert_eq!(parse(&text).unwrap().simplify.mode, Mode::Classical);
     }
 
     #[test]

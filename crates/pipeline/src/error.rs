@@ -33,6 +33,10 @@ pub enum RunError {
     Output(#[from] isostream_smesh::SmeshError),
     #[error("{}: cannot write run summary: {reason}", path.display())]
     Summary { path: PathBuf, reason: String },
+    #[error(
+        "simplify.mode = \"classical\" keeps the whole surface in memory and it outgrew pipeline.memory_budget_mib ({faces} faces resident, no output written): raise pipeline.memory_budget_mib or use mode = \"error\""
+    )]
+    ClassicalOverBudget { faces: usize },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]

@@ -80,6 +80,7 @@ pub fn run(
         })
     })?;
     simplifier.set_rank_spacing(grid.spacing[2]);
+    simplifier.set_in_core(job.simplify.mode == Mode::Classical);
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
@@ -148,6 +149,12 @@ fn simplifier_config(job: &JobConfig) -> SimplifierConfig {
             Mode::Error => Policy::Error {
                 e0: s.error.unwrap_or(f64::INFINITY),
                 time_lag: s.time_lag,
+                isotropy: s.isotropy,
+            },
+            // Everything is modifiable when classical decimation starts: no front, no time-lag.
+            Mode::Classical => Policy::Error {
+                e0: s.error.unwrap_or(f64::INFINITY),
+                time_lag: false,
                 isotropy: s.isotropy,
             },
         },

@@ -296,6 +296,9 @@ fn simplify_stage(
             simplifier.end_batch(delta.front, &mut out);
         }
         busy += t.elapsed();
+        if let Some(faces) = simplifier.in_core_overflow() {
+            return Err(Stop::Failed(RunError::ClassicalOverBudget { faces }));
+        }
         if !out.elements.is_empty() {
             send(&tx, ToWriter::Batch(out))?;
         }

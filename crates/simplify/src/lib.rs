@@ -158,6 +158,8 @@ pub struct Simplifier {
     front: f64,
     next_out: u64,
     stats: SimplifyStats,
+    /// Classical (in-core) run: keep the whole surface, decimate and emit only in `finish`.
+    in_core: bool,
 }
 
 impl Simplifier {
@@ -180,6 +182,7 @@ impl Simplifier {
             front: 0.0,
             next_out: 0,
             stats: SimplifyStats::default(),
+            in_core: false,
         })
     }
 
@@ -190,6 +193,20 @@ impl Simplifier {
         if spacing > 0.0 && spacing.is_finite() {
             self.rank_spacing = spacing;
         }
+    }
+
+    /// Classical (in-core) simplification, the Tandem paper's baseline: `end_batch` neither
+    /// decimates nor retires, so the whole full-resolution surface stays resident and `finish`
+    /// simplifies it at once with the same policy, then emits it. Nothing bounds memory then: the
+    /// caller checks [`Simplifier::in_core_overflow`]. Call before the first vertex.
+    pub fn set_in_core(&mut self, on: bool) {
+        self.in_core = on;
+    }
+
+    /// In-core mode only: the resident face count once it exceeds `max_resident_faces`.
+    pub fn in_core_overflow(&self) -> Option<usize> {
+        let resident = self.store.resident();
+        (self.in_core && resident > self.config.max_resident_faces).then_some(resident)
     }
 
     /// A new vertex. `attrs` holds `attributes` values (missing ones are 0, extra ones dropped).
@@ -276,6 +293,9 @@ impl Simplifier {
     /// finished output.
     pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
         self.front = f64::from(front);
+        if self.in_core {
+            return;
+        }
         self.candidates.activate(self.front);
         let counts = self.face_counts();
         let until = match &mut self.schedule {
@@ -425,6 +445,40 @@ mod tests {
             ),
             (1, 3, 0, 0)
         );
+    }
+
+    /// In-core (classical) mode holds everything until `finish`, and reports when the surface
+    /// outgrows the face budget.
+    #[test]
+    fn in_core_mode_defers_everything_to_finish() {
+        let mut s = Simplifier::new(SimplifyConfig {
+            max_resident_faces: 1,
+            ..config(Policy::None)
+        })
+        .unwrap();
+        s.set_in_core(true);
+        for (id, pos) in [
+            (0, DVec3::ZERO),
+            (1, DVec3::X),
+            (2, DVec3::Y),
+            (3, DVec3::ONE),
+        ] {
+            s.add_vertex(id, pos, 0, &[]);
+        }
+        s.add_triangle([0, 1, 2]);
+        for id in 0..3 {
+            s.set_modifiable(id);
+        }
+        let mut out = OutBatch::default();
+        s.end_batch(10, &mut out);
+        assert!(out.elements.is_empty(), "nothing retires in core");
+        assert_eq!(s.in_core_overflow(), None);
+        s.add_triangle([1, 3, 2]);
+        s.end_batch(11, &mut out);
+        assert!(out.elements.is_empty());
+        assert_eq!(s.in_core_overflow(), Some(2));
+        s.finish(&mut out);
+        assert_eq!(s.stats().faces_out, 2);
     }
 
     #[test]
