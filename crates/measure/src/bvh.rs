@@ -71,6 +71,11 @@ impl Bvh {
         Bvh { nodes, triangles }
     }
 
+    /// Triangle `i` (indices as returned by the queries; the build reorders the input).
+    pub(crate) fn triangle(&self, i: usize) -> Option<&Triangle> {
+        self.triangles.get(i)
+    }
+
     /// Distance from `p` to the closest triangle and that triangle's index, if one is strictly
     /// closer than `limit`.
     pub(crate) fn nearest_within(&self, p: DVec3, limit: f64) -> Option<(f64, usize)> {

@@ -23,6 +23,10 @@ pub enum MeasureError {
         vertices: usize,
     },
 
+    /// Reading the slices of the volume or its attributes failed (message from the reader).
+    #[error("{0}")]
+    Slices(String),
+
     #[error("the output mesh has no area; distances need a surface to sample")]
     EmptyOutput,
 

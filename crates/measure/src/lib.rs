@@ -14,6 +14,7 @@
 #![deny(unsafe_code)]
 
 mod anisotropy;
+mod attribute_error;
 mod bias;
 mod bvh;
 mod distances;
@@ -24,6 +25,7 @@ mod report;
 mod sampling;
 mod triangle;
 
+pub use attribute_error::{AttributeError, SliceSet, attribute_errors};
 pub use distances::{
     DEFAULT_SAMPLES_PER_AREA, DEFAULT_SEARCH_VOXEL_DIAGONALS, DEFAULT_SEED, DirectedDistance,
     Distances, MAX_SAMPLES, MIN_SAMPLES, MeasureOptions,

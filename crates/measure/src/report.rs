@@ -15,6 +15,10 @@ pub struct MeasureReport {
     /// Tandem paper section 4: `Error(K) = max_u eps0(u)`, known only to the run that simplified
     /// (read from its run summary); absent when there is none.
     pub shape_error: Option<f64>,
+    /// Per vertex attribute: its error against the full-resolution surface's (empty without
+    /// attributes or without a volume).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub attributes: Vec<crate::AttributeError>,
 }
 
 impl MeasureReport {
@@ -64,6 +68,13 @@ impl MeasureReport {
         }
         if let Some(d) = &self.distances {
             write_distances(&mut s, d);
+        }
+        for a in &self.attributes {
+            let _ = writeln!(
+                s,
+                "attribute {}: error mean {:.6}, rms {:.6}, max {:.6} ({} samples of the full-resolution surface)",
+                a.name, a.mean, a.rms, a.max, a.samples
+            );
         }
         s
     }
@@ -131,6 +142,7 @@ mod tests {
                 samples_per_area: 100.0,
             }),
             shape_error: Some(0.05),
+            attributes: Vec::new(),
         }
     }
 

@@ -24,6 +24,9 @@ pub struct JobConfig {
     pub pipeline: PipelineConfig,
     #[serde(default)]
     pub log: LogConfig,
+    /// Extra scalar fields sampled at the vertices (`[[attributes]]`, see `attributes.rs`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub attributes: Vec<crate::attributes::AttributeConfig>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -119,6 +122,29 @@ pub struct SimplifyConfig {
     /// Mode "error": isotropy parameter alpha in [0, 1]; 0 is pure shape measure.
     #[serde(default)]
     pub isotropy: f64,
+    /// Order of contractions: the mode's geometric cost, seed 001's data-dependent weight, or
+    /// quadrics over position and attributes.
+    #[serde(default)]
+    pub priority: PriorityKind,
+    /// `priority = "data-dependent"`: weight of curvature against the attribute gradient.
+    #[serde(default = "default_lambda")]
+    pub lambda: f64,
+    /// `priority = "attribute-quadric"`: one weight per `[[attributes]]` entry (default 1 each).
+    pub attribute_weights: Option<Vec<f64>>,
+}
+
+/// `[simplify] priority`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum PriorityKind {
+    #[default]
+    Geometric,
+    DataDependent,
+    AttributeQuadric,
+}
+
+fn default_lambda() -> f64 {
+    0.5
 }
 
 fn default_rate() -> f64 {
@@ -145,6 +171,9 @@ impl Default for SimplifyConfig {
             error: None,
             time_lag: true,
             isotropy: 0.0,
+            priority: PriorityKind::default(),
+            lambda: default_lambda(),
+            attribute_weights: None,
         }
     }
 }
@@ -250,13 +279,16 @@ impl JobConfig {
     }
 
     fn resolve_paths(&mut self, base: &Path) {
-        if let Some(p) = &self.input.path {
-            if p.is_relative() {
-                self.input.path = Some(base.join(p));
-            }
+        if let Some(p) = &self.input.path
+            && p.is_relative()
+        {
+            self.input.path = Some(base.join(p));
         }
         if self.output.path.is_relative() {
             self.output.path = base.join(&self.output.path);
+        }
+        for a in &mut self.attributes {
+            a.resolve_path(base);
         }
     }
 
@@ -378,6 +410,7 @@ impl JobConfig {
         if p.batch_triangles == 0 {
             return Err(bad("pipeline.batch_triangles", "at least 1", "0".into()));
         }
+        crate::attributes::validate(self, origin)?;
         crate::output::check_output_path(&self.output.path)
             .map_err(|reason| bad("output.path", "a writable .smb or .sma path", reason))?;
         Ok(())

@@ -6,6 +6,7 @@
 //! retirement this keeps memory bounded by the sweep front. See ARCHITECTURE.md.
 #![deny(unsafe_code)]
 
+mod attributes;
 mod config;
 mod error;
 mod output;
@@ -23,9 +24,10 @@ use isostream_smesh::Header;
 use serde::Serialize;
 use tracing::info;
 
+pub use attributes::{AttributeConfig, Derived, SliceReader, Slices};
 pub use config::{
     ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat, Mode, OutputConfig,
-    PipelineConfig, SimplifyConfig,
+    PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
 pub use rss::peak_rss_bytes;
@@ -80,13 +82,24 @@ pub fn run(
         })
     })?;
     simplifier.set_rank_spacing(grid.spacing[2]);
+    simplifier
+        .set_priority(attributes::priority(job))
+        .map_err(|e| {
+            RunError::Config(ConfigError::Invalid {
+                path: job_path.to_path_buf(),
+                key: "simplify.priority".into(),
+                expected: "a valid priority setting".into(),
+                got: e.to_string(),
+            })
+        })?;
+    let attribute_sources = attributes::open(&job.attributes, &job.input, grid)?;
     simplifier.set_in_core(job.simplify.mode == Mode::Classical);
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
             format!("input {input} iso {}", job.extract.iso),
         ],
-        attribute_names: Vec::new(),
+        attribute_names: job.attributes.iter().map(|a| a.name.clone()).collect(),
     };
     output::create_output_dir(&job.output.path).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
@@ -99,6 +112,7 @@ pub fn run(
     let sink = sink::Sink::create(&job.output.path, &header)?;
     let outputs = stages::Stages {
         source,
+        attributes: attribute_sources,
         iso: job.extract.iso as f32,
         simplifier,
         sink,
@@ -160,7 +174,7 @@ fn simplifier_config(job: &JobConfig) -> SimplifierConfig {
         },
         retire_lag: s.retire_lag,
         max_resident_faces: job.max_resident_faces(),
-        attributes: 0,
+        attributes: job.attributes.len(),
     }
 }
 

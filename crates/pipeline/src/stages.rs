@@ -10,11 +10,13 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender, bounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
+use isostream_extract::attributes::AttributeSlab;
 use isostream_extract::{CubeBatch, ExtractStats, Extractor};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
 use isostream_volume::{Grid, VolumeSource};
 use tracing::{debug, info, info_span};
 
+use crate::attributes::{SliceReader, Slices};
 use crate::error::RunError;
 use crate::sink::Sink;
 
@@ -69,6 +71,8 @@ pub(crate) struct StageOutputs {
 
 pub(crate) struct Stages<'a> {
     pub source: Box<dyn VolumeSource>,
+    /// Attribute sources, read slice by slice with the iso volume.
+    pub attributes: Vec<crate::attributes::Source>,
     pub iso: f32,
     pub simplifier: Simplifier,
     pub sink: Sink,
@@ -87,7 +91,7 @@ enum ToWriter {
 impl Stages<'_> {
     pub fn run(self) -> Result<StageOutputs, RunError> {
         let grid = self.source.grid();
-        let (slice_tx, slice_rx) = bounded::<(u64, Vec<f32>)>(2);
+        let (slice_tx, slice_rx) = bounded::<Slices>(2);
         let (cube_tx, cube_rx) = bounded::<CubeBatch>(self.capacity);
         let (delta_tx, delta_rx) = bounded::<MeshDelta>(self.capacity);
         let (out_tx, out_rx) = bounded::<ToWriter>(self.capacity);
@@ -97,7 +101,8 @@ impl Stages<'_> {
             out: out_rx.clone(),
         };
         let Stages {
-            mut source,
+            source,
+            attributes,
             iso,
             simplifier,
             sink,
@@ -108,7 +113,10 @@ impl Stages<'_> {
         } = self;
 
         std::thread::scope(|s| {
-            let reader = s.spawn(move || read_stage(&mut *source, grid, slice_tx, cancel));
+            let reader = s.spawn(move || {
+                let reader = SliceReader::new(source, attributes);
+                read_stage(reader, grid, slice_tx, cancel)
+            });
             let extractor =
                 s.spawn(move || extract_stage(grid, iso, batch_triangles, slice_rx, cube_tx));
             let detector = s.spawn(move || detect_stage(grid, cube_rx, delta_tx));
@@ -191,22 +199,23 @@ struct Depths {
 }
 
 fn read_stage(
-    source: &mut dyn VolumeSource,
+    mut reader: SliceReader,
     grid: Grid,
-    tx: Sender<(u64, Vec<f32>)>,
+    tx: Sender<Slices>,
     cancel: &AtomicBool,
 ) -> StageResult<f64> {
     let _span = info_span!("read").entered();
     let mut busy = Duration::ZERO;
-    for z in 0..grid.dims[2] {
+    for _ in 0..grid.dims[2] {
         if cancel.load(Ordering::Relaxed) {
             return Err(Stop::Failed(RunError::Cancelled));
         }
         let t = Instant::now();
-        let mut slice = vec![0f32; grid.slice_len()];
-        source.read_slice(z, &mut slice).map_err(RunError::from)?;
+        let Some(slices) = reader.next_slices()? else {
+            break;
+        };
         busy += t.elapsed();
-        send(&tx, (z, slice))?;
+        send(&tx, slices)?;
     }
     debug!(seconds = busy.as_secs_f64(), "read done");
     Ok(busy.as_secs_f64())
@@ -216,23 +225,37 @@ fn extract_stage(
     grid: Grid,
     iso: f32,
     batch_triangles: usize,
-    rx: Receiver<(u64, Vec<f32>)>,
+    rx: Receiver<Slices>,
     tx: Sender<CubeBatch>,
 ) -> StageResult<(f64, ExtractStats)> {
     let _span = info_span!("extract").entered();
     let mut extractor = Extractor::new(grid, iso);
     let mut busy = Duration::ZERO;
-    let mut lower: Option<Vec<f32>> = None;
-    for (z, upper) in rx.iter() {
+    let mut lower: Option<Slices> = None;
+    for upper in rx.iter() {
+        let z = upper.z;
         if let Some(lo) = &lower {
             let started = Instant::now();
             let mut blocked = Duration::ZERO;
-            extractor.extract_slab(z - 1, lo, &upper, batch_triangles, |batch| {
-                let t = Instant::now();
-                let sent = send(&tx, batch);
-                blocked += t.elapsed();
-                sent
-            })?;
+            let attrs: Vec<AttributeSlab<'_>> = lo
+                .attrs
+                .iter()
+                .zip(&upper.attrs)
+                .map(|(l, u)| AttributeSlab { lower: l, upper: u })
+                .collect();
+            extractor.extract_slab_with_attributes(
+                z - 1,
+                &lo.iso,
+                &upper.iso,
+                &attrs,
+                batch_triangles,
+                |batch| {
+                    let t = Instant::now();
+                    let sent = send(&tx, batch);
+                    blocked += t.elapsed();
+                    sent
+                },
+            )?;
             busy += started.elapsed().saturating_sub(blocked);
         }
         lower = Some(upper);
@@ -280,8 +303,14 @@ fn simplify_stage(
     let mut last_front = 0u32;
     for delta in rx.iter() {
         let t = Instant::now();
-        for v in &delta.vertices {
-            simplifier.add_vertex(v.id, v.pos, v.rank, &[]);
+        let stride = delta
+            .attrs
+            .len()
+            .checked_div(delta.vertices.len())
+            .unwrap_or(0);
+        for (i, v) in delta.vertices.iter().enumerate() {
+            let attrs = delta.attrs.get(i * stride..(i + 1) * stride).unwrap_or(&[]);
+            simplifier.add_vertex(v.id, v.pos, v.rank, attrs);
         }
         for &tri in &delta.triangles {
             simplifier.add_triangle(tri);

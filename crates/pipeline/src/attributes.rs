@@ -1,0 +1,343 @@
+//! `[[attributes]]`: extra scalar fields sampled at the surface vertices (issue 5), and the
+//! reader side that delivers them slice by slice together with the iso volume.
+//!
+//! Each attribute is a second volume on the same grid (any format the input may have), another
+//! array of the input's multi-array file, or derived from the iso volume (`gradient_magnitude`,
+//! central differences in physical units). The reader hands the extractor slice `z` of the iso
+//! volume with slice `z` of every attribute; a derived gradient needs iso slices `z - 1 .. z + 1`,
+//! so the reader reads one slice ahead and keeps one behind (three iso slices in memory instead of
+//! one, still independent of the volume's depth).
+
+use std::path::{Path, PathBuf};
+
+use isostream_simplify::Priority;
+use isostream_volume::{Dtype, Endian, Grid, OpenOptions, VolumeSource};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{InputConfig, JobConfig, PriorityKind};
+use crate::error::{ConfigError, RunError};
+
+/// Fields derived from the iso volume itself.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Derived {
+    /// `|grad f|` of the iso volume by central differences (one-sided at the faces), in value
+    /// units per physical length (using `spacing`).
+    GradientMagnitude,
+}
+
+/// One `[[attributes]]` entry.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AttributeConfig {
+    /// Name written to the output (SMA/PLY property, GLB `_NAME` accessor).
+    pub name: String,
+    /// Derived from the iso volume instead of read from a file.
+    pub derive: Option<Derived>,
+    /// A second volume on the same grid. Default: the input file (then `array` names another
+    /// of its arrays).
+    pub path: Option<PathBuf>,
+    /// The array of a multi-array file (VTK).
+    pub array: Option<String>,
+    /// Raw-file layout of `path`, as in `[input]`.
+    pub dims: Option<[u64; 3]>,
+    pub dtype: Option<Dtype>,
+    pub endian: Option<Endian>,
+    pub header_bytes: Option<u64>,
+}
+
+impl AttributeConfig {
+    pub(crate) fn resolve_path(&mut self, base: &Path) {
+        if let Some(p) = &self.path
+            && p.is_relative()
+        {
+            self.path = Some(base.join(p));
+        }
+    }
+}
+
+/// Checks `[[attributes]]` and the attribute keys of `[simplify]`.
+pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError> {
+    let bad = |key: String, expected: &str, got: String| ConfigError::Invalid {
+        path: origin.to_path_buf(),
+        key,
+        expected: expected.to_string(),
+        got,
+    };
+    for (i, a) in job.attributes.iter().enumerate() {
+        let key = |k: &str| format!("attributes[{i}].{k}");
+        if a.name.is_empty()
+            || a.name
+                .chars()
+                .any(|c| !(c.is_ascii_alphanumeric() || c == '_'))
+        {
+            return Err(bad(
+                key("name"),
+                "a name of letters, digits and _",
+                format!("{:?}", a.name),
+            ));
+        }
+        if job.attributes[..i].iter().any(|b| b.name == a.name) {
+            return Err(bad(key("name"), "a name used once", a.name.clone()));
+        }
+        let file_keys = a.path.is_some()
+            || a.array.is_some()
+            || a.dims.is_some()
+            || a.dtype.is_some()
+            || a.endian.is_some()
+            || a.header_bytes.is_some();
+        match (a.derive, file_keys) {
+            (Some(_), true) => {
+                return Err(bad(
+                    key("derive"),
+                    "either `derive` or a volume (`path`/`array`), not both",
+                    "both".into(),
+                ));
+            }
+            (None, false) => {
+                return Err(bad(
+                    key("path"),
+                    "a volume `path`, an `array` of the input file, or `derive = \"gradient_magnitude\"`",
+                    "nothing".into(),
+                ));
+            }
+            (None, true) if a.path.is_none() && job.input.path.is_none() => {
+                return Err(bad(
+                    key("path"),
+                    "a volume file (the input is procedural, it has no other arrays)",
+                    "nothing".into(),
+                ));
+            }
+            _ => {}
+        }
+    }
+    let smb = job
+        .output
+        .path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("smb"));
+    if smb && !job.attributes.is_empty() {
+        return Err(bad(
+            "output.path".into(),
+            "a format that carries vertex attributes (.sma, .ply or .glb; SMB has none)",
+            job.output.path.display().to_string(),
+        ));
+    }
+    let s = &job.simplify;
+    if !(0.0..=1.0).contains(&s.lambda) {
+        return Err(bad(
+            "simplify.lambda".into(),
+            "a value in [0, 1]",
+            s.lambda.to_string(),
+        ));
+    }
+    if let Some(w) = &s.attribute_weights {
+        if w.len() != job.attributes.len() {
+            return Err(bad(
+                "simplify.attribute_weights".into(),
+                "one weight per [[attributes]] entry",
+                format!(
+                    "{} weights for {} attributes",
+                    w.len(),
+                    job.attributes.len()
+                ),
+            ));
+        }
+        if w.iter().any(|x| !(*x > 0.0 && x.is_finite())) {
+            return Err(bad(
+                "simplify.attribute_weights".into(),
+                "finite values > 0",
+                format!("{w:?}"),
+            ));
+        }
+    }
+    if s.priority == PriorityKind::AttributeQuadric && job.attributes.is_empty() {
+        return Err(bad(
+            "simplify.priority".into(),
+            "\"attribute-quadric\" only with at least one [[attributes]] entry",
+            "no attributes".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The simplifier's priority for a job.
+pub(crate) fn priority(job: &JobConfig) -> Priority {
+    let s = &job.simplify;
+    match s.priority {
+        PriorityKind::Geometric => Priority::Geometric,
+        PriorityKind::DataDependent => Priority::DataDependent { lambda: s.lambda },
+        PriorityKind::AttributeQuadric => Priority::AttributeQuadric {
+            weights: s
+                .attribute_weights
+                .clone()
+                .unwrap_or_else(|| vec![1.0; job.attributes.len()]),
+        },
+    }
+}
+
+/// Where one attribute's slices come from.
+pub(crate) enum Source {
+    Volume(Box<dyn VolumeSource>),
+    Gradient,
+}
+
+/// Opens every attribute's volume and checks that its grid matches the iso volume's.
+pub(crate) fn open(
+    attributes: &[AttributeConfig],
+    input: &InputConfig,
+    grid: Grid,
+) -> Result<Vec<Source>, RunError> {
+    attributes
+        .iter()
+        .map(|a| {
+            if a.derive.is_some() {
+                return Ok(Source::Gradient);
+            }
+            let (path, options) = match &a.path {
+                Some(p) => (
+                    p.clone(),
+                    OpenOptions {
+                        dims: a.dims,
+                        dtype: a.dtype,
+                        endian: a.endian,
+                        header_bytes: a.header_bytes,
+                        spacing: input.spacing,
+                        origin: input.origin,
+                        array: a.array.clone(),
+                    },
+                ),
+                None => (
+                    input.path.clone().unwrap_or_default(),
+                    OpenOptions {
+                        array: a.array.clone(),
+                        ..input.open_options()
+                    },
+                ),
+            };
+            let source = isostream_volume::open_path(&path, &options)?;
+            if source.grid().dims != grid.dims {
+                return Err(RunError::Volume(isostream_volume::VolumeError::Grid {
+                    origin: path.display().to_string(),
+                    problem: format!(
+                        "attribute `{}` has dims {:?} but the iso volume has {:?}; attributes need the same grid",
+                        a.name,
+                        source.grid().dims,
+                        grid.dims
+                    ),
+                }));
+            }
+            Ok(Source::Volume(source))
+        })
+        .collect()
+}
+
+/// Slice `z` of the iso volume and of every attribute.
+#[derive(Debug, Clone)]
+pub struct Slices {
+    pub z: u64,
+    pub iso: Vec<f32>,
+    pub attrs: Vec<Vec<f32>>,
+}
+
+/// Reads the iso volume and the attributes in z order, one iso slice ahead when a gradient is
+/// derived.
+pub struct SliceReader {
+    iso: Box<dyn VolumeSource>,
+    attributes: Vec<Source>,
+    grid: Grid,
+    next_z: u64,
+    /// Iso slices `next_z - 1` and `next_z` (and `next_z + 1` once read ahead).
+    prev: Option<Vec<f32>>,
+    ahead: Option<Vec<f32>>,
+}
+
+impl SliceReader {
+    pub(crate) fn new(iso: Box<dyn VolumeSource>, attributes: Vec<Source>) -> Self {
+        let grid = iso.grid();
+        Self {
+            iso,
+            attributes,
+            grid,
+            next_z: 0,
+            prev: None,
+            ahead: None,
+        }
+    }
+
+    fn read_iso(&mut self, z: u64) -> Result<Vec<f32>, RunError> {
+        let mut s = vec![0f32; self.grid.slice_len()];
+        self.iso.read_slice(z, &mut s)?;
+        Ok(s)
+    }
+
+    /// Opens a job's iso volume and attributes (`[input]`, `[[attributes]]`).
+    ///
+    /// # Errors
+    /// A volume cannot be opened, or an attribute's grid differs from the iso volume's.
+    pub fn open(job: &JobConfig) -> Result<Self, RunError> {
+        let iso = crate::open_source(&job.input)?;
+        let attributes = open(&job.attributes, &job.input, iso.grid())?;
+        Ok(Self::new(iso, attributes))
+    }
+
+    pub fn grid(&self) -> Grid {
+        self.grid
+    }
+
+    /// The next slice, `None` after the last.
+    ///
+    /// # Errors
+    /// Reading a volume failed.
+    pub fn next_slices(&mut self) -> Result<Option<Slices>, RunError> {
+        let z = self.next_z;
+        let nz = self.grid.dims[2];
+        if z >= nz {
+            return Ok(None);
+        }
+        let cur = match self.ahead.take() {
+            Some(s) => s,
+            None => self.read_iso(z)?,
+        };
+        let gradient = self
+            .attributes
+            .iter()
+            .any(|a| matches!(a, Source::Gradient));
+        let next = if gradient && z + 1 < nz {
+            Some(self.read_iso(z + 1)?)
+        } else {
+            None
+        };
+        let mut grad: Option<Vec<f32>> = None;
+        let mut attrs = Vec::with_capacity(self.attributes.len());
+        for a in &mut self.attributes {
+            match a {
+                Source::Volume(v) => {
+                    let mut s = vec![0f32; self.grid.slice_len()];
+                    v.read_slice(z, &mut s)?;
+                    attrs.push(s);
+                }
+                Source::Gradient => {
+                    let g = grad.get_or_insert_with(|| {
+                        let mut out = vec![0f32; cur.len()];
+                        isostream_extract::attributes::gradient_magnitude_slice(
+                            &self.grid,
+                            self.prev.as_deref(),
+                            &cur,
+                            next.as_deref(),
+                            &mut out,
+                        );
+                        out
+                    });
+                    attrs.push(g.clone());
+                }
+            }
+        }
+        if gradient {
+            self.prev = Some(cur.clone());
+        }
+        self.ahead = next;
+        self.next_z += 1;
+        Ok(Some(Slices { z, iso: cur, attrs }))
+    }
+}
