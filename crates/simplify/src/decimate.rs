@@ -53,6 +53,13 @@ impl Simplifier {
                 self.stats.rejected_link += 1;
             } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
                 self.stats.rejected_flip += 1;
+            } else if eval.cost != COINCIDENT
+                // Merging coincident vertices moves nothing: any crossing of the new fan existed.
+                && self
+                    .isect
+                    .would_intersect(&self.store, c.a, c.b, c.b, eval.pos)
+            {
+                self.stats.rejected_intersection += 1;
             } else {
                 self.contract(c.a, c.b, eval);
             }
@@ -151,6 +158,7 @@ impl Simplifier {
             .unwrap_or_default();
         for t in tris {
             if self.store.tri(t).contains(keep) {
+                self.isect.remove(t);
                 let removed = self.store.remove_triangle(t);
                 self.stats.faces_unmodifiable -= usize::from(removed.unmodifiable > 0);
             } else {
@@ -190,6 +198,12 @@ impl Simplifier {
         self.stats.contractions += 1;
         self.stats.max_cost = self.stats.max_cost.max(eval.cost);
         self.stats.max_shape_error = self.stats.max_shape_error.max(eval.shape_error);
+        if let Some(k) = self.store.vertex(keep) {
+            for &t in &k.tris {
+                let tri = self.store.tri(t);
+                self.isect.update(t, tri.v, self.store.corners(tri));
+            }
+        }
         self.push_edges(keep);
     }
 }

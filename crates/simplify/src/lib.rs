@@ -13,6 +13,8 @@
 //! * `policy`: the public [`Policy`] and when/how far to decimate (Hou and Chen 4.2, Tandem);
 //! * `candidates`: the lazy edge heap and the time-lag waiting queue;
 //! * `decimate`: the one contraction loop;
+//! * `intersect`: spatial hash of the resident triangles; rejects contractions whose new fan
+//!   would cross another sheet (thin structures, touching surfaces);
 //! * `retire`: retirement behind the front or for the memory budget, and emission.
 //!
 //! Decisions (the why is at each item's definition):
@@ -48,6 +50,7 @@ mod candidates;
 mod cost;
 mod data_dependent;
 mod decimate;
+mod intersect;
 mod policy;
 mod priority;
 mod quadric;
@@ -108,6 +111,8 @@ pub struct SimplifyStats {
     pub rejected_link: u64,
     /// Candidates refused because a triangle would flip or degenerate.
     pub rejected_flip: u64,
+    /// Candidates refused because the new fan would cross another triangle (`intersect`).
+    pub rejected_intersection: u64,
     /// Candidates refused on re-evaluation (boundary rule, threshold).
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
@@ -150,6 +155,8 @@ pub struct Simplifier {
     time_lag: bool,
     rank_spacing: f64,
     store: Store,
+    /// Spatial hash of the resident (and latest emitted) triangles for the intersection guard.
+    isect: intersect::TriIndex,
     candidates: Candidates,
     buckets: RankBuckets,
     /// Vertices behind the front that could not retire because they were not modifiable yet.
@@ -176,6 +183,7 @@ impl Simplifier {
             rank_spacing: 1.0,
             config,
             store: Store::default(),
+            isect: intersect::TriIndex::default(),
             candidates: Candidates::default(),
             buckets: RankBuckets::default(),
             deferred: Vec::new(),
@@ -259,7 +267,8 @@ impl Simplifier {
                 }
             }
         }
-        self.store.add_triangle(Tri { v, unmodifiable });
+        let t = self.store.add_triangle(Tri { v, unmodifiable });
+        self.isect.insert(t, v, p);
         self.stats.faces_in += 1;
         self.stats.faces_unmodifiable += usize::from(unmodifiable > 0);
         self.note_resident();

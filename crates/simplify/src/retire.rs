@@ -147,6 +147,7 @@ impl Simplifier {
     /// Emits a triangle with all three vertices retired, preceded by its vertices that did not go
     /// out yet; frees the vertices it used for the last time.
     fn emit(&mut self, t: TriId, out: &mut OutBatch) {
+        self.isect.emit(t);
         let tri = self.store.remove_triangle(t);
         let mut v = [0; 3];
         let mut last_use = [false; 3];

@@ -400,3 +400,30 @@ fn marching_tetrahedra_surfaces_with_exact_iso_values() {
         }
     }
 }
+
+/// Two sheets 1.2 voxels apart (a thin spherical shell) simplified hard: without the intersection
+/// guard contractions on one sheet push fans through the other (the normal-flip test sees only
+/// the fan); with it the output never crosses itself.
+#[test]
+fn thin_shells_do_not_self_intersect() {
+    let c = DVec3::splat(10.0);
+    for (rate, lag) in [(0.1, 3), (0.03, 5)] {
+        let input = marching_tetrahedra([20, 20, 20], 0.36, |p| ((p - c).length() - 7.3).powi(2));
+        let input_pos: Vec<[f64; 3]> = input.pos.iter().map(|p| p.to_array()).collect();
+        assert_eq!(
+            isostream_meshcheck::self_intersections(&input_pos, &input.tris),
+            0
+        );
+        let run = run(
+            &input,
+            config(common::rate(rate, 500), lag),
+            &Sweep::default(),
+        );
+        let report = run.check();
+        assert!(report.is_closed_manifold(), "{report:?}");
+        let pos: Vec<[f64; 3]> = run.mesh.pos.iter().map(|p| p.to_array()).collect();
+        let crossing = isostream_meshcheck::self_intersections(&pos, &run.mesh.tris);
+        assert_eq!(crossing, 0, "rate {rate}: {:?}", run.stats);
+        assert!(run.stats.rejected_intersection > 0, "{:?}", run.stats);
+    }
+}
