@@ -72,10 +72,13 @@ fn example_job_runs_and_converts() {
 
 #[test]
 fn bundled_example_configs_validate() {
-    for entry in std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples")).unwrap() {
+    for entry in std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples")).unwrap()
+    {
         let path = entry.unwrap().path();
         let text = std::fs::read_to_string(&path).unwrap();
-        if text.contains("shared/data") && !Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).exists() {
+        if text.contains("shared/data")
+            && !Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).exists()
+        {
             continue; // real-data examples need ../shared beside the checkout
         }
         let o = isostream(&["validate", &path.to_string_lossy()]);
@@ -100,7 +103,11 @@ fn impossible_rate_names_the_key() {
         dir.path(),
         "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0.0\n[simplify]\nrate = 0\n[output]\npath = \"o.smb\"\n",
     );
-    assert_one_line_error(&isostream(&["validate", &job]), 2, &["simplify.rate", "(0, 1]"]);
+    assert_one_line_error(
+        &isostream(&["validate", &job]),
+        2,
+        &["simplify.rate", "(0, 1]"],
+    );
 }
 
 #[test]
@@ -112,11 +119,17 @@ fn wrong_dims_name_the_file_and_both_sizes() {
         iso: 0.5,
     };
     let job = vol.job(dir.path(), "mode = \"none\"", "o.smb");
-    let text = std::fs::read_to_string(&job).unwrap().replace("[4, 4, 4]", "[4, 4, 5]");
+    let text = std::fs::read_to_string(&job)
+        .unwrap()
+        .replace("[4, 4, 4]", "[4, 4, 5]");
     std::fs::write(&job, text).unwrap();
     let o = isostream(&["run", &job.to_string_lossy()]);
     assert_one_line_error(&o, 2, &["volume.raw", "256", "320"]);
-    assert!(leftovers(dir.path()).is_empty(), "{:?}", leftovers(dir.path()));
+    assert!(
+        leftovers(dir.path()).is_empty(),
+        "{:?}",
+        leftovers(dir.path())
+    );
 }
 
 #[test]
@@ -150,7 +163,8 @@ fn nan_voxels_are_outside_and_counted() {
     let o = isostream(&["run", &job.to_string_lossy()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("o.smb.run.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("o.smb.run.json")).unwrap())
+            .unwrap();
     let nan = summary["extract"]["non_finite_voxels"].as_u64().unwrap();
     assert!(nan > 0, "{summary}");
     let r = Mesh::read(&dir.path().join("o.smb")).check();
@@ -178,5 +192,9 @@ fn ctrl_c_stops_with_130_and_leaves_no_file() {
     assert!(killed.success());
     let o = child.wait_with_output().unwrap();
     assert_one_line_error(&o, 130, &["interrupted"]);
-    assert!(leftovers(dir.path()).is_empty(), "{:?}", leftovers(dir.path()));
+    assert!(
+        leftovers(dir.path()).is_empty(),
+        "{:?}",
+        leftovers(dir.path())
+    );
 }

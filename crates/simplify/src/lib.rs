@@ -177,9 +177,9 @@ impl Simplifier {
         }
         Ok(Self {
             objective: config.policy.objective(),
+            priority: Priority::default(),
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
-            priority: Priority::default(),
             rank_spacing: 1.0,
             config,
             store: Store::default(),
@@ -267,6 +267,7 @@ impl Simplifier {
                 }
             }
         }
+        self.add_attribute_quadric(v);
         let t = self.store.add_triangle(Tri { v, unmodifiable });
         self.isect.insert(t, v, p);
         self.stats.faces_in += 1;
@@ -285,7 +286,6 @@ impl Simplifier {
             return;
         };
         v.modifiable = true;
-        self.add_attribute_quadric(v);
         v.boundary = boundary;
         let tris = v.tris.clone();
         for t in tris {
