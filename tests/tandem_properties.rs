@@ -42,12 +42,7 @@ fn shape_job(dir: &Path, shape: &str, size: [u64; 3], simplify: &str, output: &s
 }
 
 /// What every simplified run must satisfy, against the full-resolution surface `full`.
-fn check_run(
-    summary: &RunSummary,
-    path: &Path,
-    full: &Mesh,
-    e0: f64,
-) -> Result<(), TestCaseError> {
+fn check_run(summary: &RunSummary, path: &Path, full: &Mesh, e0: f64) -> Result<(), TestCaseError> {
     isostream_smesh::validate(path).unwrap();
     let mesh = Mesh::read(path);
     let got = mesh.check();
