@@ -114,18 +114,17 @@ fn every_job_key_is_documented() {
         if in_struct && t == "}" {
             in_struct = false;
         }
-        if in_struct {
-            if let Some(field) = t.strip_prefix("pub ").and_then(|f| f.split(':').next()) {
-                let key = format!("`{field}`");
-                let section = matches!(
-                    field,
-                    "input" | "extract" | "simplify" | "output" | "pipeline" | "log" | "attributes"
-                );
-                assert!(
-                    section || readme.contains(&key),
-                    "job key {field} is not documented in config/README.md"
-                );
-            }
+        let field = t.strip_prefix("pub ").and_then(|f| f.split(':').next());
+        if let (true, Some(field)) = (in_struct, field) {
+            let key = format!("`{field}`");
+            let section = matches!(
+                field,
+                "input" | "extract" | "simplify" | "output" | "pipeline" | "log" | "attributes"
+            );
+            assert!(
+                section || readme.contains(&key),
+                "job key {field} is not documented in config/README.md"
+            );
         }
     }
 }
