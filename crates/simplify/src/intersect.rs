@@ -225,17 +225,21 @@ impl TriIndex {
     }
 
     fn fix_cell(&mut self) {
-        let (mut sum, mut n) = (0.0, 0usize);
+        let (mut sum, mut n, mut longest) = (0.0, 0usize, 0.0f64);
         for (i, rec) in self.recs.iter().enumerate() {
             if self.free.contains(&(i as u32)) {
                 continue;
             }
             for k in 0..3 {
-                sum += rec.p[k].distance(rec.p[(k + 1) % 3]);
+                let d = rec.p[k].distance(rec.p[(k + 1) % 3]);
+                sum += d;
+                longest = longest.max(d);
                 n += 1;
             }
         }
-        let cell = CELL_EDGES * sum / n.max(1) as f64;
+        // Many coincident vertices (isos on grid values) make the mean edge tiny; a cell far
+        // smaller than the triangles would file each one in millions of cells.
+        let cell = CELL_EDGES * (sum / n.max(1) as f64).max(0.25 * longest);
         self.cell = if cell.is_finite() && cell > 0.0 {
             cell
         } else {
