@@ -2,20 +2,16 @@
 //! from the iso volume, through every priority and mode, into every output format, and the
 //! attribute error of `isostream measure`.
 
+mod common;
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
+
+use common::isostream;
 
 use isostream_smesh::read_indexed;
 
 const N: usize = 20;
-
-fn isostream(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_isostream"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap()
-}
 
 fn ok(o: &Output) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

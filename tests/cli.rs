@@ -6,15 +6,7 @@ mod common;
 use std::path::Path;
 use std::process::{Command, Output};
 
-use common::{Mesh, TestVolume, random_blobs};
-
-fn isostream(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_isostream"))
-        .args(args)
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap()
-}
+use common::{Mesh, TestVolume, isostream, random_blobs};
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()

@@ -3,6 +3,7 @@
 #![allow(dead_code)] // each test binary uses a different subset
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 use std::sync::atomic::AtomicBool;
 
 use isostream_meshcheck::Report;
@@ -145,4 +146,13 @@ pub fn random_blobs(dims: [u64; 3], blobs: usize, seed: u64) -> TestVolume {
         data,
         iso: 0.5,
     }
+}
+
+/// Runs the `isostream` binary with quiet logs and returns what it printed.
+pub fn isostream(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap()
 }
