@@ -108,7 +108,11 @@ impl TriIndex {
         let rec = &mut self.recs[r as usize];
         rec.v = v;
         rec.p = p;
-        self.file(r);
+        // Before the cell size is fixed nothing is filed (coincident merges, which skip the
+        // query, can come first); `fix_cell` files every record then.
+        if self.cell > 0.0 {
+            self.file(r);
+        }
     }
 
     /// Whether contracting `a`, `b` to `pos` (the survivor keeps `keep`'s id) makes a triangle of
@@ -225,11 +229,12 @@ impl TriIndex {
     }
 
     fn fix_cell(&mut self) {
+        let mut free = vec![false; self.recs.len()];
+        for &r in &self.free {
+            free[r as usize] = true;
+        }
         let (mut sum, mut n, mut longest) = (0.0, 0usize, 0.0f64);
-        for (i, rec) in self.recs.iter().enumerate() {
-            if self.free.contains(&(i as u32)) {
-                continue;
-            }
+        for (rec, _) in self.recs.iter().zip(&free).filter(|(_, f)| !**f) {
             for k in 0..3 {
                 let d = rec.p[k].distance(rec.p[(k + 1) % 3]);
                 sum += d;
@@ -245,10 +250,9 @@ impl TriIndex {
         } else {
             1.0
         };
-        let free: Vec<u32> = self.free.clone();
-        for r in 0..self.recs.len() as u32 {
-            if !free.contains(&r) {
-                self.file(r);
+        for r in 0..self.recs.len() {
+            if !free[r] {
+                self.file(r as u32);
             }
         }
     }
@@ -406,5 +410,22 @@ mod tests {
         ix.emit(0);
         assert_eq!(ix.ghosts.len(), 1);
         assert_eq!(filed(&ix), n, "ghosts stay filed");
+    }
+
+    #[test]
+    fn updates_before_the_cell_is_fixed_file_nothing() {
+        // A coincident merge may update records before any query fixed the cell: filing then
+        // divided by a zero cell and put one triangle in billions of cells.
+        let mut ix = TriIndex::default();
+        let t = [
+            DVec3::ZERO,
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(0.0, 2.0, 0.0),
+        ];
+        ix.insert(0, [0, 1, 2], t);
+        ix.update(0, [0, 1, 3], t.map(|p| p + DVec3::X));
+        assert!(ix.cells.is_empty());
+        ix.fix_cell();
+        assert!(!ix.cells.is_empty() && ix.cells.len() < 64);
     }
 }

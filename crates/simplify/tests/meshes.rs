@@ -157,7 +157,6 @@ fn tiny_components_never_collapse() {
 }
 
 #[test]
-#[ignore = "hangs since the self-intersection guard landed (cell sizing on coincident vertices); tracked in the session note"]
 fn coincident_vertices_are_contracted_first() {
     // Marching cubes at value == iso puts several vertices on one grid corner: snap some sphere
     // vertices onto a neighbour, making zero-length edges and zero-area triangles.
