@@ -109,7 +109,7 @@ pub enum SmeshError {
         place: Place,
         expected: String,
     },
-    #[error("{}: not an SMB file: first bytes are {found:02x?}, expected version 0, endianness 0 or 1, then two zero bytes", path.display())]
+    #[error("{}: not an SMB file: first bytes are {found:02x?}, expected version 0 or 1, endianness 0 or 1, then two zero bytes", path.display())]
     BadMagic { path: PathBuf, found: Vec<u8> },
     #[error("{}: {message}", path.display())]
     Unsupported { path: PathBuf, message: String },

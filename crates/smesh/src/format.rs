@@ -10,7 +10,7 @@ use crate::SmeshError;
 pub enum Format {
     /// Streaming mesh, ASCII (Isenburg and Lindstrom 2005), with our per-vertex attribute superset.
     Sma,
-    /// Streaming mesh, binary.
+    /// Streaming mesh, binary (version 1, our superset, when it carries attributes).
     Smb,
     /// Stanford PLY (written binary little-endian by default, or ASCII).
     Ply,

@@ -5,13 +5,15 @@
 //! for the active vertices, not for the whole mesh. This crate has:
 //!
 //! - `StreamWriter` / `StreamReader`: SMA (ASCII) and SMB (binary), see `sma` and `smb` for the
-//!   layouts, with per-vertex attributes as an SMA superset;
+//!   layouts, with per-vertex attributes as our superset of both (an SMA header line, an SMB
+//!   version-1 name table);
 //! - `validate`: the streaming rules checked on a file, plus stream width and skip;
 //! - `MeshSink`: one writing interface for every output format (SMA, SMB, PLY, OBJ, STL, GLB), each written
 //!   to a temporary file and renamed when complete;
 //! - `convert` and `read_indexed` for moving between formats and loading small meshes.
 //!
-//! FORMATS.md (next to this crate's Cargo.toml) records the layouts we write and our SMA superset.
+//! FORMATS.md (next to this crate's Cargo.toml) records the layouts we write and our SMA and SMB
+//! supersets.
 #![deny(unsafe_code)]
 
 mod atomic;

@@ -11,7 +11,8 @@ use crate::{Format, Place, SmeshError};
 /// One element of a streaming mesh, indices 0-based absolute.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Element {
-    /// The next vertex (numbered in order of appearance). `attrs` is empty for SMB.
+    /// The next vertex (numbered in order of appearance) and its values of the header's
+    /// attributes (empty when the file names none).
     Vertex { pos: [f32; 3], attrs: Vec<f32> },
     /// `finalized[i]`: this triangle is the last use of `v[i]`.
     Triangle { v: [u64; 3], finalized: [bool; 3] },
@@ -29,7 +30,7 @@ pub struct ReadHeader {
     /// Declared bounding box (min, max).
     pub bbox: Option<([f32; 3], [f32; 3])>,
     pub comments: Vec<String>,
-    /// Per-vertex attribute names (SMA `# vertex_attributes`); always empty for SMB.
+    /// Per-vertex attribute names (SMA `# vertex_attributes`, the SMB version-1 name table).
     pub attribute_names: Vec<String>,
 }
 

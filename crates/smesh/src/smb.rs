@@ -1,14 +1,20 @@
 //! SMB, the binary streaming mesh.
 //!
-//! Header: u8 version 0, u8 endianness (0 little, 1 big), u8 0, u8 0; i32 comment count, then
-//! (i32 length, bytes) per comment; i32 nverts, i32 nfaces (-1 if unknown); u8 has_bbox, then
-//! 6 f32 (min xyz, max xyz) when 1. Body: blocks of a u32 descriptor (bit i, least significant
-//! first: 1 = vertex, 0 = triangle) and up to 32 elements of 12 bytes (3 f32 or 3 i32 indices as
-//! in `index`). The last block may be short; its unused descriptor bits are 0.
+//! Header: u8 version (0, or 1 with attributes), u8 endianness (0 little, 1 big), u8 0, u8 0;
+//! i32 comment count, then (i32 length, bytes) per comment; version 1 only: i32 attribute count
+//! m, then (i32 length, bytes) per attribute name; i32 nverts, i32 nfaces (-1 if unknown);
+//! u8 has_bbox, then 6 f32 (min xyz, max xyz) when 1. Body: blocks of a u32 descriptor (bit i,
+//! least significant first: 1 = vertex, 0 = triangle) and up to 32 elements: a vertex is
+//! 3 + m f32 (x y z, then its attributes in name order), a triangle 3 i32 indices as in `index`.
+//! The last block may be short; its unused descriptor bits are 0.
+//!
+//! Version 1 is our superset (FORMATS.md). A vertex longer than 12 bytes would be misread by a
+//! version-0 reader, so the version byte changes and such readers refuse the file instead; a
+//! mesh without attributes is written as version 0, byte for byte what it always was.
 //!
 //! We write little-endian, with has_bbox = 1 and placeholder counts that `end` patches in place
 //! (the header has fixed size once the comments are written). An empty mesh gets has_bbox = 0.
-//! SMB has no per-vertex attributes and no explicit finalization.
+//! SMB has no explicit finalization.
 //!
 //! Reading checks the declared byte order for plausibility and falls back to the other one:
 //! reference writers on x86_64 may declare 1 (big) while writing little-endian data.
@@ -22,8 +28,21 @@ use crate::reader::{Element, ReadHeader};
 use crate::track::Tracker;
 use crate::{Format, Header, Place, SmeshError, StreamFault, Subject, index};
 
+/// Bytes of a triangle, and of a vertex's x y z.
 const ELEMENT: usize = 12;
 const BLOCK: usize = 32;
+/// The version byte of files whose header carries an attribute-name table.
+const VERSION_ATTRIBUTES: u8 = 1;
+
+/// Appends SMB's length-prefixed strings (comments, attribute names): an i32 count, then
+/// (i32 length, bytes) each.
+fn put_strings(h: &mut Vec<u8>, strings: &[String]) {
+    h.extend((strings.len() as i32).to_le_bytes());
+    for c in strings {
+        h.extend((c.len() as i32).to_le_bytes());
+        h.extend(c.as_bytes());
+    }
+}
 
 pub(crate) struct SmbEncoder {
     counts_at: u64,
@@ -34,11 +53,16 @@ pub(crate) struct SmbEncoder {
 
 impl SmbEncoder {
     pub(crate) fn begin(out: &mut AtomicFile, header: &Header) -> Result<SmbEncoder, SmeshError> {
-        let mut h = vec![0u8, 0, 0, 0];
-        h.extend((header.comments.len() as i32).to_le_bytes());
-        for c in &header.comments {
-            h.extend((c.len() as i32).to_le_bytes());
-            h.extend(c.as_bytes());
+        let names = &header.attribute_names;
+        let version = if names.is_empty() {
+            0
+        } else {
+            VERSION_ATTRIBUTES
+        };
+        let mut h = vec![version, 0, 0, 0];
+        put_strings(&mut h, &header.comments);
+        if !names.is_empty() {
+            put_strings(&mut h, names);
         }
         let counts_at = h.len() as u64;
         h.extend((-1i32).to_le_bytes());
@@ -50,7 +74,7 @@ impl SmbEncoder {
             counts_at,
             descriptor: 0,
             elements: 0,
-            block: Vec::with_capacity(BLOCK * ELEMENT),
+            block: Vec::with_capacity(BLOCK * (ELEMENT + 4 * names.len())),
         })
     }
 
@@ -58,12 +82,12 @@ impl SmbEncoder {
         &mut self,
         out: &mut AtomicFile,
         vertex: bool,
-        bytes: [[u8; 4]; 3],
+        words: impl IntoIterator<Item = [u8; 4]>,
     ) -> Result<(), SmeshError> {
         if vertex {
             self.descriptor |= 1 << self.elements;
         }
-        self.block.extend(bytes.as_flattened());
+        self.block.extend(words.into_iter().flatten());
         self.elements += 1;
         if self.elements == BLOCK {
             self.flush_block(out)?;
@@ -82,8 +106,15 @@ impl SmbEncoder {
         Ok(())
     }
 
-    pub(crate) fn vertex(&mut self, out: &mut AtomicFile, pos: [f32; 3]) -> Result<(), SmeshError> {
-        self.push(out, true, pos.map(f32::to_le_bytes))
+    /// `attrs.len()` already checked by the writer against the header's names.
+    pub(crate) fn vertex(
+        &mut self,
+        out: &mut AtomicFile,
+        pos: [f32; 3],
+        attrs: &[f32],
+    ) -> Result<(), SmeshError> {
+        let words = pos.iter().chain(attrs).map(|x| x.to_le_bytes());
+        self.push(out, true, words)
     }
 
     /// `n` already range-checked by the writer to fit i32.
@@ -113,15 +144,16 @@ impl SmbEncoder {
     }
 }
 
-/// Whether `bytes` start like an SMB file: version 0, endianness 0 or 1, two zero bytes.
+/// Whether `bytes` start like an SMB file: version 0 or 1, endianness 0 or 1, two zero bytes.
 pub(crate) fn is_magic(bytes: &[u8]) -> bool {
-    bytes.len() >= 4 && bytes[0] == 0 && bytes[1] <= 1 && bytes[2..4] == [0, 0]
+    bytes.len() >= 4 && bytes[0] <= VERSION_ATTRIBUTES && bytes[1] <= 1 && bytes[2..4] == [0, 0]
 }
 
 /// The header fields as parsed under one byte order.
 #[derive(Debug)]
 struct Parsed {
     comments: Vec<String>,
+    attribute_names: Vec<String>,
     nverts: i32,
     nfaces: i32,
     bbox: Option<([f32; 3], [f32; 3])>,
@@ -167,19 +199,29 @@ impl Prefix<'_> {
     fn word(&mut self) -> Option<[u8; 4]> {
         self.take(4).map(|s| [s[0], s[1], s[2], s[3]])
     }
+
+    /// A count and that many length-prefixed strings (trailing NULs dropped: some writers pad).
+    fn strings(&mut self, order: Order) -> Option<Vec<String>> {
+        let n = usize::try_from(order.i32(self.word()?)).ok()?;
+        let mut out = Vec::new();
+        for _ in 0..n {
+            let len = usize::try_from(order.i32(self.word()?)).ok()?;
+            let text = String::from_utf8_lossy(self.take(len)?);
+            out.push(text.trim_end_matches('\0').to_string());
+        }
+        Some(out)
+    }
 }
 
 /// Parses the header after the magic under `order`; `None` if it does not fit the prefix.
 fn parse_header(bytes: &[u8], order: Order) -> Option<Parsed> {
     let mut p = Prefix { bytes, at: 4 };
-    let ncomments = order.i32(p.word()?);
-    let mut comments = Vec::new();
-    for _ in 0..ncomments.max(0) {
-        let len = usize::try_from(order.i32(p.word()?)).ok()?;
-        let text = String::from_utf8_lossy(p.take(len)?);
-        comments.push(text.trim_end_matches('\0').to_string());
-    }
-    (ncomments >= 0).then_some(())?;
+    let comments = p.strings(order)?;
+    let attribute_names = if bytes[0] == VERSION_ATTRIBUTES {
+        p.strings(order)?
+    } else {
+        Vec::new()
+    };
     let nverts = order.i32(p.word()?);
     let nfaces = order.i32(p.word()?);
     let bbox = match p.take(1)?[0] {
@@ -195,11 +237,17 @@ fn parse_header(bytes: &[u8], order: Order) -> Option<Parsed> {
     };
     Some(Parsed {
         comments,
+        attribute_names,
         nverts,
         nfaces,
         bbox,
         len: p.at as u64,
     })
+}
+
+/// Bytes of one vertex: x y z and `attributes` values, all f32.
+fn vertex_size(attributes: usize) -> usize {
+    ELEMENT + 4 * attributes
 }
 
 /// Whether `h` under `order` describes the file: counts not below -1, known counts matching the
@@ -209,9 +257,11 @@ fn plausible(h: &Parsed, order: Order, bytes: &[u8], file_len: u64) -> bool {
         return false;
     }
     let data = file_len.saturating_sub(h.len);
+    let vertex = vertex_size(h.attribute_names.len());
     if h.nverts >= 0 && h.nfaces >= 0 {
-        let n = h.nverts as u64 + h.nfaces as u64;
-        if data != n * ELEMENT as u64 + 4 * n.div_ceil(BLOCK as u64) {
+        let (nv, nf) = (h.nverts as u64, h.nfaces as u64);
+        let body = nv * vertex as u64 + nf * ELEMENT as u64;
+        if data != body + 4 * (nv + nf).div_ceil(BLOCK as u64) {
             return false;
         }
     }
@@ -224,11 +274,14 @@ fn plausible(h: &Parsed, order: Order, bytes: &[u8], file_len: u64) -> bool {
     };
     let mut vertices = 0u64;
     for bit in 0..BLOCK {
-        let Some(e) = p.take(ELEMENT) else { break };
         if descriptor >> bit & 1 == 1 {
+            if p.take(vertex).is_none() {
+                break;
+            }
             vertices += 1;
             continue;
         }
+        let Some(e) = p.take(ELEMENT) else { break };
         for w in e.chunks_exact(4) {
             let n = order.i32([w[0], w[1], w[2], w[3]]) as i64;
             match index::decode(n, vertices) {
@@ -249,6 +302,36 @@ pub(crate) struct SmbDecoder {
     declared: Option<(u64, u64)>,
     vertices: u64,
     triangles: u64,
+    /// The bytes of the descriptor or element last read (a vertex is longer than a triangle
+    /// when there are attributes).
+    element: Vec<u8>,
+    attributes: usize,
+}
+
+/// What the decoder reads next.
+#[derive(Debug, Clone, Copy)]
+enum Part {
+    Descriptor,
+    Vertex,
+    Triangle,
+}
+
+impl Part {
+    fn len(self, attributes: usize) -> usize {
+        match self {
+            Part::Descriptor => 4,
+            Part::Vertex => vertex_size(attributes),
+            Part::Triangle => ELEMENT,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Part::Descriptor => "a block descriptor",
+            Part::Vertex => "a vertex",
+            Part::Triangle => "a triangle",
+        }
+    }
 }
 
 impl SmbDecoder {
@@ -302,8 +385,9 @@ impl SmbDecoder {
             nfaces: count(h.nfaces),
             bbox: h.bbox,
             comments: h.comments,
-            attribute_names: Vec::new(),
+            attribute_names: h.attribute_names,
         };
+        let attributes = header.attribute_names.len();
         let dec = SmbDecoder {
             input: BufReader::with_capacity(1 << 16, file),
             order,
@@ -313,21 +397,26 @@ impl SmbDecoder {
             declared: header.nverts.zip(header.nfaces),
             vertices: 0,
             triangles: 0,
+            element: Vec::with_capacity(vertex_size(attributes)),
+            attributes,
         };
         Ok((dec, header))
     }
 
-    /// Reads exactly `buf.len()` bytes; `Ok(false)` on a clean end of file before the first byte.
-    fn read(&mut self, path: &Path, buf: &mut [u8], what: &str) -> Result<bool, SmeshError> {
+    /// Reads the next `part` into `self.element`; `Ok(false)` on a clean end of file before its
+    /// first byte.
+    fn read(&mut self, path: &Path, part: Part) -> Result<bool, SmeshError> {
+        let len = part.len(self.attributes);
+        self.element.resize(len, 0);
         let mut got = 0;
-        while got < buf.len() {
-            match self.input.read(&mut buf[got..]) {
+        while got < len {
+            match self.input.read(&mut self.element[got..]) {
                 Ok(0) if got == 0 => return Ok(false),
                 Ok(0) => {
                     return Err(SmeshError::Truncated {
                         path: path.to_path_buf(),
                         place: Place::Byte(self.offset + got as u64),
-                        expected: what.to_string(),
+                        expected: format!("{} ({len} bytes)", part.name()),
                     });
                 }
                 Ok(n) => got += n,
@@ -341,7 +430,7 @@ impl SmbDecoder {
                 }
             }
         }
-        self.offset += buf.len() as u64;
+        self.offset += len as u64;
         Ok(true)
     }
 
@@ -367,45 +456,44 @@ impl SmbDecoder {
             return None;
         }
         if self.left_in_block == 0 {
-            let mut w = [0u8; 4];
-            match self.read(path, &mut w, "a block descriptor (4 bytes)") {
+            match self.read(path, Part::Descriptor) {
                 Ok(true) => {}
                 Ok(false) => return self.end(path),
                 Err(e) => return Some(Err(e)),
             }
-            self.descriptor = self.order.u32(w);
+            let w = &self.element;
+            self.descriptor = self.order.u32([w[0], w[1], w[2], w[3]]);
             self.left_in_block = BLOCK;
         }
         let is_vertex = self.descriptor & 1 == 1;
         self.descriptor >>= 1;
         self.left_in_block -= 1;
         let place = Place::Byte(self.offset);
-        let mut e = [0u8; ELEMENT];
-        let what = if is_vertex {
-            "a vertex (12 bytes)"
+        let part = if is_vertex {
+            Part::Vertex
         } else {
-            "a triangle (12 bytes)"
+            Part::Triangle
         };
-        match self.read(path, &mut e, what) {
+        match self.read(path, part) {
             Ok(true) => {}
             Ok(false) => return self.end(path),
             Err(e) => return Some(Err(e)),
         }
-        let words: [[u8; 4]; 3] =
-            std::array::from_fn(|i| [e[4 * i], e[4 * i + 1], e[4 * i + 2], e[4 * i + 3]]);
-        Some(
-            self.element(path, place, is_vertex, words)
-                .map(|el| (el, place)),
-        )
+        Some(self.decode(path, place, is_vertex).map(|el| (el, place)))
     }
 
-    fn element(
+    /// The element in `self.element` as a vertex or a triangle.
+    fn decode(
         &mut self,
         path: &Path,
         place: Place,
         is_vertex: bool,
-        words: [[u8; 4]; 3],
     ) -> Result<Element, SmeshError> {
+        let order = self.order;
+        let mut values = self
+            .element
+            .chunks_exact(4)
+            .map(|w| [w[0], w[1], w[2], w[3]]);
         if is_vertex {
             if let Some((nv, _)) = self.declared.filter(|&(nv, _)| self.vertices == nv) {
                 return Err(SmeshError::stream(
@@ -418,9 +506,11 @@ impl SmbDecoder {
                 ));
             }
             self.vertices += 1;
+            let mut f = values.map(|w| order.f32(w));
+            let pos = [0; 3].map(|_| f.next().unwrap_or_default());
             return Ok(Element::Vertex {
-                pos: words.map(|w| self.order.f32(w)),
-                attrs: Vec::new(),
+                pos,
+                attrs: f.collect(),
             });
         }
         let subject = Subject::Triangle(self.triangles, place);
@@ -434,17 +524,17 @@ impl SmbDecoder {
                 },
             ));
         }
+        let n = [0; 3].map(|_| values.next().map_or(0, |w| order.i32(w)));
         let mut v = [0; 3];
         let mut finalized = [false; 3];
         for i in 0..3 {
-            let n = self.order.i32(words[i]) as i64;
-            (v[i], finalized[i]) = match index::decode(n, self.vertices) {
+            (v[i], finalized[i]) = match index::decode(i64::from(n[i]), self.vertices) {
                 None => {
                     return Err(SmeshError::syntax(
                         path,
                         place,
                         "nonzero triangle indices (1-based, or negative relative)",
-                        format!("{:?}", words.map(|w| self.order.i32(w))),
+                        format!("{n:?}"),
                     ));
                 }
                 Some(r) => r.map_err(|f| SmeshError::stream(path, subject, f))?,

@@ -16,7 +16,8 @@ use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 const COUNT_AT: u64 = 80;
 
-/// Streaming binary STL writer. Attributes are dropped (STL has none).
+/// Streaming binary STL writer. Attributes are dropped (STL has none); the header text names
+/// them, as OBJ's comment does, so the loss is visible in the file.
 pub struct StlSink {
     core: SinkCore,
     out: AtomicFile,
@@ -30,6 +31,11 @@ impl StlSink {
         let mut out = AtomicFile::create(path)?;
         // Must not start with "solid": readers would take the file for ASCII STL.
         let mut text = String::from("binary STL by isostream");
+        // The loss is stated before the comments, which the 80 bytes may cut.
+        if !header.attribute_names.is_empty() {
+            text.push_str("; attributes dropped: ");
+            text.push_str(&header.attribute_names.join(" "));
+        }
         for c in &header.comments {
             text.push_str("; ");
             text.push_str(c);

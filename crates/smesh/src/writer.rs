@@ -50,8 +50,8 @@ impl StreamWriter {
     /// Appends a vertex; vertices are numbered 0, 1, 2, ... in call order. SMB holds at most
     /// 2^31 - 1 vertices (i32 indices); SMA is text and writes larger indices as they are
     /// (readable by us, not by 32-bit reference readers). `attrs.len()` must equal
-    /// `header.attribute_names.len()`. SMA writes them after x y z on the `v` line; SMB cannot
-    /// store them and ignores them (the names are lost too: write SMA to keep attributes).
+    /// `header.attribute_names.len()`. SMA writes them after x y z on the `v` line, SMB (version
+    /// 1, see `smb`) as f32 after x y z in the vertex record.
     pub fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
         let count = self.core.tracker.vertices();
         if count >= index::MAX_VERTICES && matches!(self.encoder, Encoder::Smb(_)) {
@@ -63,7 +63,7 @@ impl StreamWriter {
         self.core.vertex(pos, attrs)?;
         match &mut self.encoder {
             Encoder::Sma(e) => e.vertex(&mut self.out, pos, attrs),
-            Encoder::Smb(e) => e.vertex(&mut self.out, pos),
+            Encoder::Smb(e) => e.vertex(&mut self.out, pos, attrs),
         }
     }
 

@@ -67,14 +67,44 @@ fn tetra_header() -> Header {
     }
 }
 
+/// The tetrahedron with attributes `t` and `grad` (the `_attrs` fixtures).
+fn tetrahedron_attrs() -> Vec<Op> {
+    let values = [[0.5, 1.0], [1.5, 2.0], [-2.5, 0.25], [3.0, 1024.0]];
+    let mut k = 0;
+    tetrahedron()
+        .into_iter()
+        .map(|op| match op {
+            Op::V(p, _) => {
+                k += 1;
+                Op::V(p, values[k - 1].to_vec())
+            }
+            other => other,
+        })
+        .collect()
+}
+
+fn tetra_attrs_header() -> Header {
+    Header {
+        attribute_names: vec!["t".into(), "grad".into()],
+        ..tetra_header()
+    }
+}
+
 // ---------------------------------------------------------------- golden fixtures
 
 #[test]
 fn golden_fixtures_are_written_byte_for_byte_and_read_back() {
     let dir = tempfile::tempdir().unwrap();
-    for name in ["tetrahedron.sma", "tetrahedron.smb"] {
+    let plain = (tetra_header(), tetrahedron());
+    let attrs = (tetra_attrs_header(), tetrahedron_attrs());
+    for (name, (header, ops)) in [
+        ("tetrahedron.sma", &plain),
+        ("tetrahedron.smb", &plain),
+        ("tetrahedron_attrs.sma", &attrs),
+        ("tetrahedron_attrs.smb", &attrs),
+    ] {
         let out = dir.path().join(name);
-        let stats = write(&out, &tetra_header(), &tetrahedron());
+        let stats = write(&out, header, ops);
         let golden = std::fs::read(data(name)).unwrap();
         assert_eq!(std::fs::read(&out).unwrap(), golden, "{name}");
         assert_eq!(stats.bytes, golden.len() as u64);
@@ -82,11 +112,12 @@ fn golden_fixtures_are_written_byte_for_byte_and_read_back() {
             (stats.vertices, stats.triangles, stats.max_active_vertices),
             (4, 4, 4)
         );
-        assert_eq!(read(&data(name)), tetrahedron(), "{name}");
+        assert_eq!(&read(&data(name)), ops, "{name}");
         let h = StreamReader::open(&data(name)).unwrap().header().clone();
         assert_eq!((h.nverts, h.nfaces), (Some(4), Some(4)));
         assert_eq!(h.bbox, Some(([0.0; 3], [1.0; 3])));
         assert_eq!(h.comments, vec!["tetrahedron".to_string()]);
+        assert_eq!(h.attribute_names, header.attribute_names, "{name}");
         let report = validate(&data(name)).unwrap();
         assert_eq!((report.vertices, report.triangles), (4, 4));
         assert_eq!(report.max_active_vertices, 4);
@@ -111,6 +142,71 @@ fn golden_ply_and_obj_are_what_conversion_writes() {
         let expected = corners(&read_indexed(&data("tetrahedron.smb")).unwrap());
         assert_eq!(corners(&read_indexed(&data(name)).unwrap()), expected);
     }
+}
+
+/// Attributes survive conversion of the SMB fixture to SMA and ASCII PLY (byte for byte the
+/// hand-written fixtures) and back to SMB: byte for byte from SMA (a stream, piped as is), the
+/// same triangles and values from PLY (re-emitted in first-use order, without comments).
+#[test]
+fn golden_attribute_fixtures_convert_into_each_other() {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = ConvertOptions {
+        ply_encoding: PlyEncoding::Ascii,
+        ..ConvertOptions::default()
+    };
+    for name in ["tetrahedron_attrs.sma", "tetrahedron_attrs.ply"] {
+        let out = dir.path().join(name);
+        convert_with(&data("tetrahedron_attrs.smb"), &out, &opts).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            std::fs::read_to_string(data(name)).unwrap(),
+            "{name}"
+        );
+        let back = dir.path().join(format!("{name}.smb"));
+        convert(&data(name), &back).unwrap();
+        assert_eq!(
+            corners(&read_indexed(&back).unwrap()),
+            corners(&read_indexed(&data("tetrahedron_attrs.smb")).unwrap()),
+            "{name}"
+        );
+    }
+    let back = dir.path().join("back.smb");
+    convert(&data("tetrahedron_attrs.sma"), &back).unwrap();
+    assert_eq!(
+        std::fs::read(&back).unwrap(),
+        std::fs::read(data("tetrahedron_attrs.smb")).unwrap()
+    );
+    let m = read_indexed(&data("tetrahedron_attrs.smb")).unwrap();
+    assert_eq!(m.attribute_names, ["t", "grad"]);
+    assert_eq!(m.attrs, [0.5, 1.0, 1.5, 2.0, -2.5, 0.25, 3.0, 1024.0]);
+}
+
+/// OBJ and STL have no per-vertex values: converting a mesh with attributes to them succeeds,
+/// keeps the triangles, and says in the file which attributes were dropped.
+#[test]
+fn obj_and_stl_drop_attributes_and_say_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = data("tetrahedron_attrs.smb");
+    let expected: Vec<_> = corners(&read_indexed(&data("tetrahedron.smb")).unwrap());
+    for name in ["t.obj", "t.stl"] {
+        let out = dir.path().join(name);
+        let stats = convert(&src, &out).unwrap();
+        assert_eq!((stats.written.vertices, stats.written.triangles), (4, 4));
+        let m = read_indexed(&out).unwrap();
+        assert!(m.attribute_names.is_empty() && m.attrs.is_empty(), "{name}");
+        assert_eq!(corners(&m), expected, "{name}");
+    }
+    let obj = std::fs::read_to_string(dir.path().join("t.obj")).unwrap();
+    assert!(
+        obj.contains("# per-vertex attributes not stored (OBJ has none): t grad\n"),
+        "{obj}"
+    );
+    let stl = std::fs::read(dir.path().join("t.stl")).unwrap();
+    let head = String::from_utf8_lossy(&stl[..80]);
+    assert!(
+        head.starts_with("binary STL by isostream; attributes dropped: t grad; tetrahedron"),
+        "{head}"
+    );
 }
 
 #[test]
@@ -155,6 +251,37 @@ fn golden_smb_matches_the_spec_layout() {
 }
 
 #[test]
+fn golden_smb_with_attributes_matches_the_superset_layout() {
+    // Built field by field from FORMATS.md (version 1), independently of the fixture script.
+    let mut b = vec![1u8, 0, 0, 0];
+    for (len, text) in [(1i32, &b""[..]), (11, b"tetrahedron")] {
+        b.extend(len.to_le_bytes());
+        b.extend(text);
+    }
+    for (len, text) in [(2i32, &b""[..]), (1, b"t"), (4, b"grad")] {
+        b.extend(len.to_le_bytes());
+        b.extend(text);
+    }
+    b.extend(4i32.to_le_bytes());
+    b.extend(4i32.to_le_bytes());
+    b.push(1);
+    let f = |b: &mut Vec<u8>, p: &[f32]| p.iter().for_each(|x| b.extend(x.to_le_bytes()));
+    let t = |b: &mut Vec<u8>, i: [i32; 3]| i.iter().for_each(|x| b.extend(x.to_le_bytes()));
+    f(&mut b, &[0.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
+    b.extend(0b0001_0111u32.to_le_bytes());
+    f(&mut b, &[0.0, 0.0, 0.0, 0.5, 1.0]);
+    f(&mut b, &[1.0, 0.0, 0.0, 1.5, 2.0]);
+    f(&mut b, &[0.0, 1.0, 0.0, -2.5, 0.25]);
+    t(&mut b, [1, 3, 2]);
+    f(&mut b, &[0.0, 0.0, 1.0, 3.0, 1024.0]);
+    t(&mut b, [1, 2, 4]);
+    t(&mut b, [-4, 4, 3]);
+    t(&mut b, [-3, -2, -1]);
+    assert_eq!(b.len(), 205);
+    assert_eq!(std::fs::read(data("tetrahedron_attrs.smb")).unwrap(), b);
+}
+
+#[test]
 fn smb_byte_order_is_sanity_checked() {
     let le = std::fs::read(data("tetrahedron.smb")).unwrap();
     let dir = tempfile::tempdir().unwrap();
@@ -179,6 +306,21 @@ fn smb_byte_order_is_sanity_checked() {
     std::fs::write(&p, &be).unwrap();
     assert_eq!(read(&p), tetrahedron());
     validate(&p).unwrap();
+
+    // The same with attributes: words swapped except the comment, the names and has_bbox.
+    let le = std::fs::read(data("tetrahedron_attrs.smb")).unwrap();
+    let mut be = le.clone();
+    be[1] = 1;
+    for at in [4, 8, 23, 27, 32, 40, 44] {
+        swap(&mut be, at);
+    }
+    for at in (49..le.len()).step_by(4) {
+        swap(&mut be, at);
+    }
+    let p = dir.path().join("big_attrs.smb");
+    std::fs::write(&p, &be).unwrap();
+    assert_eq!(read(&p), tetrahedron_attrs());
+    assert_eq!(read_indexed(&p).unwrap().attribute_names, ["t", "grad"]);
 }
 
 // ---------------------------------------------------------------- rule violations
@@ -290,6 +432,27 @@ fn validate_rejects_truncated_and_foreign_smb() {
             "{}: vertex 3 at byte 108 exceeds the 3 vertices the header declares",
             p.display()
         )
+    );
+    // A vertex with attributes is 20 bytes; a version-1 file cut inside one says so.
+    let mut unknown = std::fs::read(data("tetrahedron_attrs.smb")).unwrap();
+    unknown[40..48].copy_from_slice(&[0xff; 8]);
+    std::fs::write(&p, &unknown[..77 + 30]).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert_eq!(
+        msg,
+        format!(
+            "{}: file ends at byte 107 in the middle of a vertex (20 bytes)",
+            p.display()
+        )
+    );
+    // Version 2 is not ours.
+    let mut v2 = golden.clone();
+    v2[0] = 2;
+    std::fs::write(&p, &v2).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert!(
+        msg.contains("not an SMB file: first bytes are [02, 00, 00, 00]"),
+        "{msg}"
     );
     let p = dir.path().join("magic.smb");
     std::fs::write(&p, b"ply\nformat ascii 1.0\n").unwrap();
@@ -615,11 +778,17 @@ proptest! {
         prop_assert_eq!(report.max_active_vertices, stats.max_active_vertices);
         prop_assert_eq!(&report.header.attribute_names, &names);
 
-        let smb_ops = stream(&pos, 0, &tris, &choices, false);
-        let smb = dir.path().join("m.smb");
-        write(&smb, &Header::default(), &smb_ops);
-        prop_assert_eq!(read(&smb), smb_ops);
-        validate(&smb).unwrap();
+        // SMB has no explicit finalization; with and without attributes (versions 1 and 0).
+        for attrs in [0, 2] {
+            let smb_ops = stream(&pos, attrs, &tris, &choices, false);
+            let smb = dir.path().join("m.smb");
+            let header = Header { comments: vec![], attribute_names: names[..attrs].to_vec() };
+            let stats = write(&smb, &header, &smb_ops);
+            prop_assert_eq!(read(&smb), smb_ops);
+            let report = validate(&smb).unwrap();
+            prop_assert_eq!(report.max_active_vertices, stats.max_active_vertices);
+            prop_assert_eq!(&report.header.attribute_names, &header.attribute_names);
+        }
     }
 
     #[test]
@@ -634,7 +803,7 @@ proptest! {
             c.iter().map(|t| t.clone().map(|(p, _)| p)).collect::<Vec<_>>()
         };
 
-        // Attributes survive SMA -> PLY (binary and ascii) -> SMA.
+        // Attributes survive SMA -> PLY (binary and ascii) / GLB -> SMA and SMB, and SMB -> SMA.
         let outputs = [
             ("a.ply", PlyEncoding::BinaryLittleEndian, false),
             ("b.ply", PlyEncoding::Ascii, false),
@@ -642,7 +811,7 @@ proptest! {
             ("d.glb", PlyEncoding::default(), true),
         ];
         for (i, (name, ply_encoding, normals)) in outputs.into_iter().enumerate() {
-            let ply = dir.path().join(name);
+            let mut ply = dir.path().join(name);
             convert_with(&src, &ply, &ConvertOptions { ply_encoding, normals }).unwrap();
             prop_assert_eq!(&corners(&read_indexed(&ply).unwrap()), &original);
             if normals {
@@ -651,10 +820,13 @@ proptest! {
                     prop_assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-5), "{:?} vs {:?}", a, b);
                 }
             }
-            let back = dir.path().join(format!("b{i}.sma"));
-            convert(&ply, &back).unwrap();
-            validate(&back).unwrap();
-            prop_assert_eq!(&corners(&read_indexed(&back).unwrap()), &original);
+            for back in [format!("b{i}.sma"), format!("b{i}.smb"), format!("c{i}.sma")] {
+                let back = dir.path().join(back);
+                convert(&ply, &back).unwrap();
+                validate(&back).unwrap();
+                prop_assert_eq!(&corners(&read_indexed(&back).unwrap()), &original);
+                ply = back;
+            }
         }
 
         // Positions survive every chain of formats, streaming or not.
