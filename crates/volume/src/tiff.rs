@@ -113,10 +113,27 @@ fn natural_key(name: &str) -> Vec<(String, u128)> {
 
 fn decoder(path: &Path) -> Result<TiffDecoder, VolumeError> {
     let f = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
-    // Our memory bound is one slice; the crate's default limits would refuse large slices.
+    let len = f
+        .metadata()
+        .map_err(|e| VolumeError::io(path, "read the size of", e))?
+        .len();
     Decoder::new(BufReader::new(f))
-        .map(|d| d.with_limits(Limits::unlimited()))
+        .map(|d| d.with_limits(limits_for(len)))
         .map_err(|e| VolumeError::format(path, "file header", "a TIFF file", e.to_string()))
+}
+
+/// Limits scaled to the file: the crate's defaults (256 MiB per decoded buffer) would refuse
+/// large slices, while no limit lets a damaged tag count allocate terabytes before the read
+/// fails. A decoded page or tag array may be up to 64 times the file (compressed CT slices with
+/// empty background reach tens of times), never less than the defaults; a compressed strip can
+/// never be larger than the file.
+fn limits_for(file_len: u64) -> Limits {
+    let file_len = usize::try_from(file_len).unwrap_or(usize::MAX);
+    let mut limits = Limits::default();
+    limits.decoding_buffer_size = file_len.saturating_mul(64).max(limits.decoding_buffer_size);
+    limits.intermediate_buffer_size = file_len.max(limits.intermediate_buffer_size);
+    limits.ifd_value_size = file_len.max(limits.ifd_value_size);
+    limits
 }
 
 fn page_err(path: &Path, page: u64, e: tiff::TiffError) -> VolumeError {

@@ -155,3 +155,25 @@ pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
     }
     vec![("sample.tif", bytes.into_inner())]
 }
+
+/// A damaged tag count (three billion strip offsets in a 30-byte file) is refused by the limits
+/// instead of allocating ~100 GB (found by the robustness property in CI).
+#[test]
+fn huge_tag_counts_are_refused_not_allocated() {
+    let mut bytes = b"II*\0".to_vec();
+    bytes.extend(8u32.to_le_bytes()); // first IFD
+    bytes.extend(1u16.to_le_bytes()); // one entry
+    bytes.extend(273u16.to_le_bytes()); // StripOffsets
+    bytes.extend(4u16.to_le_bytes()); // LONG
+    bytes.extend(3_000_000_000u32.to_le_bytes());
+    bytes.extend(0u32.to_le_bytes());
+    bytes.extend(0u32.to_le_bytes()); // no next IFD
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("huge.tif");
+    std::fs::write(&p, &bytes).unwrap();
+    let e = open_path(&p, &OpenOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("huge.tif") && !e.contains('\n'), "{e}");
+}
