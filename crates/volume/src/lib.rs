@@ -12,6 +12,7 @@
 //! | `.vti` (ascii, base64, appended; zlib) | VTK XML | appended raw mapped, else two slices + one 32 KiB block |
 //! | `.nii` / `.nii.gz` / `.hdr`+`.img` | NIfTI-1 | `.nii` mapped, `.nii.gz` two slices |
 //! | `.tif` / `.tiff` / a directory of them | TIFF stack | one page |
+//! | a directory with `zarr.json` (or that file): Zarr v3, OME-Zarr v0.5 | Zarr | one row of chunks |
 //!
 //! No reader decodes a whole array up front ([`VolumeSource::loads_whole_volume`] is false for
 //! all of them). [`Procedural`] shapes are computed per slice; [`MemoryVolume`] holds everything
@@ -51,6 +52,7 @@ mod tiff;
 mod vti;
 mod vtk;
 mod xml;
+mod zarr;
 
 pub use dtype::{Dtype, Endian};
 pub use error::VolumeError;

@@ -1,7 +1,7 @@
 //! Format detection: one entry point from a path (and job-file options) to a source.
 
 use crate::{
-    OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nifti, nrrd, tiff, vti, vtk,
+    OpenOptions, RawSpec, RawVolume, VolumeError, VolumeSource, nifti, nrrd, tiff, vti, vtk, zarr,
 };
 use std::io::Read;
 use std::path::Path;
@@ -15,6 +15,7 @@ enum Format {
     Vti,
     Nifti,
     Tiff,
+    Zarr,
 }
 
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
@@ -27,6 +28,7 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
         Format::Vti => vti::open(path, opts),
         Format::Nifti => nifti::open(path, opts),
         Format::Tiff => tiff::open(path, opts),
+        Format::Zarr => zarr::open(path, opts),
     }
 }
 
@@ -49,6 +51,11 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
     ];
     if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
         return Ok(*f);
+    }
+    // A Zarr store is a directory with zarr.json (v2 stores are recognised to be refused clearly).
+    let zarr_files = ["zarr.json", ".zarray", ".zgroup"];
+    if name == "zarr.json" || zarr_files.iter().any(|f| path.join(f).is_file()) {
+        return Ok(Format::Zarr);
     }
     if path.is_dir() {
         return Ok(Format::Tiff);

@@ -1,0 +1,154 @@
+//! Zarr `data_type`s and `fill_value`s. Zarr has 64-bit integers, which the crate's [`Dtype`]
+//! (shared with the job file's raw `dtype` key) does not; they are converted here, the other types
+//! go through the crate's one tested conversion.
+
+use super::json::J;
+use crate::dtype::decode;
+use crate::{Dtype, Endian, VolumeError};
+
+/// A Zarr v3 numeric data type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ZType {
+    Plain(Dtype),
+    I64,
+    U64,
+}
+
+const NAMES: &str = "int8, uint8, int16, uint16, int32, uint32, int64, uint64, float32 or float64";
+
+impl ZType {
+    pub(crate) fn parse(j: &J) -> Result<ZType, VolumeError> {
+        let name = j.str(NAMES)?;
+        Ok(match name {
+            "int8" => ZType::Plain(Dtype::I8),
+            "uint8" => ZType::Plain(Dtype::U8),
+            "int16" => ZType::Plain(Dtype::I16),
+            "uint16" => ZType::Plain(Dtype::U16),
+            "int32" => ZType::Plain(Dtype::I32),
+            "uint32" => ZType::Plain(Dtype::U32),
+            "int64" => ZType::I64,
+            "uint64" => ZType::U64,
+            "float32" => ZType::Plain(Dtype::F32),
+            "float64" => ZType::Plain(Dtype::F64),
+            _ => return Err(j.err(NAMES)),
+        })
+    }
+
+    pub(crate) fn size(self) -> usize {
+        match self {
+            ZType::Plain(d) => d.size_bytes(),
+            ZType::I64 | ZType::U64 => 8,
+        }
+    }
+
+    /// The crate's name for the stored type; none for 64-bit integers.
+    pub(crate) fn dtype(self) -> Option<Dtype> {
+        match self {
+            ZType::Plain(d) => Some(d),
+            ZType::I64 | ZType::U64 => None,
+        }
+    }
+
+    /// Converts `out.len()` stored values to f32 (64-bit integers round to the nearest f32).
+    pub(crate) fn decode(self, endian: Endian, bytes: &[u8], out: &mut [f32]) {
+        let wide = |b: &[u8]| {
+            let a: [u8; 8] = b.try_into().unwrap_or_default();
+            match endian {
+                Endian::Little => u64::from_le_bytes(a),
+                Endian::Big => u64::from_be_bytes(a),
+            }
+        };
+        match self {
+            ZType::Plain(d) => decode(d, endian, bytes, out),
+            ZType::I64 => {
+                for (o, b) in out.iter_mut().zip(bytes.chunks_exact(8)) {
+                    *o = wide(b) as i64 as f32;
+                }
+            }
+            ZType::U64 => {
+                for (o, b) in out.iter_mut().zip(bytes.chunks_exact(8)) {
+                    *o = wide(b) as f32;
+                }
+            }
+        }
+    }
+
+    /// The value of voxels in chunks that were never written: a number, or for floats "NaN",
+    /// "Infinity", "-Infinity" or the bit pattern as "0x..." hex (Zarr v3 core spec).
+    pub(crate) fn fill_value(self, j: &J) -> Result<f32, VolumeError> {
+        let float = matches!(self, ZType::Plain(Dtype::F32 | Dtype::F64));
+        let expected = if float {
+            "a number, \"NaN\", \"Infinity\", \"-Infinity\" or \"0x\" hex bits"
+        } else {
+            "an integer"
+        };
+        if let Some(v) = j.value.as_i64() {
+            return Ok(v as f32);
+        }
+        if let Some(v) = j.value.as_u64() {
+            return Ok(v as f32);
+        }
+        if !float {
+            return Err(j.err(expected));
+        }
+        if let Some(v) = j.value.as_f64() {
+            return Ok(v as f32);
+        }
+        let text = j.str(expected)?;
+        let hex = |digits: &str| u64::from_str_radix(digits, 16).ok();
+        let v = match (text, text.strip_prefix("0x")) {
+            ("NaN", _) => Some(f32::NAN),
+            ("Infinity", _) => Some(f32::INFINITY),
+            ("-Infinity", _) => Some(f32::NEG_INFINITY),
+            (_, Some(d)) if self == ZType::Plain(Dtype::F32) && d.len() == 8 => {
+                hex(d).map(|b| f32::from_bits(b as u32))
+            }
+            (_, Some(d)) if d.len() == 16 => hex(d).map(|b| f64::from_bits(b) as f32),
+            _ => None,
+        };
+        v.ok_or_else(|| j.err(expected))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn fill(ty: &str, json: &str) -> Result<f32, String> {
+        let v: serde_json::Value =
+            serde_json::from_str(&format!(r#"{{"t":"{ty}","f":{json}}}"#)).unwrap();
+        let root = J::root(Path::new("zarr.json"), &v);
+        let t = ZType::parse(&root.get("t")).map_err(|e| e.to_string())?;
+        t.fill_value(&root.get("f")).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn fill_values_of_every_form() {
+        assert_eq!(fill("uint8", "7"), Ok(7.0));
+        assert_eq!(fill("int64", "-3"), Ok(-3.0));
+        assert_eq!(fill("float32", "0.5"), Ok(0.5));
+        assert_eq!(fill("float32", "\"-Infinity\""), Ok(f32::NEG_INFINITY));
+        assert!(fill("float64", "\"NaN\"").unwrap().is_nan());
+        assert_eq!(fill("float32", "\"0x3f800000\""), Ok(1.0));
+        assert_eq!(fill("float64", "\"0x4000000000000000\""), Ok(2.0));
+        assert_eq!(
+            fill("uint16", "\"NaN\"").unwrap_err(),
+            r#"zarr.json: key f: expected an integer, found "NaN""#
+        );
+        assert_eq!(
+            fill("bool", "0").unwrap_err(),
+            format!(r#"zarr.json: key t: expected {NAMES}, found "bool""#)
+        );
+    }
+
+    #[test]
+    fn wide_integers_decode_in_both_orders() {
+        let mut out = [0.0f32; 2];
+        let mut bytes = (-5i64).to_be_bytes().to_vec();
+        bytes.extend_from_slice(&(1u64 << 40).to_be_bytes());
+        ZType::I64.decode(Endian::Big, &bytes, &mut out[..1]);
+        ZType::U64.decode(Endian::Big, &bytes[8..], &mut out[1..]);
+        assert_eq!(out, [-5.0, (1u64 << 40) as f32]);
+    }
+}

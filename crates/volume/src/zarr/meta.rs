@@ -1,0 +1,276 @@
+//! `zarr.json` metadata: finding the array in a store (a plain array, a group with a child named
+//! by the job, or an OME-Zarr v0.5 multiscale group) and checking everything the reader relies on.
+
+use super::codec::{self, Codecs};
+use super::dtype::ZType;
+use super::json::J;
+use crate::VolumeError;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+/// The array to read and what the store says about it.
+#[derive(Debug)]
+pub(crate) struct ArrayMeta {
+    /// The array's directory: chunk keys are relative to it.
+    pub dir: PathBuf,
+    /// Zarr order: the last axis varies fastest. Axes before the last three have size 1.
+    pub shape: Vec<u64>,
+    pub chunk_shape: Vec<u64>,
+    pub ztype: ZType,
+    pub fill: f32,
+    pub keys: KeyEncoding,
+    pub codecs: Codecs,
+    /// Voxel size and position in x, y, z order, from OME-Zarr coordinate transformations.
+    pub spacing: Option<[f64; 3]>,
+    pub origin: Option<[f64; 3]>,
+}
+
+/// `chunk_key_encoding`: where the chunk with grid coordinates (i, j, k) is stored.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct KeyEncoding {
+    /// "v2" keys are `i.j.k`; "default" keys are `c/i/j/k`.
+    v2: bool,
+    separator: char,
+}
+
+impl KeyEncoding {
+    /// The chunk file of grid coordinates `coords`, relative to the array directory.
+    pub(crate) fn key(&self, coords: &[u64]) -> String {
+        let sep = self.separator.to_string();
+        let joined = coords
+            .iter()
+            .map(u64::to_string)
+            .collect::<Vec<_>>()
+            .join(&sep);
+        if self.v2 {
+            joined
+        } else {
+            format!("c{sep}{joined}")
+        }
+    }
+}
+
+/// Reads the node at `dir` and returns the array to stream: the node itself, the child named
+/// `wanted` of a plain group, or the multiscale level `wanted` (default: the first, full
+/// resolution) of an OME-Zarr group.
+pub(crate) fn resolve(dir: &Path, wanted: Option<&str>) -> Result<ArrayMeta, VolumeError> {
+    let file = dir.join("zarr.json");
+    let doc = read_json(&file)?;
+    let root = J::root(&file, &doc);
+    let format = root.get("zarr_format");
+    if format.value.as_u64() != Some(3) {
+        return Err(format.err("3 (Zarr v3; convert Zarr v2 stores with zarr-python)"));
+    }
+    let node_type = root.get("node_type");
+    match node_type.str("\"array\" or \"group\"")? {
+        "array" => match wanted {
+            Some(w) => Err(root.problem(&format!(
+                "array {w:?} was requested but this is a single Zarr array; remove [input] array"
+            ))),
+            None => array(dir, &root),
+        },
+        "group" => group(dir, &root, wanted),
+        _ => Err(node_type.err("\"array\" or \"group\"")),
+    }
+}
+
+fn read_json(file: &Path) -> Result<Value, VolumeError> {
+    let bytes = std::fs::read(file).map_err(|e| VolumeError::io(file, "read", e))?;
+    serde_json::from_slice(&bytes).map_err(|e| {
+        VolumeError::format(
+            file,
+            format!("line {} column {}", e.line(), e.column()),
+            "valid JSON",
+            e.to_string(),
+        )
+    })
+}
+
+fn group(dir: &Path, root: &J, wanted: Option<&str>) -> Result<ArrayMeta, VolumeError> {
+    let ms = root.get("attributes").get("ome").get("multiscales");
+    if ms.is_null() {
+        return match wanted {
+            Some(w) => resolve(&dir.join(w), None),
+            None => Err(root.problem(&format!(
+                "a Zarr group without OME-Zarr multiscales; set [input] array to one of its arrays [{}]",
+                children(dir).join(", ")
+            ))),
+        };
+    }
+    let multiscales = ms.items("a list of multiscales")?;
+    let m = multiscales
+        .first()
+        .ok_or_else(|| ms.err("at least one multiscale"))?;
+    let list = m.get("datasets");
+    let datasets = list.items("a list of datasets")?;
+    let paths = datasets
+        .iter()
+        .map(|d| d.get("path").str("a dataset path"))
+        .collect::<Result<Vec<_>, _>>()?;
+    let pick = match wanted {
+        None => 0,
+        Some(w) => paths.iter().position(|p| *p == w).ok_or_else(|| {
+            root.problem(&format!(
+                "[input] array {w:?} is not a level of this OME-Zarr image; levels are [{}]",
+                paths.join(", ")
+            ))
+        })?,
+    };
+    let dataset = datasets
+        .get(pick)
+        .ok_or_else(|| list.err("at least one dataset"))?;
+    let mut meta = resolve(&dir.join(paths[pick]), None)?;
+    let rank = meta.shape.len();
+    // Dataset transformations first, then the multiscale's own (OME-Zarr v0.5, "multiscales").
+    let (s1, t1) = transforms(&dataset.get("coordinateTransformations"), rank)?;
+    let (s2, t2) = transforms(&m.get("coordinateTransformations"), rank)?;
+    let scale: Vec<f64> = s1.iter().zip(&s2).map(|(a, b)| a * b).collect();
+    let shift: Vec<f64> = (0..rank).map(|a| s2[a] * t1[a] + t2[a]).collect();
+    // Zarr axes are (..., z, y, x); the grid wants x, y, z.
+    let xyz = |v: &[f64]| [v[rank - 1], v[rank - 2], v[rank - 3]];
+    meta.spacing = Some(xyz(&scale));
+    meta.origin = Some(xyz(&shift));
+    Ok(meta)
+}
+
+/// Names of the sub-directories of a group that hold a `zarr.json`, for error messages.
+fn children(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| e.path().join("zarr.json").is_file())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+/// Scale and translation of an OME-Zarr `coordinateTransformations` list (identity when absent).
+fn transforms(j: &J, rank: usize) -> Result<(Vec<f64>, Vec<f64>), VolumeError> {
+    let mut scale = vec![1.0; rank];
+    let mut shift = vec![0.0; rank];
+    if j.is_null() {
+        return Ok((scale, shift));
+    }
+    for t in j.items("a list of transformations")? {
+        let kind = t.get("type");
+        let values = |key: &str, positive: bool| {
+            let v = t.get(key);
+            let what = if positive {
+                "positive numbers"
+            } else {
+                "numbers"
+            };
+            let expected = format!("{rank} {what}, one per axis");
+            let nums = v.f64s(&expected)?;
+            if nums.len() != rank || (positive && nums.iter().any(|&x| x <= 0.0)) {
+                return Err(v.err(expected));
+            }
+            Ok(nums)
+        };
+        match kind.str("\"scale\", \"translation\" or \"identity\"")? {
+            "scale" => {
+                let s = values("scale", true)?;
+                for a in 0..rank {
+                    scale[a] *= s[a];
+                    shift[a] *= s[a];
+                }
+            }
+            "translation" => {
+                let t = values("translation", false)?;
+                for a in 0..rank {
+                    shift[a] += t[a];
+                }
+            }
+            "identity" => {}
+            _ => return Err(kind.err("\"scale\", \"translation\" or \"identity\"")),
+        }
+    }
+    Ok((scale, shift))
+}
+
+fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
+    let shape_j = root.get("shape");
+    let shape = shape_j.u64s("a list of sizes")?;
+    let rank = shape.len();
+    if rank < 3 {
+        return Err(shape_j.err("at least 3 axes (z, y, x)"));
+    }
+    // Leading axes (OME-Zarr's t, c) are dropped when they hold one element; more would be
+    // several volumes, and which one to mesh is not ours to guess.
+    if let Some(a) = (0..rank - 3).find(|&a| shape[a] != 1) {
+        let names = root.get("dimension_names");
+        let label = names
+            .value
+            .get(a)
+            .and_then(Value::as_str)
+            .map(|n| format!(" ({n})"))
+            .unwrap_or_default();
+        return Err(shape_j.problem(&format!(
+            "shape {shape:?}: axis {a}{label} has size {} but only the last three axes (z, y, x) may exceed 1; write the volume to mesh as its own array",
+            shape[a]
+        )));
+    }
+    let ztype = ZType::parse(&root.get("data_type"))?;
+    let grid = root.get("chunk_grid");
+    let grid_name = grid.get("name");
+    if grid_name.value.as_str() != Some("regular") {
+        return Err(grid_name.err("\"regular\""));
+    }
+    let cs = grid.get("configuration").get("chunk_shape");
+    let chunk_shape = cs.u64s("a list of chunk sizes")?;
+    if chunk_shape.len() != rank || chunk_shape.contains(&0) {
+        return Err(cs.err(format!("{rank} positive chunk sizes, one per axis")));
+    }
+    let keys = key_encoding(&root.get("chunk_key_encoding"))?;
+    let fill = ztype.fill_value(&root.get("fill_value"))?;
+    let codecs = codec::parse(&root.get("codecs"), &chunk_shape, ztype.size())?;
+    let st = root.get("storage_transformers");
+    if st.value.as_array().is_some_and(|a| !a.is_empty()) {
+        return Err(st.problem("storage transformers are unsupported"));
+    }
+    Ok(ArrayMeta {
+        dir: dir.to_path_buf(),
+        shape,
+        chunk_shape,
+        ztype,
+        fill,
+        keys,
+        codecs,
+        spacing: None,
+        origin: None,
+    })
+}
+
+fn key_encoding(j: &J) -> Result<KeyEncoding, VolumeError> {
+    let name = j.get("name");
+    let v2 = match name.str("\"default\" or \"v2\"")? {
+        "default" => false,
+        "v2" => true,
+        _ => return Err(name.err("\"default\" or \"v2\"")),
+    };
+    let sep = j.get("configuration").get("separator");
+    let separator = match sep.value.as_str() {
+        None if v2 => '.',
+        None => '/',
+        Some("/") => '/',
+        Some(".") => '.',
+        Some(_) => return Err(sep.err("\"/\" or \".\"")),
+    };
+    Ok(KeyEncoding { v2, separator })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chunk_keys_of_both_encodings() {
+        let k = |v2, separator| KeyEncoding { v2, separator }.key(&[0, 2, 10]);
+        assert_eq!(k(false, '/'), "c/0/2/10");
+        assert_eq!(k(false, '.'), "c.0.2.10");
+        assert_eq!(k(true, '.'), "0.2.10");
+        assert_eq!(k(true, '/'), "0/2/10");
+    }
+}
