@@ -9,7 +9,7 @@ use std::process::Output;
 
 use common::isostream;
 
-use isostream_smesh::read_indexed;
+use isostream_smesh::{IndexedMesh, read_indexed};
 
 const N: usize = 20;
 
@@ -89,10 +89,30 @@ fn attributes_are_sampled_at_the_vertices() {
     }
 }
 
-/// Every priority in a simplifying mode writes the same attributes to SMB, SMA, PLY and GLB,
-/// and `convert` keeps them; the mesh keeps its topology (a sphere).
+/// Matches `m`'s attribute columns to `want` by name (GLB reads its `_NAME` accessors back in
+/// name order) and returns its values in `want`'s column order.
+fn columns(m: &IndexedMesh, want: &[String]) -> Vec<f32> {
+    let mut names = m.attribute_names.clone();
+    names.sort();
+    let mut sorted = want.to_vec();
+    sorted.sort();
+    assert_eq!(names, sorted);
+    let col: Vec<usize> = want
+        .iter()
+        .map(|n| m.attribute_names.iter().position(|x| x == n).unwrap())
+        .collect();
+    m.attrs
+        .chunks(want.len())
+        .flat_map(|a| col.iter().map(move |&c| a[c]))
+        .collect()
+}
+
+/// Every priority in a simplifying mode writes the same attributes to SMB, SMA, PLY and GLB;
+/// `isostream convert` keeps them between all four (SMB in and out), and drops them cleanly
+/// into OBJ and STL, which cannot store them (same triangles, no attributes, the loss named in
+/// the file). The mesh keeps its topology (a sphere).
 #[test]
-fn attributes_survive_every_output_format() {
+fn attributes_survive_round_trips_through_every_output_format() {
     let dir = tempfile::tempdir().unwrap();
     volumes(dir.path());
     let settings = [
@@ -100,22 +120,34 @@ fn attributes_survive_every_output_format() {
         "mode = \"rate\"\nrate = 0.2\npriority = \"attribute-quadric\"\nattribute_weights = [1.0, 2.0]",
         "mode = \"error\"\nerror = 0.1\npriority = \"data-dependent\"\nlambda = 0.7",
     ];
+    let convert = |from: &Path, to: &Path| {
+        ok(&isostream(&[
+            "convert",
+            &from.to_string_lossy(),
+            &to.to_string_lossy(),
+        ]));
+        read_indexed(to).unwrap()
+    };
     for (k, s) in settings.iter().enumerate().rev() {
         let mut meshes = Vec::new();
-        for ext in ["sma", "ply", "glb"] {
+        for ext in ["smb", "sma", "ply", "glb"] {
             let out = format!("out{k}.{ext}");
             let j = job(dir.path(), &format!("job{k}{ext}.toml"), s, &out);
             ok(&isostream(&["run", &j]));
             meshes.push(read_indexed(&dir.path().join(&out)).unwrap());
         }
-        let conv = dir.path().join(format!("conv{k}.glb"));
-        let sma = dir.path().join(format!("out{k}.sma"));
-        ok(&isostream(&[
-            "convert",
-            &sma.to_string_lossy(),
-            &conv.to_string_lossy(),
-        ]));
-        meshes.push(read_indexed(&conv).unwrap());
+        // SMB -> each format; SMA, PLY and GLB (re-emitted in first-use order) -> SMB.
+        let smb = dir.path().join(format!("out{k}.smb"));
+        for ext in ["sma", "ply", "glb", "smb"] {
+            let conv = dir.path().join(format!("conv{k}.{ext}"));
+            meshes.push(convert(&smb, &conv));
+            if ext != "smb" {
+                meshes.push(convert(
+                    &conv,
+                    &dir.path().join(format!("back{k}{ext}.smb")),
+                ));
+            }
+        }
         let first = &meshes[0];
         assert_eq!(first.attribute_names, ["lin", "grad"], "{s}");
         let report = isostream_meshcheck::check(&first.positions, &first.triangles);
@@ -124,28 +156,29 @@ fn attributes_survive_every_output_format() {
             "{s}: {report:?}"
         );
         assert_eq!(report.sorted_eulers(), vec![2], "{s}");
+        let expected = corners(first, &first.attrs);
         for m in &meshes[1..] {
-            // GLB keeps attributes as named accessors, read back in name order: match by name.
-            let mut names = m.attribute_names.clone();
-            names.sort();
-            let mut want = first.attribute_names.clone();
-            want.sort();
-            assert_eq!(names, want, "{s}");
-            let col: Vec<usize> = first
-                .attribute_names
-                .iter()
-                .map(|n| m.attribute_names.iter().position(|x| x == n).unwrap())
-                .collect();
-            let attrs: Vec<f32> = m
-                .attrs
-                .chunks(2)
-                .flat_map(|a| col.iter().map(move |&c| a[c]))
-                .collect();
+            let attrs = columns(m, &first.attribute_names);
             assert_eq!(m.triangles.len(), first.triangles.len(), "{s}");
-            assert_eq!(attrs.len(), first.attrs.len(), "{s}");
-            for (a, b) in attrs.iter().zip(&first.attrs) {
-                assert!((a - b).abs() <= 1e-5 * (1.0 + a.abs()), "{s}: {a} {b}");
+            for (a, b) in corners(m, &attrs).iter().zip(&expected) {
+                assert_eq!(a.0, b.0, "{s}");
+                for (x, y) in a.1.iter().zip(&b.1) {
+                    assert!((x - y).abs() <= 1e-5 * (1.0 + x.abs()), "{s}: {x} {y}");
+                }
             }
+        }
+        for ext in ["obj", "stl"] {
+            let lossy = dir.path().join(format!("conv{k}.{ext}"));
+            let m = convert(&smb, &lossy);
+            assert!(m.attribute_names.is_empty() && m.attrs.is_empty(), "{s}");
+            assert_eq!(m.triangles.len(), first.triangles.len(), "{s}");
+            let text = std::fs::read(&lossy).unwrap();
+            let text = String::from_utf8_lossy(&text);
+            assert!(
+                text.contains("attributes dropped: lin grad")
+                    || text.contains("attributes not stored (OBJ has none): lin grad"),
+                "{ext}"
+            );
         }
         let worst = first
             .positions
@@ -162,6 +195,29 @@ fn attributes_survive_every_output_format() {
         };
         assert!(worst < bound, "{s}: {worst}");
     }
+}
+
+/// Per triangle, its corners' positions (f32 bits, so exact) and attribute values, starting at
+/// the corner with the smallest position (orientation kept) and sorted: comparable across files
+/// whose vertex numbering differs (conversions re-emit in first-use order).
+fn corners(m: &IndexedMesh, attrs: &[f32]) -> Vec<(Vec<[u32; 3]>, Vec<f32>)> {
+    let k = m.attribute_names.len().max(1);
+    let mut out: Vec<(Vec<[u32; 3]>, Vec<f32>)> = m
+        .triangles
+        .iter()
+        .map(|t| {
+            let p = t.map(|i| m.positions[i as usize].map(|c| (c as f32).to_bits()));
+            let r = (0..3).min_by_key(|&i| p[i]).unwrap();
+            let order = [r, (r + 1) % 3, (r + 2) % 3];
+            let values = order
+                .iter()
+                .flat_map(|&i| attrs[t[i] as usize * k..(t[i] as usize + 1) * k].to_vec())
+                .collect();
+            (order.iter().map(|&i| p[i]).collect(), values)
+        })
+        .collect();
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    out
 }
 
 /// `measure` reports the attribute error per attribute; the full-resolution output has none.
@@ -187,23 +243,30 @@ fn measure_reports_attribute_error() {
         assert!(a["max"].as_f64().unwrap() < 1e-3, "{a}");
         assert!(a["samples"].as_u64().unwrap() > 1000, "{a}");
     }
-    let coarse = job(
-        dir.path(),
-        "coarse.toml",
-        "rate = 0.1\npriority = \"data-dependent\"",
-        "coarse.ply",
-    );
-    ok(&isostream(&["run", &coarse]));
-    let o = isostream(&[
-        "measure",
-        "--volume",
-        &coarse,
-        &dir.path().join("coarse.ply").to_string_lossy(),
-    ]);
-    ok(&o);
-    let text = String::from_utf8_lossy(&o.stdout);
-    assert!(text.contains("attribute lin: error mean"), "{text}");
-    assert!(text.contains("attribute grad: error mean"), "{text}");
+    // SMB carries the attributes too, so it measures the same as the PLY of the same run.
+    let mut reports = Vec::new();
+    for ext in ["smb", "ply"] {
+        let out = format!("coarse.{ext}");
+        let coarse = job(
+            dir.path(),
+            &format!("coarse_{ext}.toml"),
+            "rate = 0.1\npriority = \"data-dependent\"",
+            &out,
+        );
+        ok(&isostream(&["run", &coarse]));
+        let o = isostream(&[
+            "measure",
+            "--volume",
+            &coarse,
+            &dir.path().join(&out).to_string_lossy(),
+        ]);
+        ok(&o);
+        let text = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(text.contains("attribute lin: error mean"), "{text}");
+        assert!(text.contains("attribute grad: error mean"), "{text}");
+        reports.push(text);
+    }
+    assert_eq!(reports[0], reports[1]);
 }
 
 /// Bad attribute settings are named before any work.
@@ -230,10 +293,9 @@ fn attribute_settings_are_validated() {
         assert_eq!(o.status.code(), Some(2), "{s}");
         assert!(String::from_utf8_lossy(&o.stderr).contains(key), "{s}");
     }
+    // SMB carries attributes (version 1): accepted like every other output.
     let j = job(dir.path(), "smb.toml", "", "out.smb");
-    let o = isostream(&["validate", &j]);
-    assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("output.path"));
+    ok(&isostream(&["validate", &j]));
     let j = dir.path().join("gradient_and_path.toml");
     let body = std::fs::read_to_string(job(dir.path(), "x.toml", "", "x.ply"))
         .unwrap()

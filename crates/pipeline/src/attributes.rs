@@ -111,18 +111,6 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
             _ => {}
         }
     }
-    let smb = job
-        .output
-        .path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("smb"));
-    if smb && !job.attributes.is_empty() {
-        return Err(bad(
-            "output.path".into(),
-            "a format that carries vertex attributes (.sma, .ply or .glb; SMB has none)",
-            job.output.path.display().to_string(),
-        ));
-    }
     let s = &job.simplify;
     if !(0.0..=1.0).contains(&s.lambda) {
         return Err(bad(
