@@ -194,7 +194,9 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| fail(e.to_string()))?;
+    let mut tmp = isostream_smesh::output_builder(".run.json.")
+        .tempfile_in(dir)
+        .map_err(|e| fail(e.to_string()))?;
     serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;
     tmp.persist(path).map_err(|e| fail(e.to_string()))?;
     Ok(())

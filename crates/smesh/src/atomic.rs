@@ -13,6 +13,20 @@ use tempfile::NamedTempFile;
 
 use crate::SmeshError;
 
+/// A temporary-file builder for outputs: `tempfile` creates files `0o600`, which the rename
+/// would carry to the result; outputs get the usual `0o666` less the umask, like any file a user
+/// creates.
+pub fn output_builder(prefix: &str) -> tempfile::Builder<'_, 'static> {
+    let mut b = tempfile::Builder::new();
+    b.prefix(prefix).suffix(".tmp");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        b.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    b
+}
+
 pub(crate) struct AtomicFile {
     path: PathBuf,
     out: BufWriter<NamedTempFile>,
@@ -25,9 +39,7 @@ impl AtomicFile {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        let tmp = tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
-            .suffix(".tmp")
+        let tmp = output_builder(&format!(".{name}."))
             .tempfile_in(dir)
             .map_err(|e| {
                 SmeshError::io(
@@ -156,4 +168,26 @@ pub(crate) fn rewind_spill(path: &Path, spill: BufWriter<File>) -> Result<(File,
             Ok((f, len))
         });
     res.map_err(|e| SmeshError::io(path, "read back scratch data for", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Finished outputs carry the permissions of any file the user creates (umask applied), not
+    /// the temporary file's owner-only `0o600`.
+    #[cfg(unix)]
+    #[test]
+    fn outputs_get_ordinary_permissions() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        let plain = dir.path().join("plain");
+        File::create(&plain).unwrap();
+        let out = dir.path().join("mesh.sma");
+        let mut f = AtomicFile::create(&out).unwrap();
+        f.write_all(b"x").unwrap();
+        f.finish().unwrap();
+        assert_eq!(mode(&out), mode(&plain));
+    }
 }

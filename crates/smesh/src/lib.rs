@@ -34,6 +34,7 @@ mod track;
 mod validate;
 mod writer;
 
+pub use atomic::output_builder;
 pub use convert::{ConvertOptions, ConvertStats, convert, convert_with, create_sink};
 pub use error::{Place, SmeshError, StreamFault, Subject};
 pub use format::Format;
