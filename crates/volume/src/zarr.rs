@@ -31,6 +31,7 @@ mod json;
 mod meta;
 
 use crate::source::check_request;
+use crate::stream::zeroed;
 use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
 use codec::{Codecs, Sharding};
 use meta::ArrayMeta;
@@ -118,7 +119,10 @@ impl ZarrVolume {
     fn load_row(&self, bz: u64) -> Result<Vec<Option<Vec<u8>>>, VolumeError> {
         let [ny, nx] = self.across;
         let elem = self.meta.ztype.size();
-        let mut blocks = vec![None; (ny * nx) as usize];
+        let mut blocks = zeroed((ny * nx) as usize).ok_or_else(|| VolumeError::Grid {
+            origin: self.meta.dir.display().to_string(),
+            problem: format!("{ny}x{nx} chunks per slice are more than this machine can track; re-chunk the array"),
+        })?;
         match &self.meta.codecs {
             Codecs::Plain(chain) => {
                 for by in 0..ny {

@@ -10,9 +10,10 @@ use crate::{Endian, VolumeError};
 use std::io::Read;
 use std::path::Path;
 
-/// Largest chunk (or inner chunk) decoded at once: a row of chunks is what the reader holds,
-/// so a corrupt or absurd chunk shape must fail at open time, not in the allocator.
-pub(crate) const MAX_CHUNK_BYTES: u64 = 1 << 30;
+/// Largest chunk (or inner chunk) decoded at once. A corrupt or absurd chunk shape must fail at
+/// open time, not in the allocator; decoding may briefly hold two copies (transpose), and real
+/// stores use chunks of a few MiB.
+pub(crate) const MAX_CHUNK_BYTES: u64 = 1 << 29;
 
 /// A codec chain without sharding: what one stored (inner) chunk goes through.
 #[derive(Debug, Clone)]

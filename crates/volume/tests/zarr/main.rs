@@ -432,7 +432,7 @@ fn malformed_stores_give_one_line_errors() {
                 m["chunk_grid"]["configuration"]["chunk_shape"] =
                     serde_json::json!([1u64 << 20, 1u64 << 20, 1u64 << 20])
             }),
-            "zarr.json: key codecs: chunks of shape [1048576, 1048576, 1048576] are larger than the 1024 MiB this reader decodes at once; re-chunk the array",
+            "zarr.json: key codecs: chunks of shape [1048576, 1048576, 1048576] are larger than the 512 MiB this reader decodes at once; re-chunk the array",
         ),
         (
             "truncated chunk",
