@@ -16,6 +16,7 @@ Meshes are written as SMB (which carries the attributes) and measured from it.
 
 Usage: tools/attribute_experiment.py [--bin PATH] [--out out/attr-exp]
                                     [--cases step-vortex,tooth] [--rate 0.1] [--lambdas 0,0.5,1]
+                                    [--weights 0.02,0.05,0.2]
 The binary defaults to $ISOSTREAM_BIN, else $CARGO_TARGET_DIR/release/isostream, else
 target/release/isostream. Prints a Markdown table per case (the ones in docs/attributes.md) and
 writes results.json.
@@ -119,6 +120,8 @@ def main():
     ap.add_argument("--cases", default="step-vortex,tooth")
     ap.add_argument("--rate", type=float, default=0.1)
     ap.add_argument("--lambdas", default="0,0.25,0.5,0.75,1")
+    ap.add_argument("--weights", default="",
+                    help="attribute-quadric weights to try (default: one per case)")
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
     results = {}
@@ -134,8 +137,10 @@ def main():
         runs = [("geometric", rate)]
         runs += [(f"data-dependent lambda={l}", rate + f"priority = \"data-dependent\"\nlambda = {l}")
                  for l in args.lambdas.split(",")]
-        runs.append((f"attribute-quadric w={weight}",
-                     rate + f"priority = \"attribute-quadric\"\nattribute_weights = [{weight}]"))
+        weights = args.weights.split(",") if args.weights else [weight]
+        runs += [(f"attribute-quadric w={w}",
+                  rate + f"priority = \"attribute-quadric\"\nattribute_weights = [{w}]")
+                 for w in weights]
         rows = []
         for i, (label, simplify) in enumerate(runs):
             r = run(args.bin, args.out, f"{case}-{i}", head, simplify)
