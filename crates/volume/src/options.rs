@@ -6,7 +6,8 @@ use std::path::Path;
 
 /// Parameters for [`crate::open_path`]. `dims`, `dtype`, `endian` and `header_bytes` describe a
 /// headerless `.raw` file and are rejected for other formats (their headers say it);
-/// `spacing` and `origin` override any header; `array` picks one array of a multi-array file.
+/// `spacing` and `origin` override any header; `array` picks one array of a multi-array file
+/// (VTK: a DataArray name; Zarr: a child array of a group, or an OME-Zarr level's `path`).
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OpenOptions {
