@@ -23,7 +23,7 @@ impl<'a> J<'a> {
         }
     }
 
-    /// A format error at this value: "key X: expected ..., found <the JSON text>".
+    /// A format error at this value: "key X: expected ..., found the JSON text".
     pub(crate) fn err(&self, expected: impl Into<String>) -> VolumeError {
         let found = match self.value {
             Value::Null => "nothing".to_string(),
@@ -33,7 +33,7 @@ impl<'a> J<'a> {
         VolumeError::format(self.file, self.at_text(), expected, found)
     }
 
-    /// A structurally valid value this reader does not handle: "key X: <msg>".
+    /// A structurally valid value this reader does not handle: "key X: msg".
     pub(crate) fn problem(&self, msg: &str) -> VolumeError {
         VolumeError::Grid {
             origin: self.file.display().to_string(),
