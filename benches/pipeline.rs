@@ -100,7 +100,7 @@ fn simplification(c: &mut Criterion) {
     group.bench_function("gyroid64_rate0.2", |b| {
         b.iter(|| {
             let mut simplifier = Simplifier::new(config.clone()).unwrap();
-            simplifier.set_rank_spacing(grid.spacing[2]);
+            simplifier.set_sweep(glam::DVec3::Z, grid.origin[2], grid.spacing[2]);
             let mut out = OutBatch::default();
             for delta in &deltas {
                 for v in &delta.vertices {

@@ -1,6 +1,7 @@
 //! End-to-end properties of `isostream run` over many generated volumes: the streamed
 //! full-resolution surface equals plain in-memory marching cubes, and the simplified surface is a
-//! valid manifold with the same topology, within the face budget, in a valid streaming file.
+//! valid manifold with the same topology and no self-intersection, within the face budget, in a
+//! valid streaming file.
 
 mod common;
 
@@ -56,9 +57,11 @@ proptest! {
         run_job(&job);
         let path = dir.path().join("out.smb");
         isostream_smesh::validate(&path).unwrap();
-        let got = Mesh::read(&path).check();
+        let mesh = Mesh::read(&path);
+        let got = mesh.check();
         let want = vol.reference().check();
         prop_assert!(got.is_valid_manifold(), "{got:?}");
+        prop_assert_eq!(mesh.self_intersections(), 0);
         prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
         prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
     }
@@ -68,7 +71,7 @@ proptest! {
     #[test]
     fn simplified_smooth_fields_meet_the_rate(
         n in 30u64..48, blobs in 1usize..4, seed in any::<u64>(),
-        rate in 0.1f64..0.6, batch in 500u64..5000,
+        rate in 0.1f64..0.6, batch in 100u64..600,
     ) {
         let vol = random_blobs([n, n + 3, n + 1], blobs, seed);
         let dir = tempfile::tempdir().unwrap();
@@ -82,14 +85,17 @@ proptest! {
         let want = vol.reference().check();
         prop_assert!(got.is_valid_manifold(), "{got:?}");
         prop_assert_eq!(got.zero_area_triangles, 0);
+        prop_assert_eq!(mesh.self_intersections(), 0);
         prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
         prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
         // Small surfaces cannot always reach the rate: each closed component keeps its topology
         // and at least 4 triangles, and contractions that would fold or cross a sheet are
-        // refused. The 10 % promise is checked where the target leaves room for that.
+        // refused. Faces retired during the initial phase keep its rate (Hou and Chen 4.3), so
+        // batches must be small against the surface. The 10 % promise is checked where the
+        // target and the batch leave room for that.
         let target = rate * summary.faces_extracted as f64;
         let faces = mesh.triangles.len() as f64;
-        prop_assume!(target >= 1000.0);
+        prop_assume!(target >= 1000.0 && batch as f64 <= 0.05 * summary.faces_extracted as f64);
         prop_assert!((faces - target).abs() <= 0.1 * target,
             "{faces} faces for a target of {target} ({} extracted)", summary.faces_extracted);
     }

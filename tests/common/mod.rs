@@ -64,6 +64,11 @@ impl Mesh {
         isostream_meshcheck::check(&self.positions, &self.triangles)
     }
 
+    /// Triangles crossing another triangle of the mesh (the referee's count).
+    pub fn self_intersections(&self) -> usize {
+        isostream_meshcheck::self_intersections(&self.positions, &self.triangles)
+    }
+
     /// Triangles as position triples (f32 bits), rotated so the smallest comes first
     /// (orientation kept), sorted: comparable across meshes whose vertex numbering differs.
     pub fn canonical_triangles(&self) -> Vec<[[u32; 3]; 3]> {

@@ -81,7 +81,7 @@ pub fn run(
             got: e.to_string(),
         })
     })?;
-    simplifier.set_rank_spacing(grid.spacing[2]);
+    simplifier.set_sweep(glam::DVec3::Z, grid.origin[2], grid.spacing[2]);
     simplifier
         .set_priority(attributes::priority(job))
         .map_err(|e| {

@@ -2,6 +2,8 @@
 //! check topology and geometry, contract, re-queue the new vertex's edges (Garland and Heckbert
 //! 1997; incremental as in Hou and Chen section 3.2).
 
+use glam::DVec3;
+
 use crate::Simplifier;
 use crate::candidates::Candidate;
 use crate::cost::{COINCIDENT, Eval};
@@ -53,6 +55,9 @@ impl Simplifier {
                 self.stats.rejected_link += 1;
             } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
                 self.stats.rejected_flip += 1;
+            } else if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
+                self.stats.delayed_front += 1;
+                self.candidates.delay(c, reach);
             } else if eval.cost != COINCIDENT
                 // Merging coincident vertices moves nothing: any crossing of the new fan existed.
                 && self
@@ -64,6 +69,22 @@ impl Simplifier {
                 self.contract(c.a, c.b, eval);
             }
         }
+    }
+
+    /// The rank the front must reach before contracting `a`, `b` to `pos` is safe from the
+    /// triangles still to come, when that is beyond the current front: the farthest rank of the
+    /// new fan's corners (the fan lies in their convex hull; see [`Simplifier::set_sweep`]).
+    fn beyond_front(&self, a: u64, b: u64, pos: DVec3) -> Option<f64> {
+        let sweep = self.sweep?;
+        let mut far = sweep.rank_of(pos);
+        for x in [a, b] {
+            for &t in self.store.vertex(x).map_or(&[][..], |v| &v.tris[..]) {
+                for p in self.store.corners(self.store.tri(t)) {
+                    far = far.max(sweep.rank_of(p));
+                }
+            }
+        }
+        (far > self.front).then_some(far)
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).

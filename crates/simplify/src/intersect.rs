@@ -250,10 +250,8 @@ impl TriIndex {
         } else {
             1.0
         };
-        for r in 0..self.recs.len() {
-            if !free[r] {
-                self.file(r as u32);
-            }
+        for (r, _) in free.iter().enumerate().filter(|(_, f)| !**f) {
+            self.file(r as u32);
         }
     }
 

@@ -113,6 +113,9 @@ pub struct SimplifyStats {
     pub rejected_flip: u64,
     /// Candidates refused because the new fan would cross another triangle (`intersect`).
     pub rejected_intersection: u64,
+    /// Contractions postponed because their new fan reached past the front (see
+    /// [`Simplifier::set_sweep`]).
+    pub delayed_front: u64,
     /// Candidates refused on re-evaluation (boundary rule, threshold).
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
@@ -154,6 +157,8 @@ pub struct Simplifier {
     schedule: Schedule,
     time_lag: bool,
     rank_spacing: f64,
+    /// Rank planes (see [`Simplifier::set_sweep`]).
+    sweep: Option<SweepPlanes>,
     store: Store,
     /// Spatial hash of the resident (and latest emitted) triangles for the intersection guard.
     isect: intersect::TriIndex,
@@ -169,6 +174,21 @@ pub struct Simplifier {
     in_core: bool,
 }
 
+/// The sweep's rank planes (see [`Simplifier::set_sweep`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SweepPlanes {
+    direction: DVec3,
+    origin: f64,
+    spacing: f64,
+}
+
+impl SweepPlanes {
+    /// The (fractional) rank of the plane through `p`.
+    pub(crate) fn rank_of(&self, p: DVec3) -> f64 {
+        (p.dot(self.direction) - self.origin) / self.spacing
+    }
+}
+
 impl Simplifier {
     pub fn new(config: SimplifyConfig) -> Result<Self, SimplifyError> {
         config.policy.validate()?;
@@ -181,6 +201,7 @@ impl Simplifier {
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
             rank_spacing: 1.0,
+            sweep: None,
             config,
             store: Store::default(),
             isect: intersect::TriIndex::default(),
@@ -194,12 +215,23 @@ impl Simplifier {
         })
     }
 
-    /// Physical distance between consecutive ranks (z spacing of the grid), default 1. The
-    /// time-lag radius adds edge lengths (position units) to heights (ranks), so it divides
-    /// lengths by this.
-    pub fn set_rank_spacing(&mut self, spacing: f64) {
-        if spacing > 0.0 && spacing.is_finite() {
+    /// Where the sweep's rank planes are: rank `r` is the plane `p . direction = origin + r *
+    /// spacing` (for marching cubes along z: `direction = Z`, the grid's z origin and spacing).
+    ///
+    /// `spacing` converts lengths into ranks for the time-lag radius (which adds edge lengths to
+    /// heights). The planes also keep contractions behind the front: triangles still to come lie
+    /// beyond it (a marching-cubes triangle stays in its cube), so a contraction whose new fan
+    /// reaches past the front waits (like a time-lag DELAY) until the front has passed the fan;
+    /// otherwise a later triangle could cross it, and no check would see that. Without a sweep
+    /// (the default: spacing 1, no planes) only the first use applies.
+    pub fn set_sweep(&mut self, direction: DVec3, origin: f64, spacing: f64) {
+        if spacing > 0.0 && spacing.is_finite() && origin.is_finite() && direction.is_finite() {
             self.rank_spacing = spacing;
+            self.sweep = Some(SweepPlanes {
+                direction,
+                origin,
+                spacing,
+            });
         }
     }
 
@@ -229,6 +261,7 @@ impl Simplifier {
         for (v, a) in values.iter_mut().zip(attrs) {
             *v = *a;
         }
+        let pos = cost::output_precision(pos);
         self.store
             .insert_vertex(id, Vertex::new(pos, rank, &values));
         self.buckets.push(rank, id, &mut self.store);

@@ -27,6 +27,15 @@ impl Mesh {
         for p in &mut self.pos {
             *p += d;
         }
+        self.exact()
+    }
+
+    /// Positions rounded to `f32`, as the simplifier stores them (what every output format
+    /// writes), so that comparisons of unmoved vertices are exact.
+    pub fn exact(mut self) -> Mesh {
+        for p in &mut self.pos {
+            *p = p.as_vec3().as_dvec3();
+        }
         self
     }
 
@@ -82,7 +91,7 @@ pub fn param_grid(
             m.tris.push([a, c, d]);
         }
     }
-    m
+    m.exact()
 }
 
 pub fn torus(n_major: u32, n_minor: u32, big: f64, small: f64) -> Mesh {
@@ -135,7 +144,7 @@ pub fn tetrahedron(center: DVec3, size: f64) -> Mesh {
         DVec3::new(-1.0, 1.0, -1.0),
         DVec3::new(-1.0, -1.0, 1.0),
     ]
-    .map(|p| center + size * p)
+    .map(|p| (center + size * p).as_vec3().as_dvec3())
     .to_vec();
     Mesh {
         pos,
@@ -184,6 +193,7 @@ pub fn sphere(levels: u32, radius: f64, center: DVec3) -> Mesh {
         pos: pos.into_iter().map(|p| center + radius * p).collect(),
         tris,
     }
+    .exact()
 }
 
 /// How the mesh is fed: sweep axis and direction, slab thickness (rank = floor(coord / slab)),
@@ -276,6 +286,11 @@ pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
     for (k, &v) in order.iter().enumerate() {
         id[v] = k as u64;
     }
+    // Slab `k`'s triangles lie below the plane `coord = min + (k + 1) * slab` (harness triangles
+    // may also reach back, unlike marching cubes'), and `end_batch(k)` follows them.
+    let mut direction = DVec3::ZERO;
+    direction[sweep.axis] = if sweep.reverse { -1.0 } else { 1.0 };
+    s.set_sweep(direction, min + sweep.slab, sweep.slab);
     let max_rank = rank.iter().copied().max().unwrap_or(0);
     let mut tris_by_slab: Vec<Vec<[u32; 3]>> = vec![Vec::new(); max_rank as usize + 1];
     let mut remaining = vec![0usize; mesh.pos.len()];
@@ -475,5 +490,5 @@ pub fn marching_tetrahedra(n: [u32; 3], iso: f64, f: impl Fn(DVec3) -> f64) -> M
             }
         }
     }
-    mesh
+    mesh.exact()
 }
