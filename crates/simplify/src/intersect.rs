@@ -22,7 +22,8 @@
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
 //!   `topology::geometry_ok`'s). The new fan is also tested against itself (its triangles share
 //!   the new vertex).
-//! * **Cost**: a bounding-box overlap test precedes every exact test.
+//! * **Cost**: a bounding-box overlap test precedes every exact test; a new triangle spanning
+//!   more than `MAX_QUERY_CELLS` cells is refused unchecked.
 
 use std::collections::VecDeque;
 
@@ -37,6 +38,11 @@ const CELL_EDGES: f64 = 3.0;
 /// Triangles averaged for the cell size.
 const SAMPLE: usize = 1024;
 const NONE: u32 = u32::MAX;
+/// A new triangle whose bounding box spans more cells than this is refused as if it crossed
+/// something: checking it would cost a hash lookup per cell (attribute-driven priorities made
+/// fans of long slivers and a ten-minute engine run), and filing it would take as many entries.
+/// 32³ cells is a triangle about a hundred voxels across diagonally; flat ones may be larger.
+const MAX_QUERY_CELLS: i64 = 1 << 15;
 
 type Cell = [i32; 3];
 
@@ -60,6 +66,9 @@ pub(crate) struct TriIndex {
     of_tri: Vec<u32>,
     ghosts: VecDeque<u32>,
     live: usize,
+    /// Per record: the query generation that last met it (see `would_intersect`).
+    seen: Vec<u32>,
+    generation: u32,
 }
 
 impl TriIndex {
@@ -161,7 +170,34 @@ impl TriIndex {
             }
             let (lo, hi) = bbox(p);
             let (clo, chi) = (self.key(lo), self.key(hi));
-            let mut seen: SmallVec<[u32; 64]> = SmallVec::new();
+            let span = (0..3)
+                .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
+                .product::<i64>();
+            if span > MAX_QUERY_CELLS {
+                return true;
+            }
+            let hits = |r: u32, rec: &Rec| {
+                let (rlo, rhi) = bbox(&rec.p);
+                !(rlo.cmpgt(hi).any() || rhi.cmplt(lo).any())
+                    && !excluded.contains(&r)
+                    && cross(*v, *p, rec.v, rec.p)
+            };
+            // Large triangles span more cells than there are records: test every record then.
+            if span as usize > self.live + self.ghosts.len() {
+                let mut filed = self.recs.iter().zip(0u32..).filter(|(rec, _)| rec.filed);
+                if filed.any(|(rec, r)| hits(r, rec)) {
+                    return true;
+                }
+                continue;
+            }
+            // Each record once per fan triangle: a generation mark instead of a list of seen
+            // records, whose scans grew quadratic where large triangles share many cells.
+            self.generation = self.generation.wrapping_add(1);
+            if self.generation == 0 {
+                self.seen.fill(0);
+                self.generation = 1;
+            }
+            self.seen.resize(self.recs.len(), 0);
             for x in clo[0]..=chi[0] {
                 for y in clo[1]..=chi[1] {
                     for z in clo[2]..=chi[2] {
@@ -169,16 +205,12 @@ impl TriIndex {
                             continue;
                         };
                         for &r in list {
-                            if excluded.contains(&r) || seen.contains(&r) {
+                            let mark = &mut self.seen[r as usize];
+                            if *mark == self.generation {
                                 continue;
                             }
-                            seen.push(r);
-                            let rec = &self.recs[r as usize];
-                            let (rlo, rhi) = bbox(&rec.p);
-                            if rlo.cmpgt(hi).any() || rhi.cmplt(lo).any() {
-                                continue;
-                            }
-                            if cross(*v, *p, rec.v, rec.p) {
+                            *mark = self.generation;
+                            if hits(r, &self.recs[r as usize]) {
                                 return true;
                             }
                         }
@@ -332,9 +364,17 @@ fn cross(va: [u64; 3], a: [DVec3; 3], vb: [u64; 3], b: [DVec3; 3]) -> bool {
         }
     }
     match (count, shared) {
-        (0, _) => (0..3).any(|i| {
-            segment_crosses(a[i], a[(i + 1) % 3], &b) || segment_crosses(b[i], b[(i + 1) % 3], &a)
-        }),
+        (0, _) => {
+            // An edge crosses a triangle only from one side of its plane to the other: the same
+            // orientations `segment_crosses` starts with, computed once per corner, dismiss most
+            // pairs (the guard spends half the simplifier's time here).
+            let straddles = |t: &[DVec3; 3], q: &[DVec3; 3]| {
+                let s = q.map(|p| orient(t[0], t[1], t[2], p));
+                !(s.iter().all(|&x| x > 0.0) || s.iter().all(|&x| x < 0.0))
+            };
+            (straddles(&b, &a) && (0..3).any(|i| segment_crosses(a[i], a[(i + 1) % 3], &b)))
+                || (straddles(&a, &b) && (0..3).any(|i| segment_crosses(b[i], b[(i + 1) % 3], &a)))
+        }
         (1, Some((i, j))) => {
             segment_crosses(a[(i + 1) % 3], a[(i + 2) % 3], &b)
                 || segment_crosses(b[(j + 1) % 3], b[(j + 2) % 3], &a)
