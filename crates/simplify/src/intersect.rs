@@ -178,8 +178,7 @@ impl TriIndex {
             }
             let hits = |r: u32, rec: &Rec| {
                 let (rlo, rhi) = bbox(&rec.p);
-                !(rlo.cmpgt(hi).any() || rhi.cmplt(lo).any())
-                    && !excluded.contains(&r)
+                !(rlo.cmpgt(hi).any() || rhi.cmplt(lo).any() || excluded.contains(&r))
                     && cross(*v, *p, rec.v, rec.p)
             };
             // Large triangles span more cells than there are records: test every record then.
