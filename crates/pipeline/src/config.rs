@@ -52,7 +52,8 @@ pub struct InputConfig {
     pub spacing: Option<[f64; 3]>,
     /// Position of voxel (0,0,0); overrides the file header (default: the header's, else 0).
     pub origin: Option<[f64; 3]>,
-    /// The array to read from a multi-array file (VTK), by name.
+    /// The array to read from a multi-array file (VTK), or the child array / OME-Zarr level
+    /// (its `path`) of a Zarr group, by name.
     pub array: Option<String>,
 }
 

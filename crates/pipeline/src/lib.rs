@@ -22,7 +22,7 @@ use std::time::Instant;
 use isostream_simplify::{Policy, Simplifier, SimplifyConfig as SimplifierConfig};
 use isostream_smesh::Header;
 use serde::Serialize;
-use tracing::info;
+use tracing::{info, warn};
 
 pub use attributes::{AttributeConfig, Derived, SliceReader, Slices};
 pub use config::{
@@ -72,6 +72,9 @@ pub fn run(
     let grid = source.grid();
     let input = source.describe();
     info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");
+    if source.loads_whole_volume() {
+        warn!(input = %input, "the input's encoding forces decoding the whole volume at once (one chunk spans every slice): memory grows with the volume; re-chunk it along z");
+    }
 
     let mut simplifier = Simplifier::new(simplifier_config(job)).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
