@@ -50,6 +50,9 @@ type Cell = [i32; 3];
 struct Rec {
     v: [u64; 3],
     p: [DVec3; 3],
+    /// Bounding box of `p`, kept with it (queries test it for every record they meet).
+    blo: DVec3,
+    bhi: DVec3,
     lo: Cell,
     hi: Cell,
     filed: bool,
@@ -117,6 +120,7 @@ impl TriIndex {
         let rec = &mut self.recs[r as usize];
         rec.v = v;
         rec.p = p;
+        (rec.blo, rec.bhi) = bbox(&p);
         // Before the cell size is fixed nothing is filed (coincident merges, which skip the
         // query, can come first); `fix_cell` files every record then.
         if self.cell > 0.0 {
@@ -168,50 +172,61 @@ impl TriIndex {
             if fan[..i].iter().any(|(w, q)| cross(*v, *p, *w, *q)) {
                 return true;
             }
-            let (lo, hi) = bbox(p);
+        }
+        let span = |lo: DVec3, hi: DVec3| {
             let (clo, chi) = (self.key(lo), self.key(hi));
-            let span = (0..3)
+            (0..3)
                 .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
-                .product::<i64>();
-            if span > MAX_QUERY_CELLS {
-                return true;
+                .product::<i64>()
+        };
+        let boxes: SmallVec<[(DVec3, DVec3); 24]> = fan.iter().map(|(_, p)| bbox(p)).collect();
+        if boxes.iter().any(|&(lo, hi)| span(lo, hi) > MAX_QUERY_CELLS) {
+            return true;
+        }
+        // One pass over the records near the whole fan (each met once), each tested against
+        // every fan triangle whose box it overlaps.
+        let (lo, hi) = boxes.iter().fold(
+            (DVec3::INFINITY, DVec3::NEG_INFINITY),
+            |(lo, hi), &(l, h)| (lo.min(l), hi.max(h)),
+        );
+        let hits = |r: u32, rec: &Rec| {
+            let (rlo, rhi) = (rec.blo, rec.bhi);
+            if rlo.cmpgt(hi).any() || rhi.cmplt(lo).any() || excluded.contains(&r) {
+                return false;
             }
-            let hits = |r: u32, rec: &Rec| {
-                let (rlo, rhi) = bbox(&rec.p);
-                !(rlo.cmpgt(hi).any() || rhi.cmplt(lo).any() || excluded.contains(&r))
-                    && cross(*v, *p, rec.v, rec.p)
-            };
-            // Large triangles span more cells than there are records: test every record then.
-            if span as usize > self.live + self.ghosts.len() {
-                let mut filed = self.recs.iter().zip(0u32..).filter(|(rec, _)| rec.filed);
-                if filed.any(|(rec, r)| hits(r, rec)) {
-                    return true;
-                }
-                continue;
-            }
-            // Each record once per fan triangle: a generation mark instead of a list of seen
-            // records, whose scans grew quadratic where large triangles share many cells.
-            self.generation = self.generation.wrapping_add(1);
-            if self.generation == 0 {
-                self.seen.fill(0);
-                self.generation = 1;
-            }
-            self.seen.resize(self.recs.len(), 0);
-            for x in clo[0]..=chi[0] {
-                for y in clo[1]..=chi[1] {
-                    for z in clo[2]..=chi[2] {
-                        let Some(list) = self.cells.get(&[x, y, z]) else {
+            fan.iter().zip(&boxes).any(|((v, p), &(flo, fhi))| {
+                !(rlo.cmpgt(fhi).any() || rhi.cmplt(flo).any()) && cross(*v, *p, rec.v, rec.p)
+            })
+        };
+        // A large fan spans more cells than there are records: test every record then.
+        let cells = span(lo, hi);
+        if cells as usize > self.live + self.ghosts.len() {
+            let mut filed = self.recs.iter().zip(0u32..).filter(|(rec, _)| rec.filed);
+            return filed.any(|(rec, r)| hits(r, rec));
+        }
+        // Each record once: a generation mark instead of a list of seen records, whose scans
+        // grew quadratic where large triangles share many cells.
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.seen.fill(0);
+            self.generation = 1;
+        }
+        self.seen.resize(self.recs.len(), 0);
+        let (clo, chi) = (self.key(lo), self.key(hi));
+        for x in clo[0]..=chi[0] {
+            for y in clo[1]..=chi[1] {
+                for z in clo[2]..=chi[2] {
+                    let Some(list) = self.cells.get(&[x, y, z]) else {
+                        continue;
+                    };
+                    for &r in list {
+                        let mark = &mut self.seen[r as usize];
+                        if *mark == self.generation {
                             continue;
-                        };
-                        for &r in list {
-                            let mark = &mut self.seen[r as usize];
-                            if *mark == self.generation {
-                                continue;
-                            }
-                            *mark = self.generation;
-                            if hits(r, &self.recs[r as usize]) {
-                                return true;
-                            }
+                        }
+                        *mark = self.generation;
+                        if hits(r, &self.recs[r as usize]) {
+                            return true;
                         }
                     }
                 }
@@ -231,9 +246,12 @@ impl TriIndex {
     }
 
     fn new_rec(&mut self, v: [u64; 3], p: [DVec3; 3]) -> u32 {
+        let (blo, bhi) = bbox(&p);
         let rec = Rec {
             v,
             p,
+            blo,
+            bhi,
             lo: [0; 3],
             hi: [0; 3],
             filed: false,
@@ -294,8 +312,8 @@ impl TriIndex {
     }
 
     fn file(&mut self, r: u32) {
-        let (lo, hi) = bbox(&self.recs[r as usize].p);
-        let (lo, hi) = (self.key(lo), self.key(hi));
+        let rec = &self.recs[r as usize];
+        let (lo, hi) = (self.key(rec.blo), self.key(rec.bhi));
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
