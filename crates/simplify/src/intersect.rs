@@ -404,6 +404,15 @@ fn cross(va: [u64; 3], a: [DVec3; 3], vb: [u64; 3], b: [DVec3; 3]) -> bool {
 mod tests {
     use super::*;
 
+    /// Legs of 2 along x and y at the origin.
+    fn right_triangle() -> [DVec3; 3] {
+        [
+            DVec3::ZERO,
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(0.0, 2.0, 0.0),
+        ]
+    }
+
     #[test]
     fn crossing_and_touching_triangles() {
         let t = [
@@ -446,11 +455,7 @@ mod tests {
     #[test]
     fn the_index_follows_inserts_updates_and_removals() {
         let mut ix = TriIndex::default();
-        let t = [
-            DVec3::ZERO,
-            DVec3::new(2.0, 0.0, 0.0),
-            DVec3::new(0.0, 2.0, 0.0),
-        ];
+        let t = right_triangle();
         ix.insert(0, [0, 1, 2], t);
         ix.fix_cell();
         assert!(ix.cell > 0.0);
@@ -472,11 +477,7 @@ mod tests {
         // A coincident merge may update records before any query fixed the cell: filing then
         // divided by a zero cell and put one triangle in billions of cells.
         let mut ix = TriIndex::default();
-        let t = [
-            DVec3::ZERO,
-            DVec3::new(2.0, 0.0, 0.0),
-            DVec3::new(0.0, 2.0, 0.0),
-        ];
+        let t = right_triangle();
         ix.insert(0, [0, 1, 2], t);
         ix.update(0, [0, 1, 3], t.map(|p| p + DVec3::X));
         assert!(ix.cells.is_empty());
