@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{OutBatch, Policy, Priority, Simplifier, SimplifyConfig};
+use isostream_simplify::{Policy, Priority, Simplifier, SimplifyConfig};
 
 /// Feeds `mesh` as a sweep along z (rank = floor(z)) with `m` attributes `attr(pos)`, returns
 /// the output mesh and its attributes.
@@ -22,50 +22,8 @@ fn run_with(
     })
     .unwrap();
     s.set_priority(priority).unwrap();
-    let zmin = mesh.pos.iter().map(|p| p.z).fold(f64::INFINITY, f64::min);
-    let rank: Vec<u32> = mesh
-        .pos
-        .iter()
-        .map(|p| (p.z - zmin).floor() as u32)
-        .collect();
-    let mut order: Vec<usize> = (0..mesh.pos.len()).collect();
-    order.sort_by(|&a, &b| mesh.pos[a].z.total_cmp(&mesh.pos[b].z).then(a.cmp(&b)));
-    let mut id = vec![0u64; mesh.pos.len()];
-    for (k, &v) in order.iter().enumerate() {
-        id[v] = k as u64;
-    }
-    let max_rank = rank.iter().copied().max().unwrap_or(0) as usize;
-    let mut by_slab = vec![Vec::new(); max_rank + 1];
-    let mut remaining = vec![0usize; mesh.pos.len()];
-    for t in &mesh.tris {
-        let r = t.iter().map(|&v| rank[v as usize]).max().unwrap_or(0);
-        by_slab[r as usize].push(*t);
-        t.iter().for_each(|&v| remaining[v as usize] += 1);
-    }
-    let mut out = OutBatch::default();
-    let mut next = 0;
-    for (k, tris) in by_slab.iter().enumerate() {
-        while next < order.len() && rank[order[next]] as usize == k {
-            let v = order[next];
-            s.add_vertex(id[v], mesh.pos[v], rank[v], &attr(mesh.pos[v]));
-            next += 1;
-        }
-        let mut done = Vec::new();
-        for t in tris {
-            s.add_triangle(t.map(|v| id[v as usize]));
-            for &v in t {
-                remaining[v as usize] -= 1;
-                if remaining[v as usize] == 0 {
-                    done.push(id[v as usize]);
-                }
-            }
-        }
-        done.sort_unstable();
-        done.into_iter().for_each(|v| s.set_modifiable(v));
-        s.end_batch(k as u32, &mut out);
-    }
-    s.finish(&mut out);
-    collect(&out, m)
+    let run = feed(mesh, s, &Sweep::default(), m, attr);
+    (run.mesh, run.attrs)
 }
 
 fn modes() -> Vec<(&'static str, Policy)> {

@@ -258,7 +258,21 @@ impl Run {
 /// vertex's z coordinate.
 pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
     let attributes = config.attributes;
-    let mut s = Simplifier::new(config).expect("valid config");
+    let s = Simplifier::new(config).expect("valid config");
+    feed(mesh, s, sweep, attributes, |p| {
+        [p.z as f32].into_iter().take(attributes).collect()
+    })
+}
+
+/// As [`run`], with a configured simplifier (`attributes` per vertex) and the attributes
+/// `attr(position)` of each vertex.
+pub fn feed(
+    mesh: &Mesh,
+    mut s: Simplifier,
+    sweep: &Sweep,
+    attributes: usize,
+    attr: impl Fn(DVec3) -> Vec<f32>,
+) -> Run {
     let coord = |p: DVec3| {
         if sweep.reverse {
             -p[sweep.axis]
@@ -307,8 +321,7 @@ pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
     for (k, tris) in tris_by_slab.iter().enumerate() {
         while next_vertex < order.len() && rank[order[next_vertex]] as usize == k {
             let v = order[next_vertex];
-            let attrs = [mesh.pos[v].z as f32];
-            s.add_vertex(id[v], mesh.pos[v], rank[v], &attrs[..attributes.min(1)]);
+            s.add_vertex(id[v], mesh.pos[v], rank[v], &attr(mesh.pos[v]));
             next_vertex += 1;
         }
         let per_batch = tris.len().div_ceil(sweep.batches_per_slab).max(1);
