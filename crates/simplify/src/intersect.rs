@@ -1,18 +1,24 @@
-//! Self-intersection guard: a spatial hash of the resident triangles (and of the latest emitted
-//! ones), and the test whether a contraction's new fan would cross any of them.
+//! Self-intersection guard: a multi-level spatial hash of the resident triangles (and of the
+//! latest emitted ones), and the test whether a contraction's new fan would cross any of them.
 //!
 //! The topology checks only see the fans of `a` and `b`: a contraction on a thin structure (two
 //! sheets a voxel apart, touching surfaces) may pass the link condition and flip no triangle yet
 //! push the fan through the other sheet. [`TriIndex::would_intersect`] rejects those.
 //!
 //! Decisions:
+//! * **Levels**: level `L` has cells of `cell * 2^L`; a triangle is filed at the lowest level
+//!   whose cell is at least its bounding box's largest extent, so it lies in at most 2 x 2 x 2
+//!   cells whatever its size. Simplification at low rates makes triangles tens of voxels wide;
+//!   with one cell size they were filed in thousands of cells each and filing, unfiling and
+//!   querying grew with their size (86 % of a 2 M-face run at R = 0.01).
 //! * **Cell size**: `CELL_EDGES` times the mean edge length of the first `SAMPLE` triangles
-//!   (marching-cubes edges are about 0.6 grid spacings, so cells are about two voxels). It adapts
-//!   to any spacing without the caller passing one; until it is fixed, triangles wait unfiled and
-//!   the first query files them. Simplified triangles grow to a few cells; a triangle is filed in
-//!   every cell its bounding box overlaps.
-//! * **Records**: each filed triangle keeps its ids and corner positions, so a query reads no
-//!   store; contractions rewrite the records of the surviving vertex's triangles.
+//!   (marching-cubes edges are about 0.6 grid spacings, so level-0 cells are about two voxels).
+//!   Until it is fixed, triangles wait unfiled and the first query files them.
+//! * **Records** hold ids and `f32` corners (positions are `f32`-exact from the simplifier on, see
+//!   `cost::output_precision`), and their boxes live in a separate array: a query reads 24 bytes
+//!   per record it meets and touches the corners only of those whose box overlaps the fan.
+//! * **Large queries**: a query box spanning more cells of a level than that level has records
+//!   scans the level's record list instead of its cells.
 //! * **Emitted triangles** stay as obstacles ("ghosts") after they leave the store, since a
 //!   contraction just ahead of the retirement front could otherwise cross them. The oldest ghosts
 //!   are dropped once they outnumber the resident triangles (emission follows the sweep, so the
@@ -22,12 +28,10 @@
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
 //!   `topology::geometry_ok`'s). The new fan is also tested against itself (its triangles share
 //!   the new vertex).
-//! * **Cost**: a bounding-box overlap test precedes every exact test; a new triangle spanning
-//!   more than `MAX_QUERY_CELLS` cells is refused unchecked.
 
 use std::collections::VecDeque;
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use rustc_hash::FxHashMap;
 use smallvec::SmallVec;
 
@@ -37,39 +41,98 @@ use crate::store::{Store, TriId};
 const CELL_EDGES: f64 = 3.0;
 /// Triangles averaged for the cell size.
 const SAMPLE: usize = 1024;
+/// Cell sizes `cell * 2^L` for `L < LEVELS`: 2^23 level-0 cells covers any volume.
+const LEVELS: usize = 24;
 const NONE: u32 = u32::MAX;
-/// A new triangle whose bounding box spans more cells than this is refused as if it crossed
-/// something: checking it would cost a hash lookup per cell (attribute-driven priorities made
-/// fans of long slivers and a ten-minute engine run), and filing it would take as many entries.
-/// 32³ cells is a triangle about a hundred voxels across diagonally; flat ones may be larger.
-const MAX_QUERY_CELLS: i64 = 1 << 15;
+/// `Filed::level` of a record in no cell.
+const UNFILED: u8 = u8::MAX;
 
 type Cell = [i32; 3];
 
 #[derive(Debug, Clone, Copy)]
 struct Rec {
     v: [u64; 3],
-    p: [DVec3; 3],
-    /// Bounding box of `p`, kept with it (queries test it for every record they meet).
-    blo: DVec3,
-    bhi: DVec3,
+    p: [Vec3; 3],
+}
+
+/// An axis-aligned box in `f32` (exact for `f32` corners).
+#[derive(Debug, Clone, Copy)]
+struct Aabb {
+    lo: Vec3,
+    hi: Vec3,
+}
+
+impl Aabb {
+    const EMPTY: Self = Self {
+        lo: Vec3::INFINITY,
+        hi: Vec3::NEG_INFINITY,
+    };
+
+    fn of(p: &[Vec3; 3]) -> Self {
+        Self {
+            lo: p[0].min(p[1]).min(p[2]),
+            hi: p[0].max(p[1]).max(p[2]),
+        }
+    }
+
+    fn overlaps(&self, o: &Self) -> bool {
+        !(self.lo.cmpgt(o.hi).any() || self.hi.cmplt(o.lo).any())
+    }
+
+    fn union(&self, o: &Self) -> Self {
+        Self {
+            lo: self.lo.min(o.lo),
+            hi: self.hi.max(o.hi),
+        }
+    }
+
+    fn extent(&self) -> f64 {
+        f64::from((self.hi - self.lo).max_element())
+    }
+}
+
+/// A record's entry in a cell: its box inline, so a query scans cells contiguously and fetches
+/// the corners only of the records whose box overlaps the fan.
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    r: u32,
+    bx: Aabb,
+    /// The cell of `bx.lo` on the record's level (see the query's one-cell rule).
+    lo: Cell,
+}
+
+/// Where a record is filed: its level, cell range and place in the level's record list.
+#[derive(Debug, Clone, Copy)]
+struct Filed {
+    level: u8,
     lo: Cell,
     hi: Cell,
-    filed: bool,
+    slot: u32,
 }
+
+const NOT_FILED: Filed = Filed {
+    level: UNFILED,
+    lo: [0; 3],
+    hi: [0; 3],
+    slot: 0,
+};
 
 #[derive(Debug, Default)]
 pub(crate) struct TriIndex {
-    /// Cell edge; 0 until fixed.
+    /// Level-0 cell edge; 0 until fixed.
     cell: f64,
-    cells: FxHashMap<Cell, SmallVec<[u32; 8]>>,
+    cells: FxHashMap<(u8, Cell), SmallVec<[Entry; 2]>>,
     recs: Vec<Rec>,
+    boxes: Vec<Aabb>,
+    filed: Vec<Filed>,
+    /// The records filed at each level.
+    levels: Vec<Vec<u32>>,
     free: Vec<u32>,
     /// Record of each store triangle slot (`NONE` when empty).
     of_tri: Vec<u32>,
     ghosts: VecDeque<u32>,
     live: usize,
-    /// Per record: the query generation that last met it (see `would_intersect`).
+    /// Per record: the query generation that excluded it (the old patch, see `would_intersect`).
     seen: Vec<u32>,
     generation: u32,
 }
@@ -116,11 +179,14 @@ impl TriIndex {
         if r == NONE {
             return;
         }
+        let p = p.map(|x| x.as_vec3());
+        self.recs[r as usize] = Rec { v, p };
+        let bx = Aabb::of(&p);
+        self.boxes[r as usize] = bx;
+        if self.refile_in_place(r, bx) {
+            return;
+        }
         self.unfile(r);
-        let rec = &mut self.recs[r as usize];
-        rec.v = v;
-        rec.p = p;
-        (rec.blo, rec.bhi) = bbox(&p);
         // Before the cell size is fixed nothing is filed (coincident merges, which skip the
         // query, can come first); `fix_cell` files every record then.
         if self.cell > 0.0 {
@@ -141,98 +207,112 @@ impl TriIndex {
         if self.cell == 0.0 {
             self.fix_cell();
         }
-        let mut old: SmallVec<[TriId; 32]> = [a, b]
-            .iter()
-            .filter_map(|&x| store.vertex(x))
-            .flat_map(|x| x.tris.iter().copied())
-            .collect();
-        old.sort_unstable();
-        old.dedup();
-        let excluded: SmallVec<[u32; 32]> = old
-            .iter()
-            .filter_map(|&t| self.of_tri.get(t as usize).copied())
-            .collect();
-        let mut fan: SmallVec<[([u64; 3], [DVec3; 3]); 24]> = SmallVec::new();
-        for &t in &old {
-            let tri = store.tri(t);
-            if tri.contains(a) && tri.contains(b) {
-                continue;
-            }
-            let v = tri.v.map(|x| if x == a || x == b { keep } else { x });
-            let p = v.map(|x| {
-                if x == keep {
-                    pos
-                } else {
-                    store.vertex(x).map_or(DVec3::ZERO, |y| y.pos)
+        self.next_generation();
+        let generation = self.generation;
+        let mut fan: SmallVec<[(Tri64, Aabb); 24]> = SmallVec::new();
+        let mut union = Aabb::EMPTY;
+        for x in [a, b] {
+            let Some(vx) = store.vertex(x) else { continue };
+            for &t in &vx.tris {
+                // The old patch is replaced: its records are no obstacles (marked as met).
+                if let Some(&r) = self.of_tri.get(t as usize)
+                    && r != NONE
+                {
+                    if self.seen[r as usize] == generation {
+                        continue; // on edge ab: in both fans
+                    }
+                    self.seen[r as usize] = generation;
                 }
-            });
-            fan.push((v, p));
+                let tri = store.tri(t);
+                if tri.contains(a) && tri.contains(b) {
+                    continue;
+                }
+                let v = tri.v.map(|x| if x == a || x == b { keep } else { x });
+                let p = v.map(|x| {
+                    if x == keep {
+                        pos
+                    } else {
+                        store.vertex(x).map_or(DVec3::ZERO, |y| y.pos)
+                    }
+                });
+                let bx = Aabb::of(&p.map(|x| x.as_vec3()));
+                union = union.union(&bx);
+                fan.push((Tri64::new(v, p), bx));
+            }
         }
-        for (i, (v, p)) in fan.iter().enumerate() {
-            if fan[..i].iter().any(|(w, q)| cross(*v, *p, *w, *q)) {
+        for (i, (t, _)) in fan.iter().enumerate() {
+            if fan[..i].iter().any(|(u, _)| cross(t, u)) {
                 return true;
             }
         }
-        let span = |lo: DVec3, hi: DVec3| {
-            let (clo, chi) = (self.key(lo), self.key(hi));
-            (0..3)
-                .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
-                .product::<i64>()
-        };
-        let boxes: SmallVec<[(DVec3, DVec3); 24]> = fan.iter().map(|(_, p)| bbox(p)).collect();
-        if boxes.iter().any(|&(lo, hi)| span(lo, hi) > MAX_QUERY_CELLS) {
-            return true;
+        if fan.is_empty() {
+            return false;
         }
-        // One pass over the records near the whole fan (each met once), each tested against
-        // every fan triangle whose box it overlaps.
-        let (lo, hi) = boxes.iter().fold(
-            (DVec3::INFINITY, DVec3::NEG_INFINITY),
-            |(lo, hi), &(l, h)| (lo.min(l), hi.max(h)),
-        );
-        let hits = |r: u32, rec: &Rec| {
-            let (rlo, rhi) = (rec.blo, rec.bhi);
-            if rlo.cmpgt(hi).any() || rhi.cmplt(lo).any() || excluded.contains(&r) {
+        let seen = &self.seen;
+        let hits = |r: u32, rb: &Aabb| {
+            if !rb.overlaps(&union) || seen[r as usize] == generation {
                 return false;
             }
-            fan.iter().zip(&boxes).any(|((v, p), &(flo, fhi))| {
-                !(rlo.cmpgt(fhi).any() || rhi.cmplt(flo).any()) && cross(*v, *p, rec.v, rec.p)
-            })
+            let rec = &self.recs[r as usize];
+            let other = Tri64::new(rec.v, rec.p.map(|x| x.as_dvec3()));
+            fan.iter()
+                .any(|(t, fb)| fb.overlaps(rb) && cross(t, &other))
         };
-        // A large fan spans more cells than there are records: test every record then.
-        let cells = span(lo, hi);
-        if cells as usize > self.live + self.ghosts.len() {
-            let mut filed = self.recs.iter().zip(0u32..).filter(|(rec, _)| rec.filed);
-            return filed.any(|(rec, r)| hits(r, rec));
-        }
-        // Each record once: a generation mark instead of a list of seen records, whose scans
-        // grew quadratic where large triangles share many cells.
-        self.generation = self.generation.wrapping_add(1);
-        if self.generation == 0 {
-            self.seen.fill(0);
-            self.generation = 1;
-        }
-        self.seen.resize(self.recs.len(), 0);
-        let (clo, chi) = (self.key(lo), self.key(hi));
-        for x in clo[0]..=chi[0] {
-            for y in clo[1]..=chi[1] {
-                for z in clo[2]..=chi[2] {
-                    let Some(list) = self.cells.get(&[x, y, z]) else {
-                        continue;
-                    };
-                    for &r in list {
-                        let mark = &mut self.seen[r as usize];
-                        if *mark == self.generation {
+        for level in 0..LEVELS {
+            let count = self.levels.get(level).map_or(0, Vec::len);
+            if count == 0 {
+                continue;
+            }
+            let (clo, chi) = (
+                self.key(level, union.lo.as_dvec3()),
+                self.key(level, union.hi.as_dvec3()),
+            );
+            let cells: i64 = (0..3)
+                .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
+                .product();
+            if cells as usize > count {
+                if self.levels[level]
+                    .iter()
+                    .any(|&r| hits(r, &self.boxes[r as usize]))
+                {
+                    return true;
+                }
+                continue;
+            }
+            let l = level as u8;
+            for x in clo[0]..=chi[0] {
+                for y in clo[1]..=chi[1] {
+                    for z in clo[2]..=chi[2] {
+                        let Some(list) = self.cells.get(&(l, [x, y, z])) else {
                             continue;
-                        }
-                        *mark = self.generation;
-                        if hits(r, &self.recs[r as usize]) {
-                            return true;
+                        };
+                        // A record filed in several cells is tested in one: the cell holding
+                        // the low corner of its overlap with the query box.
+                        // (`key` is monotonic, so the cell of the larger corner is the larger of
+                        // the two corners' cells.)
+                        for e in list {
+                            if e.bx.overlaps(&union)
+                                && [0, 1, 2].map(|k| e.lo[k].max(clo[k])) == [x, y, z]
+                                && hits(e.r, &e.bx)
+                            {
+                                return true;
+                            }
                         }
                     }
                 }
             }
         }
         false
+    }
+
+    /// A fresh query generation; `seen` covers every record.
+    fn next_generation(&mut self) {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.seen.fill(0);
+            self.generation = 1;
+        }
+        self.seen.resize(self.recs.len(), 0);
     }
 
     fn take(&mut self, t: TriId) -> Option<u32> {
@@ -246,23 +326,20 @@ impl TriIndex {
     }
 
     fn new_rec(&mut self, v: [u64; 3], p: [DVec3; 3]) -> u32 {
-        let (blo, bhi) = bbox(&p);
-        let rec = Rec {
-            v,
-            p,
-            blo,
-            bhi,
-            lo: [0; 3],
-            hi: [0; 3],
-            filed: false,
-        };
+        let p = p.map(|x| x.as_vec3());
+        let rec = Rec { v, p };
+        let bx = Aabb::of(&p);
         let r = match self.free.pop() {
             Some(r) => {
                 self.recs[r as usize] = rec;
+                self.boxes[r as usize] = bx;
+                self.filed[r as usize] = NOT_FILED;
                 r
             }
             None => {
                 self.recs.push(rec);
+                self.boxes.push(bx);
+                self.filed.push(NOT_FILED);
                 u32::try_from(self.recs.len() - 1).expect("fewer than 2^32 indexed triangles")
             }
         };
@@ -285,14 +362,14 @@ impl TriIndex {
         let (mut sum, mut n, mut longest) = (0.0, 0usize, 0.0f64);
         for (rec, _) in self.recs.iter().zip(&free).filter(|(_, f)| !**f) {
             for k in 0..3 {
-                let d = rec.p[k].distance(rec.p[(k + 1) % 3]);
+                let d = f64::from(rec.p[k].distance(rec.p[(k + 1) % 3]));
                 sum += d;
                 longest = longest.max(d);
                 n += 1;
             }
         }
         // Many coincident vertices (isos on grid values) make the mean edge tiny; a cell far
-        // smaller than the triangles would file each one in millions of cells.
+        // smaller than the triangles would put most of them on higher levels.
         let cell = CELL_EDGES * (sum / n.max(1) as f64).max(0.25 * longest);
         self.cell = if cell.is_finite() && cell > 0.0 {
             cell
@@ -304,52 +381,147 @@ impl TriIndex {
         }
     }
 
-    fn key(&self, p: DVec3) -> Cell {
-        let k = (p / self.cell).floor();
+    fn key(&self, level: usize, p: DVec3) -> Cell {
+        let size = self.cell * (1u64 << level) as f64;
+        let k = (p / size).floor();
         // Clamped: far-out coordinates share the outermost cells instead of overflowing.
         let c = |x: f64| x.clamp(-1e9, 1e9) as i32;
         [c(k.x), c(k.y), c(k.z)]
     }
 
+    /// The lowest level whose cell is at least the box's largest extent (so the box meets at
+    /// most two cells per axis there).
+    fn level_of(&self, bx: &Aabb) -> usize {
+        let mut level = 0;
+        let mut size = self.cell;
+        let extent = bx.extent();
+        while level + 1 < LEVELS && extent > size {
+            size *= 2.0;
+            level += 1;
+        }
+        level
+    }
+
     fn file(&mut self, r: u32) {
-        let rec = &self.recs[r as usize];
-        let (lo, hi) = (self.key(rec.blo), self.key(rec.bhi));
+        let bx = self.boxes[r as usize];
+        let level = self.level_of(&bx);
+        let (lo, hi) = (
+            self.key(level, bx.lo.as_dvec3()),
+            self.key(level, bx.hi.as_dvec3()),
+        );
+        let l = level as u8;
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
-                    self.cells.entry([x, y, z]).or_default().push(r);
+                    self.cells
+                        .entry((l, [x, y, z]))
+                        .or_default()
+                        .push(Entry { r, bx, lo });
                 }
             }
         }
-        let rec = &mut self.recs[r as usize];
-        (rec.lo, rec.hi, rec.filed) = (lo, hi, true);
+        if self.levels.len() <= level {
+            self.levels.resize_with(level + 1, Vec::new);
+        }
+        let list = &mut self.levels[level];
+        let slot = u32::try_from(list.len()).expect("fewer than 2^32 indexed triangles");
+        list.push(r);
+        self.filed[r as usize] = Filed {
+            level: l,
+            lo,
+            hi,
+            slot,
+        };
+    }
+
+    /// When record `r`'s new box `bx` stays on its level and in its cells, rewrites the box in
+    /// those cells (most updates after a contraction move a corner by less than a cell).
+    fn refile_in_place(&mut self, r: u32, bx: Aabb) -> bool {
+        let f = self.filed[r as usize];
+        if f.level == UNFILED || self.level_of(&bx) != usize::from(f.level) {
+            return false;
+        }
+        let level = usize::from(f.level);
+        let (lo, hi) = (
+            self.key(level, bx.lo.as_dvec3()),
+            self.key(level, bx.hi.as_dvec3()),
+        );
+        if (lo, hi) != (f.lo, f.hi) {
+            return false;
+        }
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                for z in lo[2]..=hi[2] {
+                    if let Some(list) = self.cells.get_mut(&(f.level, [x, y, z]))
+                        && let Some(e) = list.iter_mut().find(|e| e.r == r)
+                    {
+                        e.bx = bx;
+                    }
+                }
+            }
+        }
+        true
     }
 
     fn unfile(&mut self, r: u32) {
-        let rec = self.recs[r as usize];
-        if !rec.filed {
+        let f = self.filed[r as usize];
+        if f.level == UNFILED {
             return;
         }
-        for x in rec.lo[0]..=rec.hi[0] {
-            for y in rec.lo[1]..=rec.hi[1] {
-                for z in rec.lo[2]..=rec.hi[2] {
-                    if let Some(list) = self.cells.get_mut(&[x, y, z]) {
-                        if let Some(i) = list.iter().position(|&s| s == r) {
+        for x in f.lo[0]..=f.hi[0] {
+            for y in f.lo[1]..=f.hi[1] {
+                for z in f.lo[2]..=f.hi[2] {
+                    let key = (f.level, [x, y, z]);
+                    if let Some(list) = self.cells.get_mut(&key) {
+                        if let Some(i) = list.iter().position(|e| e.r == r) {
                             list.swap_remove(i);
                         }
                         if list.is_empty() {
-                            self.cells.remove(&[x, y, z]);
+                            self.cells.remove(&key);
                         }
                     }
                 }
             }
         }
-        self.recs[r as usize].filed = false;
+        let list = &mut self.levels[usize::from(f.level)];
+        list.swap_remove(f.slot as usize);
+        if let Some(&moved) = list.get(f.slot as usize) {
+            self.filed[moved as usize].slot = f.slot;
+        }
+        self.filed[r as usize] = NOT_FILED;
     }
 }
 
-fn bbox(p: &[DVec3; 3]) -> (DVec3, DVec3) {
-    (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]))
+/// A triangle as the exact test reads it: ids (for shared corners), corners and the normal
+/// `(p1 - p0) x (p2 - p0)`, computed once per triangle rather than once per pair.
+#[derive(Debug, Clone, Copy)]
+struct Tri64 {
+    v: [u64; 3],
+    p: [DVec3; 3],
+    n: DVec3,
+}
+
+impl Tri64 {
+    fn new(v: [u64; 3], p: [DVec3; 3]) -> Self {
+        Self {
+            v,
+            p,
+            n: (p[1] - p[0]).cross(p[2] - p[0]),
+        }
+    }
+
+    /// Whether all of `q` lie strictly on one side of this triangle's plane, with a margin far
+    /// above rounding: then no crossing is possible. Near the plane the exact test decides, with
+    /// the same orientation predicates as the referee (`isostream_meshcheck`).
+    fn clear_of(&self, q: &[DVec3; 3]) -> bool {
+        let scale = self.n.length();
+        let s = q.map(|x| {
+            let d = x - self.p[0];
+            let side = d.dot(self.n);
+            (side, 1e-9 * scale * d.length())
+        });
+        s.iter().all(|&(x, tol)| x > tol) || s.iter().all(|&(x, tol)| x < -tol)
+    }
 }
 
 /// `(b - a) . ((c - a) x (d - a))`.
@@ -357,9 +529,18 @@ fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
     (b - a).dot((c - a).cross(d - a))
 }
 
-/// Segment `pq` strictly crosses triangle `t`.
-fn segment_crosses(p: DVec3, q: DVec3, t: &[DVec3; 3]) -> bool {
-    let [a, b, c] = *t;
+/// Segment `pq` strictly crosses triangle `t`: the referee's predicate, after a plane test that
+/// dismisses segments clearly on one side (see [`Tri64::clear_of`]).
+fn segment_crosses(p: DVec3, q: DVec3, t: &Tri64) -> bool {
+    let side = |x: DVec3| {
+        let d = x - t.p[0];
+        (d.dot(t.n), 1e-9 * t.n.length() * d.length())
+    };
+    let ((sp, tp), (sq, tq)) = (side(p), side(q));
+    if (sp > tp && sq > tq) || (sp < -tp && sq < -tq) {
+        return false;
+    }
+    let [a, b, c] = t.p;
     let (o1, o2) = (orient(a, b, c, p), orient(a, b, c, q));
     if !((o1 > 0.0 && o2 < 0.0) || (o1 < 0.0 && o2 > 0.0)) {
         return false;
@@ -369,32 +550,31 @@ fn segment_crosses(p: DVec3, q: DVec3, t: &[DVec3; 3]) -> bool {
 }
 
 /// Whether two triangles cross (see the module documentation for common vertices).
-fn cross(va: [u64; 3], a: [DVec3; 3], vb: [u64; 3], b: [DVec3; 3]) -> bool {
+fn cross(ta: &Tri64, tb: &Tri64) -> bool {
     let mut shared = None;
     let mut count = 0;
-    for (i, x) in va.iter().enumerate() {
-        for (j, y) in vb.iter().enumerate() {
+    for (i, x) in ta.v.iter().enumerate() {
+        for (j, y) in tb.v.iter().enumerate() {
             if x == y {
                 shared = Some((i, j));
                 count += 1;
             }
         }
     }
+    let (a, b) = (&ta.p, &tb.p);
     match (count, shared) {
         (0, _) => {
-            // An edge crosses a triangle only from one side of its plane to the other: the same
-            // orientations `segment_crosses` starts with, computed once per corner, dismiss most
-            // pairs (the guard spends half the simplifier's time here).
-            let straddles = |t: &[DVec3; 3], q: &[DVec3; 3]| {
-                let s = q.map(|p| orient(t[0], t[1], t[2], p));
-                !(s.iter().all(|&x| x > 0.0) || s.iter().all(|&x| x < 0.0))
-            };
-            (straddles(&b, &a) && (0..3).any(|i| segment_crosses(a[i], a[(i + 1) % 3], &b)))
-                || (straddles(&a, &b) && (0..3).any(|i| segment_crosses(b[i], b[(i + 1) % 3], &a)))
+            // A triangle strictly on one side of the other's plane cannot meet it: two plane
+            // tests dismiss most pairs before any edge is tested.
+            if tb.clear_of(a) || ta.clear_of(b) {
+                return false;
+            }
+            (0..3).any(|i| segment_crosses(a[i], a[(i + 1) % 3], tb))
+                || (0..3).any(|i| segment_crosses(b[i], b[(i + 1) % 3], ta))
         }
         (1, Some((i, j))) => {
-            segment_crosses(a[(i + 1) % 3], a[(i + 2) % 3], &b)
-                || segment_crosses(b[(j + 1) % 3], b[(j + 2) % 3], &a)
+            segment_crosses(a[(i + 1) % 3], a[(i + 2) % 3], tb)
+                || segment_crosses(b[(j + 1) % 3], b[(j + 2) % 3], ta)
         }
         _ => false,
     }
@@ -413,24 +593,23 @@ mod tests {
         ]
     }
 
+    fn filed(ix: &TriIndex) -> usize {
+        ix.cells.values().map(|l| l.len()).sum()
+    }
+
     #[test]
     fn crossing_and_touching_triangles() {
-        let t = [
-            DVec3::ZERO,
-            DVec3::new(2.0, 0.0, 0.0),
-            DVec3::new(0.0, 2.0, 0.0),
-        ];
+        let t = right_triangle();
         let s = [
             DVec3::new(0.5, 0.5, -1.0),
             DVec3::new(0.5, 0.5, 1.0),
             DVec3::new(3.0, 3.0, 0.5),
         ];
-        assert!(cross([0, 1, 2], t, [3, 4, 5], s));
+        let tri = Tri64::new;
+        assert!(cross(&tri([0, 1, 2], t), &tri([3, 4, 5], s)));
         assert!(!cross(
-            [0, 1, 2],
-            t,
-            [3, 4, 5],
-            s.map(|p| p + DVec3::X * 10.0)
+            &tri([0, 1, 2], t),
+            &tri([3, 4, 5], s.map(|p| p + DVec3::X * 10.0))
         ));
         // Sharing a vertex and folding through: the opposite edge crosses.
         let f = [
@@ -443,12 +622,10 @@ mod tests {
             DVec3::new(2.0, -1.0, 0.0),
             DVec3::new(2.0, 1.0, 0.0),
         ];
-        assert!(cross([0, 1, 2], g, [0, 3, 4], f));
+        assert!(cross(&tri([0, 1, 2], g), &tri([0, 3, 4], f)));
         assert!(!cross(
-            [0, 1, 2],
-            g,
-            [0, 3, 4],
-            f.map(|p| p + DVec3::Z * 2.0)
+            &tri([0, 1, 2], g),
+            &tri([0, 3, 4], f.map(|p| p + DVec3::Z * 2.0))
         ));
     }
 
@@ -459,7 +636,6 @@ mod tests {
         ix.insert(0, [0, 1, 2], t);
         ix.fix_cell();
         assert!(ix.cell > 0.0);
-        let filed = |ix: &TriIndex| ix.cells.values().map(|l| l.len()).sum::<usize>();
         assert!(filed(&ix) > 0);
         ix.update(0, [0, 1, 2], t.map(|p| p * 3.0));
         let n = filed(&ix);
@@ -470,6 +646,19 @@ mod tests {
         ix.emit(0);
         assert_eq!(ix.ghosts.len(), 1);
         assert_eq!(filed(&ix), n, "ghosts stay filed");
+    }
+
+    #[test]
+    fn a_large_triangle_takes_few_cells_on_a_higher_level() {
+        let mut ix = TriIndex::default();
+        let t = right_triangle();
+        ix.insert(0, [0, 1, 2], t);
+        ix.fix_cell();
+        ix.insert(1, [3, 4, 5], t.map(|p| p * 1000.0 + DVec3::Z));
+        assert!(filed(&ix) <= 16, "{} cells", filed(&ix));
+        assert!(ix.filed[1].level > ix.filed[0].level);
+        ix.remove(1);
+        assert_eq!(ix.levels.iter().map(Vec::len).sum::<usize>(), 1);
     }
 
     #[test]
