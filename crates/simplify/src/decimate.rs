@@ -155,7 +155,12 @@ impl Simplifier {
     /// Bounding the rank span of every preimage to `2 * retire_lag + 2` slabs bounds the life of
     /// every vertex, and so the resident band, independently of the surface. Coincident vertices
     /// are exempt: merging them moves nothing, and leaving them would leave zero-area triangles.
+    /// Retirement by the memory budget alone (rate) needs no such bound: the oldest buckets leave
+    /// first whatever rides ahead, and a rider's fan is all it keeps.
     fn span_ok(&self, a: u64, b: u64) -> bool {
+        if !self.lag_retirement() {
+            return true;
+        }
         let max_span = self.config.retire_lag.saturating_mul(2).saturating_add(2);
         match (self.store.vertex(a), self.store.vertex(b)) {
             (Some(va), Some(vb)) => va.pos == vb.pos || va.merged_span(vb) <= max_span,

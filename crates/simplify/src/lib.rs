@@ -102,7 +102,7 @@ pub struct SimplifyStats {
     pub vertices_out: u64,
     pub faces_resident: usize,
     pub peak_resident_faces: usize,
-    /// Vertex slots in memory (live vertices of the band and holes between them).
+    /// Vertices in memory.
     pub vertices_resident: usize,
     /// Faces in memory with a vertex that is not modifiable yet (`F_u`).
     pub faces_unmodifiable: usize,
@@ -166,6 +166,8 @@ pub struct Simplifier {
     buckets: RankBuckets,
     /// Vertices behind the front that could not retire because they were not modifiable yet.
     deferred: Vec<u64>,
+    /// Modifiable by the detector's word but beyond the front, by rank (`set_modifiable`).
+    beyond_front: std::collections::BinaryHeap<std::cmp::Reverse<(u32, u64)>>,
     /// Rank of the front, `+inf` after `finish`.
     front: f64,
     next_out: u64,
@@ -208,6 +210,7 @@ impl Simplifier {
             candidates: Candidates::default(),
             buckets: RankBuckets::default(),
             deferred: Vec::new(),
+            beyond_front: std::collections::BinaryHeap::new(),
             front: 0.0,
             next_out: 0,
             stats: SimplifyStats::default(),
@@ -251,20 +254,21 @@ impl Simplifier {
 
     /// A new vertex. `attrs` holds `attributes` values (missing ones are 0, extra ones dropped).
     ///
-    /// Ids should arrive in increasing order (the store is indexed by `id - base`); others are
-    /// accepted at the cost of empty slots.
+    /// Ids are the detector's: any `u64`, unique among the vertices that may still receive
+    /// triangles (they are translated to store slots, see `store`).
     ///
     /// # Panics
-    /// If a live vertex already has this id.
+    /// If a vertex that is not modifiable yet already has this id.
     pub fn add_vertex(&mut self, id: u64, pos: DVec3, rank: u32, attrs: &[f32]) {
         let mut values = vec![0.0; self.config.attributes];
         for (v, a) in values.iter_mut().zip(attrs) {
             *v = *a;
         }
         let pos = cost::output_precision(pos);
-        self.store
+        let slot = self
+            .store
             .insert_vertex(id, Vertex::new(pos, rank, &values));
-        self.buckets.push(rank, id, &mut self.store);
+        self.buckets.push(rank, slot, &mut self.store);
         self.stats.vertices_in += 1;
     }
 
@@ -274,16 +278,20 @@ impl Simplifier {
     /// # Panics
     /// If a vertex is unknown or already retired, or the triangle repeats a vertex: the detector
     /// only adds triangles to vertices that are not modifiable yet.
-    pub fn add_triangle(&mut self, v: [u64; 3]) {
+    pub fn add_triangle(&mut self, ids: [u64; 3]) {
         assert!(
-            v[0] != v[1] && v[1] != v[2] && v[0] != v[2],
-            "triangle {v:?} repeats a vertex"
+            ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2],
+            "triangle {ids:?} repeats a vertex"
         );
+        let v = ids.map(|id| {
+            self.store
+                .slot_of(id)
+                .unwrap_or_else(|| panic!("triangle {ids:?} uses unknown or retired vertex {id}"))
+        });
         let mut unmodifiable = 0;
-        for id in v {
-            match self.store.vertex(id) {
-                Some(x) if !x.retired => unmodifiable += u8::from(!x.modifiable),
-                _ => panic!("triangle {v:?} uses unknown or retired vertex {id}"),
+        for slot in v {
+            if let Some(x) = self.store.vertex(slot) {
+                unmodifiable += u8::from(!x.modifiable);
             }
         }
         let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
@@ -310,7 +318,43 @@ impl Simplifier {
 
     /// All triangles of `id` exist: it may move from now on, and its edges to other modifiable
     /// vertices become candidates (Hou and Chen 4.1, "Vertex modifiability detection").
+    ///
+    /// With a sweep (see [`Simplifier::set_sweep`]), a vertex beyond the front (rank above it)
+    /// waits until the front reaches it: every contraction it could take part in would wait
+    /// for the front anyway, and counting its faces as unmodifiable keeps the rate target to
+    /// what can be contracted now. (A target counting them made passes near a dense slab contract
+    /// edges a million times costlier than the in-core run ever does, and ruined low rates.)
     pub fn set_modifiable(&mut self, id: u64) {
+        let Some(slot) = self.store.slot_of(id) else {
+            return;
+        };
+        self.store.forget_id(id);
+        let Some(v) = self.store.vertex(slot) else {
+            return;
+        };
+        if v.modifiable {
+            return;
+        }
+        if self.sweep.is_some() && f64::from(v.rank_max) > self.front {
+            self.beyond_front
+                .push(std::cmp::Reverse((v.rank_max, slot)));
+            return;
+        }
+        self.make_modifiable(slot);
+    }
+
+    /// The vertices held by [`Simplifier::set_modifiable`] that the front has reached.
+    fn release_reached(&mut self) {
+        while let Some(&std::cmp::Reverse((rank, id))) = self.beyond_front.peek() {
+            if f64::from(rank) > self.front {
+                break;
+            }
+            self.beyond_front.pop();
+            self.make_modifiable(id);
+        }
+    }
+
+    fn make_modifiable(&mut self, id: u64) {
         if self.store.vertex(id).is_none_or(|v| v.modifiable) {
             return;
         }
@@ -335,6 +379,7 @@ impl Simplifier {
     /// finished output.
     pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
         self.front = f64::from(front);
+        self.release_reached();
         if self.in_core {
             return;
         }
@@ -342,18 +387,21 @@ impl Simplifier {
         let counts = self.face_counts();
         let until = match &mut self.schedule {
             Schedule::Off => None,
-            Schedule::Rate(rate) => rate
-                .due(counts.generated)
+            // Over the memory budget, a pass runs before anything is retired for it, so that what
+            // leaves has been decimated (a huge `batch` otherwise emitted raw faces).
+            Schedule::Rate(rate) => (rate.due(counts.generated)
+                || counts.resident > self.config.max_resident_faces)
                 .then(|| Until::Resident(rate.resident_target(counts))),
             Schedule::Threshold => Some(Until::Exhausted),
         };
-        // Retirement waits for a decimation pass (rate: every `batch` faces), so that no vertex
-        // leaves without having been offered to the heap; the resident band thus spans the lag
-        // plus one batch, as in Hou and Chen 4.3 where R and B set the memory.
-        if until.is_some() || matches!(self.schedule, Schedule::Off) {
-            if let Some(until) = until {
-                self.decimate(until);
-            }
+        if let Some(until) = until {
+            self.decimate(until);
+        }
+        // Rate: the simplified surface stays resident, as in Hou and Chen 4.3 (R F + B faces),
+        // and leaves only when the memory budget says so, oldest first (see `retire`). Other
+        // policies retire `retire_lag` slabs behind the front, after a decimation pass, so that
+        // no vertex leaves without having been offered to the heap.
+        if self.lag_retirement() && (until.is_some() || matches!(self.schedule, Schedule::Off)) {
             self.retire_behind(front, out);
         }
         self.retire_for_memory(out);
@@ -362,11 +410,13 @@ impl Simplifier {
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.
     pub fn finish(&mut self, out: &mut OutBatch) {
+        self.front = f64::INFINITY;
+        self.release_reached();
+        self.store.forget_all_ids();
         let pending: Vec<u64> = self.store.ids().collect();
         for id in pending {
-            self.set_modifiable(id);
+            self.make_modifiable(id);
         }
-        self.front = f64::INFINITY;
         self.candidates.activate(self.front);
         let until = match &self.schedule {
             Schedule::Off => None,
@@ -387,10 +437,16 @@ impl Simplifier {
     pub fn stats(&self) -> SimplifyStats {
         SimplifyStats {
             faces_resident: self.store.resident(),
-            vertices_resident: self.store.vertex_slots(),
+            vertices_resident: self.store.live_vertices(),
             candidates: self.candidates.len(),
             ..self.stats.clone()
         }
+    }
+
+    /// Whether vertices retire `retire_lag` slabs behind the front (every policy but rate, which
+    /// retires by the memory budget only).
+    pub(crate) fn lag_retirement(&self) -> bool {
+        !matches!(self.schedule, Schedule::Rate(_))
     }
 
     fn face_counts(&self) -> FaceCounts {
@@ -508,9 +564,7 @@ mod tests {
             s.add_vertex(id, pos, 0, &[]);
         }
         s.add_triangle([0, 1, 2]);
-        for id in 0..3 {
-            s.set_modifiable(id);
-        }
+        s.set_modifiable(0);
         let mut out = OutBatch::default();
         s.end_batch(10, &mut out);
         assert!(out.elements.is_empty(), "nothing retires in core");

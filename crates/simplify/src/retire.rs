@@ -79,6 +79,9 @@ impl Simplifier {
         if self.store.resident() <= budget {
             return;
         }
+        for id in std::mem::take(&mut self.deferred) {
+            self.try_retire(id, out);
+        }
         let goal = budget - budget / 10;
         while self.store.resident() > goal {
             let Some((key, ids)) = self.buckets.pop_below(u32::MAX) else {

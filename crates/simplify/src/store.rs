@@ -1,12 +1,13 @@
 //! The resident mesh: vertices of the unretired band and the triangles touching them.
 //!
-//! Vertex ids arrive in increasing order and retire roughly in that order, so vertices live in a
-//! `VecDeque` indexed by `id - base`; freed slots at the front are popped, which keeps memory
-//! proportional to the band between the oldest live vertex and the front, never to the surface.
+//! Vertices live in slots (a `Vec` with a free list) and every handle inside the simplifier is a
+//! slot number, so memory follows the live vertices: indexing by `id - base` kept a slot for every
+//! vertex between the oldest live one and the front, which is the whole surface once the
+//! simplified surface stays resident (rate mode, `retire`). The detector's ids are translated at
+//! the door ([`Store::slot_of`]) and forgotten once a vertex can receive no more triangles, so the
+//! map holds the front only. Slots are reused last-freed first: deterministic for a given input.
 //! Triangles live in a slab with a free list, so their storage is bounded by the peak number of
 //! resident triangles.
-
-use std::collections::VecDeque;
 
 use glam::DVec3;
 use smallvec::SmallVec;
@@ -123,63 +124,100 @@ impl Tri {
     }
 }
 
+/// A vertex handle: slot in the low 32 bits, the slot's generation in the high ones, so that a
+/// handle kept anywhere (heap entries, rank buckets, the intersection index's emitted triangles)
+/// never names the vertex that reuses its slot later.
+fn handle(slot: usize, generation: u32) -> u64 {
+    (u64::from(generation) << 32) | slot as u64
+}
+
 #[derive(Debug, Default)]
 pub(crate) struct Store {
-    verts: VecDeque<Option<Vertex>>,
-    base: u64,
+    verts: Vec<Option<Vertex>>,
+    /// Current generation of each slot, bumped when its vertex leaves.
+    generations: Vec<u32>,
+    free_verts: Vec<usize>,
+    /// Detector id -> handle, for vertices that may still receive triangles.
+    handles: rustc_hash::FxHashMap<u64, u64>,
+    live_verts: usize,
     tris: Vec<Tri>,
     free_tris: Vec<TriId>,
     resident: usize,
 }
 
 impl Store {
-    pub(crate) fn vertex(&self, id: u64) -> Option<&Vertex> {
-        let i = usize::try_from(id.checked_sub(self.base)?).ok()?;
-        self.verts.get(i)?.as_ref()
+    fn slot(&self, v: u64) -> Option<usize> {
+        let slot = (v & u64::from(u32::MAX)) as usize;
+        (self.generations.get(slot).copied() == Some((v >> 32) as u32)).then_some(slot)
     }
 
-    pub(crate) fn vertex_mut(&mut self, id: u64) -> Option<&mut Vertex> {
-        let i = usize::try_from(id.checked_sub(self.base)?).ok()?;
-        self.verts.get_mut(i)?.as_mut()
+    pub(crate) fn vertex(&self, v: u64) -> Option<&Vertex> {
+        self.verts[self.slot(v)?].as_ref()
     }
 
-    /// Ids of the live vertices, ascending.
+    pub(crate) fn vertex_mut(&mut self, v: u64) -> Option<&mut Vertex> {
+        let slot = self.slot(v)?;
+        self.verts[slot].as_mut()
+    }
+
+    /// Handles of the live vertices, by slot.
     pub(crate) fn ids(&self) -> impl Iterator<Item = u64> + '_ {
-        (self.base..)
-            .zip(&self.verts)
-            .filter_map(|(id, v)| v.as_ref().map(|_| id))
+        self.verts
+            .iter()
+            .zip(&self.generations)
+            .enumerate()
+            .filter_map(|(slot, (x, &g))| x.as_ref().map(|_| handle(slot, g)))
     }
 
-    /// Stores a vertex under `id`. Ids normally arrive in increasing order (then this is a push at
-    /// the back); an id below the band or into a hole is accepted too, at the cost of slots.
+    /// Stores a vertex known to the detector as `id` and returns its handle.
     ///
     /// # Panics
-    /// If a live vertex already has this id.
-    pub(crate) fn insert_vertex(&mut self, id: u64, v: Vertex) {
-        if self.verts.is_empty() {
-            self.base = id;
-        }
-        while id < self.base {
-            self.verts.push_front(None);
-            self.base -= 1;
-        }
-        let i = usize::try_from(id - self.base).expect("vertex band fits in memory");
-        if i >= self.verts.len() {
-            self.verts.resize_with(i + 1, || None);
-        }
-        let slot = &mut self.verts[i];
-        assert!(slot.is_none(), "vertex id {id} added twice");
-        *slot = Some(v);
+    /// If a vertex that may still receive triangles already has this id.
+    pub(crate) fn insert_vertex(&mut self, id: u64, v: Vertex) -> u64 {
+        let slot = match self.free_verts.pop() {
+            Some(slot) => {
+                self.verts[slot] = Some(v);
+                slot
+            }
+            None => {
+                assert!(
+                    self.verts.len() < u32::MAX as usize,
+                    "fewer than 2^32 resident vertices"
+                );
+                self.verts.push(Some(v));
+                self.generations.push(0);
+                self.verts.len() - 1
+            }
+        };
+        let h = handle(slot, self.generations[slot]);
+        let old = self.handles.insert(id, h);
+        assert!(old.is_none(), "vertex id {id} added twice");
+        self.live_verts += 1;
+        h
     }
 
-    pub(crate) fn remove_vertex(&mut self, id: u64) -> Option<Vertex> {
-        let i = usize::try_from(id.checked_sub(self.base)?).ok()?;
-        let v = self.verts.get_mut(i)?.take();
-        while matches!(self.verts.front(), Some(None)) {
-            self.verts.pop_front();
-            self.base += 1;
-        }
-        v
+    /// The handle of detector id `id`, while the vertex may still receive triangles.
+    pub(crate) fn slot_of(&self, id: u64) -> Option<u64> {
+        self.handles.get(&id).copied()
+    }
+
+    /// Detector id `id` will name no more triangles.
+    pub(crate) fn forget_id(&mut self, id: u64) {
+        self.handles.remove(&id);
+    }
+
+    /// Every detector id is forgotten (end of the volume).
+    pub(crate) fn forget_all_ids(&mut self) {
+        self.handles.clear();
+    }
+
+    pub(crate) fn remove_vertex(&mut self, v: u64) -> Option<Vertex> {
+        let slot = self.slot(v)?;
+        let x = self.verts[slot].take()?;
+        self.generations[slot] = self.generations[slot].wrapping_add(1);
+        self.free_verts.push(slot);
+        self.live_verts -= 1;
+        Some(x)
     }
 
     pub(crate) fn tri(&self, t: TriId) -> &Tri {
@@ -194,9 +232,9 @@ impl Store {
         self.resident
     }
 
-    /// Vertex slots held: live vertices and the holes between them.
-    pub(crate) fn vertex_slots(&self) -> usize {
-        self.verts.len()
+    /// Vertices held (free slots are bounded by the peak of this).
+    pub(crate) fn live_vertices(&self) -> usize {
+        self.live_verts
     }
 
     /// Adds a triangle and links it into its vertices' lists. The vertices must exist.
@@ -247,38 +285,38 @@ mod tests {
     use super::*;
 
     #[test]
-    fn slots_are_reused_and_the_front_is_popped() {
+    fn slots_are_reused_under_new_handles() {
         let mut s = Store::default();
-        for id in [10, 11, 13] {
-            s.insert_vertex(id, Vertex::new(DVec3::ZERO, 0, &[]));
-        }
-        assert!(s.vertex(12).is_none());
+        let slots: Vec<u64> = [10, 11, 13]
+            .map(|id| s.insert_vertex(id, Vertex::new(DVec3::ZERO, 0, &[])))
+            .to_vec();
+        assert_eq!(slots, vec![0, 1, 2]);
+        assert_eq!(s.slot_of(13), Some(2));
+        assert_eq!(s.slot_of(12), None);
         let t = s.add_triangle(Tri {
-            v: [10, 11, 13],
+            v: [0, 1, 2],
             unmodifiable: 3,
         });
-        assert_eq!(s.vertex(13).unwrap().tris.as_slice(), &[t]);
+        assert_eq!(s.vertex(2).unwrap().tris.as_slice(), &[t]);
         s.remove_triangle(t);
         assert_eq!(s.resident(), 0);
-        assert!(s.vertex(11).unwrap().tris.is_empty());
+        assert!(s.vertex(1).unwrap().tris.is_empty());
         let t2 = s.add_triangle(Tri {
-            v: [13, 11, 10],
+            v: [2, 1, 0],
             unmodifiable: 0,
         });
         assert_eq!(t, t2, "freed slot is reused");
-        s.remove_vertex(10);
-        s.remove_vertex(11);
-        assert_eq!(s.ids().collect::<Vec<_>>(), vec![13]);
-        assert_eq!(s.verts.len(), 1, "gap and freed slots popped");
-    }
-
-    #[test]
-    fn ids_out_of_order_are_accepted() {
-        let mut s = Store::default();
-        for id in [5, 8, 3, 6] {
-            s.insert_vertex(id, Vertex::new(DVec3::ZERO, 0, &[]));
-        }
-        assert_eq!(s.ids().collect::<Vec<_>>(), vec![3, 5, 6, 8]);
+        s.forget_id(10);
+        assert_eq!(s.slot_of(10), None);
+        s.remove_vertex(0);
+        assert_eq!(s.ids().collect::<Vec<_>>(), vec![1, 2]);
+        assert!(s.vertex(0).is_none());
+        let reused = s.insert_vertex(20, Vertex::new(DVec3::ZERO, 0, &[]));
+        assert_eq!(reused & 0xffff_ffff, 0, "slot 0 is reused");
+        assert_ne!(reused, 0, "under a new handle");
+        assert!(s.vertex(0).is_none(), "the old handle names nothing");
+        assert_eq!(s.verts.len(), 3, "no slot for a gap");
+        assert_eq!(s.live_vertices(), 3);
     }
 
     #[test]
