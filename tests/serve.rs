@@ -411,6 +411,35 @@ fn with_a_token_every_request_needs_it() {
     assert_eq!(code, 200);
 }
 
+#[cfg(unix)]
+#[test]
+fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mut s = Server::start(&state, &[]);
+    let id = submit(&s, &long_job("g.smb"));
+    wait_for(&s, &id, "running", |v| v["state"] == "running");
+    let term = Command::new("kill")
+        .args(["-TERM", &s.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    let status = s.child.wait().unwrap();
+    assert!(status.success(), "{status:?}\n{}", s.log());
+    let job_dir = state.join("jobs").join(&id);
+    assert_eq!(
+        files_in(&job_dir),
+        ["job.toml", "state.json"],
+        "no partial output"
+    );
+    let stored = json(&std::fs::read_to_string(job_dir.join("state.json")).unwrap());
+    assert_eq!(stored["state"], "queued", "{stored}");
+
+    let s = Server::start(&state, &[]);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+}
+
 #[test]
 fn a_job_killed_with_the_service_restarts_and_gives_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
