@@ -359,6 +359,23 @@ fn jobs_are_cancelled_queued_or_running() {
 }
 
 #[test]
+fn at_most_max_parallel_jobs_run_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("state"), &["--max-parallel-jobs", "2"]);
+    let ids: Vec<String> = (0..3)
+        .map(|i| submit(&s, &long_job(&format!("{i}.smb"))))
+        .collect();
+    wait_for(&s, &ids[1], "running", |v| v["state"] == "running");
+    assert_eq!(job(&s, &ids[0])["state"], "running");
+    assert_eq!(job(&s, &ids[2])["state"], "queued");
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert!(
+        metrics.contains("isostream_jobs{state=\"running\"} 2"),
+        "{metrics}"
+    );
+}
+
+#[test]
 fn an_open_address_without_token_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let o = Command::new(BIN)
