@@ -58,6 +58,7 @@ pub(crate) struct JobView {
 
 struct Job {
     record: JobRecord,
+    /// What to run; dropped once the job is final, since it will never run again.
     config: Option<Arc<JobConfig>>,
     progress: ProgressView,
     cancel: Arc<AtomicBool>,
@@ -304,8 +305,13 @@ impl Queue {
                 .cloned();
             let Some(id) = next else { break };
             let job = t.jobs.get_mut(&id).expect("ids in order are in the table");
+            // Every queued job has its config (it is dropped only in final states); should that
+            // ever break, fail the job rather than stall the queue behind it.
             let Some(config) = job.config.clone() else {
-                break;
+                job.record.state = JobState::Failed;
+                job.record.error = Some("internal error: the job's config was lost".into());
+                job.publish();
+                continue;
             };
             if let Err(e) = self.store.clear_outputs(&id) {
                 warn!(%id, error = %e, "cannot clear the job folder before its run");
