@@ -137,7 +137,10 @@ def run(base, args):
     states = {}
     for j in reply["jobs"]:
         states[j["state"]] = states.get(j["state"], 0) + 1
-    _, _, _ = request(base, "GET", "/healthz")
+    with urllib.request.urlopen(base + "/metrics", timeout=30) as res:
+        metrics = res.read().decode()
+    rss = next((float(l.split()[-1]) for l in metrics.splitlines()
+                if l.startswith("isostream_peak_rss_bytes")), float("nan"))
 
     n = len(submit_lat) + len(status_lat)
     print(f"clients {args.clients}, submissions {len(submit_lat)} (accepted {len(ids)}), "
@@ -148,7 +151,8 @@ def run(base, args):
             print(f"{name}: p50 {pct(lat, 50):.1f} ms, p95 {pct(lat, 95):.1f} ms, "
                   f"p99 {pct(lat, 99):.1f} ms, max {max(lat) * 1000:.1f} ms, "
                   f"mean {statistics.mean(lat) * 1000:.1f} ms")
-    print(f"all jobs finished after {all_done:.2f} s: {states}")
+    print(f"all jobs finished after {all_done:.2f} s: {states}; "
+          f"service peak RSS {rss / 2**20:.1f} MiB")
     if errors:
         print("first errors:", errors[:3])
     if errors or pending or len(ids) != args.submissions:
