@@ -83,6 +83,10 @@ pub(crate) fn now_ms() -> u64 {
 #[derive(Debug)]
 pub(crate) struct Store {
     jobs: PathBuf,
+    /// Held for the store's life: two services on one state folder would run the same jobs and
+    /// overwrite each other's states. The OS drops the lock when the process dies, even by
+    /// `kill -9`, so a restart is never blocked by a stale lock.
+    _lock: std::fs::File,
 }
 
 impl Store {
@@ -95,7 +99,24 @@ impl Store {
         std::fs::create_dir_all(&jobs).map_err(fail)?;
         // Probe writability now rather than at the first submission.
         tempfile::NamedTempFile::new_in(&jobs).map_err(fail)?;
-        Ok(Self { jobs })
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(state_dir.join("lock"))
+            .map_err(fail)?;
+        // fs4 rather than std's `File::try_lock`, which is newer than the workspace's rust-version.
+        match fs4::FileExt::try_lock(&lock) {
+            Ok(()) => {}
+            Err(fs4::TryLockError::WouldBlock) => {
+                return Err(ServiceError::State {
+                    path: state_dir.to_path_buf(),
+                    reason: "another isostream serve is using it".into(),
+                });
+            }
+            Err(fs4::TryLockError::Error(e)) => return Err(fail(e)),
+        }
+        Ok(Self { jobs, _lock: lock })
     }
 
     pub fn job_dir(&self, id: &str) -> PathBuf {
@@ -220,7 +241,11 @@ mod tests {
         store.clear_outputs("bb").unwrap();
         std::fs::create_dir(store.job_dir("half-made")).unwrap();
 
-        let loaded = Store::open(dir.path()).unwrap().load_all();
+        let err = Store::open(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("another isostream serve"), "{err}");
+        drop(store);
+        let store = Store::open(dir.path()).unwrap();
+        let loaded = store.load_all();
         let ids: Vec<_> = loaded.iter().map(|(r, _)| r.id.as_str()).collect();
         assert_eq!(ids, ["aa", "bb"]);
         assert_eq!(loaded[1].0.state, JobState::Running);
