@@ -7,6 +7,7 @@ mod cli;
 mod logging;
 mod measure_cmd;
 mod run_cmd;
+mod serve_cmd;
 
 use std::process::ExitCode;
 

@@ -128,3 +128,21 @@ fn every_job_key_is_documented() {
         }
     }
 }
+
+#[test]
+fn only_the_service_has_an_async_runtime_or_a_network() {
+    for entry in std::fs::read_dir(Path::new(ROOT).join("crates")).unwrap() {
+        let krate = entry.unwrap().path();
+        let name = krate.file_name().unwrap().to_string_lossy().into_owned();
+        if name == "service" {
+            continue;
+        }
+        let deps = manifest_dependencies(&name);
+        for forbidden in ["tokio", "axum", "hyper"] {
+            assert!(
+                !deps.contains(forbidden),
+                "crates/{name} depends on {forbidden}"
+            );
+        }
+    }
+}

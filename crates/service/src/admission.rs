@@ -1,0 +1,234 @@
+//! Turning a submitted job file into one the service is willing to run.
+//!
+//! A job comes from the network, so it is checked like `isostream validate` checks a file (same
+//! parser, same one-line errors naming the key) and then made safe: inputs must lie under an
+//! `--allow-input` root (checked on the lexical path first, so a refused path says nothing about
+//! whether it exists, then on the canonical path, so symlinks cannot escape), and the output is
+//! always rewritten into the job's own folder, keeping the requested format.
+
+use std::path::{Component, Path, PathBuf};
+
+use axum::http::StatusCode;
+use isostream_pipeline::JobConfig;
+
+use crate::error::{ApiError, ServiceError};
+
+/// The name errors give the submitted job (it has no file of its own).
+pub(crate) const ORIGIN: &str = "job.toml";
+
+/// The canonical `--allow-input` folders, plus their spellings as given (a root given through a
+/// symlink, such as `/tmp` on some systems, is matched in both forms).
+#[derive(Debug, Default)]
+pub(crate) struct Roots {
+    given: Vec<PathBuf>,
+    canonical: Vec<PathBuf>,
+}
+
+impl Roots {
+    pub fn new(dirs: &[PathBuf]) -> Result<Self, ServiceError> {
+        let mut roots = Roots::default();
+        for dir in dirs {
+            let fail = |reason: String| ServiceError::AllowInput {
+                path: dir.clone(),
+                reason,
+            };
+            let canonical = dir
+                .canonicalize()
+                .map_err(|e| fail(format!("{e}; give an existing folder")))?;
+            if !canonical.is_dir() {
+                return Err(fail("not a folder".into()));
+            }
+            let given = std::path::absolute(dir).map_err(|e| fail(e.to_string()))?;
+            roots.given.push(lexical(&given));
+            roots.canonical.push(canonical);
+        }
+        Ok(roots)
+    }
+
+    /// Checks one input path of the job and returns its canonical form, which the job then uses
+    /// (so a symlink swapped after the check is not followed somewhere else).
+    fn admit(&self, key: &str, path: &Path) -> Result<PathBuf, ApiError> {
+        if !path.is_absolute() {
+            return Err(ApiError::bad_job(format!(
+                "{ORIGIN}: `{key}` must be an absolute path (a submitted job has no folder to resolve it against), got {}",
+                path.display()
+            )));
+        }
+        let refused = || {
+            ApiError::new(
+                StatusCode::FORBIDDEN,
+                format!(
+                    "{ORIGIN}: `{key}` = {} is outside the folders this service may read (--allow-input)",
+                    path.display()
+                ),
+            )
+        };
+        let plain = lexical(path);
+        let under = |p: &Path| {
+            self.given
+                .iter()
+                .chain(&self.canonical)
+                .any(|r| p.starts_with(r))
+        };
+        if !under(&plain) {
+            return Err(refused());
+        }
+        let canonical = path.canonicalize().map_err(|e| {
+            ApiError::bad_job(format!("{ORIGIN}: `{key}` = {}: {e}", path.display()))
+        })?;
+        if !self.canonical.iter().any(|r| canonical.starts_with(r)) {
+            return Err(refused());
+        }
+        Ok(canonical)
+    }
+}
+
+/// `..` and `.` removed without touching the file system.
+fn lexical(path: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in path.components() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::CurDir => {}
+            other => out.push(other),
+        }
+    }
+    out
+}
+
+/// A job accepted for the queue: the config to run and its TOML as stored in `job.toml`.
+#[derive(Debug)]
+pub(crate) struct Admitted {
+    pub job: JobConfig,
+    pub toml: String,
+}
+
+/// Parses, confines and validates a submitted job whose files will live in `job_dir`.
+/// Opens the input like `isostream validate` does, so it may block on the file system.
+pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitted, ApiError> {
+    let origin = Path::new(ORIGIN);
+    let mut job = JobConfig::parse(text, origin).map_err(|e| ApiError::bad_job(e.to_string()))?;
+    if let Some(p) = &job.input.path {
+        job.input.path = Some(roots.admit("input.path", p)?);
+    }
+    for (i, a) in job.attributes.iter_mut().enumerate() {
+        if let Some(p) = &a.path {
+            a.path = Some(roots.admit(&format!("attributes[{i}].path"), p)?);
+        }
+    }
+    job.output.path = job_dir.join(output_name(&job.output.path));
+    // The service keeps every run summary and does its own logging.
+    job.output.summary = true;
+    job.log = Default::default();
+    job.validate(origin)
+        .map_err(|e| ApiError::bad_job(e.to_string()))?;
+    isostream_pipeline::open_source(&job.input).map_err(|e| ApiError::bad_job(e.to_string()))?;
+    let toml = toml::to_string(&job)
+        .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))?;
+    Ok(Admitted { job, toml })
+}
+
+/// `output.<ext>` with the requested extension, which picks the format. An extension that is not
+/// plain letters and digits is dropped, and validation then names `output.path`.
+fn output_name(requested: &Path) -> String {
+    match requested.extension().and_then(|e| e.to_str()) {
+        Some(ext) if !ext.is_empty() && ext.chars().all(|c| c.is_ascii_alphanumeric()) => {
+            format!("output.{ext}")
+        }
+        _ => "output".into(),
+    }
+}
+
+/// Reads a stored job back (restart): the same checks but no confinement, which was done at
+/// submission and is already in the stored paths.
+pub(crate) fn reload(text: &str) -> Result<JobConfig, String> {
+    let origin = Path::new(ORIGIN);
+    let job = JobConfig::parse(text, origin).map_err(|e| e.to_string())?;
+    job.validate(origin).map_err(|e| e.to_string())?;
+    Ok(job)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SPHERE: &str = "[input]\nshape = \"sphere\"\nsize = [16, 16, 16]\n[extract]\niso = 0.0\n[output]\npath = \"/etc/evil/out.ply\"\n";
+
+    fn raw_job(path: &str) -> String {
+        format!(
+            "[input]\npath = \"{path}\"\ndims = [2, 2, 2]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"x.smb\"\n"
+        )
+    }
+
+    #[test]
+    fn output_is_rewritten_into_the_job_folder_keeping_the_format() {
+        let dir = tempfile::tempdir().unwrap();
+        let job_dir = dir.path().join("jobs/abc");
+        let a = admit(SPHERE, &job_dir, &Roots::default()).unwrap();
+        assert_eq!(a.job.output.path, job_dir.join("output.ply"));
+        assert!(a.toml.contains("output.ply"), "{}", a.toml);
+        let again = reload(&a.toml).unwrap();
+        assert_eq!(again.output.path, a.job.output.path);
+    }
+
+    #[test]
+    fn a_bad_key_is_named_like_validate_does() {
+        let text = SPHERE.replace("iso = 0.0", "iso = 0.0\nisovalue = 1");
+        let err = admit(&text, Path::new("/nonexistent"), &Roots::default()).unwrap_err();
+        assert_eq!(err.status, StatusCode::BAD_REQUEST);
+        assert!(
+            err.reason.contains("isovalue") && err.reason.contains(ORIGIN),
+            "{err:?}"
+        );
+        let text = SPHERE.replace("out.ply", "out.xyz");
+        let err = admit(&text, Path::new("/nonexistent"), &Roots::default()).unwrap_err();
+        assert!(err.reason.contains("output.path"), "{err:?}");
+    }
+
+    #[test]
+    fn inputs_outside_the_roots_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let allowed = dir.path().join("data");
+        std::fs::create_dir(&allowed).unwrap();
+        std::fs::write(allowed.join("v.raw"), [0u8, 1, 2, 3, 4, 5, 6, 7]).unwrap();
+        std::fs::write(dir.path().join("secret.raw"), [0u8; 8]).unwrap();
+        let roots = Roots::new(std::slice::from_ref(&allowed)).unwrap();
+        let job_dir = dir.path().join("state/jobs/x");
+
+        let ok = admit(
+            &raw_job(&allowed.join("v.raw").to_string_lossy()),
+            &job_dir,
+            &roots,
+        );
+        assert!(ok.is_ok(), "{ok:?}");
+
+        let escape = format!("{}/../secret.raw", allowed.display());
+        let err = admit(&raw_job(&escape), &job_dir, &roots).unwrap_err();
+        assert_eq!(err.status, StatusCode::FORBIDDEN, "{err:?}");
+        assert!(err.reason.contains("input.path"), "{err:?}");
+
+        let err = admit(&raw_job("/etc/passwd"), &job_dir, &roots).unwrap_err();
+        assert_eq!(err.status, StatusCode::FORBIDDEN, "{err:?}");
+
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(dir.path().join("secret.raw"), allowed.join("link.raw"))
+                .unwrap();
+            let link = allowed.join("link.raw");
+            let err = admit(&raw_job(&link.to_string_lossy()), &job_dir, &roots).unwrap_err();
+            assert_eq!(err.status, StatusCode::FORBIDDEN, "{err:?}");
+        }
+
+        let err = admit(&raw_job("v.raw"), &job_dir, &roots).unwrap_err();
+        assert_eq!(err.status, StatusCode::BAD_REQUEST, "{err:?}");
+        assert!(err.reason.contains("absolute"), "{err:?}");
+    }
+
+    #[test]
+    fn no_roots_means_procedural_only() {
+        let err = admit(&raw_job("/tmp/v.raw"), Path::new("/x"), &Roots::default()).unwrap_err();
+        assert_eq!(err.status, StatusCode::FORBIDDEN);
+    }
+}

@@ -1,0 +1,261 @@
+//! The HTTP API (axum): routes, the bearer-token guard, the body limit, and the job handlers.
+//!
+//! Every refusal is a JSON object `{"error": "<one line>"}` with the status saying what kind it
+//! is (400 bad job, 401 no or wrong token, 403 input outside the allowed folders, 404 unknown id,
+//! 409 not possible in the job's state, 413 body too large).
+
+use std::convert::Infallible;
+use std::sync::Arc;
+
+use axum::Json;
+use axum::Router;
+use axum::body::Body;
+use axum::extract::rejection::StringRejection;
+use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::http::{HeaderMap, Method, StatusCode, header};
+use axum::middleware::{self, Next};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use futures_util::{Stream, StreamExt};
+use subtle::ConstantTimeEq;
+use tokio_util::io::ReaderStream;
+use tokio_util::sync::CancellationToken;
+
+use crate::admission::{self, Roots};
+use crate::error::{ApiError, request_error_kind};
+use crate::metrics::Metrics;
+use crate::queue::{CancelOutcome, JobView, Queue};
+use crate::store::JobState;
+
+/// A job file is a few hundred bytes; anything near this is not one.
+const MAX_BODY: usize = 1 << 20;
+
+#[derive(Clone)]
+pub(crate) struct AppState {
+    pub queue: Arc<Queue>,
+    pub roots: Arc<Roots>,
+    pub token: Option<Arc<str>>,
+    pub metrics: Arc<Metrics>,
+    pub shutdown: CancellationToken,
+}
+
+pub(crate) fn router(state: AppState) -> Router {
+    Router::new()
+        .route("/", get(page))
+        .route("/healthz", get(healthz))
+        .route("/metrics", get(metrics))
+        .route("/jobs", get(list).post(submit))
+        .route("/jobs/{id}", get(show).delete(cancel))
+        .route("/jobs/{id}/events", get(events))
+        .route("/jobs/{id}/output", get(output))
+        .layer(DefaultBodyLimit::max(MAX_BODY))
+        // Outermost: the token is checked before a body is read.
+        .layer(middleware::from_fn_with_state(state.clone(), guard))
+        .with_state(state)
+}
+
+/// Checks the bearer token and counts refused requests by kind.
+///
+/// `GET /` is exempt: it is a static page with no data in it, and a browser cannot add a header
+/// to a navigation; its script sends the token (taken from the URL fragment, which browsers do
+/// not send) on every request it makes.
+async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response {
+    let static_page = req.method() == Method::GET && req.uri().path() == "/";
+    if let Some(token) = &s.token
+        && !static_page
+        && !authorized(req.headers(), token)
+    {
+        s.metrics.error("unauthorized");
+        let refused = ApiError::new(
+            StatusCode::UNAUTHORIZED,
+            "this service needs `Authorization: Bearer <token>` (the --token of `isostream serve`)",
+        );
+        return ([(header::WWW_AUTHENTICATE, "Bearer")], refused).into_response();
+    }
+    let response = next.run(req).await;
+    if let Some(kind) = request_error_kind(response.status()) {
+        s.metrics.error(kind);
+    }
+    response
+}
+
+/// Constant-time comparison, so response timing does not reveal how much of a guess was right.
+fn authorized(headers: &HeaderMap, token: &str) -> bool {
+    headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .is_some_and(|given| bool::from(given.trim().as_bytes().ct_eq(token.as_bytes())))
+}
+
+/// 128 random bits from the OS as hex: ids are capabilities of sorts (whoever knows one can
+/// fetch the output), so they must not be guessable.
+fn new_id() -> Result<String, ApiError> {
+    let mut bytes = [0u8; 16];
+    getrandom::fill(&mut bytes)
+        .map_err(|e| ApiError::internal(format!("no randomness for a job id: {e}")))?;
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+async fn page() -> Html<&'static str> {
+    Html(include_str!("status.html"))
+}
+
+async fn healthz() -> Json<serde_json::Value> {
+    Json(serde_json::json!({ "status": "ok" }))
+}
+
+async fn metrics(State(s): State<AppState>) -> impl IntoResponse {
+    let text = s.metrics.render(&s.queue.snapshot());
+    (
+        [(
+            header::CONTENT_TYPE,
+            "application/openmetrics-text; version=1.0.0; charset=utf-8",
+        )],
+        text,
+    )
+}
+
+async fn list(State(s): State<AppState>) -> Json<serde_json::Value> {
+    Json(serde_json::json!({ "jobs": s.queue.list() }))
+}
+
+async fn show(
+    State(s): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Json<JobView>, ApiError> {
+    s.queue
+        .get(&id)
+        .map(Json)
+        .ok_or_else(|| ApiError::not_found(&id))
+}
+
+async fn submit(
+    State(s): State<AppState>,
+    body: Result<String, StringRejection>,
+) -> Result<Response, ApiError> {
+    let text = body.map_err(|r| ApiError::new(r.status(), r.body_text()))?;
+    let id = new_id()?;
+    let queue = Arc::clone(&s.queue);
+    let roots = Arc::clone(&s.roots);
+    // Admission opens the input (file headers) and storing fsyncs: both block.
+    let view = tokio::task::spawn_blocking(move || {
+        let admitted = admission::admit(&text, &queue.job_dir(&id), &roots)?;
+        queue
+            .submit(id, admitted)
+            .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))??;
+    let body = Json(serde_json::json!({ "id": view.record.id, "url": view.url }));
+    Ok((
+        StatusCode::CREATED,
+        [(header::LOCATION, view.url.clone())],
+        body,
+    )
+        .into_response())
+}
+
+async fn cancel(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+    let queue = Arc::clone(&s.queue);
+    let job = id.clone();
+    let outcome = tokio::task::spawn_blocking(move || queue.cancel(&job))
+        .await
+        .map_err(|e| ApiError::internal(e.to_string()))?
+        .map_err(|e| ApiError::internal(format!("cannot write the job state: {e}")))?;
+    match outcome {
+        CancelOutcome::Cancelled(view) => Ok((StatusCode::OK, Json(view)).into_response()),
+        CancelOutcome::Stopping(view) => Ok((StatusCode::ACCEPTED, Json(view)).into_response()),
+        CancelOutcome::AlreadyFinished(state) => Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!("job {id} is already {}", state.name()),
+        )),
+        CancelOutcome::NotFound => Err(ApiError::not_found(&id)),
+    }
+}
+
+/// Server-Sent Events: the job's view now, then at every change, until a final state (or the
+/// service stops). A slow reader skips intermediate values instead of slowing the run.
+async fn events(
+    State(s): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
+    let rx = s.queue.watch(&id).ok_or_else(|| ApiError::not_found(&id))?;
+    let stream =
+        futures_util::stream::unfold((rx, true, false), |(mut rx, first, ended)| async move {
+            if ended || (!first && rx.changed().await.is_err()) {
+                return None;
+            }
+            let view = rx.borrow_and_update().clone();
+            let last = view.record.state.is_final();
+            let event = Event::default()
+                .json_data(&view)
+                .unwrap_or_else(|e| Event::default().comment(e.to_string()));
+            Some((Ok(event), (rx, false, last)))
+        });
+    let stream = stream.take_until(s.shutdown.clone().cancelled_owned());
+    Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
+}
+
+/// The mesh, streamed from its file (it may be far larger than memory).
+async fn output(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+    let view = s.queue.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
+    if view.record.state != JobState::Done {
+        return Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!(
+                "job {id} is {}: its output exists once it is done",
+                view.record.state.name()
+            ),
+        ));
+    }
+    let path = s.queue.job_dir(&id).join(&view.record.output);
+    let file = tokio::fs::File::open(&path)
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot open the output: {e}")))?;
+    let len = file
+        .metadata()
+        .await
+        .map_err(|e| ApiError::internal(format!("cannot read the output: {e}")))?
+        .len();
+    let ext = view.record.output.rsplit('.').next().unwrap_or("bin");
+    Ok((
+        [
+            (header::CONTENT_TYPE, "application/octet-stream".to_string()),
+            (header::CONTENT_LENGTH, len.to_string()),
+            (
+                header::CONTENT_DISPOSITION,
+                format!("attachment; filename=\"{id}.{ext}\""),
+            ),
+        ],
+        Body::from_stream(ReaderStream::new(file)),
+    )
+        .into_response())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bearer_must_match_exactly() {
+        let mut h = HeaderMap::new();
+        assert!(!authorized(&h, "secret"));
+        h.insert(header::AUTHORIZATION, "Bearer secret".parse().unwrap());
+        assert!(authorized(&h, "secret"));
+        h.insert(header::AUTHORIZATION, "Bearer secre".parse().unwrap());
+        assert!(!authorized(&h, "secret"));
+        h.insert(header::AUTHORIZATION, "Basic secret".parse().unwrap());
+        assert!(!authorized(&h, "secret"));
+    }
+
+    #[test]
+    fn ids_are_128_random_bits_in_hex() {
+        let a = new_id().unwrap();
+        let b = new_id().unwrap();
+        assert_eq!(a.len(), 32);
+        assert!(a.chars().all(|c| c.is_ascii_hexdigit()));
+        assert_ne!(a, b);
+    }
+}

@@ -1,0 +1,458 @@
+//! The job table, the scheduler and the runs.
+//!
+//! One mutex guards the table; every change of a job's state is written to its `state.json`
+//! (see `store`) before it is published to watchers, so what a client saw is what a restart finds.
+//! Runs happen on tokio's blocking threads through `isostream_pipeline::run`, which spawns its own
+//! stage threads and knows nothing of tokio; progress comes back through its observer and is
+//! published on a `watch` channel per job (the latest value is all a watcher needs, so a slow
+//! client can never hold the run back).
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use isostream_pipeline::{JobConfig, Progress, RunError, RunSummary};
+use serde::Serialize;
+use tokio::sync::{Notify, watch};
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+use tracing::{Instrument, error, info, info_span, warn};
+
+use crate::admission::{self, Admitted};
+use crate::metrics::{Metrics, Snapshot};
+use crate::store::{JobRecord, JobState, Store, now_ms};
+
+/// Progress of a run as clients see it (the pipeline's `Progress` without its channel details).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub(crate) struct ProgressView {
+    pub slabs_done: u64,
+    pub slabs_total: u64,
+    pub faces_in: u64,
+    pub faces_out: u64,
+    pub resident_faces: u64,
+}
+
+impl From<&Progress> for ProgressView {
+    fn from(p: &Progress) -> Self {
+        Self {
+            slabs_done: p.slabs_done,
+            slabs_total: p.slabs_total,
+            faces_in: p.faces_in,
+            faces_out: p.faces_out,
+            resident_faces: p.resident_faces,
+        }
+    }
+}
+
+/// A job as `GET /jobs/{id}` and the event stream show it.
+#[derive(Debug, Clone, Serialize)]
+pub(crate) struct JobView {
+    #[serde(flatten)]
+    pub record: JobRecord,
+    pub url: String,
+    /// Present once the job is done.
+    pub output_url: Option<String>,
+    pub progress: ProgressView,
+}
+
+struct Job {
+    record: JobRecord,
+    /// What to run; dropped once the job is final, since it will never run again.
+    config: Option<Arc<JobConfig>>,
+    progress: ProgressView,
+    cancel: Arc<AtomicBool>,
+    /// Set by `DELETE`: an interrupted run becomes `cancelled` rather than being requeued.
+    cancelled_by_user: bool,
+    events: watch::Sender<JobView>,
+}
+
+impl Job {
+    fn new(record: JobRecord, config: Option<Arc<JobConfig>>) -> Self {
+        let progress = ProgressView::default();
+        Job {
+            events: watch::channel(view_of(&record, progress)).0,
+            record,
+            config,
+            progress,
+            cancel: Arc::new(AtomicBool::new(false)),
+            cancelled_by_user: false,
+        }
+    }
+
+    fn view(&self) -> JobView {
+        view_of(&self.record, self.progress)
+    }
+
+    fn publish(&self) {
+        self.events.send_replace(self.view());
+    }
+}
+
+fn view_of(record: &JobRecord, progress: ProgressView) -> JobView {
+    let url = format!("/jobs/{}", record.id);
+    JobView {
+        output_url: (record.state == JobState::Done).then(|| format!("{url}/output")),
+        url,
+        record: record.clone(),
+        progress,
+    }
+}
+
+#[derive(Default)]
+struct Table {
+    jobs: HashMap<String, Job>,
+    /// Ids in submission order.
+    order: Vec<String>,
+    running: usize,
+    next_seq: u64,
+}
+
+/// What `DELETE /jobs/{id}` did.
+pub(crate) enum CancelOutcome {
+    /// The job was queued and is now cancelled.
+    Cancelled(JobView),
+    /// The job is running; its run stops at the next slice and it then becomes `cancelled`.
+    Stopping(JobView),
+    AlreadyFinished(JobState),
+    NotFound,
+}
+
+pub(crate) struct Queue {
+    table: Mutex<Table>,
+    store: Store,
+    wake: Notify,
+    max_parallel: usize,
+    metrics: Arc<Metrics>,
+    shutdown: CancellationToken,
+    runs: TaskTracker,
+}
+
+impl Queue {
+    /// Loads the stored jobs: queued ones stay queued, one that was running is queued again (its
+    /// partial output removed), finished ones are kept for clients to read.
+    pub fn recover(
+        store: Store,
+        max_parallel: usize,
+        metrics: Arc<Metrics>,
+        shutdown: CancellationToken,
+    ) -> Arc<Self> {
+        let mut table = Table::default();
+        for (mut record, text) in store.load_all() {
+            let mut config = None;
+            if !record.state.is_final() {
+                match admission::reload(&text) {
+                    Ok(job) => config = Some(Arc::new(job)),
+                    Err(e) => {
+                        warn!(id = %record.id, error = %e, "stored job no longer valid");
+                        record.state = JobState::Failed;
+                        record.error = Some(e);
+                        record.finished_unix_ms = Some(now_ms());
+                    }
+                }
+            }
+            if record.state == JobState::Running {
+                info!(id = %record.id, "restarting a job interrupted while running");
+                record.state = JobState::Queued;
+                if let Err(e) = store.clear_outputs(&record.id) {
+                    warn!(id = %record.id, error = %e, "cannot remove the partial output");
+                }
+            }
+            if let Err(e) = store.save(&record) {
+                warn!(id = %record.id, error = %e, "cannot write the job state");
+            }
+            table.next_seq = table.next_seq.max(record.seq + 1);
+            table.order.push(record.id.clone());
+            table
+                .jobs
+                .insert(record.id.clone(), Job::new(record, config));
+        }
+        let queued = table
+            .jobs
+            .values()
+            .filter(|j| j.record.state == JobState::Queued)
+            .count();
+        info!(jobs = table.order.len(), queued, "state loaded");
+        Arc::new(Queue {
+            table: Mutex::new(table),
+            store,
+            wake: Notify::new(),
+            max_parallel,
+            metrics,
+            shutdown,
+            runs: TaskTracker::new(),
+        })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Table> {
+        // A panic while holding the lock leaves plain data behind; keep serving it.
+        self.table.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn job_dir(&self, id: &str) -> std::path::PathBuf {
+        self.store.job_dir(id)
+    }
+
+    /// Stores and queues an admitted job under a fresh id.
+    pub fn submit(&self, id: String, admitted: Admitted) -> std::io::Result<JobView> {
+        let output = admitted
+            .job
+            .output
+            .path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let mut t = self.lock();
+        let record = JobRecord {
+            id: id.clone(),
+            seq: t.next_seq,
+            state: JobState::Queued,
+            submitted_unix_ms: now_ms(),
+            started_unix_ms: None,
+            finished_unix_ms: None,
+            attempts: 0,
+            output,
+            error: None,
+            summary: None,
+        };
+        self.store.create(&record, &admitted.toml)?;
+        t.next_seq += 1;
+        let job = Job::new(record, Some(Arc::new(admitted.job)));
+        let view = job.view();
+        t.order.push(id.clone());
+        t.jobs.insert(id.clone(), job);
+        drop(t);
+        info!(%id, "job queued");
+        self.wake.notify_one();
+        Ok(view)
+    }
+
+    pub fn get(&self, id: &str) -> Option<JobView> {
+        self.lock().jobs.get(id).map(Job::view)
+    }
+
+    pub fn list(&self) -> Vec<JobView> {
+        let t = self.lock();
+        t.order
+            .iter()
+            .filter_map(|id| t.jobs.get(id))
+            .map(Job::view)
+            .collect()
+    }
+
+    pub fn watch(&self, id: &str) -> Option<watch::Receiver<JobView>> {
+        self.lock().jobs.get(id).map(|j| j.events.subscribe())
+    }
+
+    pub fn snapshot(&self) -> Snapshot {
+        let t = self.lock();
+        let count = |s: JobState| t.jobs.values().filter(|j| j.record.state == s).count();
+        Snapshot {
+            jobs: JobState::ALL.iter().map(|&s| (s, count(s))).collect(),
+            resident_faces: t
+                .jobs
+                .values()
+                .filter(|j| j.record.state == JobState::Running)
+                .map(|j| j.progress.resident_faces)
+                .sum(),
+        }
+    }
+
+    pub fn cancel(&self, id: &str) -> std::io::Result<CancelOutcome> {
+        let mut t = self.lock();
+        let Some(job) = t.jobs.get_mut(id) else {
+            return Ok(CancelOutcome::NotFound);
+        };
+        match job.record.state {
+            JobState::Queued => {
+                job.record.state = JobState::Cancelled;
+                job.record.finished_unix_ms = Some(now_ms());
+                job.config = None;
+                self.store.save(&job.record)?;
+                job.publish();
+                info!(%id, "queued job cancelled");
+                Ok(CancelOutcome::Cancelled(job.view()))
+            }
+            JobState::Running => {
+                job.cancelled_by_user = true;
+                job.cancel.store(true, Ordering::Relaxed);
+                info!(%id, "cancelling a running job");
+                Ok(CancelOutcome::Stopping(job.view()))
+            }
+            s => Ok(CancelOutcome::AlreadyFinished(s)),
+        }
+    }
+
+    /// Starts queued jobs, oldest first, while fewer than `max_parallel` run; wakes up on every
+    /// submission and every finished run, until shutdown.
+    pub async fn schedule(self: Arc<Self>) {
+        loop {
+            self.start_ready();
+            tokio::select! {
+                _ = self.wake.notified() => {}
+                _ = self.shutdown.cancelled() => return,
+            }
+        }
+    }
+
+    fn start_ready(self: &Arc<Self>) {
+        let mut t = self.lock();
+        while t.running < self.max_parallel && !self.shutdown.is_cancelled() {
+            let next = t
+                .order
+                .iter()
+                .find(|id| t.jobs[*id].record.state == JobState::Queued)
+                .cloned();
+            let Some(id) = next else { break };
+            let job = t.jobs.get_mut(&id).expect("ids in order are in the table");
+            // Every queued job has its config (it is dropped only in final states); should that
+            // ever break, fail the job rather than stall the queue behind it.
+            let Some(config) = job.config.clone() else {
+                job.record.state = JobState::Failed;
+                job.record.error = Some("internal error: the job's config was lost".into());
+                job.publish();
+                continue;
+            };
+            if let Err(e) = self.store.clear_outputs(&id) {
+                warn!(%id, error = %e, "cannot clear the job folder before its run");
+            }
+            job.record.state = JobState::Running;
+            job.record.started_unix_ms = Some(now_ms());
+            job.record.attempts += 1;
+            job.progress = ProgressView::default();
+            if let Err(e) = self.store.save(&job.record) {
+                error!(%id, error = %e, "cannot write the job state; not starting it");
+                job.record.state = JobState::Failed;
+                job.record.error = Some(format!("cannot write the job state: {e}"));
+                job.publish();
+                self.metrics.error("state_io");
+                continue;
+            }
+            job.publish();
+            let cancel = Arc::clone(&job.cancel);
+            t.running += 1;
+            let span = info_span!("job", id = %id);
+            let queue = Arc::clone(self);
+            self.runs
+                .spawn(queue.run(id, config, cancel, span.clone()).instrument(span));
+        }
+    }
+
+    async fn run(
+        self: Arc<Self>,
+        id: String,
+        config: Arc<JobConfig>,
+        cancel: Arc<AtomicBool>,
+        span: tracing::Span,
+    ) {
+        info!("run started");
+        let queue = Arc::clone(&self);
+        let job_id = id.clone();
+        let outcome = tokio::task::spawn_blocking(move || {
+            let _entered = span.enter();
+            let observer = |p: &Progress| queue.progress(&job_id, p);
+            isostream_pipeline::run(&config, Path::new(admission::ORIGIN), &cancel, &observer)
+        })
+        .await
+        .unwrap_or_else(|e| {
+            Err(RunError::Internal {
+                stage: "service",
+                reason: format!("the run panicked: {e}"),
+            })
+        });
+        self.finish(&id, outcome);
+        self.wake.notify_one();
+    }
+
+    /// The observer: called on the pipeline's thread for every finished slab.
+    fn progress(&self, id: &str, p: &Progress) {
+        let mut t = self.lock();
+        if let Some(job) = t.jobs.get_mut(id) {
+            let now = ProgressView::from(p);
+            self.metrics.faces(
+                now.faces_in.saturating_sub(job.progress.faces_in),
+                now.faces_out.saturating_sub(job.progress.faces_out),
+            );
+            job.progress = now;
+            job.publish();
+        }
+    }
+
+    fn finish(&self, id: &str, outcome: Result<RunSummary, RunError>) {
+        let mut t = self.lock();
+        t.running -= 1;
+        let shutting_down = self.shutdown.is_cancelled();
+        let Some(job) = t.jobs.get_mut(id) else {
+            return;
+        };
+        job.record.finished_unix_ms = Some(now_ms());
+        match outcome {
+            Ok(summary) => {
+                self.metrics.stage_seconds(&summary.stage_seconds);
+                job.record.state = JobState::Done;
+                job.record.summary = serde_json::to_value(&summary).ok();
+                job.progress.resident_faces = 0;
+                job.config = None;
+                info!(
+                    faces_in = summary.faces_extracted,
+                    faces_out = summary.faces_written,
+                    seconds = summary.seconds,
+                    "run done"
+                );
+            }
+            Err(RunError::Cancelled) if shutting_down && !job.cancelled_by_user => {
+                // Interrupted by the service stopping, not by a client: run it again next start.
+                job.record.state = JobState::Queued;
+                job.record.finished_unix_ms = None;
+                info!("run interrupted by shutdown; it stays queued");
+            }
+            Err(RunError::Cancelled) => {
+                job.record.state = JobState::Cancelled;
+                job.config = None;
+                info!("run cancelled");
+            }
+            Err(e) => {
+                self.metrics.error(run_error_kind(&e));
+                job.record.state = JobState::Failed;
+                job.record.error = Some(e.to_string().replace('\n', " "));
+                job.config = None;
+                warn!(error = %e, "run failed");
+            }
+        }
+        if job.record.state != JobState::Done
+            && let Err(e) = self.store.clear_outputs(id)
+        {
+            warn!(error = %e, "cannot remove the partial output");
+        }
+        if let Err(e) = self.store.save(&job.record) {
+            self.metrics.error("state_io");
+            error!(error = %e, "cannot write the job state");
+        }
+        job.publish();
+    }
+
+    /// After shutdown: interrupt running jobs and wait until their runs have cleaned up.
+    pub async fn drain(&self) {
+        {
+            let t = self.lock();
+            for job in t.jobs.values() {
+                if job.record.state == JobState::Running {
+                    job.cancel.store(true, Ordering::Relaxed);
+                }
+            }
+        }
+        self.runs.close();
+        self.runs.wait().await;
+    }
+}
+
+fn run_error_kind(e: &RunError) -> &'static str {
+    match e {
+        RunError::Config(_) => "run_config",
+        RunError::Volume(_) => "run_input",
+        RunError::Output(_) | RunError::Summary { .. } => "run_output",
+        RunError::ClassicalOverBudget { .. } => "run_over_budget",
+        RunError::Cancelled => "run_cancelled",
+        RunError::Internal { .. } => "run_internal",
+    }
+}

@@ -1,0 +1,257 @@
+//! The durable part of the queue: one folder per job under `STATE/jobs/`.
+//!
+//! `job.toml` is written once at submission; `state.json` is rewritten at every change of state,
+//! always through a temporary file, fsync and rename, so a crash leaves either the old or the new
+//! state, never a torn one. A folder without `state.json` is a submission that never completed
+//! (its 201 was never sent) and is removed at start-up.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use serde::{Deserialize, Serialize};
+use tracing::warn;
+
+use crate::error::ServiceError;
+
+const JOB_FILE: &str = "job.toml";
+const STATE_FILE: &str = "state.json";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub(crate) enum JobState {
+    Queued,
+    Running,
+    Done,
+    Failed,
+    Cancelled,
+}
+
+impl JobState {
+    pub const ALL: [JobState; 5] = [
+        JobState::Queued,
+        JobState::Running,
+        JobState::Done,
+        JobState::Failed,
+        JobState::Cancelled,
+    ];
+
+    pub fn is_final(self) -> bool {
+        matches!(
+            self,
+            JobState::Done | JobState::Failed | JobState::Cancelled
+        )
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            JobState::Queued => "queued",
+            JobState::Running => "running",
+            JobState::Done => "done",
+            JobState::Failed => "failed",
+            JobState::Cancelled => "cancelled",
+        }
+    }
+}
+
+/// What `state.json` holds.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub(crate) struct JobRecord {
+    pub id: String,
+    /// Submission order; the queue runs jobs in this order.
+    pub seq: u64,
+    pub state: JobState,
+    pub submitted_unix_ms: u64,
+    pub started_unix_ms: Option<u64>,
+    pub finished_unix_ms: Option<u64>,
+    /// How many times a run was started (more than 1 after a restart interrupted one).
+    pub attempts: u32,
+    /// The output's file name in the job folder (`output.smb`, ...).
+    pub output: String,
+    /// The one-line error of a failed run.
+    pub error: Option<String>,
+    /// The pipeline's run summary of a finished run.
+    pub summary: Option<serde_json::Value>,
+}
+
+pub(crate) fn now_ms() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
+}
+
+#[derive(Debug)]
+pub(crate) struct Store {
+    jobs: PathBuf,
+    /// Held for the store's life: two services on one state folder would run the same jobs and
+    /// overwrite each other's states. The OS drops the lock when the process dies, even by
+    /// `kill -9`, so a restart is never blocked by a stale lock.
+    _lock: std::fs::File,
+}
+
+impl Store {
+    pub fn open(state_dir: &Path) -> Result<Self, ServiceError> {
+        let jobs = state_dir.join("jobs");
+        let fail = |e: std::io::Error| ServiceError::State {
+            path: state_dir.to_path_buf(),
+            reason: e.to_string(),
+        };
+        std::fs::create_dir_all(&jobs).map_err(fail)?;
+        // Probe writability now rather than at the first submission.
+        tempfile::NamedTempFile::new_in(&jobs).map_err(fail)?;
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(state_dir.join("lock"))
+            .map_err(fail)?;
+        // fs4 rather than std's `File::try_lock`, which is newer than the workspace's rust-version.
+        match fs4::FileExt::try_lock(&lock) {
+            Ok(()) => {}
+            Err(fs4::TryLockError::WouldBlock) => {
+                return Err(ServiceError::State {
+                    path: state_dir.to_path_buf(),
+                    reason: "another isostream serve is using it".into(),
+                });
+            }
+            Err(fs4::TryLockError::Error(e)) => return Err(fail(e)),
+        }
+        Ok(Self { jobs, _lock: lock })
+    }
+
+    pub fn job_dir(&self, id: &str) -> PathBuf {
+        self.jobs.join(id)
+    }
+
+    /// Creates the job's folder with its job file and first state.
+    pub fn create(&self, record: &JobRecord, job_toml: &str) -> std::io::Result<()> {
+        let dir = self.job_dir(&record.id);
+        std::fs::create_dir_all(&dir)?;
+        write_atomic(&dir.join(JOB_FILE), job_toml.as_bytes())?;
+        self.save(record)
+    }
+
+    pub fn save(&self, record: &JobRecord) -> std::io::Result<()> {
+        let bytes = serde_json::to_vec_pretty(record).map_err(std::io::Error::other)?;
+        write_atomic(&self.job_dir(&record.id).join(STATE_FILE), &bytes)
+    }
+
+    /// Removes everything but the job file and the state: the output, its summary and any
+    /// temporary file a killed run left behind.
+    pub fn clear_outputs(&self, id: &str) -> std::io::Result<()> {
+        for entry in std::fs::read_dir(self.job_dir(id))? {
+            let entry = entry?;
+            let name = entry.file_name();
+            if name != JOB_FILE && name != STATE_FILE {
+                std::fs::remove_file(entry.path())?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Every stored job (record and job file), in submission order. Unreadable folders are
+    /// logged and skipped so that one damaged job does not keep the service down.
+    pub fn load_all(&self) -> Vec<(JobRecord, String)> {
+        let mut out = Vec::new();
+        let entries = match std::fs::read_dir(&self.jobs) {
+            Ok(e) => e,
+            Err(e) => {
+                warn!(dir = %self.jobs.display(), error = %e, "cannot list stored jobs");
+                return out;
+            }
+        };
+        for entry in entries.flatten() {
+            let dir = entry.path();
+            if !dir.is_dir() {
+                continue;
+            }
+            let state = dir.join(STATE_FILE);
+            if !state.exists() {
+                warn!(dir = %dir.display(), "removing an incomplete submission");
+                if let Err(e) = std::fs::remove_dir_all(&dir) {
+                    warn!(dir = %dir.display(), error = %e, "cannot remove it");
+                }
+                continue;
+            }
+            let loaded = std::fs::read(&state)
+                .map_err(|e| e.to_string())
+                .and_then(|b| serde_json::from_slice::<JobRecord>(&b).map_err(|e| e.to_string()))
+                .and_then(|r| {
+                    std::fs::read_to_string(dir.join(JOB_FILE))
+                        .map(|t| (r, t))
+                        .map_err(|e| e.to_string())
+                });
+            match loaded {
+                Ok((record, _))
+                    if Some(record.id.as_str()) != dir.file_name().and_then(|n| n.to_str()) =>
+                {
+                    warn!(dir = %dir.display(), "skipping a job whose state names another id");
+                }
+                Ok(job) => out.push(job),
+                Err(e) => warn!(dir = %dir.display(), error = %e, "skipping an unreadable job"),
+            }
+        }
+        out.sort_by_key(|(r, _)| r.seq);
+        out
+    }
+}
+
+/// Temporary file in the same folder, fsync, rename: readers see the old or the new bytes.
+fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".state.")
+        .suffix(".tmp")
+        .tempfile_in(dir)?;
+    tmp.write_all(bytes)?;
+    tmp.as_file().sync_all()?;
+    tmp.persist(path).map_err(|e| e.error)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(id: &str, seq: u64) -> JobRecord {
+        JobRecord {
+            id: id.into(),
+            seq,
+            state: JobState::Queued,
+            submitted_unix_ms: now_ms(),
+            started_unix_ms: None,
+            finished_unix_ms: None,
+            attempts: 0,
+            output: "output.smb".into(),
+            error: None,
+            summary: None,
+        }
+    }
+
+    #[test]
+    fn jobs_survive_a_reopen_in_submission_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = Store::open(dir.path()).unwrap();
+        store.create(&record("bb", 2), "b = 1").unwrap();
+        store.create(&record("aa", 1), "a = 1").unwrap();
+        let mut r = record("bb", 2);
+        r.state = JobState::Running;
+        store.save(&r).unwrap();
+        std::fs::write(store.job_dir("bb").join(".output.smb.x.tmp"), b"half").unwrap();
+        store.clear_outputs("bb").unwrap();
+        std::fs::create_dir(store.job_dir("half-made")).unwrap();
+
+        let err = Store::open(dir.path()).unwrap_err().to_string();
+        assert!(err.contains("another isostream serve"), "{err}");
+        drop(store);
+        let store = Store::open(dir.path()).unwrap();
+        let loaded = store.load_all();
+        let ids: Vec<_> = loaded.iter().map(|(r, _)| r.id.as_str()).collect();
+        assert_eq!(ids, ["aa", "bb"]);
+        assert_eq!(loaded[1].0.state, JobState::Running);
+        assert_eq!(loaded[0].1, "a = 1");
+        assert!(!store.job_dir("half-made").exists());
+        let left: Vec<_> = std::fs::read_dir(store.job_dir("bb")).unwrap().collect();
+        assert_eq!(left.len(), 2, "only job.toml and state.json stay");
+    }
+}

@@ -1,0 +1,509 @@
+//! `isostream serve` end to end: the built binary as a child process on an ephemeral loopback
+//! port, driven by a real HTTP client. Every server is killed when its `Server` is dropped.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_isostream");
+
+/// The example: a small procedural sphere.
+const SPHERE: &str = "[input]\nshape = \"sphere\"\nsize = [32, 32, 32]\n\n[extract]\niso = 0.0\n\n[output]\npath = \"sphere.smb\"\n";
+
+/// Runs long enough (a few seconds) to be cancelled or killed in the middle.
+fn long_job(output: &str) -> String {
+    format!(
+        "[input]\nshape = \"gyroid\"\nsize = [96, 96, 96]\n\n[extract]\niso = 0.0\n\n[output]\npath = \"{output}\"\n"
+    )
+}
+
+struct Server {
+    child: Child,
+    base: String,
+    log: PathBuf,
+}
+
+impl Server {
+    fn start(state: &Path, args: &[&str]) -> Server {
+        let log = state.with_extension("log");
+        let mut child = Command::new(BIN)
+            .arg("serve")
+            .arg("--state")
+            .arg(state)
+            .args(["--listen", "127.0.0.1:0"])
+            .args(args)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::piped())
+            .stderr(std::fs::File::create(&log).unwrap())
+            .spawn()
+            .unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut line = String::new();
+            let _ = BufReader::new(stdout).read_line(&mut line);
+            let _ = tx.send(line);
+        });
+        let line = rx.recv_timeout(Duration::from_secs(30)).unwrap_or_default();
+        let base = line
+            .trim()
+            .rsplit(' ')
+            .next()
+            .filter(|u| u.starts_with("http://"))
+            .unwrap_or_else(|| {
+                let _ = child.kill();
+                panic!(
+                    "no address in {line:?}; log: {}",
+                    std::fs::read_to_string(&log).unwrap_or_default()
+                )
+            })
+            .to_string();
+        Server { child, base, log }
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("{}{path}", self.base)
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn agent() -> ureq::Agent {
+    ureq::AgentBuilder::new()
+        .timeout_connect(Duration::from_secs(5))
+        .timeout(Duration::from_secs(120))
+        .build()
+}
+
+/// Status and body of any response, errors included.
+fn send(req: ureq::Request, body: Option<&str>) -> (u16, String) {
+    let res = match body {
+        Some(b) => req.send_string(b),
+        None => req.call(),
+    };
+    match res {
+        Ok(r) => (r.status(), r.into_string().unwrap()),
+        Err(ureq::Error::Status(code, r)) => (code, r.into_string().unwrap()),
+        Err(e) => panic!("request failed: {e}"),
+    }
+}
+
+fn json(body: &str) -> Value {
+    serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {body}"))
+}
+
+fn submit(s: &Server, job: &str) -> String {
+    let (code, body) = send(agent().post(&s.url("/jobs")), Some(job));
+    assert_eq!(code, 201, "{body}\n{}", s.log());
+    let v = json(&body);
+    assert_eq!(
+        v["url"].as_str().unwrap(),
+        format!("/jobs/{}", v["id"].as_str().unwrap())
+    );
+    v["id"].as_str().unwrap().to_string()
+}
+
+fn job(s: &Server, id: &str) -> Value {
+    let (code, body) = send(agent().get(&s.url(&format!("/jobs/{id}"))), None);
+    assert_eq!(code, 200, "{body}");
+    json(&body)
+}
+
+/// Reads the job's Server-Sent Events until the stream ends; returns every event's JSON.
+fn follow(s: &Server, id: &str) -> Vec<Value> {
+    let res = agent()
+        .get(&s.url(&format!("/jobs/{id}/events")))
+        .call()
+        .unwrap();
+    assert!(res.content_type().starts_with("text/event-stream"));
+    BufReader::new(res.into_reader())
+        .lines()
+        .map(|l| l.unwrap())
+        .filter_map(|l| l.strip_prefix("data:").map(|d| json(d.trim())))
+        .collect()
+}
+
+/// Polls until `pred` holds for the job, or panics after 60 s.
+fn wait_for(s: &Server, id: &str, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+    let start = Instant::now();
+    loop {
+        let v = job(s, id);
+        if pred(&v) {
+            return v;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "never {what}: {v}\n{}",
+            s.log()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn output_bytes(s: &Server, id: &str) -> Vec<u8> {
+    let res = agent()
+        .get(&s.url(&format!("/jobs/{id}/output")))
+        .call()
+        .unwrap();
+    let mut bytes = Vec::new();
+    res.into_reader().read_to_end(&mut bytes).unwrap();
+    bytes
+}
+
+fn isostream(args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap()
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn a_job_is_submitted_followed_and_its_mesh_fetched() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &[]);
+
+    let (code, body) = send(agent().get(&s.url("/healthz")), None);
+    assert_eq!((code, json(&body)["status"].as_str()), (200, Some("ok")));
+
+    let id = submit(&s, SPHERE);
+    let events = follow(&s, &id);
+    let last = events.last().expect("at least one event");
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+    assert!(events.iter().any(|e| e["state"] == "running"), "{events:?}");
+
+    let v = job(&s, &id);
+    assert_eq!(v["state"], "done");
+    assert!(v["summary"]["faces_written"].as_u64().unwrap() > 0, "{v}");
+    assert_eq!(v["output"], "sphere.smb".replace("sphere", "output"));
+    assert_eq!(
+        v["output_url"].as_str().unwrap(),
+        format!("/jobs/{id}/output")
+    );
+
+    let mesh = output_bytes(&s, &id);
+    assert_eq!(&mesh[..4], &[0, 0, 0, 0], "SMB version-0 magic");
+    let file = dir.path().join("fetched.smb");
+    std::fs::write(&file, &mesh).unwrap();
+    let check = isostream(&["check", &file.to_string_lossy()]);
+    assert!(
+        check.status.success(),
+        "{}",
+        String::from_utf8_lossy(&check.stderr)
+    );
+    assert_eq!(
+        std::fs::read(state.join("jobs").join(&id).join("output.smb")).unwrap(),
+        mesh
+    );
+
+    let (code, body) = send(agent().get(&s.url("/jobs")), None);
+    assert_eq!(code, 200);
+    assert_eq!(json(&body)["jobs"][0]["id"], id.as_str());
+
+    let (code, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert_eq!(code, 200);
+    for needle in [
+        "isostream_jobs{state=\"done\"} 1",
+        "isostream_faces_in_total",
+        "isostream_stage_busy_seconds_total{stage=\"simplify\"}",
+        "isostream_peak_rss_bytes",
+        "isostream_resident_faces",
+    ] {
+        assert!(metrics.contains(needle), "{needle} missing:\n{metrics}");
+    }
+
+    let (code, page) = send(agent().get(&s.url("/")), None);
+    assert_eq!(code, 200);
+    assert!(page.contains("<html") && page.contains("/events"), "{page}");
+}
+
+#[test]
+fn bad_jobs_and_foreign_inputs_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    std::fs::write(dir.path().join("secret.raw"), [0u8; 8]).unwrap();
+    let s = Server::start(
+        &dir.path().join("state"),
+        &["--allow-input", data.to_str().unwrap()],
+    );
+
+    // The same one-line error as `isostream validate`, which names the file it read.
+    let bad = SPHERE.replace("iso = 0.0", "iso = 0.0\nisovalue = 2");
+    let (code, body) = send(agent().post(&s.url("/jobs")), Some(&bad));
+    assert_eq!(code, 400, "{body}");
+    let reason = json(&body)["error"].as_str().unwrap().to_string();
+    assert!(reason.contains("isovalue"), "{reason}");
+    let job_file = dir.path().join("job.toml");
+    std::fs::write(&job_file, &bad).unwrap();
+    let validate = isostream(&["validate", &job_file.to_string_lossy()]);
+    let line = String::from_utf8_lossy(&validate.stderr).trim().to_string();
+    let prefix = format!("error: {}/", dir.path().display());
+    assert_eq!(line.strip_prefix(&prefix), Some(reason.as_str()));
+
+    let (code, body) = send(
+        agent().post(&s.url("/jobs")),
+        Some(&SPHERE.replace("0.0", "\"high\"")),
+    );
+    assert_eq!(code, 400, "{body}");
+    // A wrong type is reported with the line of the job, as `isostream validate` does.
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .starts_with("job.toml:6:"),
+        "{body}"
+    );
+
+    let raw = |path: &str| {
+        format!(
+            "[input]\npath = \"{path}\"\ndims = [2, 2, 2]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"x.smb\"\n"
+        )
+    };
+    for path in [
+        format!("{}/../secret.raw", data.display()),
+        dir.path().join("secret.raw").display().to_string(),
+        "/etc/passwd".to_string(),
+    ] {
+        let (code, body) = send(agent().post(&s.url("/jobs")), Some(&raw(&path)));
+        assert_eq!(code, 403, "{path}: {body}");
+        assert!(
+            json(&body)["error"]
+                .as_str()
+                .unwrap()
+                .contains("input.path"),
+            "{body}"
+        );
+    }
+
+    // One byte over the limit: the server reads it all before refusing, so the client is never
+    // cut off mid-write (a much larger body can end in a broken pipe instead of the 413).
+    let too_big = "#".repeat((1 << 20) + 1);
+    let (code, body) = send(agent().post(&s.url("/jobs")), Some(&too_big));
+    assert_eq!(code, 413, "{body}");
+    let (code, _) = send(
+        agent().get(&s.url("/jobs/0123456789abcdef0123456789abcdef")),
+        None,
+    );
+    assert_eq!(code, 404);
+
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert!(
+        metrics.contains("isostream_errors_total{kind=\"forbidden_input\"} 3"),
+        "{metrics}"
+    );
+    assert!(
+        metrics.contains("isostream_errors_total{kind=\"bad_job\"} 2"),
+        "{metrics}"
+    );
+    // Nothing was queued.
+    assert_eq!(
+        files_in(&dir.path().join("state/jobs")),
+        Vec::<String>::new()
+    );
+}
+
+#[test]
+fn jobs_are_cancelled_queued_or_running() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &[]);
+    let first = submit(&s, &long_job("a.smb"));
+    let second = submit(&s, &long_job("b.ply"));
+    wait_for(&s, &first, "running", |v| v["state"] == "running");
+    assert_eq!(
+        job(&s, &second)["state"],
+        "queued",
+        "one job at a time by default"
+    );
+
+    let (code, body) = send(agent().delete(&s.url(&format!("/jobs/{second}"))), None);
+    assert_eq!(
+        (code, json(&body)["state"].as_str()),
+        (200, Some("cancelled"))
+    );
+
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
+    assert_eq!(code, 202);
+    let last = follow(&s, &first).pop().unwrap();
+    assert_eq!(last["state"], "cancelled", "{last}");
+    let (code, body) = send(agent().get(&s.url(&format!("/jobs/{first}/output"))), None);
+    assert_eq!(code, 409, "{body}");
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
+    assert_eq!(code, 409);
+    // Nothing half-written kept.
+    assert_eq!(
+        files_in(&state.join("jobs").join(&first)),
+        ["job.toml", "state.json"]
+    );
+}
+
+#[test]
+fn at_most_max_parallel_jobs_run_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("state"), &["--max-parallel-jobs", "2"]);
+    let ids: Vec<String> = (0..3)
+        .map(|i| submit(&s, &long_job(&format!("{i}.smb"))))
+        .collect();
+    wait_for(&s, &ids[1], "running", |v| v["state"] == "running");
+    assert_eq!(job(&s, &ids[0])["state"], "running");
+    assert_eq!(job(&s, &ids[2])["state"], "queued");
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert!(
+        metrics.contains("isostream_jobs{state=\"running\"} 2"),
+        "{metrics}"
+    );
+}
+
+#[test]
+fn an_open_address_without_token_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = Command::new(BIN)
+        .args(["serve", "--listen", "0.0.0.0:0", "--state"])
+        .arg(dir.path().join("state"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("0.0.0.0") && lines[0].contains("--token"),
+        "{err}"
+    );
+}
+
+#[test]
+fn with_a_token_every_request_needs_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let token_file = dir.path().join("token");
+    std::fs::write(&token_file, "s3cret-token\n").unwrap();
+    let s = Server::start(
+        &dir.path().join("state"),
+        &["--token-file", token_file.to_str().unwrap()],
+    );
+    for path in ["/jobs", "/healthz", "/metrics"] {
+        let (code, body) = send(agent().get(&s.url(path)), None);
+        assert_eq!(code, 401, "{path}: {body}");
+        assert!(json(&body)["error"].as_str().unwrap().contains("Bearer"));
+        let (code, _) = send(
+            agent()
+                .get(&s.url(path))
+                .set("Authorization", "Bearer wrong-token!"),
+            None,
+        );
+        assert_eq!(code, 401, "{path}");
+    }
+    let (code, _) = send(agent().post(&s.url("/jobs")), Some(SPHERE));
+    assert_eq!(code, 401);
+    let (code, body) = send(
+        agent()
+            .get(&s.url("/jobs"))
+            .set("Authorization", "Bearer s3cret-token"),
+        None,
+    );
+    assert_eq!(code, 200, "{body}");
+    // The status page itself holds no data; its script sends the token.
+    let (code, _) = send(agent().get(&s.url("/")), None);
+    assert_eq!(code, 200);
+}
+
+#[cfg(unix)]
+#[test]
+fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mut s = Server::start(&state, &[]);
+    let id = submit(&s, &long_job("g.smb"));
+    wait_for(&s, &id, "running", |v| v["state"] == "running");
+    let term = Command::new("kill")
+        .args(["-TERM", &s.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    let status = s.child.wait().unwrap();
+    assert!(status.success(), "{status:?}\n{}", s.log());
+    let job_dir = state.join("jobs").join(&id);
+    assert_eq!(
+        files_in(&job_dir),
+        ["job.toml", "state.json"],
+        "no partial output"
+    );
+    let stored = json(&std::fs::read_to_string(job_dir.join("state.json")).unwrap());
+    assert_eq!(stored["state"], "queued", "{stored}");
+
+    let s = Server::start(&state, &[]);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+}
+
+#[test]
+fn a_job_killed_with_the_service_restarts_and_gives_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let job_text = long_job("gyroid.smb");
+    let id = {
+        let s = Server::start(&state, &[]);
+        let queued = submit(&s, SPHERE);
+        let id = submit(&s, &job_text);
+        wait_for(&s, &queued, "done", |v| v["state"] == "done");
+        wait_for(&s, &id, "half-way", |v| {
+            v["state"] == "running" && v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 20
+        });
+        let third = submit(&s, SPHERE);
+        // Drop sends SIGKILL: no chance to clean up.
+        drop(s);
+        std::fs::write(dir.path().join("third"), third).unwrap();
+        id
+    };
+    let third = std::fs::read_to_string(dir.path().join("third")).unwrap();
+    let stored = std::fs::read_to_string(state.join("jobs").join(&id).join("state.json")).unwrap();
+    assert_eq!(json(&stored)["state"], "running");
+
+    let s = Server::start(&state, &[]);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+    assert_eq!(last["attempts"], 2);
+    wait_for(&s, &third, "done after a restart", |v| v["state"] == "done");
+    let served = output_bytes(&s, &id);
+
+    // The same job run directly.
+    let job_file = dir.path().join("direct.toml");
+    std::fs::write(&job_file, &job_text).unwrap();
+    let run = isostream(&["run", "--quiet", &job_file.to_string_lossy()]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let direct = std::fs::read(dir.path().join("gyroid.smb")).unwrap();
+    assert!(
+        served == direct,
+        "{} vs {} bytes",
+        served.len(),
+        direct.len()
+    );
+}
