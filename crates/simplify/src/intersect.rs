@@ -21,8 +21,8 @@
 //!   scans the level's record list instead of its cells.
 //! * **Emitted triangles** stay as obstacles ("ghosts") after they leave the store, since a
 //!   contraction just ahead of the retirement front could otherwise cross them. The oldest ghosts
-//!   are dropped once they outnumber the resident triangles (emission follows the sweep, so the
-//!   oldest are the farthest behind): memory stays proportional to the band.
+//!   are dropped once they outnumber a quarter of the resident triangles (emission follows the
+//!   sweep, so the oldest are the farthest behind): memory stays proportional to the band.
 //! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict `f64` orientation signs:
 //!   triangles with no common vertex cross when an edge of one crosses the other; with one common
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
@@ -38,12 +38,17 @@ use smallvec::SmallVec;
 use crate::store::{Store, TriId};
 
 /// Cell edge in mean triangle edge lengths.
-const CELL_EDGES: f64 = 3.0;
+const CELL_EDGES: f64 = 6.0;
 /// Triangles averaged for the cell size.
 const SAMPLE: usize = 1024;
 /// Cell sizes `cell * 2^L` for `L < LEVELS`: 2^23 level-0 cells covers any volume.
 const LEVELS: usize = 24;
 const NONE: u32 = u32::MAX;
+/// Emitted triangles kept as obstacles: at most one per `GHOST_SHARE` resident ones (and
+/// `SAMPLE`). Retirement leaves in runs of the oldest, so the latest ghosts are the ones on the
+/// retirement border; with the simplified surface resident (rate mode) more would cost memory
+/// per resident face for triangles far behind.
+const GHOST_SHARE: usize = 4;
 /// `Filed::level` of a record in no cell.
 const UNFILED: u8 = u8::MAX;
 
@@ -121,7 +126,7 @@ const NOT_FILED: Filed = Filed {
 pub(crate) struct TriIndex {
     /// Level-0 cell edge; 0 until fixed.
     cell: f64,
-    cells: FxHashMap<(u8, Cell), SmallVec<[Entry; 2]>>,
+    cells: FxHashMap<(u8, Cell), Vec<Entry>>,
     recs: Vec<Rec>,
     boxes: Vec<Aabb>,
     filed: Vec<Filed>,
@@ -164,7 +169,7 @@ impl TriIndex {
         if let Some(r) = self.take(t) {
             self.ghosts.push_back(r);
         }
-        while self.ghosts.len() > self.live.max(SAMPLE) {
+        while self.ghosts.len() > (self.live / GHOST_SHARE).max(SAMPLE) {
             if let Some(r) = self.ghosts.pop_front() {
                 self.drop_rec(r);
             }
