@@ -45,6 +45,8 @@ pub struct RunSummary {
     pub mode: Mode,
     pub output: PathBuf,
     pub faces_extracted: u64,
+    /// Mode `rate`: `round(rate x faces_extracted)`.
+    pub target_faces: Option<u64>,
     pub faces_written: u64,
     pub vertices_written: u64,
     pub seconds: f64,
@@ -58,6 +60,8 @@ pub struct RunSummary {
     pub detect: isostream_detect::DetectStats,
     pub simplify: isostream_simplify::SimplifyStats,
     pub sink: SinkStats,
+    /// What the user should know about the result (also logged as warnings).
+    pub warnings: Vec<String>,
 }
 
 /// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
@@ -127,6 +131,15 @@ pub fn run(
     .run()?;
 
     let sink_stats = outputs.sink;
+    let target_faces = (job.simplify.mode == Mode::Rate)
+        .then(|| (job.simplify.rate * outputs.extract.triangles as f64).round() as u64);
+    let warnings: Vec<String> = target_faces
+        .and_then(|target| rate_missed(target, sink_stats.triangles, &outputs.simplify))
+        .into_iter()
+        .collect();
+    for w in &warnings {
+        warn!("{w}");
+    }
     let summary = RunSummary {
         input,
         dims: grid.dims,
@@ -135,6 +148,7 @@ pub fn run(
         mode: job.simplify.mode,
         output: job.output.path.clone(),
         faces_extracted: outputs.extract.triangles,
+        target_faces,
         faces_written: sink_stats.triangles,
         vertices_written: sink_stats.vertices,
         seconds: started.elapsed().as_secs_f64(),
@@ -146,6 +160,7 @@ pub fn run(
         detect: outputs.detect,
         simplify: outputs.simplify,
         sink: sink_stats,
+        warnings,
     };
     if job.output.summary {
         write_summary(&summary, &summary_path(&job.output.path))?;
@@ -179,6 +194,27 @@ fn simplifier_config(job: &JobConfig) -> SimplifierConfig {
         max_resident_faces: job.max_resident_faces(),
         attributes: job.attributes.len(),
     }
+}
+
+/// The rate target missed by more than 2 %: say by how much and why. Every contraction keeps the
+/// topology (the link condition keeps each closed component at least a tetrahedron, and boundary
+/// vertices stay where they are), so a surface of many small components or a long boundary (a
+/// volume cut by its box) cannot go below a floor; the final pass stops there. The floor is what
+/// was written: the last pass tried every edge again.
+fn rate_missed(
+    target: u64,
+    written: u64,
+    stats: &isostream_simplify::SimplifyStats,
+) -> Option<String> {
+    (written as f64 > 1.02 * target as f64).then(|| {
+        format!(
+            "rate target missed: {written} faces written for a target of {target} (+{:.0} %);              the topology allows no fewer here: the remaining edges were refused by the link              condition ({} times: closed components stay at least tetrahedra, boundaries stay in              place), by flips ({}) and by the self-intersection guard ({})",
+            100.0 * (written as f64 / target.max(1) as f64 - 1.0),
+            stats.rejected_link,
+            stats.rejected_flip,
+            stats.rejected_intersection,
+        )
+    })
 }
 
 /// `out/x.smb` -> `out/x.smb.run.json`.

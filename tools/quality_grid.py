@@ -1,0 +1,131 @@
+#!/usr/bin/env python3
+"""Streaming against in-core quality at low rates, and Hou and Chen's Fig. 7 (RMS and time against B).
+
+    cargo build --release
+    python3 tools/quality_grid.py rates  --volumes engine,bonsai,aneurism,mni152,stent --rates 0.05,0.01,0.001
+    python3 tools/quality_grid.py fig7   --volumes engine --rates 0.1,0.01 --batches 2000,5000,10000,20000,50000,200000
+
+`rates`: for each volume and rate, one run with the defaults (a user who only writes `rate`) and one
+in core (`batch` larger than the surface and a memory budget that holds it: the whole surface
+resident and decimated at the end), each measured with `isostream measure --volume` (RMS and
+Hausdorff distance to the full-resolution surface in % of the bounding-box diagonal, both
+directions). Prints a markdown table with the ratios streaming / in-core and the face-target miss.
+`fig7`: RMS and seconds against B at fixed rates, with the in-core line; writes a PNG plot when
+matplotlib is importable (`--plot docs/fig7.png`).
+Needs only the release binary (`--bin`, default target/release/isostream) and ../shared/data.
+"""
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = (ROOT / ".." / "shared" / "data").resolve()
+VOLUMES = {
+    "engine": ('path = "{d}/engine/engine_256x256x128_uint8.raw"\ndims = [256, 256, 128]\ndtype = "u8"', 70.0),
+    "bonsai": ('path = "{d}/bonsai/bonsai.vti"', 40.0),
+    "aneurism": ('path = "{d}/aneurism/aneurism.vti"', 110.0),
+    "mni152": ('path = "{d}/mni152/mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz"', 89.0),
+    "stent": ('path = "{d}/stent/stent_128x128x256_int16.raw"\ndims = [128, 128, 256]\ndtype = "i16"', 180.0),
+}
+
+
+def run(binary, work, volume, rate, simplify_extra="", pipeline_extra=""):
+    inp, iso = VOLUMES[volume]
+    tag = f"{volume}_{rate}_{abs(hash(simplify_extra + pipeline_extra)) % 10**8}"
+    job, out = work / f"{tag}.toml", work / f"{tag}.smb"
+    job.write_text(
+        f"[input]\n{inp.format(d=DATA)}\n[extract]\niso = {iso}\n[simplify]\nmode = \"rate\"\nrate = {rate}\n"
+        f"{simplify_extra}\n[output]\npath = \"{out}\"\n[pipeline]\n{pipeline_extra}\n[log]\nlevel = \"warn\"\n")
+    t = time.time()
+    subprocess.run([binary, "run", str(job)], check=True, capture_output=True)
+    seconds = time.time() - t
+    summary = json.loads((work / f"{tag}.smb.run.json").read_text())
+    m = subprocess.run([binary, "measure", "--volume", str(job), str(out), "--json"], check=True,
+                       capture_output=True, text=True)
+    d = json.loads(m.stdout)
+    q = d["quality"]
+    return dict(volume=volume, rate=rate, faces_in=summary["faces_extracted"], faces=summary["faces_written"],
+                target=round(summary["faces_extracted"] * rate), seconds=seconds,
+                rss_mib=(summary.get("peak_rss_bytes") or 0) / 2**20,
+                rms=d["distances"]["rms_pct"], haus=d["distances"]["hausdorff_pct"],
+                valid=q["edge_manifold"] and q["vertex_manifold"] and q["oriented"],
+                warnings=summary.get("warnings", []))
+
+
+IN_CORE = ("batch = 1000000000", "memory_budget_mib = 16384")
+
+
+def rates(args, work):
+    rows = []
+    print("| volume | R | target | faces (stream / in core) | RMS % stream / in core (ratio) | Hausdorff % stream / in core (ratio) | s stream / in core | peak RSS MiB stream / in core |")
+    print("|---|---|---|---|---|---|---|---|")
+    for v in args.volumes.split(","):
+        for r in [float(x) for x in args.rates.split(",")]:
+            s = run(args.bin, work, v, r)
+            c = run(args.bin, work, v, r, *IN_CORE)
+            rows.append(dict(stream=s, in_core=c))
+            print(f"| {v} | {r} | {s['target']} | {s['faces']} / {c['faces']} | {s['rms']:.4f} / {c['rms']:.4f} ({s['rms'] / c['rms']:.2f}) "
+                  f"| {s['haus']:.3f} / {c['haus']:.3f} ({s['haus'] / c['haus']:.2f}) | {s['seconds']:.1f} / {c['seconds']:.1f} "
+                  f"| {s['rss_mib']:.0f} / {c['rss_mib']:.0f} |", flush=True)
+    return rows
+
+
+def fig7(args, work):
+    rows = []
+    for v in args.volumes.split(","):
+        for r in [float(x) for x in args.rates.split(",")]:
+            c = run(args.bin, work, v, r, *IN_CORE)
+            print(f"{v} R={r} in core: RMS {c['rms']:.4f} % in {c['seconds']:.1f} s", flush=True)
+            for b in [int(x) for x in args.batches.split(",")]:
+                s = run(args.bin, work, v, r, f"batch = {b}")
+                s["batch"] = b
+                rows.append(dict(stream=s, in_core=c))
+                print(f"{v} R={r} B={b}: RMS {s['rms']:.4f} % ({s['rms'] / c['rms']:.2f}x in core), {s['faces']} faces, "
+                      f"{s['seconds']:.1f} s, {s['rss_mib']:.0f} MiB", flush=True)
+    if args.plot:
+        try:
+            import matplotlib
+            matplotlib.use("Agg")
+            import matplotlib.pyplot as plt
+        except ImportError:
+            print("matplotlib not importable: no plot", file=sys.stderr)
+            return rows
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+        keys = sorted({(x["stream"]["volume"], x["stream"]["rate"]) for x in rows})
+        for k in keys:
+            pts = [x for x in rows if (x["stream"]["volume"], x["stream"]["rate"]) == k]
+            b = [x["stream"]["batch"] for x in pts]
+            line, = a1.plot(b, [x["stream"]["rms"] for x in pts], "o-", label=f"{k[0]} R={k[1]}")
+            a1.axhline(pts[0]["in_core"]["rms"], color=line.get_color(), ls="--")
+            a2.plot(b, [x["stream"]["seconds"] for x in pts], "o-", color=line.get_color())
+            a2.axhline(pts[0]["in_core"]["seconds"], color=line.get_color(), ls="--")
+        for a, y in ((a1, "RMS distance, % of diagonal"), (a2, "seconds (whole process)")):
+            a.set_xscale("log"); a.set_xlabel("batch B (faces)"); a.set_ylabel(y)
+        a1.legend(); a1.set_title("dashed: in core")
+        fig.tight_layout(); fig.savefig(args.plot, dpi=100)
+    return rows
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("what", choices=["rates", "fig7"])
+    p.add_argument("--bin", default=str(ROOT / "target" / "release" / "isostream"))
+    p.add_argument("--volumes", default="engine,bonsai,aneurism,mni152,stent")
+    p.add_argument("--rates", default="0.05,0.01,0.001")
+    p.add_argument("--batches", default="2000,5000,10000,20000,50000,200000")
+    p.add_argument("--work", default="/tmp/isostream-quality")
+    p.add_argument("--json", help="write the raw rows here")
+    p.add_argument("--plot", help="fig7: write a PNG here")
+    args = p.parse_args()
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    rows = rates(args, work) if args.what == "rates" else fig7(args, work)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
