@@ -21,6 +21,10 @@ pub enum Command {
         /// No progress bar even on a terminal.
         #[arg(long)]
         quiet: bool,
+        /// Remove temporary files an interrupted run of the same output left next to it
+        /// (`.NAME.XXXXXX.tmp`); without it they are only reported.
+        #[arg(long)]
+        clean_stale: bool,
     },
     /// Check a job file (keys, values, input file, output folder) without running it.
     Validate { job: PathBuf },
@@ -51,7 +55,11 @@ pub enum Command {
 impl Command {
     pub fn execute(self) -> anyhow::Result<()> {
         match self {
-            Command::Run { job, quiet } => crate::run_cmd::run(&job, quiet),
+            Command::Run {
+                job,
+                quiet,
+                clean_stale,
+            } => crate::run_cmd::run(&job, quiet, clean_stale),
             Command::Validate { job } => crate::run_cmd::validate(&job),
             Command::Convert { input, output } => crate::run_cmd::convert(&input, &output),
             Command::Check { mesh } => crate::run_cmd::check(&mesh),

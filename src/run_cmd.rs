@@ -28,16 +28,22 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(job_path: &Path, quiet: bool) -> anyhow::Result<()> {
+pub fn run(job_path: &Path, quiet: bool, clean_stale: bool) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
     crate::logging::init(&job.log);
 
+    // Ctrl-C, SIGTERM and SIGHUP (ctrlc's `termination` feature) all stop the run the same way:
+    // every stage stops, the temporary file is removed, exit code 130.
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let cancel = Arc::clone(&cancel);
         ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
+            .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
     }
+    // Held until the run ends: a second job on the same output is refused, and temporary files
+    // of this output found now cannot belong to a live run.
+    let _lock = isostream_pipeline::lock_output(&job.output.path)?;
+    stale_files(&job.output.path, clean_stale)?;
     let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
         let bar = ProgressBar::new(0);
         bar.set_style(
@@ -66,6 +72,35 @@ pub fn run(job_path: &Path, quiet: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Reports (or with `--clean-stale` removes) what interrupted runs of this output left behind.
+fn stale_files(output: &Path, clean: bool) -> anyhow::Result<()> {
+    let stale = isostream_pipeline::stale_temp_files(output);
+    if stale.is_empty() {
+        return Ok(());
+    }
+    let names: Vec<String> = stale.iter().map(|p| p.display().to_string()).collect();
+    if clean {
+        for p in &stale {
+            std::fs::remove_file(p)
+                .with_context(|| format!("{}: cannot remove stale temporary file", p.display()))?;
+        }
+        tracing::info!(files = %names.join(", "), "removed stale temporary files");
+    } else {
+        tracing::warn!(
+            "{} stale temporary file(s) of {} left by an interrupted run: {}; `isostream run --clean-stale` removes them",
+            stale.len(),
+            output.display(),
+            names.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// The output path as the user would type it: absolute, without `.` or `..` components.
+fn normalised(path: &Path) -> std::path::PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
 fn report(s: &RunSummary) {
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
     tracing::info!(
@@ -84,7 +119,7 @@ fn report(s: &RunSummary) {
     );
     println!(
         "{}: {} -> {} faces in {:.2} s, peak RSS {:.1} MiB",
-        s.output.display(),
+        normalised(&s.output).display(),
         s.faces_extracted,
         s.faces_written,
         s.seconds,

@@ -117,6 +117,25 @@ pub enum SmeshError {
     Foreign { path: PathBuf, message: String },
 }
 
+/// A full disk or a file-size limit gets the fix in its message (and loses the temporary file's
+/// name that `tempfile` appends: that file is removed by the time anyone reads the message).
+fn with_fix(e: io::Error) -> io::Error {
+    match e.kind() {
+        io::ErrorKind::StorageFull | io::ErrorKind::FileTooLarge | io::ErrorKind::QuotaExceeded => {
+            let base = match e.kind() {
+                io::ErrorKind::StorageFull => "No space left on device",
+                io::ErrorKind::FileTooLarge => "File too large",
+                _ => "Disk quota exceeded",
+            };
+            io::Error::new(
+                e.kind(),
+                format!("{base}; free space on that disk or choose another output folder"),
+            )
+        }
+        _ => e,
+    }
+}
+
 /// `Place` without its leading " at"/" on" for the syntax message, which reads "line 7: ...".
 struct DisplayPlace(Place);
 
@@ -135,7 +154,7 @@ impl SmeshError {
         SmeshError::Io {
             path: path.to_path_buf(),
             what: what.into(),
-            source,
+            source: with_fix(source),
         }
     }
 
