@@ -43,6 +43,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 RunError::Cancelled => 130,
                 RunError::Config(_)
                 | RunError::Volume(_)
+                | RunError::EmptySurface { .. }
                 | RunError::ClassicalOverBudget { .. } => 2,
                 _ => 1,
             };

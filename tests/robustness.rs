@@ -212,3 +212,176 @@ fn second_job_on_the_same_output_is_refused() {
     left.sort();
     assert_eq!(left, ["m.smb", "m.smb.run.json"], "no lock file left");
 }
+
+/// A raw u8 volume `values` (4x4x4) and a job on it with `iso` and extra `[output]` lines.
+fn raw_u8_job(dir: &Path, values: &[u8], iso: f64, output_extra: &str) -> String {
+    std::fs::write(dir.join("v.raw"), values).unwrap();
+    write_job(
+        dir,
+        &format!(
+            "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = {iso}\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n{output_extra}"
+        ),
+    )
+}
+
+/// An iso outside the data range gives an empty surface: an error (exit 2) naming the range and
+/// the iso, unless `[output] allow_empty = true`.
+#[test]
+fn empty_surface_is_an_error_unless_allowed() {
+    let dir = tempfile::tempdir().unwrap();
+    let values: Vec<u8> = (0..64).collect();
+    let job = raw_u8_job(dir.path(), &values, 100.0, "");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert_one_line_error(
+        &o,
+        2,
+        &["v.raw", "extract.iso = 100", "[0, 63]", "allow_empty"],
+    );
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+
+    let job = raw_u8_job(dir.path(), &values, 100.0, "allow_empty = true\n");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("o.smb").exists());
+}
+
+/// An all-NaN volume: the error says no voxel was finite.
+#[test]
+fn all_nan_volume_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let nan: Vec<u8> = std::iter::repeat_n(f32::NAN.to_le_bytes(), 64)
+        .flatten()
+        .collect();
+    std::fs::write(dir.path().join("v.raw"), nan).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"f32\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert_one_line_error(&o, 2, &["no finite voxel", "all 64", "extract.iso = 0.5"]);
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+}
+
+/// An NRRD whose `sizes` describe less data than its file holds is refused like a raw file,
+/// naming both sizes.
+#[test]
+fn nrrd_with_more_data_than_sizes_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut bytes =
+        b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n".to_vec();
+    let header = bytes.len();
+    bytes.extend(0..12u8);
+    std::fs::write(dir.path().join("v.nrrd"), &bytes).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.nrrd\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = bin().args([cmd, &job]).output().unwrap();
+        let actual = format!("is {} bytes", header + 12);
+        let expected = format!("need {}", header + 8);
+        assert_one_line_error(&o, 2, &["v.nrrd", &actual, &expected, "sizes"]);
+    }
+    assert!(leftovers(dir.path(), &["v.nrrd"]).is_empty());
+}
+
+/// A 56-byte .nii.gz claiming 30000^3 voxels: refused in milliseconds, under a 1 GiB
+/// address-space limit (it used to allocate 1.7 GB before reading the data).
+#[cfg(target_os = "linux")]
+#[test]
+fn hostile_header_is_refused_without_allocating_its_claim() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let src = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/bad/huge_claim.nii.gz"
+    );
+    std::fs::copy(src, dir.path().join("v.nii.gz")).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.nii.gz\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let mut c = bin();
+        c.args([cmd, &job]);
+        // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child, where only
+        // async-signal-safe calls are allowed; setrlimit is. 1 GiB of address space: far less
+        // than the header claims (27 TB), far more than the binary needs.
+        #[allow(unsafe_code)]
+        unsafe {
+            c.pre_exec(|| {
+                let lim = libc::rlimit {
+                    rlim_cur: 1 << 30,
+                    rlim_max: 1 << 30,
+                };
+                if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let o = wait_at_most(c.spawn().unwrap(), 30);
+        assert_one_line_error(&o, 2, &["v.nii.gz", "slice 0", "end of data"]);
+    }
+    assert!(leftovers(dir.path(), &["v.nii.gz"]).is_empty());
+}
+
+/// A raw input truncated while the run reads it (memory-mapped): an error, not SIGBUS.
+#[cfg(unix)]
+#[test]
+fn raw_input_truncated_mid_run_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [128u64, 128, 256];
+    let n = (dims[0] * dims[1] * dims[2]) as usize;
+    // Noise: a huge surface, so the run lasts long enough to truncate the file under it.
+    let mut rng = common::Rng(5);
+    let bytes: Vec<u8> = (0..n).map(|_| (rng.next_u64() >> 56) as u8).collect();
+    let raw = dir.path().join("v.raw");
+    std::fs::write(&raw, &bytes).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.raw\"\ndims = [128, 128, 256]\ndtype = \"u8\"\n[extract]\niso = 127.5\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n[pipeline]\nchannel_capacity = 1\n",
+    );
+    let child = bin().args(["run", &job]).spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !leftovers(dir.path(), &["v.raw"])
+        .iter()
+        .any(|n| n.ends_with(".tmp"))
+    {
+        assert!(Instant::now() < deadline, "no temporary output appeared");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&raw)
+        .unwrap()
+        .set_len(n as u64 / 2)
+        .unwrap();
+    let o = wait_at_most(child, 60);
+    assert_one_line_error(&o, 2, &["v.raw", "truncated while being read"]);
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+}
+
+/// A FIFO as input is refused at once by validate and run, instead of blocking on open.
+#[cfg(unix)]
+#[test]
+fn fifo_input_is_refused_not_waited_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("v.raw");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = wait_at_most(bin().args([cmd, &job]).spawn().unwrap(), 20);
+        assert_one_line_error(&o, 2, &["v.raw", "FIFO", "regular file"]);
+    }
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+}

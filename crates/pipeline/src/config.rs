@@ -187,6 +187,10 @@ pub struct OutputConfig {
     /// Also write a JSON run summary next to the output (`<path>.run.json`).
     #[serde(default = "yes")]
     pub summary: bool,
+    /// Accept a surface without any triangle (iso outside the data range, all-NaN volume);
+    /// by default that is an error naming the data range, and nothing is written.
+    #[serde(default)]
+    pub allow_empty: bool,
 }
 
 fn yes() -> bool {

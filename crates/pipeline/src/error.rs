@@ -48,6 +48,14 @@ pub enum RunError {
         lock: PathBuf,
         reason: String,
     },
+    #[error(
+        "{input}: the surface at extract.iso = {iso} is empty: {range}; set extract.iso inside the data range, or [output] allow_empty = true to accept an empty mesh (no output written)"
+    )]
+    EmptySurface {
+        input: String,
+        iso: f32,
+        range: String,
+    },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]

@@ -122,6 +122,7 @@ pub fn run(
         sink,
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
+        allow_empty: job.output.allow_empty,
         cancel,
         observer,
     }

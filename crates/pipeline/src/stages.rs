@@ -52,6 +52,44 @@ pub(crate) struct Control<'a> {
     cancel: &'a AtomicBool,
     abort: AtomicBool,
     first: Mutex<Option<RunError>>,
+    /// Values the reader saw, for the empty-surface error.
+    range: Mutex<DataRange>,
+}
+
+/// Smallest and largest finite value read, and how many voxels were NaN or infinite.
+#[derive(Debug, Clone, Copy)]
+struct DataRange {
+    min: f32,
+    max: f32,
+    non_finite: u64,
+}
+
+impl DataRange {
+    fn add(&mut self, values: &[f32]) {
+        for &v in values {
+            if v.is_finite() {
+                self.min = self.min.min(v);
+                self.max = self.max.max(v);
+            } else {
+                self.non_finite += 1;
+            }
+        }
+    }
+
+    /// "[0, 255] (12 NaN or infinite voxels)", or what to say when no voxel was finite.
+    fn describe(&self) -> String {
+        if self.min > self.max {
+            return format!(
+                "the volume has no finite voxel (all {} are NaN or infinite)",
+                self.non_finite
+            );
+        }
+        let mut s = format!("the data range is [{}, {}]", self.min, self.max);
+        if self.non_finite > 0 {
+            s.push_str(&format!(" ({} NaN or infinite voxels)", self.non_finite));
+        }
+        s
+    }
 }
 
 impl<'a> Control<'a> {
@@ -60,6 +98,11 @@ impl<'a> Control<'a> {
             cancel,
             abort: AtomicBool::new(false),
             first: Mutex::new(None),
+            range: Mutex::new(DataRange {
+                min: f32::INFINITY,
+                max: f32::NEG_INFINITY,
+                non_finite: 0,
+            }),
         }
     }
 
@@ -181,6 +224,8 @@ pub(crate) struct Stages<'a> {
     pub sink: Sink,
     pub capacity: usize,
     pub batch_triangles: usize,
+    /// Accept a surface without any triangle (`[output] allow_empty`); else it is an error.
+    pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
     pub observer: &'a (dyn Fn(&Progress) + Sync),
 }
@@ -210,10 +255,13 @@ impl Stages<'_> {
             simplifier,
             sink,
             batch_triangles,
+            allow_empty,
             cancel,
             observer,
             ..
         } = self;
+        let input = source.describe();
+        let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
         let ctl = Control::new(cancel);
         let ctl = &ctl;
 
@@ -234,7 +282,7 @@ impl Stages<'_> {
                     simplify_stage(simplifier, grid, delta_rx, out_tx, &depth, observer, ctl)
                 })
             });
-            let writer = s.spawn(move || ctl.stage(|| write_stage(sink, out_rx, ctl)));
+            let writer = s.spawn(move || ctl.stage(|| write_stage(sink, out_rx, empty, ctl)));
 
             // Join every stage. The first failure recorded (in time, whichever stage) is the
             // cause; a panic counts as a failure of its stage.
@@ -327,6 +375,10 @@ fn read_stage(
         let Some(slices) = reader.next_slices()? else {
             break;
         };
+        ctl.range
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .add(&slices.iso);
         busy += t.elapsed();
         send(ctl, &tx, slices)?;
     }
@@ -479,9 +531,17 @@ fn simplify_stage(
     Err(Stop::Disconnected)
 }
 
+/// What the writer needs to refuse an empty surface.
+#[derive(Clone, Copy)]
+struct EmptyCheck<'a> {
+    input: &'a str,
+    iso: f32,
+}
+
 fn write_stage(
     mut sink: Sink,
     rx: Receiver<ToWriter>,
+    empty: Option<EmptyCheck<'_>>,
     ctl: &Control<'_>,
 ) -> StageResult<(f64, crate::sink::SinkStats)> {
     let _span = info_span!("write").entered();
@@ -491,6 +551,17 @@ fn write_stage(
         match msg {
             ToWriter::Batch(batch) => sink.write(&batch)?,
             ToWriter::End => {
+                if let Some(check) = empty
+                    && sink.triangles() == 0
+                {
+                    // The reader has finished: the range covers the whole volume.
+                    let range = *ctl.range.lock().unwrap_or_else(|p| p.into_inner());
+                    return Err(Stop::Failed(RunError::EmptySurface {
+                        input: check.input.to_string(),
+                        iso: check.iso,
+                        range: range.describe(),
+                    }));
+                }
                 let stats = sink.finish()?;
                 busy += t.elapsed();
                 return Ok((busy.as_secs_f64(), stats));
