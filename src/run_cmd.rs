@@ -14,6 +14,10 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     // Opening the source checks the input file (exists, size matches dims and type).
     let source = isostream_pipeline::open_source(&job.input)?;
     let grid = source.grid();
+    // And the attributes: each file exists, opens, and is on the iso volume's grid.
+    if !job.attributes.is_empty() {
+        isostream_pipeline::SliceReader::open(&job)?;
+    }
     println!(
         "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
         job_path.display(),
@@ -127,14 +131,80 @@ fn report(s: &RunSummary) {
     );
 }
 
-pub fn convert(input: &Path, output: &Path) -> anyhow::Result<()> {
+pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
     let stats = isostream_smesh::convert(input, output)?;
-    println!("{} -> {}: {stats:?}", input.display(), output.display());
+    let w = &stats.written;
+    if json {
+        let v = serde_json::json!({
+            "input": input,
+            "output": normalised(output),
+            "input_format": format!("{:?}", stats.input),
+            "output_format": format!("{:?}", stats.output),
+            "vertices": w.vertices,
+            "triangles": w.triangles,
+            "bytes": w.bytes,
+            "max_active_vertices": w.max_active_vertices,
+            "dropped_vertices": stats.dropped_vertices,
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    let mut line = format!(
+        "{} -> {}: {} vertices, {} triangles, {} bytes written",
+        input.display(),
+        normalised(output).display(),
+        w.vertices,
+        w.triangles,
+        w.bytes
+    );
+    if stats.output.is_streaming() {
+        line.push_str(&format!(
+            ", stream width {} vertices",
+            w.max_active_vertices
+        ));
+    }
+    if stats.dropped_vertices > 0 {
+        line.push_str(&format!(
+            "; {} vertices no triangle uses were dropped",
+            stats.dropped_vertices
+        ));
+    }
+    println!("{line}");
     Ok(())
 }
 
-pub fn check(mesh: &Path) -> anyhow::Result<()> {
-    let report = isostream_smesh::validate(mesh)?;
-    println!("{}: valid streaming mesh: {report:?}", mesh.display());
+pub fn check(mesh: &Path, json: bool) -> anyhow::Result<()> {
+    let r = isostream_smesh::validate(mesh)?;
+    if json {
+        let v = serde_json::json!({
+            "path": mesh,
+            "valid": true,
+            "format": format!("{:?}", r.format),
+            "vertices": r.vertices,
+            "triangles": r.triangles,
+            "max_active_vertices": r.max_active_vertices,
+            "max_triangle_skip": r.max_triangle_skip,
+            "attributes": r.header.attribute_names,
+            "comments": r.header.comments,
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    let format = format!("{:?}", r.format).to_uppercase();
+    let mut line = format!(
+        "{}: valid {format} streaming mesh: {} vertices, {} triangles, stream width {} vertices, farthest triangle reach {}",
+        mesh.display(),
+        r.vertices,
+        r.triangles,
+        r.max_active_vertices,
+        r.max_triangle_skip
+    );
+    if !r.header.attribute_names.is_empty() {
+        line.push_str(&format!(
+            ", attributes {}",
+            r.header.attribute_names.join(", ")
+        ));
+    }
+    println!("{line}");
     Ok(())
 }

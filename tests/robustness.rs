@@ -385,3 +385,199 @@ fn fifo_input_is_refused_not_waited_on() {
     }
     assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
 }
+
+fn sphere_job(dir: &Path, output: &str, extra: &str) -> String {
+    write_job(
+        dir,
+        &format!(
+            "[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n[output]\npath = \"{output}\"\n{extra}"
+        ),
+    )
+}
+
+/// `validate` fails when the output cannot be created: its folder is a file, or the path is a
+/// folder; and when an attribute file is missing or on another grid.
+#[test]
+fn validate_catches_bad_outputs_and_attributes() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("plain"), b"x").unwrap();
+    std::fs::create_dir(dir.path().join("folder.smb")).unwrap();
+    let cases: [(&str, &str, &[&str]); 2] = [
+        ("plain/o.smb", "", &["output.path", "plain is a file"]),
+        ("folder.smb", "", &["output.path", "folder.smb is a folder"]),
+    ];
+    for (out, extra, needles) in cases {
+        let job = sphere_job(dir.path(), out, extra);
+        assert_one_line_error(
+            &bin().args(["validate", &job]).output().unwrap(),
+            2,
+            needles,
+        );
+    }
+    // Attributes need a raw iso volume to share a grid with.
+    std::fs::write(dir.path().join("v.raw"), [0u8; 64]).unwrap();
+    std::fs::write(dir.path().join("small.raw"), [0u8; 27]).unwrap();
+    let raw_job = |attr: &str| {
+        write_job(
+            dir.path(),
+            &format!(
+                "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n[[attributes]]\nname = \"a\"\n{attr}"
+            ),
+        )
+    };
+    let job = raw_job("path = \"missing.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n");
+    assert_one_line_error(
+        &bin().args(["validate", &job]).output().unwrap(),
+        2,
+        &["missing.raw", "no such file"],
+    );
+    let job = raw_job("path = \"small.raw\"\ndims = [3, 3, 3]\ndtype = \"u8\"\n");
+    assert_one_line_error(
+        &bin().args(["validate", &job]).output().unwrap(),
+        2,
+        &["small.raw", "same grid"],
+    );
+}
+
+/// A mesh to break: a small sphere run, in SMB and SMA.
+fn meshes(dir: &Path) -> (String, String) {
+    let job = sphere_job(dir, "m.smb", "");
+    assert!(bin().args(["run", &job]).status().unwrap().success());
+    let smb = dir.join("m.smb").to_string_lossy().into_owned();
+    let sma = dir.join("m.sma").to_string_lossy().into_owned();
+    assert!(
+        bin()
+            .args(["convert", &smb, &sma])
+            .status()
+            .unwrap()
+            .success()
+    );
+    (smb, sma)
+}
+
+/// `check` refuses empty and truncated files and non-finite coordinates, with exit code 2.
+#[test]
+fn check_rejects_empty_truncated_and_non_finite_meshes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (smb, sma) = meshes(dir.path());
+    let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    std::fs::write(p("empty.sma"), b"").unwrap();
+    std::fs::write(p("empty.smb"), b"").unwrap();
+    let smb_bytes = std::fs::read(&smb).unwrap();
+    let m = smb_bytes.len();
+    std::fs::write(p("cut.smb"), &smb_bytes[..m - 10]).unwrap();
+    let sma_text = std::fs::read_to_string(&sma).unwrap();
+    std::fs::write(p("cut.sma"), &sma_text[..sma_text.len() / 2]).unwrap();
+    let first_v = sma_text.find("\nv ").unwrap() + 1;
+    let line_end = first_v + sma_text[first_v..].find('\n').unwrap();
+    let nan = format!(
+        "{}v nan 0 inf{}",
+        &sma_text[..first_v],
+        &sma_text[line_end..]
+    );
+    std::fs::write(p("nan.sma"), nan).unwrap();
+    let cut_at = format!("truncated at byte {} of {m}", m - 10);
+    let cases: [(&str, &[&str]); 5] = [
+        ("empty.sma", &["empty (0 bytes)"]),
+        ("empty.smb", &["empty (0 bytes)"]),
+        ("cut.smb", &[&cut_at]),
+        ("cut.sma", &["cut.sma", "truncated|end of stream|expected"]),
+        ("nan.sma", &["non-finite coordinate", "NaN"]),
+    ];
+    for (name, needles) in cases {
+        let o = bin().args(["check", &p(name)]).output().unwrap();
+        assert_one_line_error(&o, 2, needles);
+        // convert reads through the same checks, and measure through the same reader.
+        let o = bin()
+            .args(["convert", &p(name), &p("x.ply")])
+            .output()
+            .unwrap();
+        assert_one_line_error(&o, 2, needles);
+        assert!(!dir.path().join("x.ply").exists());
+    }
+    let o = bin().args(["measure", &p("nan.sma")]).output().unwrap();
+    assert_one_line_error(&o, 2, &["non-finite"]);
+}
+
+/// `check` and `convert` speak sentences, or JSON with `--json`; logs carry no colour codes when
+/// stderr is not a terminal; the done line's path is normalised; bad output extensions list the
+/// six accepted ones.
+#[test]
+fn papercuts() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    let job = sphere_job(dir.path(), "sub/../m.smb", "");
+    let o = bin()
+        .args(["run", &job])
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains('\u{1b}'), "ANSI codes in a pipe");
+    let done = String::from_utf8_lossy(&o.stdout).into_owned();
+    let m = dir.path().join("m.smb").canonicalize().unwrap();
+    assert!(
+        done.starts_with(&format!("{}: ", m.display())),
+        "not normalised: {done}"
+    );
+    let smb = m.to_string_lossy().into_owned();
+
+    let o = bin().args(["check", &smb]).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success() && text.contains("valid SMB streaming mesh"),
+        "{text}"
+    );
+    assert!(
+        !text.contains('{') && !text.contains("Report"),
+        "debug struct: {text}"
+    );
+    let o = bin().args(["check", "--json", &smb]).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["valid"], true);
+    assert!(v["triangles"].as_u64().unwrap() > 0);
+
+    let ply = dir.path().join("m.ply").to_string_lossy().into_owned();
+    let o = bin().args(["convert", &smb, &ply]).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(o.status.success() && text.contains("triangles"), "{text}");
+    assert!(!text.contains("Stats"), "debug struct: {text}");
+    let o = bin()
+        .args(["convert", "--json", &smb, &ply])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["output_format"], "Ply");
+
+    let six = [".smb", ".sma", ".ply", ".obj", ".stl", ".glb"];
+    let o = bin()
+        .args(["convert", &smb, &dir.path().join("m.xyz").to_string_lossy()])
+        .output()
+        .unwrap();
+    assert_one_line_error(&o, 2, &six);
+    let job = sphere_job(dir.path(), "m.xyz", "");
+    assert_one_line_error(
+        &bin().args(["validate", &job]).output().unwrap(),
+        2,
+        &[&["output.path"][..], &six[..]].concat(),
+    );
+}
+
+/// Config mistakes that used to be ignored: an unparsable or misspelt `log.level`, and an
+/// `error` bound in rate mode.
+#[test]
+fn ignored_keys_are_config_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    for (extra, key) in [
+        ("[log]\nlevel = \"debugg\"\n", "log.level"),
+        ("[log]\nlevel = \"info,=[\"\n", "log.level"),
+        ("[simplify]\nrate = 0.5\nerror = 0.1\n", "simplify.error"),
+    ] {
+        let job = sphere_job(dir.path(), "m.smb", extra);
+        for cmd in ["validate", "run"] {
+            let o = bin().args([cmd, &job]).output().unwrap();
+            assert_one_line_error(&o, 2, &[key, "job.toml"]);
+        }
+    }
+    assert!(leftovers(dir.path(), &[]).is_empty());
+}

@@ -9,10 +9,25 @@ use crate::error::RunError;
 /// Ok when the file format is known and its folder exists and is writable (or can be created).
 pub fn check_output_path(path: &Path) -> Result<(), String> {
     isostream_smesh::Format::from_path(path).map_err(|e| e.to_string())?;
+    if path.is_dir() {
+        return Err(format!(
+            "{} is a folder; give a file name inside it, such as {}",
+            path.display(),
+            path.join("mesh.smb").display()
+        ));
+    }
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
+    // The closest existing ancestor must be a folder: `a.txt/out.smb` can never be created.
+    if let Some(file) = dir.ancestors().find(|d| d.exists() && !d.is_dir()) {
+        return Err(format!(
+            "{}: {} is a file, not a folder; choose another output folder",
+            path.display(),
+            file.display()
+        ));
+    }
     // A missing folder is created at run time; what must be writable is its closest existing
     // ancestor.
     let existing = dir
