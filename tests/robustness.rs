@@ -384,6 +384,21 @@ fn fifo_input_is_refused_not_waited_on() {
         assert_one_line_error(&o, 2, &["v.raw", "FIFO", "regular file"]);
     }
     assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+    // The same behind a detached NRRD header naming the FIFO as its data file.
+    std::fs::write(
+        dir.path().join("v.nhdr"),
+        "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: v.raw\n",
+    )
+    .unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.nhdr\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = wait_at_most(bin().args([cmd, &job]).spawn().unwrap(), 20);
+        assert_one_line_error(&o, 2, &["v.raw", "FIFO"]);
+    }
+    assert!(leftovers(dir.path(), &["v.raw", "v.nhdr"]).is_empty());
 }
 
 fn sphere_job(dir: &Path, output: &str, extra: &str) -> String {

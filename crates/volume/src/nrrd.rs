@@ -69,6 +69,8 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     };
     let mut lens = Vec::with_capacity(files.len());
     for f in &files {
+        // A detached data file may be a FIFO or device too: refuse it before opening.
+        crate::open::check_file_type(f)?;
         let meta = std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read the size of", e))?;
         lens.push(meta.len());
     }
