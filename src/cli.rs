@@ -21,13 +21,29 @@ pub enum Command {
         /// No progress bar even on a terminal.
         #[arg(long)]
         quiet: bool,
+        /// Remove temporary files an interrupted run of the same output left next to it
+        /// (`.NAME.XXXXXX.tmp`); without it they are only reported.
+        #[arg(long)]
+        clean_stale: bool,
     },
     /// Check a job file (keys, values, input file, output folder) without running it.
     Validate { job: PathBuf },
     /// Convert a mesh between SMB, SMA, PLY, OBJ, STL and GLB (streaming for SMB/SMA inputs).
-    Convert { input: PathBuf, output: PathBuf },
-    /// Check a streaming mesh file: indices, finalization, header counts, stream width.
-    Check { mesh: PathBuf },
+    Convert {
+        input: PathBuf,
+        output: PathBuf,
+        /// Print the counts as JSON instead of a sentence.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check a streaming mesh file: indices, finalization, header counts, finite coordinates,
+    /// stream width.
+    Check {
+        mesh: PathBuf,
+        /// Print the report as JSON instead of a sentence.
+        #[arg(long)]
+        json: bool,
+    },
     /// Measure a mesh: topology, triangle quality, anisotropy, directional bias, and with
     /// `--volume` the mean/RMS/Hausdorff distances to the full-resolution surface.
     Measure {
@@ -72,10 +88,18 @@ pub enum Command {
 impl Command {
     pub fn execute(self) -> anyhow::Result<()> {
         match self {
-            Command::Run { job, quiet } => crate::run_cmd::run(&job, quiet),
+            Command::Run {
+                job,
+                quiet,
+                clean_stale,
+            } => crate::run_cmd::run(&job, quiet, clean_stale),
             Command::Validate { job } => crate::run_cmd::validate(&job),
-            Command::Convert { input, output } => crate::run_cmd::convert(&input, &output),
-            Command::Check { mesh } => crate::run_cmd::check(&mesh),
+            Command::Convert {
+                input,
+                output,
+                json,
+            } => crate::run_cmd::convert(&input, &output, json),
+            Command::Check { mesh, json } => crate::run_cmd::check(&mesh, json),
             Command::Measure {
                 volume,
                 mesh,

@@ -1,5 +1,7 @@
 //! tracing setup: text or JSON lines on stderr, filter from RUST_LOG or the job's `[log] level`.
 
+use std::io::IsTerminal;
+
 use isostream_pipeline::{LogConfig, LogFormat};
 use tracing_subscriber::EnvFilter;
 
@@ -10,6 +12,8 @@ pub fn init(log: &LogConfig) {
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        // Colour codes only for a person at a terminal, not in files, pipes or CI logs.
+        .with_ansi(std::io::stderr().is_terminal())
         .with_target(false);
     // A second init (tests, repeated calls) is harmless: keep the first subscriber.
     let _ = match log.format {

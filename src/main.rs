@@ -1,7 +1,8 @@
 //! `isostream`: the command line. All flag handling lives here; the work is in the crates.
 //!
 //! Errors reach the user as one line (`error: ...`) naming the file and the fix, with a
-//! non-zero exit code: 2 for a bad job or bad input, 130 for Ctrl-C, 1 otherwise.
+//! non-zero exit code: 2 for a bad job or bad input (a mesh given to check, convert or measure
+//! included), 130 for Ctrl-C, SIGTERM or SIGHUP, 1 otherwise.
 
 mod cli;
 mod logging;
@@ -44,6 +45,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 RunError::Cancelled => 130,
                 RunError::Config(_)
                 | RunError::Volume(_)
+                | RunError::EmptySurface { .. }
                 | RunError::ClassicalOverBudget { .. } => 2,
                 _ => 1,
             };
@@ -53,6 +55,25 @@ fn exit_code(err: &anyhow::Error) -> u8 {
             .is_some()
         {
             return 2;
+        }
+        // check, convert, measure: a mesh that cannot be read is bad input (2); failing to
+        // write the converted file is not (1).
+        if let Some(e) = cause.downcast_ref::<isostream_smesh::SmeshError>() {
+            return match e {
+                isostream_smesh::SmeshError::Io { source, .. }
+                    if source.kind() != std::io::ErrorKind::NotFound =>
+                {
+                    1
+                }
+                _ => 2,
+            };
+        }
+        if let Some(e) = cause.downcast_ref::<isostream_measure::MeasureError>() {
+            return match e {
+                isostream_measure::MeasureError::Volume(_)
+                | isostream_measure::MeasureError::VertexIndex { .. } => 2,
+                _ => 1,
+            };
         }
     }
     1

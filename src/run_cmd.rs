@@ -14,6 +14,10 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     // Opening the source checks the input file (exists, size matches dims and type).
     let source = isostream_pipeline::open_source(&job.input)?;
     let grid = source.grid();
+    // And the attributes: each file exists, opens, and is on the iso volume's grid.
+    if !job.attributes.is_empty() {
+        isostream_pipeline::SliceReader::open(&job)?;
+    }
     println!(
         "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
         job_path.display(),
@@ -28,16 +32,22 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(job_path: &Path, quiet: bool) -> anyhow::Result<()> {
+pub fn run(job_path: &Path, quiet: bool, clean_stale: bool) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
     crate::logging::init(&job.log);
 
+    // Ctrl-C, SIGTERM and SIGHUP (ctrlc's `termination` feature) all stop the run the same way:
+    // every stage stops, the temporary file is removed, exit code 130.
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let cancel = Arc::clone(&cancel);
         ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed))
-            .context("cannot install the Ctrl-C handler")?;
+            .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
     }
+    // Held until the run ends: a second job on the same output is refused, and temporary files
+    // of this output found now cannot belong to a live run.
+    let _lock = isostream_pipeline::lock_output(&job.output.path)?;
+    stale_files(&job.output.path, clean_stale)?;
     let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
         let bar = ProgressBar::new(0);
         bar.set_style(
@@ -66,6 +76,35 @@ pub fn run(job_path: &Path, quiet: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Reports (or with `--clean-stale` removes) what interrupted runs of this output left behind.
+fn stale_files(output: &Path, clean: bool) -> anyhow::Result<()> {
+    let stale = isostream_pipeline::stale_temp_files(output);
+    if stale.is_empty() {
+        return Ok(());
+    }
+    let names: Vec<String> = stale.iter().map(|p| p.display().to_string()).collect();
+    if clean {
+        for p in &stale {
+            std::fs::remove_file(p)
+                .with_context(|| format!("{}: cannot remove stale temporary file", p.display()))?;
+        }
+        tracing::info!(files = %names.join(", "), "removed stale temporary files");
+    } else {
+        tracing::warn!(
+            "{} stale temporary file(s) of {} left by an interrupted run: {}; `isostream run --clean-stale` removes them",
+            stale.len(),
+            output.display(),
+            names.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// The output path as the user would type it: absolute, without `.` or `..` components.
+fn normalised(path: &Path) -> std::path::PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
 fn report(s: &RunSummary) {
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
     tracing::info!(
@@ -84,7 +123,7 @@ fn report(s: &RunSummary) {
     );
     println!(
         "{}: {} -> {} faces in {:.2} s, peak RSS {:.1} MiB",
-        s.output.display(),
+        normalised(&s.output).display(),
         s.faces_extracted,
         s.faces_written,
         s.seconds,
@@ -92,14 +131,80 @@ fn report(s: &RunSummary) {
     );
 }
 
-pub fn convert(input: &Path, output: &Path) -> anyhow::Result<()> {
+pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
     let stats = isostream_smesh::convert(input, output)?;
-    println!("{} -> {}: {stats:?}", input.display(), output.display());
+    let w = &stats.written;
+    if json {
+        let v = serde_json::json!({
+            "input": input,
+            "output": normalised(output),
+            "input_format": format!("{:?}", stats.input),
+            "output_format": format!("{:?}", stats.output),
+            "vertices": w.vertices,
+            "triangles": w.triangles,
+            "bytes": w.bytes,
+            "max_active_vertices": w.max_active_vertices,
+            "dropped_vertices": stats.dropped_vertices,
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    let mut line = format!(
+        "{} -> {}: {} vertices, {} triangles, {} bytes written",
+        input.display(),
+        normalised(output).display(),
+        w.vertices,
+        w.triangles,
+        w.bytes
+    );
+    if stats.output.is_streaming() {
+        line.push_str(&format!(
+            ", stream width {} vertices",
+            w.max_active_vertices
+        ));
+    }
+    if stats.dropped_vertices > 0 {
+        line.push_str(&format!(
+            "; {} vertices no triangle uses were dropped",
+            stats.dropped_vertices
+        ));
+    }
+    println!("{line}");
     Ok(())
 }
 
-pub fn check(mesh: &Path) -> anyhow::Result<()> {
-    let report = isostream_smesh::validate(mesh)?;
-    println!("{}: valid streaming mesh: {report:?}", mesh.display());
+pub fn check(mesh: &Path, json: bool) -> anyhow::Result<()> {
+    let r = isostream_smesh::validate(mesh)?;
+    if json {
+        let v = serde_json::json!({
+            "path": mesh,
+            "valid": true,
+            "format": format!("{:?}", r.format),
+            "vertices": r.vertices,
+            "triangles": r.triangles,
+            "max_active_vertices": r.max_active_vertices,
+            "max_triangle_skip": r.max_triangle_skip,
+            "attributes": r.header.attribute_names,
+            "comments": r.header.comments,
+        });
+        println!("{v}");
+        return Ok(());
+    }
+    let format = format!("{:?}", r.format).to_uppercase();
+    let mut line = format!(
+        "{}: valid {format} streaming mesh: {} vertices, {} triangles, stream width {} vertices, farthest triangle reach {}",
+        mesh.display(),
+        r.vertices,
+        r.triangles,
+        r.max_active_vertices,
+        r.max_triangle_skip
+    );
+    if !r.header.attribute_names.is_empty() {
+        line.push_str(&format!(
+            ", attributes {}",
+            r.header.attribute_names.join(", ")
+        ));
+    }
+    println!("{line}");
     Ok(())
 }

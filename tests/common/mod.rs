@@ -26,7 +26,7 @@ impl TestVolume {
         std::fs::write(&raw, bytes).unwrap();
         let job = dir.join("job.toml");
         let text = format!(
-            "[input]\npath = \"volume.raw\"\ndims = [{}, {}, {}]\ndtype = \"f32\"\n\n[extract]\niso = {}\n\n[simplify]\n{simplify}\n\n[output]\npath = \"{output}\"\n\n[pipeline]\nchannel_capacity = 2\nbatch_triangles = 64\n",
+            "[input]\npath = \"volume.raw\"\ndims = [{}, {}, {}]\ndtype = \"f32\"\n\n[extract]\niso = {}\n\n[simplify]\n{simplify}\n\n[output]\npath = \"{output}\"\nallow_empty = true\n\n[pipeline]\nchannel_capacity = 2\nbatch_triangles = 64\n",
             self.dims[0], self.dims[1], self.dims[2], self.iso
         );
         std::fs::write(&job, text).unwrap();

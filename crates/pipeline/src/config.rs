@@ -187,6 +187,10 @@ pub struct OutputConfig {
     /// Also write a JSON run summary next to the output (`<path>.run.json`).
     #[serde(default = "yes")]
     pub summary: bool,
+    /// Accept a surface without any triangle (iso outside the data range, all-NaN volume);
+    /// by default that is an error naming the data range, and nothing is written.
+    #[serde(default)]
+    pub allow_empty: bool,
 }
 
 fn yes() -> bool {
@@ -243,6 +247,25 @@ pub struct LogConfig {
     pub format: LogFormat,
     /// A tracing filter such as "info" or "isostream_pipeline=debug"; RUST_LOG wins when set.
     pub level: Option<String>,
+}
+
+/// A `[log] level` must parse as a tracing filter, and a bare word must be a level: `debugg`
+/// would otherwise be taken for a target name and silently log nothing of ours.
+fn check_log_filter(level: &str) -> Result<(), String> {
+    tracing_subscriber::EnvFilter::try_new(level).map_err(|e| e.to_string())?;
+    const LEVELS: [&str; 6] = ["trace", "debug", "info", "warn", "error", "off"];
+    for d in level.split(',').map(str::trim).filter(|d| !d.is_empty()) {
+        if !d.contains('=')
+            && !d.contains('[')
+            && !LEVELS.contains(&d.to_ascii_lowercase().as_str())
+        {
+            return Err(format!(
+                "`{d}` is not a level ({}); use target=level for a target",
+                LEVELS.join(", ")
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Bytes of simplifier state per resident face: the face, half a vertex with its quadric, heap
@@ -389,6 +412,13 @@ impl JobConfig {
                 }
             }
         }
+        if let (Mode::Rate | Mode::None, Some(e)) = (s.mode, s.error) {
+            return Err(bad(
+                "simplify.error",
+                "absent unless mode = \"error\" or \"classical\" (rate mode is bounded by `rate`; remove the key or set mode = \"error\")",
+                e.to_string(),
+            ));
+        }
         if !(0.0..=1.0).contains(&s.isotropy) {
             return Err(bad(
                 "simplify.isotropy",
@@ -417,9 +447,23 @@ impl JobConfig {
         if p.batch_triangles == 0 {
             return Err(bad("pipeline.batch_triangles", "at least 1", "0".into()));
         }
+        if let Some(level) = &self.log.level {
+            check_log_filter(level).map_err(|why| {
+                bad(
+                    "log.level",
+                    "a tracing filter such as \"info\" or \"warn,isostream_pipeline=debug\"",
+                    format!("{level:?} ({why})"),
+                )
+            })?;
+        }
         crate::attributes::validate(self, origin)?;
-        crate::output::check_output_path(&self.output.path)
-            .map_err(|reason| bad("output.path", "a writable .smb or .sma path", reason))?;
+        crate::output::check_output_path(&self.output.path).map_err(|reason| {
+            bad(
+                "output.path",
+                "a writable .smb, .sma, .ply, .obj, .stl or .glb path",
+                reason,
+            )
+        })?;
         Ok(())
     }
 
@@ -512,6 +556,24 @@ mod tests {
             err.contains("output.path") && err.contains("/proc"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn error_bound_in_rate_mode_is_refused() {
+        let text = format!("{MINIMAL}\n[simplify]\nrate = 0.5\nerror = 0.1\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("simplify.error"), "{err}");
+    }
+
+    #[test]
+    fn bad_log_filter_is_refused() {
+        for level in ["debugg", "info,=[", "x=notalevel"] {
+            let text = format!("{MINIMAL}\n[log]\nlevel = {level:?}\n");
+            let err = parse(&text).unwrap_err().to_string();
+            assert!(err.contains("log.level"), "{level}: {err}");
+        }
+        let text = format!("{MINIMAL}\n[log]\nlevel = \"warn,isostream_pipeline=debug\"\n");
+        parse(&text).unwrap();
     }
 
     #[test]

@@ -37,6 +37,25 @@ pub enum RunError {
         "simplify.mode = \"classical\" keeps the whole surface in memory and it outgrew pipeline.memory_budget_mib ({faces} faces resident, no output written): raise pipeline.memory_budget_mib or use mode = \"error\""
     )]
     ClassicalOverBudget { faces: usize },
+    #[error(
+        "{}: another isostream job is writing this output (it holds {}); wait for it to finish or choose another output.path",
+        output.display(), lock.display()
+    )]
+    Locked { output: PathBuf, lock: PathBuf },
+    #[error("{}: cannot take the output's lock {}: {reason}", output.display(), lock.display())]
+    Lock {
+        output: PathBuf,
+        lock: PathBuf,
+        reason: String,
+    },
+    #[error(
+        "{input}: the surface at extract.iso = {iso} is empty: {range}; set extract.iso inside the data range, or [output] allow_empty = true to accept an empty mesh (no output written)"
+    )]
+    EmptySurface {
+        input: String,
+        iso: f32,
+        range: String,
+    },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]

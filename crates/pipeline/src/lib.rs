@@ -30,6 +30,7 @@ pub use config::{
     PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
+pub use output::{OutputLock, lock_output, lock_path, stale_temp_files};
 pub use rss::peak_rss_bytes;
 pub use sink::SinkStats;
 pub use source::open_source;
@@ -125,6 +126,7 @@ pub fn run(
         sink,
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
+        allow_empty: job.output.allow_empty,
         cancel,
         observer,
     }
@@ -233,7 +235,12 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let mut tmp = isostream_smesh::output_builder(".run.json.")
+    // `.NAME.run.json.XXXXXX.tmp`: named after its output, so a stale one is recognised.
+    let prefix = format!(
+        ".{}.",
+        path.file_name().unwrap_or_default().to_string_lossy()
+    );
+    let mut tmp = isostream_smesh::output_builder(&prefix)
         .tempfile_in(dir)
         .map_err(|e| fail(e.to_string()))?;
     serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;

@@ -1,15 +1,33 @@
 //! Output path checks done before a run starts, so a bad path fails in milliseconds, not after
 //! an hour of extraction.
 
-use std::path::Path;
+use std::fs::{File, OpenOptions, TryLockError};
+use std::path::{Path, PathBuf};
+
+use crate::error::RunError;
 
 /// Ok when the file format is known and its folder exists and is writable (or can be created).
 pub fn check_output_path(path: &Path) -> Result<(), String> {
     isostream_smesh::Format::from_path(path).map_err(|e| e.to_string())?;
+    if path.is_dir() {
+        return Err(format!(
+            "{} is a folder; give a file name inside it, such as {}",
+            path.display(),
+            path.join("mesh.smb").display()
+        ));
+    }
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
+    // The closest existing ancestor must be a folder: `a.txt/out.smb` can never be created.
+    if let Some(file) = dir.ancestors().find(|d| d.exists() && !d.is_dir()) {
+        return Err(format!(
+            "{}: {} is a file, not a folder; choose another output folder",
+            path.display(),
+            file.display()
+        ));
+    }
     // A missing folder is created at run time; what must be writable is its closest existing
     // ancestor.
     let existing = dir
@@ -44,5 +62,158 @@ pub fn create_output_dir(path: &Path) -> std::io::Result<()> {
     match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => std::fs::create_dir_all(d),
         _ => Ok(()),
+    }
+}
+
+/// The folder `path` is in ("." for a bare file name).
+fn dir_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    }
+}
+
+/// Temporary files that an interrupted run writing `output` may have left next to it (a killed
+/// process cannot remove them): `.NAME.XXXXXX.tmp` (the mesh, see `smesh::output_builder`) and
+/// `.NAME.run.json.XXXXXX.tmp` (the run summary). Sorted; empty when the folder is unreadable.
+pub fn stale_temp_files(output: &Path) -> Vec<PathBuf> {
+    let Some(name) = output.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Vec::new();
+    };
+    let prefix = format!(".{name}.");
+    let Ok(entries) = std::fs::read_dir(dir_of(output)) else {
+        return Vec::new();
+    };
+    let mut found: Vec<PathBuf> = entries
+        .filter_map(Result::ok)
+        .filter(|e| {
+            let n = e.file_name().to_string_lossy().into_owned();
+            let Some(mid) = n
+                .strip_prefix(&prefix)
+                .and_then(|rest| rest.strip_suffix(".tmp"))
+            else {
+                return false;
+            };
+            let mid = mid.strip_prefix("run.json.").unwrap_or(mid);
+            mid.len() == 6 && mid.chars().all(|c| c.is_ascii_alphanumeric())
+        })
+        .map(|e| e.path())
+        .collect();
+    found.sort();
+    found
+}
+
+/// The lock file of an output: `.NAME.lock` next to it.
+pub fn lock_path(output: &Path) -> PathBuf {
+    let name = output.file_name().unwrap_or_default().to_string_lossy();
+    dir_of(output).join(format!(".{name}.lock"))
+}
+
+/// An advisory lock on an output, held for the whole run so that two jobs never write the same
+/// file (nor take each other's temporary files for stale ones). Dropping it removes the lock file
+/// and releases the lock.
+#[derive(Debug)]
+pub struct OutputLock {
+    path: PathBuf,
+    _file: File,
+}
+
+/// Takes the output's lock (creating the output's folder if needed); `RunError::Locked` when
+/// another process holds it.
+pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
+    let lock = lock_path(output);
+    let fail = |e: std::io::Error| RunError::Lock {
+        output: output.to_path_buf(),
+        lock: lock.clone(),
+        reason: e.to_string(),
+    };
+    create_output_dir(output).map_err(fail)?;
+    // A lock file unlinked by its previous holder between our open and our lock would be a lock
+    // nobody else sees: lock, then check the path still names the file we locked.
+    for _ in 0..8 {
+        let file = OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(&lock)
+            .map_err(fail)?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(TryLockError::WouldBlock) => {
+                return Err(RunError::Locked {
+                    output: output.to_path_buf(),
+                    lock,
+                });
+            }
+            Err(TryLockError::Error(e)) => return Err(fail(e)),
+        }
+        if same_file(&file, &lock) {
+            return Ok(OutputLock {
+                path: lock,
+                _file: file,
+            });
+        }
+    }
+    Err(fail(std::io::Error::other(
+        "the lock file keeps being replaced",
+    )))
+}
+
+#[cfg(unix)]
+fn same_file(file: &File, path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (file.metadata(), std::fs::metadata(path)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
+#[cfg(not(unix))]
+fn same_file(_file: &File, path: &Path) -> bool {
+    path.exists()
+}
+
+impl Drop for OutputLock {
+    fn drop(&mut self) {
+        // Unlink while still holding the lock; the file closes (unlocks) right after.
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stale_files_match_the_temp_name_pattern_only() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("m.smb");
+        for n in [
+            ".m.smb.abC123.tmp",
+            ".m.smb.run.json.x1y2z3.tmp",
+            ".m.smb.toolong1.tmp",
+            ".m.smbx.abc123.tmp",
+            ".m.smb.lock",
+            "m.smb",
+        ] {
+            std::fs::write(dir.path().join(n), b"").unwrap();
+        }
+        let names: Vec<String> = stale_temp_files(&out)
+            .iter()
+            .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(names, [".m.smb.abC123.tmp", ".m.smb.run.json.x1y2z3.tmp"]);
+    }
+
+    #[test]
+    fn a_second_lock_is_refused_and_the_file_goes_away() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("sub/m.smb");
+        let first = lock_output(&out).unwrap();
+        let err = lock_output(&out).unwrap_err().to_string();
+        assert!(err.contains("another isostream job"), "{err}");
+        drop(first);
+        assert!(!lock_path(&out).exists());
+        drop(lock_output(&out).unwrap());
     }
 }

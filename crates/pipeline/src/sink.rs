@@ -22,6 +22,7 @@ pub(crate) struct Sink {
     inner: Box<dyn MeshSink>,
     attributes: usize,
     path: PathBuf,
+    triangles: u64,
 }
 
 impl Sink {
@@ -30,7 +31,13 @@ impl Sink {
             inner: isostream_smesh::create_sink(path, header, &ConvertOptions::default())?,
             attributes: header.attribute_names.len(),
             path: path.to_path_buf(),
+            triangles: 0,
         })
+    }
+
+    /// Triangles written so far.
+    pub fn triangles(&self) -> u64 {
+        self.triangles
     }
 
     pub fn write(&mut self, batch: &OutBatch) -> Result<(), RunError> {
@@ -44,7 +51,10 @@ impl Sink {
                     };
                     self.inner.vertex(pos.as_vec3().to_array(), a)?;
                 }
-                OutElement::Triangle { v, last_use } => self.inner.triangle(*v, *last_use)?,
+                OutElement::Triangle { v, last_use } => {
+                    self.inner.triangle(*v, *last_use)?;
+                    self.triangles += 1;
+                }
             }
         }
         Ok(())

@@ -1,14 +1,22 @@
 //! The five stages, each on its own thread, joined by bounded channels.
 //!
 //! Every stage ends in one of three ways: it saw the end-of-volume marker and passed it on
-//! (success), its own work failed (it reports the error), or its neighbour hung up (it stops
-//! quietly: the neighbour has the error to report). Only the writer can make a file appear, and
-//! only after it has received the end marker, so an error or Ctrl-C anywhere leaves no output.
+//! (success), its own work failed (it records the error in the shared [`Control`], which raises
+//! the abort flag), or it saw the abort flag / a neighbour hang up (it stops quietly: someone
+//! else has the error to report). Only the writer can make a file appear, and only after it has
+//! received the end marker, so an error or Ctrl-C anywhere leaves no output.
+//!
+//! No stage ever blocks for good on a channel: sends and receives wait in short slices
+//! ([`POLL`]) and look at the abort and cancel flags in between. A channel alone is not enough to
+//! stop a neighbour: the progress observer keeps clones of the receivers (queue depths), so a
+//! failed writer does not disconnect the simplifier's channel, and a full channel would otherwise
+//! block its producer forever (the deadlock of a write error on a full disk).
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use crossbeam_channel::{Receiver, Sender, bounded};
+use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, bounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::attributes::AttributeSlab;
 use isostream_extract::{CubeBatch, ExtractStats, Extractor};
@@ -35,8 +43,146 @@ impl From<RunError> for Stop {
 
 type StageResult<T> = Result<T, Stop>;
 
-fn send<T>(tx: &Sender<T>, value: T) -> StageResult<()> {
-    tx.send(value).map_err(|_| Stop::Disconnected)
+/// How long a blocked send or receive waits before it looks at the abort and cancel flags again.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Shared by every stage: the user's cancel flag, and the first error of any stage (recording it
+/// raises the abort flag that stops every other stage, whatever the state of the channels).
+pub(crate) struct Control<'a> {
+    cancel: &'a AtomicBool,
+    abort: AtomicBool,
+    first: Mutex<Option<RunError>>,
+    /// Values the reader saw, for the empty-surface error.
+    range: Mutex<DataRange>,
+}
+
+/// Smallest and largest finite value read, and how many voxels were NaN or infinite.
+#[derive(Debug, Clone, Copy)]
+struct DataRange {
+    min: f32,
+    max: f32,
+    non_finite: u64,
+}
+
+impl DataRange {
+    fn add(&mut self, values: &[f32]) {
+        for &v in values {
+            if v.is_finite() {
+                self.min = self.min.min(v);
+                self.max = self.max.max(v);
+            } else {
+                self.non_finite += 1;
+            }
+        }
+    }
+
+    /// "[0, 255] (12 NaN or infinite voxels)", or what to say when no voxel was finite.
+    fn describe(&self) -> String {
+        if self.min > self.max {
+            return format!(
+                "the volume has no finite voxel (all {} are NaN or infinite)",
+                self.non_finite
+            );
+        }
+        let mut s = format!("the data range is [{}, {}]", self.min, self.max);
+        if self.non_finite > 0 {
+            s.push_str(&format!(" ({} NaN or infinite voxels)", self.non_finite));
+        }
+        s
+    }
+}
+
+impl<'a> Control<'a> {
+    fn new(cancel: &'a AtomicBool) -> Self {
+        Self {
+            cancel,
+            abort: AtomicBool::new(false),
+            first: Mutex::new(None),
+            range: Mutex::new(DataRange {
+                min: f32::INFINITY,
+                max: f32::NEG_INFINITY,
+                non_finite: 0,
+            }),
+        }
+    }
+
+    /// Records a stage's failure (only the first one is kept) and stops every stage.
+    fn fail(&self, e: RunError) {
+        let mut first = self.first.lock().unwrap_or_else(|p| p.into_inner());
+        if first.is_none() {
+            *first = Some(e);
+        }
+        self.abort.store(true, Ordering::SeqCst);
+    }
+
+    /// Err when the run must stop: the user cancelled, or another stage failed.
+    fn check(&self) -> StageResult<()> {
+        if self.cancel.load(Ordering::Relaxed) {
+            return Err(Stop::Failed(RunError::Cancelled));
+        }
+        if self.abort.load(Ordering::SeqCst) {
+            return Err(Stop::Disconnected);
+        }
+        Ok(())
+    }
+
+    fn take_first(&self) -> Option<RunError> {
+        self.first.lock().unwrap_or_else(|p| p.into_inner()).take()
+    }
+
+    /// Runs a stage body; a failure is recorded the moment it happens, so the others stop.
+    fn stage<T>(&self, body: impl FnOnce() -> StageResult<T>) -> StageResult<T> {
+        /// A panicking stage stops the others too (the join reports the panic).
+        struct AbortOnPanic<'c>(&'c AtomicBool);
+        impl Drop for AbortOnPanic<'_> {
+            fn drop(&mut self) {
+                if std::thread::panicking() {
+                    self.0.store(true, Ordering::SeqCst);
+                }
+            }
+        }
+        let _guard = AbortOnPanic(&self.abort);
+        let r = body();
+        match r {
+            Err(Stop::Failed(e)) => {
+                self.fail(e);
+                Err(Stop::Disconnected)
+            }
+            Err(Stop::Disconnected) => {
+                // Whoever hung up has recorded (or will record) the cause; make sure nobody
+                // keeps waiting on us.
+                self.abort.store(true, Ordering::SeqCst);
+                Err(Stop::Disconnected)
+            }
+            ok => ok,
+        }
+    }
+}
+
+/// Sends, waiting while the channel is full, but never past an abort or a cancel.
+fn send<T>(ctl: &Control<'_>, tx: &Sender<T>, mut value: T) -> StageResult<()> {
+    loop {
+        match tx.send_timeout(value, POLL) {
+            Ok(()) => return Ok(()),
+            Err(SendTimeoutError::Disconnected(_)) => return Err(Stop::Disconnected),
+            Err(SendTimeoutError::Timeout(v)) => {
+                ctl.check()?;
+                value = v;
+            }
+        }
+    }
+}
+
+/// Receives the next message; `None` when the producer hung up. Never waits past an abort or a
+/// cancel.
+fn recv<T>(ctl: &Control<'_>, rx: &Receiver<T>) -> StageResult<Option<T>> {
+    loop {
+        match rx.recv_timeout(POLL) {
+            Ok(v) => return Ok(Some(v)),
+            Err(RecvTimeoutError::Disconnected) => return Ok(None),
+            Err(RecvTimeoutError::Timeout) => ctl.check()?,
+        }
+    }
 }
 
 /// Snapshot passed to the progress observer after every completed slab.
@@ -78,6 +224,8 @@ pub(crate) struct Stages<'a> {
     pub sink: Sink,
     pub capacity: usize,
     pub batch_triangles: usize,
+    /// Accept a surface without any triangle (`[output] allow_empty`); else it is an error.
+    pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
     pub observer: &'a (dyn Fn(&Progress) + Sync),
 }
@@ -107,26 +255,37 @@ impl Stages<'_> {
             simplifier,
             sink,
             batch_triangles,
+            allow_empty,
             cancel,
             observer,
             ..
         } = self;
+        let input = source.describe();
+        let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
+        let ctl = Control::new(cancel);
+        let ctl = &ctl;
 
         std::thread::scope(|s| {
             let reader = s.spawn(move || {
-                let reader = SliceReader::new(source, attributes);
-                read_stage(reader, grid, slice_tx, cancel)
+                ctl.stage(|| {
+                    let reader = SliceReader::new(source, attributes);
+                    read_stage(reader, grid, slice_tx, ctl)
+                })
             });
-            let extractor =
-                s.spawn(move || extract_stage(grid, iso, batch_triangles, slice_rx, cube_tx));
-            let detector = s.spawn(move || detect_stage(grid, cube_rx, delta_tx));
+            let extractor = s.spawn(move || {
+                ctl.stage(|| extract_stage(grid, iso, batch_triangles, slice_rx, cube_tx, ctl))
+            });
+            let detector =
+                s.spawn(move || ctl.stage(|| detect_stage(grid, cube_rx, delta_tx, ctl)));
             let simplifier = s.spawn(move || {
-                simplify_stage(simplifier, grid, delta_rx, out_tx, &depth, observer)
+                ctl.stage(|| {
+                    simplify_stage(simplifier, grid, delta_rx, out_tx, &depth, observer, ctl)
+                })
             });
-            let writer = s.spawn(move || write_stage(sink, out_rx));
+            let writer = s.spawn(move || ctl.stage(|| write_stage(sink, out_rx, empty, ctl)));
 
-            // Join every stage; the one that failed (not merely saw a neighbour hang up) is the
-            // cause. Cancellation surfaces as the reader's failure.
+            // Join every stage. The first failure recorded (in time, whichever stage) is the
+            // cause; a panic counts as a failure of its stage.
             let read = join(reader, "read");
             let extract = join(extractor, "extract");
             let detect = join(detector, "detect");
@@ -152,13 +311,17 @@ impl Stages<'_> {
                     simplify,
                     sink,
                 }),
-                (read, extract, detect, simplify, write) => Err(first_failure([
-                    read.err(),
-                    extract.err(),
-                    detect.err(),
-                    simplify.err(),
-                    write.err(),
-                ])),
+                (read, extract, detect, simplify, write) => {
+                    Err(ctl.take_first().unwrap_or_else(|| {
+                        first_failure([
+                            read.err(),
+                            extract.err(),
+                            detect.err(),
+                            simplify.err(),
+                            write.err(),
+                        ])
+                    }))
+                }
             }
         })
     }
@@ -202,20 +365,22 @@ fn read_stage(
     mut reader: SliceReader,
     grid: Grid,
     tx: Sender<Slices>,
-    cancel: &AtomicBool,
+    ctl: &Control<'_>,
 ) -> StageResult<f64> {
     let _span = info_span!("read").entered();
     let mut busy = Duration::ZERO;
     for _ in 0..grid.dims[2] {
-        if cancel.load(Ordering::Relaxed) {
-            return Err(Stop::Failed(RunError::Cancelled));
-        }
+        ctl.check()?;
         let t = Instant::now();
         let Some(slices) = reader.next_slices()? else {
             break;
         };
+        ctl.range
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .add(&slices.iso);
         busy += t.elapsed();
-        send(&tx, slices)?;
+        send(ctl, &tx, slices)?;
     }
     debug!(seconds = busy.as_secs_f64(), "read done");
     Ok(busy.as_secs_f64())
@@ -227,12 +392,13 @@ fn extract_stage(
     batch_triangles: usize,
     rx: Receiver<Slices>,
     tx: Sender<CubeBatch>,
+    ctl: &Control<'_>,
 ) -> StageResult<(f64, ExtractStats)> {
     let _span = info_span!("extract").entered();
     let mut extractor = Extractor::new(grid, iso);
     let mut busy = Duration::ZERO;
     let mut lower: Option<Slices> = None;
-    for upper in rx.iter() {
+    while let Some(upper) = recv(ctl, &rx)? {
         let z = upper.z;
         if let Some(lo) = &lower {
             let started = Instant::now();
@@ -251,7 +417,7 @@ fn extract_stage(
                 batch_triangles,
                 |batch| {
                     let t = Instant::now();
-                    let sent = send(&tx, batch);
+                    let sent = send(ctl, &tx, batch);
                     blocked += t.elapsed();
                     sent
                 },
@@ -270,17 +436,18 @@ fn detect_stage(
     grid: Grid,
     rx: Receiver<CubeBatch>,
     tx: Sender<MeshDelta>,
+    ctl: &Control<'_>,
 ) -> StageResult<(f64, DetectStats)> {
     let _span = info_span!("detect").entered();
     let mut detector = Detector::new(grid.dims);
     let mut busy = Duration::ZERO;
-    for batch in rx.iter() {
+    while let Some(batch) = recv(ctl, &rx)? {
         let t = Instant::now();
         let mut delta = MeshDelta::default();
         detector.process(&batch, &mut delta);
         busy += t.elapsed();
         let end = delta.end_of_volume;
-        send(&tx, delta)?;
+        send(ctl, &tx, delta)?;
         if end {
             return Ok((busy.as_secs_f64(), detector.stats()));
         }
@@ -295,13 +462,14 @@ fn simplify_stage(
     tx: Sender<ToWriter>,
     depth: &Depths,
     observer: &(dyn Fn(&Progress) + Sync),
+    ctl: &Control<'_>,
 ) -> StageResult<(f64, SimplifyStats)> {
     let _span = info_span!("simplify").entered();
     let slabs_total = grid.dims[2] - 1;
     let log_every = (slabs_total / 20).max(1);
     let mut busy = Duration::ZERO;
     let mut last_front = 0u32;
-    for delta in rx.iter() {
+    while let Some(delta) = recv(ctl, &rx)? {
         let t = Instant::now();
         let stride = delta
             .attrs
@@ -329,7 +497,7 @@ fn simplify_stage(
             return Err(Stop::Failed(RunError::ClassicalOverBudget { faces }));
         }
         if !out.elements.is_empty() {
-            send(&tx, ToWriter::Batch(out))?;
+            send(ctl, &tx, ToWriter::Batch(out))?;
         }
         if delta.front > last_front || delta.end_of_volume {
             last_front = delta.front;
@@ -356,24 +524,44 @@ fn simplify_stage(
             }
         }
         if delta.end_of_volume {
-            send(&tx, ToWriter::End)?;
+            send(ctl, &tx, ToWriter::End)?;
             return Ok((busy.as_secs_f64(), simplifier.stats()));
         }
     }
     Err(Stop::Disconnected)
 }
 
+/// What the writer needs to refuse an empty surface.
+#[derive(Clone, Copy)]
+struct EmptyCheck<'a> {
+    input: &'a str,
+    iso: f32,
+}
+
 fn write_stage(
     mut sink: Sink,
     rx: Receiver<ToWriter>,
+    empty: Option<EmptyCheck<'_>>,
+    ctl: &Control<'_>,
 ) -> StageResult<(f64, crate::sink::SinkStats)> {
     let _span = info_span!("write").entered();
     let mut busy = Duration::ZERO;
-    for msg in rx.iter() {
+    while let Some(msg) = recv(ctl, &rx)? {
         let t = Instant::now();
         match msg {
             ToWriter::Batch(batch) => sink.write(&batch)?,
             ToWriter::End => {
+                if let Some(check) = empty
+                    && sink.triangles() == 0
+                {
+                    // The reader has finished: the range covers the whole volume.
+                    let range = *ctl.range.lock().unwrap_or_else(|p| p.into_inner());
+                    return Err(Stop::Failed(RunError::EmptySurface {
+                        input: check.input.to_string(),
+                        iso: check.iso,
+                        range: range.describe(),
+                    }));
+                }
                 let stats = sink.finish()?;
                 busy += t.elapsed();
                 return Ok((busy.as_secs_f64(), stats));

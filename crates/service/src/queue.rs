@@ -450,7 +450,11 @@ fn run_error_kind(e: &RunError) -> &'static str {
     match e {
         RunError::Config(_) => "run_config",
         RunError::Volume(_) => "run_input",
-        RunError::Output(_) | RunError::Summary { .. } => "run_output",
+        RunError::Output(_)
+        | RunError::Summary { .. }
+        | RunError::Locked { .. }
+        | RunError::Lock { .. } => "run_output",
+        RunError::EmptySurface { .. } => "run_empty_surface",
         RunError::ClassicalOverBudget { .. } => "run_over_budget",
         RunError::Cancelled => "run_cancelled",
         RunError::Internal { .. } => "run_internal",

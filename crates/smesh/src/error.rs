@@ -59,7 +59,7 @@ pub enum StreamFault {
     UseAfterFinalize { vertex: u64 },
     #[error("vertex {vertex} was never finalized ({others} other vertices neither)")]
     NeverFinalized { vertex: u64, others: u64 },
-    #[error("the header declares {declared} {what} but the stream holds {found}")]
+    #[error("the header declares {declared} {what} but the stream holds {found}{}", if found < declared { " (truncated file?)" } else { "" })]
     CountMismatch {
         what: &'static str,
         declared: u64,
@@ -67,6 +67,9 @@ pub enum StreamFault {
     },
     #[error("exceeds the {declared} {what} the header declares")]
     BeyondDeclared { what: &'static str, declared: u64 },
+    /// NaN or infinite position (the coordinates as written, since f32 is not `Eq`).
+    #[error("has a non-finite coordinate ({coords}); the mesh is corrupt")]
+    NonFinite { coords: String },
     #[error("has {found} attribute values but the header names {expected} attributes")]
     AttributeCount { expected: usize, found: usize },
     #[error(
@@ -109,12 +112,38 @@ pub enum SmeshError {
         place: Place,
         expected: String,
     },
+    #[error("{}: truncated at byte {at} of {of}: {detail}; the file is incomplete (an interrupted write or copy?)", path.display())]
+    TruncatedAt {
+        path: PathBuf,
+        at: u64,
+        of: u64,
+        detail: String,
+    },
     #[error("{}: not an SMB file: first bytes are {found:02x?}, expected version 0 or 1, endianness 0 or 1, then two zero bytes", path.display())]
     BadMagic { path: PathBuf, found: Vec<u8> },
     #[error("{}: {message}", path.display())]
     Unsupported { path: PathBuf, message: String },
     #[error("{}: {message}", path.display())]
     Foreign { path: PathBuf, message: String },
+}
+
+/// A full disk or a file-size limit gets the fix in its message (and loses the temporary file's
+/// name that `tempfile` appends: that file is removed by the time anyone reads the message).
+fn with_fix(e: io::Error) -> io::Error {
+    match e.kind() {
+        io::ErrorKind::StorageFull | io::ErrorKind::FileTooLarge | io::ErrorKind::QuotaExceeded => {
+            let base = match e.kind() {
+                io::ErrorKind::StorageFull => "No space left on device",
+                io::ErrorKind::FileTooLarge => "File too large",
+                _ => "Disk quota exceeded",
+            };
+            io::Error::new(
+                e.kind(),
+                format!("{base}; free space on that disk or choose another output folder"),
+            )
+        }
+        _ => e,
+    }
 }
 
 /// `Place` without its leading " at"/" on" for the syntax message, which reads "line 7: ...".
@@ -135,7 +164,7 @@ impl SmeshError {
         SmeshError::Io {
             path: path.to_path_buf(),
             what: what.into(),
-            source,
+            source: with_fix(source),
         }
     }
 

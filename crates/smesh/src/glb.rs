@@ -250,10 +250,37 @@ impl MeshSink for GlbSink {
     }
 }
 
+/// The 12-byte GLB header's total length must cover the header and fit the file: the `gltf`
+/// crate subtracts 12 from it unchecked (a panic found by `tools/fuzz.sh`, mesh_formats).
+fn check_glb_header(path: &Path, bytes: &[u8]) -> Result<(), SmeshError> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(()); // a glTF JSON document; gltf parses it
+    }
+    let declared = bytes
+        .get(8..12)
+        .map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) as u64);
+    match declared {
+        Some(n) if n >= 12 && n <= bytes.len() as u64 => Ok(()),
+        Some(n) => Err(SmeshError::foreign(
+            path,
+            format!(
+                "invalid GLB: its header declares {n} bytes but the file has {} (at least 12 needed)",
+                bytes.len()
+            ),
+        )),
+        None => Err(SmeshError::Truncated {
+            path: path.to_path_buf(),
+            place: crate::Place::Byte(bytes.len() as u64),
+            expected: "the 12-byte GLB header".into(),
+        }),
+    }
+}
+
 /// Loads a GLB file: every triangle primitive of every mesh (node transforms ignored), with the
 /// `_NAME` float attributes of the first primitive as per-vertex attributes.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let bytes = std::fs::read(path).map_err(|e| SmeshError::io(path, "read", e))?;
+    check_glb_header(path, &bytes)?;
     let gltf = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| SmeshError::foreign(path, format!("invalid glTF: {e}")))?;
     let blob = gltf.blob.as_deref();
@@ -318,4 +345,23 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         );
     }
     Ok(mesh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Fuzz crash (mesh_formats): a GLB header declaring a length below 12 panicked in gltf.
+    #[test]
+    fn short_declared_length_is_an_error_not_a_panic() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.glb");
+        let mut bytes = b"glTF\x00\x00\x20\x00".to_vec();
+        bytes.extend([0u8; 120]);
+        std::fs::write(&p, &bytes).unwrap();
+        let e = read(&p).unwrap_err().to_string();
+        assert!(e.contains("declares 0 bytes"), "{e}");
+        std::fs::write(&p, b"glTF\x02\x00").unwrap();
+        assert!(read(&p).is_err());
+    }
 }

@@ -91,6 +91,18 @@ impl StreamReader {
                 }
             }
         };
+        let len = file
+            .metadata()
+            .map_err(|e| SmeshError::io(path, "read the size of", e))?
+            .len();
+        if len == 0 {
+            return Err(SmeshError::Unsupported {
+                path: path.to_path_buf(),
+                message:
+                    "the file is empty (0 bytes), not a streaming mesh; was it written completely?"
+                        .into(),
+            });
+        }
         let (decoder, header) = match format {
             Format::Smb => {
                 let (d, h) = SmbDecoder::open(path, file)?;

@@ -149,6 +149,38 @@ pub(crate) fn is_magic(bytes: &[u8]) -> bool {
     bytes.len() >= 4 && bytes[0] <= VERSION_ATTRIBUTES && bytes[1] <= 1 && bytes[2..4] == [0, 0]
 }
 
+/// Why no header fits: a file shorter than its own header or than the counts its header
+/// declares is truncated ("truncated at byte N of M"); anything else does not fit either order.
+fn truncated_or_bad(path: &Path, prefix: &[u8], order: Order, file_len: u64) -> SmeshError {
+    let Some(h) = parse_header(prefix, order) else {
+        // The header itself is cut (its strings or counts run past the end of the file).
+        return SmeshError::Truncated {
+            path: path.to_path_buf(),
+            place: Place::Byte(file_len),
+            expected: "the SMB header (the file is shorter than its own header)".into(),
+        };
+    };
+    if h.nverts >= 0 && h.nfaces >= 0 {
+        let (nv, nf) = (h.nverts as u64, h.nfaces as u64);
+        let vertex = vertex_size(h.attribute_names.len()) as u64;
+        let size = h.len + nv * vertex + nf * ELEMENT as u64 + 4 * (nv + nf).div_ceil(BLOCK as u64);
+        if file_len < size {
+            return SmeshError::TruncatedAt {
+                path: path.to_path_buf(),
+                at: file_len,
+                of: size,
+                detail: format!("the header declares {nv} vertices and {nf} triangles"),
+            };
+        }
+    }
+    SmeshError::syntax(
+        path,
+        Place::Byte(4),
+        "an SMB header whose counts match the file size in either byte order",
+        format!("{file_len} bytes that fit neither"),
+    )
+}
+
 /// The header fields as parsed under one byte order.
 #[derive(Debug)]
 struct Parsed {
@@ -369,14 +401,7 @@ impl SmbDecoder {
                     .filter(|h| plausible(h, o, &prefix, file_len))
                     .map(|h| (h, o))
             })
-            .ok_or_else(|| {
-                SmeshError::syntax(
-                    path,
-                    Place::Byte(4),
-                    "an SMB header whose counts match the file size in either byte order",
-                    format!("{file_len} bytes that fit neither"),
-                )
-            })?;
+            .ok_or_else(|| truncated_or_bad(path, &prefix, declared, file_len))?;
         file.seek(SeekFrom::Start(h.len)).map_err(io_err)?;
         let count = |n: i32| u64::try_from(n).ok();
         let header = ReadHeader {

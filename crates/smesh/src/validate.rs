@@ -47,8 +47,17 @@ impl CheckedStream {
         let place = self.reader.place();
         let checked = match &element {
             Element::Vertex { pos, .. } => {
-                self.tracker.vertex(*pos);
-                Ok(())
+                if pos.iter().all(|c| c.is_finite()) {
+                    self.tracker.vertex(*pos);
+                    Ok(())
+                } else {
+                    Err((
+                        Subject::Vertex(self.tracker.vertices(), place),
+                        StreamFault::NonFinite {
+                            coords: format!("{}, {}, {}", pos[0], pos[1], pos[2]),
+                        },
+                    ))
+                }
             }
             Element::Triangle { v, finalized } => {
                 let subject = Subject::Triangle(self.tracker.triangles(), place);

@@ -69,6 +69,8 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     };
     let mut lens = Vec::with_capacity(files.len());
     for f in &files {
+        // A detached data file may be a FIFO or device too: refuse it before opening.
+        crate::open::check_file_type(f)?;
         let meta = std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read the size of", e))?;
         lens.push(meta.len());
     }
@@ -85,7 +87,9 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             dtype: h.dtype,
             endian,
             offset,
-            trailing_ok: true,
+            // Data beyond what `sizes` describes means the header is wrong (as for raw files);
+            // only `byte skip: -1` (the payload is the file's last bytes) skips a prefix.
+            trailing_ok: h.byte_skip < 0,
             hint: "check the NRRD header's sizes, type, byte skip and data file",
         })?));
     }
@@ -103,7 +107,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         let total = lens
             .iter()
             .fold(0u64, |t, len| t.saturating_add(len.saturating_sub(skip)));
-        if total < payload {
+        if total < payload || (total > payload && h.line_skip == 0) {
             return Err(VolumeError::format(
                 path,
                 "data file line",

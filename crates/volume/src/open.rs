@@ -21,6 +21,7 @@ enum Format {
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
 /// first bytes. A `.raw` (or unrecognised) file needs `dims` and `dtype` in `opts`.
 pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    check_file_type(path)?;
     match detect(path)? {
         Format::Raw => open_raw(path, opts),
         Format::Nrrd => nrrd::open(path, opts),
@@ -30,6 +31,47 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
         Format::Tiff => tiff::open(path, opts),
         Format::Zarr => zarr::open(path, opts),
     }
+}
+
+/// Refuses what is neither a regular file nor a folder (Zarr, TIFF stacks) before anything opens
+/// it: opening a FIFO blocks until a writer appears, and a device or socket is no volume.
+pub fn check_file_type(path: &Path) -> Result<(), VolumeError> {
+    // A missing file is reported by the reader, in its own words (a raw file needs dims first).
+    let Ok(meta) = std::fs::metadata(path) else {
+        return Ok(());
+    };
+    if meta.is_file() || meta.is_dir() {
+        return Ok(());
+    }
+    let kind = file_kind(&meta);
+    Err(VolumeError::Format {
+        file: path.display().to_string(),
+        at: "input".into(),
+        expected: "a regular file (or a Zarr / TIFF folder)".into(),
+        found: format!("{kind}; copy the data to a file first"),
+    })
+}
+
+#[cfg(unix)]
+fn file_kind(meta: &std::fs::Metadata) -> &'static str {
+    use std::os::unix::fs::FileTypeExt;
+    let t = meta.file_type();
+    if t.is_fifo() {
+        "a FIFO (named pipe)"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else {
+        "a special file"
+    }
+}
+
+#[cfg(not(unix))]
+fn file_kind(_meta: &std::fs::Metadata) -> &'static str {
+    "a special file"
 }
 
 fn detect(path: &Path) -> Result<Format, VolumeError> {

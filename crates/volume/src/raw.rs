@@ -52,6 +52,9 @@ pub struct RawVolume {
     offset: usize,
     slice_bytes: usize,
     map: Mmap,
+    /// The mapped file, to check its size again before touching a slice's pages: a file
+    /// truncated while mapped would otherwise kill the process with SIGBUS.
+    file: File,
     /// Bytes at the start of the map already handed back to the kernel.
     released: usize,
 }
@@ -94,8 +97,9 @@ impl RawVolume {
             });
         }
         // SAFETY: the map is read-only and private to this struct. As with any file mapping, a
-        // process truncating the file while we read would fault (SIGBUS); inputs are treated as
-        // immutable for the duration of a job, which the docs of the pipeline state.
+        // process truncating the file while we read would fault (SIGBUS); `read_slice` checks
+        // the file's size before touching each slice, which leaves only a truncation racing that
+        // check.
         let map = unsafe { Mmap::map(&file) }.map_err(|e| VolumeError::io(p.path, "map", e))?;
         let too_big = || VolumeError::Grid {
             origin: name.clone(),
@@ -115,6 +119,7 @@ impl RawVolume {
             offset: usize::try_from(p.offset).map_err(|_| too_big())?,
             slice_bytes,
             map,
+            file,
             released: 0,
         })
     }
@@ -227,8 +232,29 @@ impl VolumeSource for RawVolume {
 
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
         check_request(self, z, out)?;
-        // In range: open_payload checked the file holds offset + dims[2] slices.
+        // In range: open_payload checked the file holds offset + dims[2] slices. The file may
+        // have shrunk since (another process): touching pages past its end is SIGBUS, so check
+        // its size first (one fstat per slice).
         let start = self.offset + z as usize * self.slice_bytes;
+        let now = self
+            .file
+            .metadata()
+            .map_err(|e| VolumeError::io(&self.path, "read the size of", e))?
+            .len();
+        let need = (start + self.slice_bytes) as u64;
+        if now < need {
+            return Err(VolumeError::Format {
+                file: self.path.display().to_string(),
+                at: format!("slice {z}"),
+                expected: format!(
+                    "at least {need} bytes (the file had {} when opened)",
+                    self.map.len()
+                ),
+                found: format!(
+                    "{now} bytes: the file was truncated while being read; rerun on a complete file"
+                ),
+            });
+        }
         decode(
             self.dtype,
             self.endian,
@@ -294,6 +320,19 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A file truncated after it was mapped: an error naming the slice, not SIGBUS.
+    #[test]
+    fn truncated_while_mapped_is_an_error() {
+        let f = write(&[7u8; 4 * 4 * 4]);
+        let mut v =
+            RawVolume::open(&spec(f.path(), [4, 4, 4], Dtype::U8, Endian::Little, 0)).unwrap();
+        let mut out = vec![0.0f32; 16];
+        v.read_slice(0, &mut out).unwrap();
+        f.as_file().set_len(20).unwrap();
+        let e = v.read_slice(2, &mut out).unwrap_err().to_string();
+        assert!(e.contains("slice 2") && e.contains("truncated"), "{e}");
     }
 
     #[test]

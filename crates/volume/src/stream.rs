@@ -59,15 +59,12 @@ impl StreamVolume {
                     dims_text(spec.grid.dims)
                 ),
             })?;
-        let bytes = zeroed(slice_bytes).ok_or_else(|| VolumeError::Grid {
-            origin: spec.path.display().to_string(),
-            problem: format!(
-                "a slice of dims {} needs {slice_bytes} bytes, more than this machine can allocate; check the dims",
-                dims_text(spec.grid.dims)
-            ),
-        })?;
-        let prev = bytes.clone();
-        Ok(StreamVolume {
+        // No buffer from the header's claim: the slice buffers grow as decoded bytes arrive
+        // (`read_growing`), and the first slice is read now, so a tiny file claiming a huge grid
+        // fails at open (validate included) after reading what it holds, instead of anyone
+        // allocating gigabytes for it. The pipeline's first `read_slice(0)` reuses these bytes.
+        let _ = slice_bytes;
+        let mut v = StreamVolume {
             path: spec.path,
             what: spec.what,
             grid: spec.grid,
@@ -77,9 +74,11 @@ impl StreamVolume {
             open: spec.open,
             reader: None,
             next_z: 0,
-            bytes,
-            prev,
-        })
+            bytes: Vec::new(),
+            prev: Vec::new(),
+        };
+        v.advance()?;
+        Ok(v)
     }
 
     /// Reads slice `next_z` into `self.bytes`, turning I/O failures into format errors that say
@@ -91,7 +90,8 @@ impl StreamVolume {
         };
         let z = self.next_z;
         std::mem::swap(&mut self.bytes, &mut self.prev);
-        if let Err((filled, e)) = read_full(reader, &mut self.bytes) {
+        let slice_bytes = self.grid.slice_len() * self.dtype.size_bytes();
+        if let Err((filled, e)) = read_growing(reader, &mut self.bytes, slice_bytes) {
             // Start over on the next request: the buffers hold a partial slice.
             self.reader = None;
             self.next_z = 0;
@@ -132,16 +132,28 @@ impl StreamVolume {
     }
 }
 
-/// `read_exact` that reports a short stream as `UnexpectedEof` and passes decoder errors
-/// through, with the number of bytes read before the failure.
-fn read_full(r: &mut Stream, buf: &mut [u8]) -> Result<(), (usize, io::Error)> {
-    let mut filled = 0;
-    while filled < buf.len() {
-        match r.read(&mut buf[filled..]) {
-            Ok(0) => return Err((filled, io::ErrorKind::UnexpectedEof.into())),
-            Ok(n) => filled += n,
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(e) => return Err((filled, e)),
+/// Reads exactly `len` bytes into `buf` (replacing its contents), growing it only as the data
+/// arrives (at most doubling what was read so far), so a header's claim is never allocated
+/// before the stream proves it. Reports a short stream as `UnexpectedEof` and passes decoder
+/// errors through, with the number of bytes read before the failure.
+fn read_growing(r: &mut Stream, buf: &mut Vec<u8>, len: usize) -> Result<(), (usize, io::Error)> {
+    buf.clear();
+    while buf.len() < len {
+        let step = (len - buf.len()).min(buf.len().max(1 << 16));
+        let before = buf.len();
+        if buf.try_reserve(step).is_err() {
+            return Err((
+                before,
+                io::Error::new(
+                    io::ErrorKind::OutOfMemory,
+                    format!("cannot allocate a slice of {len} bytes"),
+                ),
+            ));
+        }
+        match r.by_ref().take(step as u64).read_to_end(buf) {
+            Ok(0) => return Err((before, io::ErrorKind::UnexpectedEof.into())),
+            Ok(_) => {}
+            Err(e) => return Err((buf.len(), e)),
         }
     }
     Ok(())
@@ -250,6 +262,29 @@ mod tests {
         v.read_slice(1, &mut out).unwrap();
         assert_eq!(out, [4.0, 5.0, 6.0, 7.0]);
         assert_eq!(opens.load(Ordering::SeqCst), 2, "z - 2 re-opens the stream");
+    }
+
+    /// A header claiming far more than the stream holds fails at open, having allocated only
+    /// about what the stream delivered.
+    #[test]
+    fn huge_claim_fails_at_open_without_allocating_it() {
+        let grid = Grid::new([30_000, 30_000, 30_000], [1.0; 3], [0.0; 3]).unwrap();
+        let e = StreamVolume::new(StreamSpec {
+            path: PathBuf::from("claim.bin"),
+            what: "test payload",
+            grid,
+            dtype: Dtype::U8,
+            stored: Dtype::U8,
+            endian: Endian::Little,
+            open: Box::new(|| Ok(Box::new(io::Cursor::new(vec![0u8; 92])) as Stream)),
+        })
+        .err()
+        .unwrap()
+        .to_string();
+        assert!(
+            e.contains("voxel 92 (slice 0)") && e.contains("end of data"),
+            "{e}"
+        );
     }
 
     #[test]

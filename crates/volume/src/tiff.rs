@@ -5,7 +5,6 @@
 
 use crate::grid::dims_text;
 use crate::source::check_request;
-use crate::stream::zeroed;
 use crate::{Dtype, Grid, OpenOptions, VolumeError, VolumeSource};
 use std::fs::File;
 use std::io::BufReader;
@@ -52,11 +51,9 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     let (w, h) = d.dimensions().map_err(|e| page_err(&first, 0, e))?;
     let dims = [u64::from(w), u64::from(h), count];
     let grid = opts.grid(path, dims, [1.0; 3], [0.0; 3])?;
-    let mut scratch = zeroed(grid.slice_len()).ok_or_else(|| VolumeError::Grid {
-        origin: path.display().to_string(),
-        problem: format!("a {w}x{h} page is larger than this machine can allocate; check the file"),
-    })?;
-    let dtype = read_page(&first, 0, &mut d, (w, h), &mut scratch)?;
+    // Only the type is needed now: no slice buffer sized from the header's claim (the decoder's
+    // limits, scaled to the file, bound what decoding the page may allocate).
+    let dtype = read_page(&first, 0, &mut d, (w, h), &mut [])?;
     Ok(Box::new(TiffStack {
         path: path.to_path_buf(),
         grid,
@@ -145,7 +142,8 @@ fn page_err(path: &Path, page: u64, e: tiff::TiffError) -> VolumeError {
     )
 }
 
-/// Decodes the current page of `d` into `out`, checking it matches the stack; returns its type.
+/// Decodes the current page of `d` into `out` (nothing when `out` is empty: the caller only wants
+/// the type), checking it matches the stack; returns its type.
 fn read_page(
     path: &Path,
     page: u64,
@@ -196,11 +194,12 @@ fn read_page(
             ));
         }
     };
-    if len != out.len() {
+    let want = w as usize * h as usize;
+    if len != want || (!out.is_empty() && out.len() != want) {
         return Err(VolumeError::format(
             path,
             at(),
-            format!("{} samples", out.len()),
+            format!("{want} samples"),
             len.to_string(),
         ));
     }

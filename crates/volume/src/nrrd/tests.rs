@@ -231,12 +231,13 @@ fn bad_files_give_one_line_errors() {
             "DIR/bad.nrrd: dims 4294967296x1048576x1024 of f64 need more than 2^64 bytes; check the sizes line",
         ),
         (
-            // Fits u64 but no machine can hold one slice of it: must be an error, not an abort.
+            // Fits u64 but no machine can hold one slice of it: must be an error, not an abort,
+            // and the 8 bytes of data disprove the claim before anything is allocated for it.
             with_data(
                 ok("\n", "gzip").replace("sizes: 3 2 4", "sizes: 2147483648 2147483648 2"),
                 &gzip(&[0; 8]),
             ),
-            "DIR/bad.nrrd: a slice of dims 2147483648x2147483648x2 needs 4611686018427387904 bytes, more than this machine can allocate; check the dims",
+            "DIR/bad.nrrd: gzip NRRD payload voxel 8 (slice 0): expected 9223372036854775808 voxels of u8 for dims 2147483648x2147483648x2, found \"end of data (truncated file?)\"",
         ),
     ];
     assert_all_equal(

@@ -1,0 +1,598 @@
+//! Issue #13: the binary under hostile conditions, as real child processes. Every failure is one
+//! `error:` line, a non-zero exit code, and nothing left behind next to the output.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// The error is one line starting with `error:` holding every needle (any of the `|`-separated
+/// alternatives).
+fn assert_one_line_error(o: &Output, code: i32, needles: &[&str]) {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(code), "stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "stderr: {err}");
+    for n in needles {
+        assert!(
+            n.split('|').any(|alt| lines[0].contains(alt)),
+            "{n:?} missing from: {}",
+            lines[0]
+        );
+    }
+}
+
+fn write_job(dir: &Path, body: &str) -> String {
+    let job = dir.join("job.toml");
+    std::fs::write(&job, body).unwrap();
+    job.to_string_lossy().into_owned()
+}
+
+/// Files in `dir` other than the inputs a test put there.
+fn leftovers(dir: &Path, inputs: &[&str]) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n != "job.toml" && !inputs.contains(&n.as_str()))
+        .collect()
+}
+
+fn bin() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_isostream"));
+    c.env("RUST_LOG", "warn")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    c
+}
+
+/// Waits for a child at most `secs`; a hang (the bug this file guards against) fails the test
+/// instead of hanging CI.
+fn wait_at_most(mut child: Child, secs: u64) -> Output {
+    let deadline = Instant::now() + Duration::from_secs(secs);
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let o = child.wait_with_output().unwrap();
+            panic!(
+                "isostream still running after {secs} s (deadlock?); stderr: {}",
+                stderr(&o)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A job big enough to take a few seconds and write megabytes (full-resolution gyroid as SMA).
+fn big_job(dir: &Path, output: &str) -> String {
+    write_job(
+        dir,
+        &format!(
+            "[input]\nshape = \"gyroid\"\nsize = [160, 160, 160]\n[extract]\niso = 0.0\n[simplify]\nmode = \"none\"\n[output]\npath = \"{output}\"\n[pipeline]\nchannel_capacity = 1\n"
+        ),
+    )
+}
+
+#[cfg(unix)]
+fn kill(child: &Child, signal: &str) {
+    let ok = Command::new("kill")
+        .args([&format!("-{signal}"), &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+}
+
+/// A full disk mid-run (here: a file-size limit, which makes `write` fail with EFBIG like ENOSPC
+/// would) used to deadlock every stage: the writer stopped receiving while the simplifier blocked
+/// on its full channel. Now the first error stops every stage and is reported.
+#[cfg(target_os = "linux")]
+#[test]
+fn write_error_mid_run_is_reported_not_a_deadlock() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let job = big_job(dir.path(), "out.sma");
+    let mut cmd = bin();
+    cmd.args(["run", &job]);
+    // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child before exec, where
+    // only async-signal-safe calls are allowed; setrlimit and signal are. The file-size limit
+    // (64 KiB) makes the output's writes fail with EFBIG once SIGXFSZ is ignored (it would
+    // otherwise kill the child, which is not what a full disk does).
+    #[allow(unsafe_code)]
+    unsafe {
+        cmd.pre_exec(|| {
+            let lim = libc::rlimit {
+                rlim_cur: 64 * 1024,
+                rlim_max: 64 * 1024,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let o = wait_at_most(cmd.spawn().unwrap(), 60);
+    assert_one_line_error(&o, 1, &["out.sma", "File too large|No space left"]);
+    assert!(
+        leftovers(dir.path(), &[]).is_empty(),
+        "{:?}",
+        leftovers(dir.path(), &[])
+    );
+}
+
+/// A long job (seconds) for the signal tests: its temporary output appears early.
+fn long_job(dir: &Path) -> String {
+    write_job(
+        dir,
+        "[input]\nshape = \"gyroid\"\nsize = [400, 400, 400]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.1\n[output]\npath = \"big.smb\"\n",
+    )
+}
+
+/// SIGTERM and SIGHUP stop a run like Ctrl-C: exit 130, one line, no file left behind.
+#[cfg(unix)]
+#[test]
+fn term_and_hup_stop_like_ctrl_c() {
+    for signal in ["TERM", "HUP"] {
+        let dir = tempfile::tempdir().unwrap();
+        let job = long_job(dir.path());
+        let child = bin().args(["run", &job]).spawn().unwrap();
+        // Wait until the run is writing (its temporary file exists), then signal it.
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !leftovers(dir.path(), &[])
+            .iter()
+            .any(|n| n.ends_with(".tmp"))
+        {
+            assert!(Instant::now() < deadline, "no temporary output appeared");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        kill(&child, signal);
+        let o = wait_at_most(child, 30);
+        assert_one_line_error(&o, 130, &["interrupted"]);
+        assert!(
+            leftovers(dir.path(), &[]).is_empty(),
+            "{signal}: {:?}",
+            leftovers(dir.path(), &[])
+        );
+    }
+}
+
+fn small_job(dir: &Path, output: &str) -> String {
+    write_job(
+        dir,
+        &format!(
+            "[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n[output]\npath = \"{output}\"\n"
+        ),
+    )
+}
+
+/// Temporary files a killed run left are reported at start, and removed by `--clean-stale`.
+#[test]
+fn stale_temporary_files_are_reported_then_cleaned() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), "out/m.smb");
+    std::fs::create_dir(dir.path().join("out")).unwrap();
+    let stale = dir.path().join("out/.m.smb.Ab12cD.tmp");
+    std::fs::write(&stale, b"partial").unwrap();
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains("stale") && err.contains(".m.smb.Ab12cD.tmp") && err.contains("--clean-stale"),
+        "{err}"
+    );
+    assert!(stale.exists(), "reported only, not removed");
+    let o = bin().args(["run", "--clean-stale", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stale.exists());
+    let mut left = leftovers(&dir.path().join("out"), &[]);
+    left.sort();
+    assert_eq!(left, ["m.smb", "m.smb.run.json"]);
+}
+
+/// Two jobs on one output: the second is refused while the first holds the output's lock.
+#[test]
+fn second_job_on_the_same_output_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), "m.smb");
+    let lock = isostream_pipeline::lock_output(&dir.path().join("m.smb")).unwrap();
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert_one_line_error(&o, 1, &["m.smb", "another isostream job"]);
+    drop(lock);
+    assert!(leftovers(dir.path(), &[]).is_empty());
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut left = leftovers(dir.path(), &[]);
+    left.sort();
+    assert_eq!(left, ["m.smb", "m.smb.run.json"], "no lock file left");
+}
+
+/// A raw u8 volume `values` (4x4x4) and a job on it with `iso` and extra `[output]` lines.
+fn raw_u8_job(dir: &Path, values: &[u8], iso: f64, output_extra: &str) -> String {
+    std::fs::write(dir.join("v.raw"), values).unwrap();
+    write_job(
+        dir,
+        &format!(
+            "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = {iso}\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n{output_extra}"
+        ),
+    )
+}
+
+/// An iso outside the data range gives an empty surface: an error (exit 2) naming the range and
+/// the iso, unless `[output] allow_empty = true`.
+#[test]
+fn empty_surface_is_an_error_unless_allowed() {
+    let dir = tempfile::tempdir().unwrap();
+    let values: Vec<u8> = (0..64).collect();
+    let job = raw_u8_job(dir.path(), &values, 100.0, "");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert_one_line_error(
+        &o,
+        2,
+        &["v.raw", "extract.iso = 100", "[0, 63]", "allow_empty"],
+    );
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+
+    let job = raw_u8_job(dir.path(), &values, 100.0, "allow_empty = true\n");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("o.smb").exists());
+}
+
+/// An all-NaN volume: the error says no voxel was finite.
+#[test]
+fn all_nan_volume_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let nan: Vec<u8> = std::iter::repeat_n(f32::NAN.to_le_bytes(), 64)
+        .flatten()
+        .collect();
+    std::fs::write(dir.path().join("v.raw"), nan).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"f32\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert_one_line_error(&o, 2, &["no finite voxel", "all 64", "extract.iso = 0.5"]);
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+}
+
+/// An NRRD whose `sizes` describe less data than its file holds is refused like a raw file,
+/// naming both sizes.
+#[test]
+fn nrrd_with_more_data_than_sizes_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut bytes =
+        b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n\n".to_vec();
+    let header = bytes.len();
+    bytes.extend(0..12u8);
+    std::fs::write(dir.path().join("v.nrrd"), &bytes).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.nrrd\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = bin().args([cmd, &job]).output().unwrap();
+        let actual = format!("is {} bytes", header + 12);
+        let expected = format!("need {}", header + 8);
+        assert_one_line_error(&o, 2, &["v.nrrd", &actual, &expected, "sizes"]);
+    }
+    assert!(leftovers(dir.path(), &["v.nrrd"]).is_empty());
+}
+
+/// A 56-byte .nii.gz claiming 30000^3 voxels: refused in milliseconds, under a 1 GiB
+/// address-space limit (it used to allocate 1.7 GB before reading the data).
+#[cfg(target_os = "linux")]
+#[test]
+fn hostile_header_is_refused_without_allocating_its_claim() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let src = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/bad/huge_claim.nii.gz"
+    );
+    std::fs::copy(src, dir.path().join("v.nii.gz")).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.nii.gz\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let mut c = bin();
+        c.args([cmd, &job]);
+        // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child, where only
+        // async-signal-safe calls are allowed; setrlimit is. 1 GiB of address space: far less
+        // than the header claims (27 TB), far more than the binary needs.
+        #[allow(unsafe_code)]
+        unsafe {
+            c.pre_exec(|| {
+                let lim = libc::rlimit {
+                    rlim_cur: 1 << 30,
+                    rlim_max: 1 << 30,
+                };
+                if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let o = wait_at_most(c.spawn().unwrap(), 30);
+        assert_one_line_error(&o, 2, &["v.nii.gz", "slice 0", "end of data"]);
+    }
+    assert!(leftovers(dir.path(), &["v.nii.gz"]).is_empty());
+}
+
+/// A raw input truncated while the run reads it (memory-mapped): an error, not SIGBUS.
+#[cfg(unix)]
+#[test]
+fn raw_input_truncated_mid_run_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let dims = [128u64, 128, 256];
+    let n = (dims[0] * dims[1] * dims[2]) as usize;
+    // Noise: a huge surface, so the run lasts long enough to truncate the file under it.
+    let mut rng = common::Rng(5);
+    let bytes: Vec<u8> = (0..n).map(|_| (rng.next_u64() >> 56) as u8).collect();
+    let raw = dir.path().join("v.raw");
+    std::fs::write(&raw, &bytes).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.raw\"\ndims = [128, 128, 256]\ndtype = \"u8\"\n[extract]\niso = 127.5\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n[pipeline]\nchannel_capacity = 1\n",
+    );
+    let child = bin().args(["run", &job]).spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !leftovers(dir.path(), &["v.raw"])
+        .iter()
+        .any(|n| n.ends_with(".tmp"))
+    {
+        assert!(Instant::now() < deadline, "no temporary output appeared");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&raw)
+        .unwrap()
+        .set_len(n as u64 / 2)
+        .unwrap();
+    let o = wait_at_most(child, 60);
+    assert_one_line_error(&o, 2, &["v.raw", "truncated while being read"]);
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+}
+
+/// A FIFO as input is refused at once by validate and run, instead of blocking on open.
+#[cfg(unix)]
+#[test]
+fn fifo_input_is_refused_not_waited_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("v.raw");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = wait_at_most(bin().args([cmd, &job]).spawn().unwrap(), 20);
+        assert_one_line_error(&o, 2, &["v.raw", "FIFO", "regular file"]);
+    }
+    assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
+    // The same behind a detached NRRD header naming the FIFO as its data file.
+    std::fs::write(
+        dir.path().join("v.nhdr"),
+        "NRRD0004\ntype: uchar\ndimension: 3\nsizes: 4 4 4\nencoding: raw\ndata file: v.raw\n",
+    )
+    .unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.nhdr\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = wait_at_most(bin().args([cmd, &job]).spawn().unwrap(), 20);
+        assert_one_line_error(&o, 2, &["v.raw", "FIFO"]);
+    }
+    assert!(leftovers(dir.path(), &["v.raw", "v.nhdr"]).is_empty());
+}
+
+fn sphere_job(dir: &Path, output: &str, extra: &str) -> String {
+    write_job(
+        dir,
+        &format!(
+            "[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n[output]\npath = \"{output}\"\n{extra}"
+        ),
+    )
+}
+
+/// `validate` fails when the output cannot be created: its folder is a file, or the path is a
+/// folder; and when an attribute file is missing or on another grid.
+#[test]
+fn validate_catches_bad_outputs_and_attributes() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("plain"), b"x").unwrap();
+    std::fs::create_dir(dir.path().join("folder.smb")).unwrap();
+    let cases: [(&str, &str, &[&str]); 2] = [
+        ("plain/o.smb", "", &["output.path", "plain is a file"]),
+        ("folder.smb", "", &["output.path", "folder.smb is a folder"]),
+    ];
+    for (out, extra, needles) in cases {
+        let job = sphere_job(dir.path(), out, extra);
+        assert_one_line_error(
+            &bin().args(["validate", &job]).output().unwrap(),
+            2,
+            needles,
+        );
+    }
+    // Attributes need a raw iso volume to share a grid with.
+    std::fs::write(dir.path().join("v.raw"), [0u8; 64]).unwrap();
+    std::fs::write(dir.path().join("small.raw"), [0u8; 27]).unwrap();
+    let raw_job = |attr: &str| {
+        write_job(
+            dir.path(),
+            &format!(
+                "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n[[attributes]]\nname = \"a\"\n{attr}"
+            ),
+        )
+    };
+    let job = raw_job("path = \"missing.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n");
+    assert_one_line_error(
+        &bin().args(["validate", &job]).output().unwrap(),
+        2,
+        &["missing.raw", "no such file"],
+    );
+    let job = raw_job("path = \"small.raw\"\ndims = [3, 3, 3]\ndtype = \"u8\"\n");
+    assert_one_line_error(
+        &bin().args(["validate", &job]).output().unwrap(),
+        2,
+        &["small.raw", "same grid"],
+    );
+}
+
+/// A mesh to break: a small sphere run, in SMB and SMA.
+fn meshes(dir: &Path) -> (String, String) {
+    let job = sphere_job(dir, "m.smb", "");
+    assert!(bin().args(["run", &job]).status().unwrap().success());
+    let smb = dir.join("m.smb").to_string_lossy().into_owned();
+    let sma = dir.join("m.sma").to_string_lossy().into_owned();
+    assert!(
+        bin()
+            .args(["convert", &smb, &sma])
+            .status()
+            .unwrap()
+            .success()
+    );
+    (smb, sma)
+}
+
+/// `check` refuses empty and truncated files and non-finite coordinates, with exit code 2.
+#[test]
+fn check_rejects_empty_truncated_and_non_finite_meshes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (smb, sma) = meshes(dir.path());
+    let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    std::fs::write(p("empty.sma"), b"").unwrap();
+    std::fs::write(p("empty.smb"), b"").unwrap();
+    let smb_bytes = std::fs::read(&smb).unwrap();
+    let m = smb_bytes.len();
+    std::fs::write(p("cut.smb"), &smb_bytes[..m - 10]).unwrap();
+    let sma_text = std::fs::read_to_string(&sma).unwrap();
+    std::fs::write(p("cut.sma"), &sma_text[..sma_text.len() / 2]).unwrap();
+    let first_v = sma_text.find("\nv ").unwrap() + 1;
+    let line_end = first_v + sma_text[first_v..].find('\n').unwrap();
+    let nan = format!(
+        "{}v nan 0 inf{}",
+        &sma_text[..first_v],
+        &sma_text[line_end..]
+    );
+    std::fs::write(p("nan.sma"), nan).unwrap();
+    let cut_at = format!("truncated at byte {} of {m}", m - 10);
+    let cases: [(&str, &[&str]); 5] = [
+        ("empty.sma", &["empty (0 bytes)"]),
+        ("empty.smb", &["empty (0 bytes)"]),
+        ("cut.smb", &[&cut_at]),
+        ("cut.sma", &["cut.sma", "truncated|end of stream|expected"]),
+        ("nan.sma", &["non-finite coordinate", "NaN"]),
+    ];
+    for (name, needles) in cases {
+        let o = bin().args(["check", &p(name)]).output().unwrap();
+        assert_one_line_error(&o, 2, needles);
+        // convert reads through the same checks, and measure through the same reader.
+        let o = bin()
+            .args(["convert", &p(name), &p("x.ply")])
+            .output()
+            .unwrap();
+        assert_one_line_error(&o, 2, needles);
+        assert!(!dir.path().join("x.ply").exists());
+    }
+    let o = bin().args(["measure", &p("nan.sma")]).output().unwrap();
+    assert_one_line_error(&o, 2, &["non-finite"]);
+}
+
+/// `check` and `convert` speak sentences, or JSON with `--json`; logs carry no colour codes when
+/// stderr is not a terminal; the done line's path is normalised; bad output extensions list the
+/// six accepted ones.
+#[test]
+fn papercuts() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    let job = sphere_job(dir.path(), "sub/../m.smb", "");
+    let o = bin()
+        .args(["run", &job])
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains('\u{1b}'), "ANSI codes in a pipe");
+    let done = String::from_utf8_lossy(&o.stdout).into_owned();
+    let m = dir.path().join("m.smb").canonicalize().unwrap();
+    assert!(
+        done.starts_with(&format!("{}: ", m.display())),
+        "not normalised: {done}"
+    );
+    let smb = m.to_string_lossy().into_owned();
+
+    let o = bin().args(["check", &smb]).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        o.status.success() && text.contains("valid SMB streaming mesh"),
+        "{text}"
+    );
+    assert!(
+        !text.contains('{') && !text.contains("Report"),
+        "debug struct: {text}"
+    );
+    let o = bin().args(["check", "--json", &smb]).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["valid"], true);
+    assert!(v["triangles"].as_u64().unwrap() > 0);
+
+    let ply = dir.path().join("m.ply").to_string_lossy().into_owned();
+    let o = bin().args(["convert", &smb, &ply]).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(o.status.success() && text.contains("triangles"), "{text}");
+    assert!(!text.contains("Stats"), "debug struct: {text}");
+    let o = bin()
+        .args(["convert", "--json", &smb, &ply])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["output_format"], "Ply");
+
+    let six = [".smb", ".sma", ".ply", ".obj", ".stl", ".glb"];
+    let o = bin()
+        .args(["convert", &smb, &dir.path().join("m.xyz").to_string_lossy()])
+        .output()
+        .unwrap();
+    assert_one_line_error(&o, 2, &six);
+    let job = sphere_job(dir.path(), "m.xyz", "");
+    assert_one_line_error(
+        &bin().args(["validate", &job]).output().unwrap(),
+        2,
+        &[&["output.path"][..], &six[..]].concat(),
+    );
+}
+
+/// Config mistakes that used to be ignored: an unparsable or misspelt `log.level`, and an
+/// `error` bound in rate mode.
+#[test]
+fn ignored_keys_are_config_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    for (extra, key) in [
+        ("[log]\nlevel = \"debugg\"\n", "log.level"),
+        ("[log]\nlevel = \"info,=[\"\n", "log.level"),
+        ("[simplify]\nrate = 0.5\nerror = 0.1\n", "simplify.error"),
+    ] {
+        let job = sphere_job(dir.path(), "m.smb", extra);
+        for cmd in ["validate", "run"] {
+            let o = bin().args([cmd, &job]).output().unwrap();
+            assert_one_line_error(&o, 2, &[key, "job.toml"]);
+        }
+    }
+    assert!(leftovers(dir.path(), &[]).is_empty());
+}
