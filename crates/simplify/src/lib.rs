@@ -28,17 +28,35 @@
 //! * **Ill-conditioning**: when `|det A| < 1e-9 (trace A / 3)^3` or the optimum lies farther
 //!   than 4 edge lengths from the midpoint, the best of the endpoints and the midpoint is taken;
 //!   coincident endpoints are merged in place.
-//! * **Rate policy with retirement**: retirement runs after a decimation pass only, so every
-//!   vertex is offered to the heap before it leaves; the initial phase also ends when output
-//!   starts. The target is met (within a few %) once `retire_lag` leaves the band room (about 3
-//!   slabs for rates down to 0.1, 5 to 8 below) and `batch` is small against the surface.
+//! * **Rate policy: retirement by the memory budget.** The simplified surface stays resident, as
+//!   in Hou and Chen 4.3 (R F + B faces), and vertices leave only when `max_resident_faces` is
+//!   exceeded, oldest rank first, after a pass has decimated what they bound. Retiring a fixed
+//!   `retire_lag` behind the front (the earlier design) ruined low rates (engine at R = 0.01: RMS
+//!   0.71 % of the diagonal against 0.085 % in core) for two reasons. (1) Emitted faces are final,
+//!   so every face that left above the rate had to be paid for by over-decimating whatever was
+//!   still resident: a band of a few slabs squeezed to 1 % while its neighbours were fixed. (2)
+//!   The initial phase holds the band at `initial_rate` until the standard target catches up;
+//!   retirement right after such a pass emitted faces at R_i = 0.5, which is why `batch = 200000`
+//!   wrote 13x the target (the first pass came at 200 k faces, all of them still in the initial
+//!   phase), and why a longer lag made it worse instead of better (the overshoot of the first
+//!   emitted slabs was charged to fewer, later passes). With the budget the rate is only ever
+//!   reached by decimating, never by emitting.
+//! * **Front-gated modifiability**: a vertex whose rank is beyond the front becomes modifiable
+//!   when the front reaches it (`set_modifiable`). Counting its faces as modifiable made the rate
+//!   target ask for contractions that could only wait for the front; near a dense slab a pass then
+//!   took edges costing a million times the in-core maximum (shape error 16 voxels on engine).
 //! * **Coincident vertices** (marching cubes at value == iso): their edges sort before all
 //!   others and are contracted even past the rate target, so zero-area triangles only survive
 //!   where the link condition forbids the merge.
 //! * **Retirement** only takes modifiable vertices (one that may still gain triangles could not
 //!   be finalized); one due earlier retires as soon as it becomes modifiable.
-//! * **Bounded band**: the rank span of every preimage is at most `2 retire_lag + 2` slabs, so
-//!   no vertex rides along with the front; stale heap entries are compacted away.
+//! * **Bounded band** (lag retirement: modes `error` and `none`): the rank span of every
+//!   preimage is at most `2 retire_lag + 2` slabs, so no vertex rides along with the front; stale
+//!   heap entries are compacted away. Rate mode needs no span bound: the budget retires the oldest
+//!   buckets whatever rides ahead, and a rider keeps only its own fan.
+//! * **Handles**: vertices live in slots with generations (`store`): memory follows the live
+//!   vertices, and a handle kept in the heap, a rank bucket or the intersection index never names
+//!   the vertex that reuses its slot.
 //!
 //! Architecture invariants: no I/O, no threads; only modifiable, unretired vertices move; every
 //! contraction passes the link condition and the geometry checks; memory is bounded by the
@@ -75,9 +93,11 @@ use store::{Store, Tri, Vertex};
 #[derive(Debug, Clone)]
 pub struct SimplifyConfig {
     pub policy: Policy,
-    /// Retire vertices whose highest preimage rank is below front - retire_lag (slabs).
+    /// Modes `error` and `none`: retire vertices whose highest preimage rank is below
+    /// front - retire_lag (slabs). Rate mode retires by `max_resident_faces` only.
     pub retire_lag: u32,
-    /// When more faces than this are resident, retire the oldest vertices early (memory budget).
+    /// When more faces than this are resident, decimate (rate) and retire the oldest vertices
+    /// (memory budget).
     pub max_resident_faces: usize,
     /// Number of f32 attributes per vertex (0 for now; later issues carry data through
     /// contractions).
