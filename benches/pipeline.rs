@@ -20,7 +20,7 @@ use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use isostream_detect::{Detector, MeshDelta};
 use isostream_extract::{CubeBatch, Extractor};
 use isostream_pipeline::JobConfig;
-use isostream_simplify::{OutBatch, Policy, Simplifier, SimplifyConfig};
+use isostream_simplify::{OutBatch, Policy, Simplifier, SimplifyConfig, Sweep};
 use isostream_volume::{Grid, Procedural, Shape, VolumeSource};
 
 const N: u64 = 128;
@@ -86,21 +86,22 @@ fn simplification(c: &mut Criterion) {
     });
     drop(slices);
     let config = SimplifyConfig {
-        policy: Policy::Rate {
+        sweep: Some(Sweep {
+            direction: glam::DVec3::Z,
+            origin: grid.origin[2],
+            spacing: grid.spacing[2],
+        }),
+        ..SimplifyConfig::new(Policy::Rate {
             rate: 0.2,
             batch: 10_000,
             initial_rate: 0.5,
-        },
-        retire_lag: 8,
-        max_resident_faces: usize::MAX / 2,
-        attributes: 0,
+        })
     };
     let mut group = c.benchmark_group("simplify");
     group.throughput(Throughput::Elements(triangles));
     group.bench_function("gyroid64_rate0.2", |b| {
         b.iter(|| {
             let mut simplifier = Simplifier::new(config.clone()).unwrap();
-            simplifier.set_sweep(glam::DVec3::Z, grid.origin[2], grid.spacing[2]);
             let mut out = OutBatch::default();
             for delta in &deltas {
                 for v in &delta.vertices {

@@ -81,7 +81,7 @@ pub fn run(
         warn!(input = %input, "the input's encoding forces decoding the whole volume at once (one chunk spans every slice): memory grows with the volume; re-chunk it along z");
     }
 
-    let mut simplifier = Simplifier::new(simplifier_config(job)).map_err(|e| {
+    let simplifier = Simplifier::new(simplifier_config(job, grid)).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
             path: job_path.to_path_buf(),
             key: "simplify".into(),
@@ -89,19 +89,7 @@ pub fn run(
             got: e.to_string(),
         })
     })?;
-    simplifier.set_sweep(glam::DVec3::Z, grid.origin[2], grid.spacing[2]);
-    simplifier
-        .set_priority(attributes::priority(job))
-        .map_err(|e| {
-            RunError::Config(ConfigError::Invalid {
-                path: job_path.to_path_buf(),
-                key: "simplify.priority".into(),
-                expected: "a valid priority setting".into(),
-                got: e.to_string(),
-            })
-        })?;
     let attribute_sources = attributes::open(&job.attributes, &job.input, grid)?;
-    simplifier.set_in_core(job.simplify.mode == Mode::Classical);
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
@@ -170,9 +158,18 @@ pub fn run(
     Ok(summary)
 }
 
-fn simplifier_config(job: &JobConfig) -> SimplifierConfig {
+/// The simplifier's whole configuration: policy, priority, budget, attributes, and the sweep
+/// along z (marching cubes' slabs), in-core for `classical`.
+fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid) -> SimplifierConfig {
     let s = &job.simplify;
     SimplifierConfig {
+        priority: attributes::priority(job),
+        sweep: Some(isostream_simplify::Sweep {
+            direction: glam::DVec3::Z,
+            origin: grid.origin[2],
+            spacing: grid.spacing[2],
+        }),
+        in_core: s.mode == Mode::Classical,
         policy: match s.mode {
             Mode::None => Policy::None,
             Mode::Rate => Policy::Rate {

@@ -73,9 +73,9 @@ impl Simplifier {
 
     /// The rank the front must reach before contracting `a`, `b` to `pos` is safe from the
     /// triangles still to come, when that is beyond the current front: the farthest rank of the
-    /// new fan's corners (the fan lies in their convex hull; see [`Simplifier::set_sweep`]).
+    /// new fan's corners (the fan lies in their convex hull; see [`crate::Sweep`]).
     fn beyond_front(&self, a: u64, b: u64, pos: DVec3) -> Option<f64> {
-        let sweep = self.sweep?;
+        let sweep = self.config.sweep?;
         let mut far = sweep.rank_of(pos);
         for x in [a, b] {
             for &t in self.store.vertex(x).map_or(&[][..], |v| &v.tris[..]) {

@@ -90,18 +90,66 @@ use quadric::Quadric;
 use retire::RankBuckets;
 use store::{Store, Tri, Vertex};
 
+/// Everything a [`Simplifier`] needs, given at once to [`Simplifier::new`], which validates it:
+/// there is no setter that must come "before the first vertex".
 #[derive(Debug, Clone)]
 pub struct SimplifyConfig {
     pub policy: Policy,
+    /// Edge order and attribute merging, in every policy.
+    pub priority: Priority,
     /// Modes `error` and `none`: retire vertices whose highest preimage rank is below
     /// front - retire_lag (slabs). Rate mode retires by `max_resident_faces` only.
     pub retire_lag: u32,
     /// When more faces than this are resident, decimate (rate) and retire the oldest vertices
     /// (memory budget).
     pub max_resident_faces: usize,
-    /// Number of f32 attributes per vertex (0 for now; later issues carry data through
-    /// contractions).
+    /// Number of f32 attributes per vertex.
     pub attributes: usize,
+    /// Where the sweep's planes are (see [`Sweep`]); `None`: no front rule, spacing 1.
+    pub sweep: Option<Sweep>,
+    /// Classical (in-core) simplification, the Tandem paper's baseline: `end_batch` neither
+    /// decimates nor retires, so the whole full-resolution surface stays resident and `finish`
+    /// simplifies it at once with the same policy, then emits it. Nothing bounds memory then: the
+    /// caller checks [`Simplifier::in_core_overflow`].
+    pub in_core: bool,
+}
+
+impl SimplifyConfig {
+    /// `policy` with the geometric priority, `retire_lag` 8, no face budget, no attributes, no
+    /// sweep, streaming.
+    pub fn new(policy: Policy) -> Self {
+        Self {
+            policy,
+            priority: Priority::default(),
+            retire_lag: 8,
+            max_resident_faces: usize::MAX,
+            attributes: 0,
+            sweep: None,
+            in_core: false,
+        }
+    }
+}
+
+/// The sweep's rank planes: rank `r` is the plane `p . direction = origin + r * spacing` (for
+/// marching cubes along z: `direction = Z`, the grid's z origin and spacing).
+///
+/// `spacing` converts lengths into ranks for the time-lag radius (which adds edge lengths to
+/// heights). The planes also keep contractions behind the front: triangles still to come lie
+/// beyond it (a marching-cubes triangle stays in its cube), so a contraction whose new fan
+/// reaches past the front waits (like a time-lag DELAY) until the front has passed the fan;
+/// otherwise a later triangle could cross it, and no check would see that.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sweep {
+    pub direction: DVec3,
+    pub origin: f64,
+    pub spacing: f64,
+}
+
+impl Sweep {
+    /// The (fractional) rank of the plane through `p`.
+    pub(crate) fn rank_of(&self, p: DVec3) -> f64 {
+        (p.dot(self.direction) - self.origin) / self.spacing
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -110,6 +158,8 @@ pub enum SimplifyError {
     InvalidPolicy(String),
     #[error("max_resident_faces must be at least 1")]
     ZeroFaceBudget,
+    #[error("the sweep needs a finite direction and origin and a positive spacing")]
+    InvalidSweep,
 }
 
 /// Counters for the run summary and the tests.
@@ -134,7 +184,7 @@ pub struct SimplifyStats {
     /// Candidates refused because the new fan would cross another triangle (`intersect`).
     pub rejected_intersection: u64,
     /// Contractions postponed because their new fan reached past the front (see
-    /// [`Simplifier::set_sweep`]).
+    /// [`Sweep`]).
     pub delayed_front: u64,
     /// Candidates refused on re-evaluation (boundary rule, threshold).
     pub rejected_other: u64,
@@ -172,13 +222,9 @@ pub enum OutElement {
 pub struct Simplifier {
     config: SimplifyConfig,
     objective: Option<Objective>,
-    /// Edge order and attribute merging (`priority`; set with [`Simplifier::set_priority`]).
-    priority: Priority,
     schedule: Schedule,
     time_lag: bool,
     rank_spacing: f64,
-    /// Rank planes (see [`Simplifier::set_sweep`]).
-    sweep: Option<SweepPlanes>,
     store: Store,
     /// Spatial hash of the resident (and latest emitted) triangles for the intersection guard.
     isect: intersect::TriIndex,
@@ -192,38 +238,31 @@ pub struct Simplifier {
     front: f64,
     next_out: u64,
     stats: SimplifyStats,
-    /// Classical (in-core) run: keep the whole surface, decimate and emit only in `finish`.
-    in_core: bool,
-}
-
-/// The sweep's rank planes (see [`Simplifier::set_sweep`]).
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct SweepPlanes {
-    direction: DVec3,
-    origin: f64,
-    spacing: f64,
-}
-
-impl SweepPlanes {
-    /// The (fractional) rank of the plane through `p`.
-    pub(crate) fn rank_of(&self, p: DVec3) -> f64 {
-        (p.dot(self.direction) - self.origin) / self.spacing
-    }
 }
 
 impl Simplifier {
+    /// # Errors
+    /// An invalid policy or priority (for the number of attributes), a zero face budget, or a
+    /// sweep with a non-finite direction or origin or a spacing that is not positive.
     pub fn new(config: SimplifyConfig) -> Result<Self, SimplifyError> {
         config.policy.validate()?;
+        config.priority.validate(config.attributes)?;
         if config.max_resident_faces == 0 {
             return Err(SimplifyError::ZeroFaceBudget);
         }
+        if let Some(w) = config.sweep
+            && !(w.spacing > 0.0
+                && w.spacing.is_finite()
+                && w.origin.is_finite()
+                && w.direction.is_finite())
+        {
+            return Err(SimplifyError::InvalidSweep);
+        }
         Ok(Self {
             objective: config.policy.objective(),
-            priority: Priority::default(),
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
-            rank_spacing: 1.0,
-            sweep: None,
+            rank_spacing: config.sweep.map_or(1.0, |w| w.spacing),
             config,
             store: Store::default(),
             isect: intersect::TriIndex::default(),
@@ -234,42 +273,13 @@ impl Simplifier {
             front: 0.0,
             next_out: 0,
             stats: SimplifyStats::default(),
-            in_core: false,
         })
-    }
-
-    /// Where the sweep's rank planes are: rank `r` is the plane `p . direction = origin + r *
-    /// spacing` (for marching cubes along z: `direction = Z`, the grid's z origin and spacing).
-    ///
-    /// `spacing` converts lengths into ranks for the time-lag radius (which adds edge lengths to
-    /// heights). The planes also keep contractions behind the front: triangles still to come lie
-    /// beyond it (a marching-cubes triangle stays in its cube), so a contraction whose new fan
-    /// reaches past the front waits (like a time-lag DELAY) until the front has passed the fan;
-    /// otherwise a later triangle could cross it, and no check would see that. Without a sweep
-    /// (the default: spacing 1, no planes) only the first use applies.
-    pub fn set_sweep(&mut self, direction: DVec3, origin: f64, spacing: f64) {
-        if spacing > 0.0 && spacing.is_finite() && origin.is_finite() && direction.is_finite() {
-            self.rank_spacing = spacing;
-            self.sweep = Some(SweepPlanes {
-                direction,
-                origin,
-                spacing,
-            });
-        }
-    }
-
-    /// Classical (in-core) simplification, the Tandem paper's baseline: `end_batch` neither
-    /// decimates nor retires, so the whole full-resolution surface stays resident and `finish`
-    /// simplifies it at once with the same policy, then emits it. Nothing bounds memory then: the
-    /// caller checks [`Simplifier::in_core_overflow`]. Call before the first vertex.
-    pub fn set_in_core(&mut self, on: bool) {
-        self.in_core = on;
     }
 
     /// In-core mode only: the resident face count once it exceeds `max_resident_faces`.
     pub fn in_core_overflow(&self) -> Option<usize> {
         let resident = self.store.resident();
-        (self.in_core && resident > self.config.max_resident_faces).then_some(resident)
+        (self.config.in_core && resident > self.config.max_resident_faces).then_some(resident)
     }
 
     /// A new vertex. `attrs` holds `attributes` values (missing ones are 0, extra ones dropped).
@@ -339,7 +349,7 @@ impl Simplifier {
     /// All triangles of `id` exist: it may move from now on, and its edges to other modifiable
     /// vertices become candidates (Hou and Chen 4.1, "Vertex modifiability detection").
     ///
-    /// With a sweep (see [`Simplifier::set_sweep`]), a vertex beyond the front (rank above it)
+    /// With a sweep (see [`Sweep`]), a vertex beyond the front (rank above it)
     /// waits until the front reaches it: every contraction it could take part in would wait
     /// for the front anyway, and counting its faces as unmodifiable keeps the rate target to
     /// what can be contracted now. (A target counting them made passes near a dense slab contract
@@ -355,7 +365,7 @@ impl Simplifier {
         if v.modifiable {
             return;
         }
-        if self.sweep.is_some() && f64::from(v.rank_max) > self.front {
+        if self.config.sweep.is_some() && f64::from(v.rank_max) > self.front {
             self.beyond_front
                 .push(std::cmp::Reverse((v.rank_max, slot)));
             return;
@@ -400,7 +410,7 @@ impl Simplifier {
     pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
         self.front = f64::from(front);
         self.release_reached();
-        if self.in_core {
+        if self.config.in_core {
             return;
         }
         self.candidates.activate(self.front);
@@ -489,10 +499,10 @@ mod tests {
 
     fn config(policy: Policy) -> SimplifyConfig {
         SimplifyConfig {
-            policy,
             retire_lag: 1,
             max_resident_faces: 100,
             attributes: 2,
+            ..SimplifyConfig::new(policy)
         }
     }
 
@@ -515,6 +525,26 @@ mod tests {
         assert!(matches!(
             Simplifier::new(zero),
             Err(SimplifyError::ZeroFaceBudget)
+        ));
+        let flat = SimplifyConfig {
+            sweep: Some(Sweep {
+                direction: DVec3::Z,
+                origin: 0.0,
+                spacing: 0.0,
+            }),
+            ..config(Policy::None)
+        };
+        assert!(matches!(
+            Simplifier::new(flat),
+            Err(SimplifyError::InvalidSweep)
+        ));
+        let weights = SimplifyConfig {
+            priority: Priority::AttributeQuadric { weights: vec![1.0] },
+            ..config(Policy::None)
+        };
+        assert!(matches!(
+            Simplifier::new(weights),
+            Err(SimplifyError::InvalidPolicy(_))
         ));
     }
 
@@ -571,10 +601,10 @@ mod tests {
     fn in_core_mode_defers_everything_to_finish() {
         let mut s = Simplifier::new(SimplifyConfig {
             max_resident_faces: 1,
+            in_core: true,
             ..config(Policy::None)
         })
         .unwrap();
-        s.set_in_core(true);
         for (id, pos) in [
             (0, DVec3::ZERO),
             (1, DVec3::X),

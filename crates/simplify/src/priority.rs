@@ -64,19 +64,8 @@ pub(crate) struct Merged {
 }
 
 impl Simplifier {
-    /// Sets the priority. Call before the first vertex (the attribute quadric accumulates from the
-    /// first triangle on).
-    ///
-    /// # Errors
-    /// `lambda` outside [0, 1], or attribute weights not one positive number per attribute.
-    pub fn set_priority(&mut self, priority: Priority) -> Result<(), SimplifyError> {
-        priority.validate(self.config.attributes)?;
-        self.priority = priority;
-        Ok(())
-    }
-
     pub fn priority(&self) -> &Priority {
-        &self.priority
+        &self.config.priority
     }
 
     /// Cost and placement of `ab -> c`: the objective's, re-ranked or re-placed by the priority.
@@ -85,7 +74,7 @@ impl Simplifier {
         if eval.cost == COINCIDENT {
             return Some(eval);
         }
-        match &self.priority {
+        match &self.config.priority {
             Priority::Geometric => {}
             Priority::DataDependent { lambda } => {
                 eval.cost = data_dependent::weight(&self.store, a, *lambda)
@@ -117,7 +106,7 @@ impl Simplifier {
                 attr_quadric: None,
             };
         };
-        match (&self.priority, &g.attr_quadric, &k.attr_quadric) {
+        match (&self.config.priority, &g.attr_quadric, &k.attr_quadric) {
             (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
                 let q = qg.sum(qk);
                 let attrs = q
@@ -184,7 +173,7 @@ impl Simplifier {
 
     /// Adds triangle `v`'s attribute quadric to its corners (attribute-quadric priority only).
     pub(crate) fn add_attribute_quadric(&mut self, v: [u64; 3]) {
-        let Priority::AttributeQuadric { weights } = &self.priority else {
+        let Priority::AttributeQuadric { weights } = &self.config.priority else {
             return;
         };
         let corners = v.map(|id| self.store.vertex(id).map(|x| (x.pos, x.attrs.clone())));

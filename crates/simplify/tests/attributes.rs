@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{Policy, Priority, Simplifier, SimplifyConfig};
+use isostream_simplify::{Policy, Priority, SimplifyConfig};
 
 /// Feeds `mesh` as a sweep along z (rank = floor(z)) with `m` attributes `attr(pos)`, returns
 /// the output mesh and its attributes.
@@ -16,13 +16,12 @@ fn run_with(
     m: usize,
     attr: impl Fn(DVec3) -> Vec<f32>,
 ) -> (Mesh, Vec<f32>) {
-    let mut s = Simplifier::new(SimplifyConfig {
+    let config = SimplifyConfig {
         attributes: m,
+        priority,
         ..config(policy, 3)
-    })
-    .unwrap();
-    s.set_priority(priority).unwrap();
-    let run = feed(mesh, s, &Sweep::default(), m, attr);
+    };
+    let run = feed(mesh, config, &Sweep::default(), attr);
     (run.mesh, run.attrs)
 }
 

@@ -77,7 +77,7 @@ proptest! {
         budget in prop_oneof![Just(usize::MAX), 50usize..3000],
         sweep in sweep(),
     ) {
-        let cfg = SimplifyConfig { policy: policy.clone(), retire_lag, max_resident_faces: budget, attributes: 1 };
+        let cfg = SimplifyConfig { retire_lag, max_resident_faces: budget, attributes: 1, ..SimplifyConfig::new(policy.clone()) };
         let run = run(&input, cfg, &sweep); // checks pre-order and finalization
         assert_same_topology(&input, &run);
         let report = run.check();

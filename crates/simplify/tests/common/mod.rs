@@ -219,10 +219,8 @@ impl Default for Sweep {
 
 pub fn config(policy: Policy, retire_lag: u32) -> SimplifyConfig {
     SimplifyConfig {
-        policy,
         retire_lag,
-        max_resident_faces: usize::MAX,
-        attributes: 0,
+        ..SimplifyConfig::new(policy)
     }
 }
 
@@ -258,21 +256,20 @@ impl Run {
 /// vertex's z coordinate.
 pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
     let attributes = config.attributes;
-    let s = Simplifier::new(config).expect("valid config");
-    feed(mesh, s, sweep, attributes, |p| {
+    feed(mesh, config, sweep, |p| {
         [p.z as f32].into_iter().take(attributes).collect()
     })
 }
 
-/// As [`run`], with a configured simplifier (`attributes` per vertex) and the attributes
-/// `attr(position)` of each vertex.
+/// As [`run`], with the attributes `attr(position)` of each vertex (`config.attributes` of them).
+/// The harness sets `config.sweep` to its slabs.
 pub fn feed(
     mesh: &Mesh,
-    mut s: Simplifier,
+    mut config: SimplifyConfig,
     sweep: &Sweep,
-    attributes: usize,
     attr: impl Fn(DVec3) -> Vec<f32>,
 ) -> Run {
+    let attributes = config.attributes;
     let coord = |p: DVec3| {
         if sweep.reverse {
             -p[sweep.axis]
@@ -304,7 +301,12 @@ pub fn feed(
     // may also reach back, unlike marching cubes'), and `end_batch(k)` follows them.
     let mut direction = DVec3::ZERO;
     direction[sweep.axis] = if sweep.reverse { -1.0 } else { 1.0 };
-    s.set_sweep(direction, min + sweep.slab, sweep.slab);
+    config.sweep = Some(isostream_simplify::Sweep {
+        direction,
+        origin: min + sweep.slab,
+        spacing: sweep.slab,
+    });
+    let mut s = Simplifier::new(config).expect("valid config");
     let max_rank = rank.iter().copied().max().unwrap_or(0);
     let mut tris_by_slab: Vec<Vec<[u32; 3]>> = vec![Vec::new(); max_rank as usize + 1];
     let mut remaining = vec![0usize; mesh.pos.len()];
