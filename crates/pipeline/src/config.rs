@@ -271,9 +271,11 @@ fn check_log_filter(level: &str) -> Result<(), String> {
 /// Bytes of simplifier state per resident face: the face, half a vertex with its quadric, heap
 /// entries and the intersection index's record and cells. Measured: about 800 (bonsai, R = 0.2)
 /// to 1100 (engine, R = 0.05) bytes per peak resident face over the fixed part, and the peak
-/// passes the budget by up to a detector batch before a pass brings it back; 1300 keeps the
-/// default jobs on every volume in `../shared/data` under 64 MiB.
-const BYTES_PER_RESIDENT_FACE: u64 = 1300;
+/// passes the budget by up to a detector batch before a pass brings it back. 1150 keeps default
+/// jobs at R = 0.2 on every volume in `../shared/data` under 64 MiB; 1300 (safer for memory at
+/// low rates) made the budget bind at R = 0.01 on engine, whose dense last slabs briefly hold
+/// 42 k faces, and cost a third of its accuracy (docs/performance.md).
+const BYTES_PER_RESIDENT_FACE: u64 = 1150;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
 const FIXED_MIB: u64 = 16;
