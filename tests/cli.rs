@@ -4,24 +4,9 @@
 mod common;
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
-use common::{Mesh, TestVolume, isostream, random_blobs};
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// The error is one line starting with `error:`.
-fn assert_one_line_error(o: &Output, code: i32, needles: &[&str]) {
-    let err = stderr(o);
-    assert_eq!(o.status.code(), Some(code), "stderr: {err}");
-    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
-    assert_eq!(lines.len(), 1, "stderr: {err}");
-    for n in needles {
-        assert!(lines[0].contains(n), "{n:?} missing from: {}", lines[0]);
-    }
-}
+use common::{Mesh, TestVolume, assert_one_line_error, isostream, random_blobs, stderr};
 
 fn write_job(dir: &Path, body: &str) -> String {
     let job = dir.join("job.toml");

@@ -3,29 +3,10 @@
 
 mod common;
 
+use common::{assert_one_line_error, stderr};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// The error is one line starting with `error:` holding every needle (any of the `|`-separated
-/// alternatives).
-fn assert_one_line_error(o: &Output, code: i32, needles: &[&str]) {
-    let err = stderr(o);
-    assert_eq!(o.status.code(), Some(code), "stderr: {err}");
-    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
-    assert_eq!(lines.len(), 1, "stderr: {err}");
-    for n in needles {
-        assert!(
-            n.split('|').any(|alt| lines[0].contains(alt)),
-            "{n:?} missing from: {}",
-            lines[0]
-        );
-    }
-}
 
 fn write_job(dir: &Path, body: &str) -> String {
     let job = dir.join("job.toml");

@@ -161,3 +161,24 @@ pub fn isostream(args: &[&str]) -> Output {
         .output()
         .unwrap()
 }
+
+/// What a child process printed on stderr.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// The error is one line starting with `error:`, the exit code is `code`, and the line holds
+/// every needle (any of its `|`-separated alternatives).
+pub fn assert_one_line_error(o: &Output, code: i32, needles: &[&str]) {
+    let err = stderr(o);
+    assert_eq!(o.status.code(), Some(code), "stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "stderr: {err}");
+    for n in needles {
+        assert!(
+            n.split('|').any(|alt| lines[0].contains(alt)),
+            "{n:?} missing from: {}",
+            lines[0]
+        );
+    }
+}
