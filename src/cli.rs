@@ -63,26 +63,7 @@ pub enum Command {
         seed: Option<u64>,
     },
     /// Run a durable queue of jobs, submitted and watched over HTTP (see docs/service.md).
-    Serve {
-        /// Folder holding the jobs (default: $STATE_DIRECTORY under systemd, else ./isostream-state).
-        #[arg(long)]
-        state: Option<PathBuf>,
-        /// Address to listen on; a non-loopback address needs a token.
-        #[arg(long, default_value = "127.0.0.1:8440")]
-        listen: std::net::SocketAddr,
-        /// A folder job inputs may be read from (repeatable); without any, only procedural shapes.
-        #[arg(long = "allow-input", value_name = "DIR")]
-        allow_input: Vec<PathBuf>,
-        /// Require `Authorization: Bearer T` on every request (visible in `ps`: prefer --token-file).
-        #[arg(long, conflicts_with = "token_file")]
-        token: Option<String>,
-        /// Read the token from a file (surrounding whitespace ignored).
-        #[arg(long, value_name = "FILE")]
-        token_file: Option<PathBuf>,
-        /// Jobs running at once (each already keeps five stage threads busy).
-        #[arg(long, default_value_t = 1)]
-        max_parallel_jobs: usize,
-    },
+    Serve(crate::serve_cmd::ServeArgs),
 }
 
 impl Command {
@@ -109,21 +90,7 @@ impl Command {
             } => {
                 crate::measure_cmd::measure(volume.as_deref(), &mesh, json, samples_per_area, seed)
             }
-            Command::Serve {
-                state,
-                listen,
-                allow_input,
-                token,
-                token_file,
-                max_parallel_jobs,
-            } => crate::serve_cmd::serve(crate::serve_cmd::ServeArgs {
-                state,
-                listen,
-                allow_input,
-                token,
-                token_file,
-                max_parallel_jobs,
-            }),
+            Command::Serve(args) => crate::serve_cmd::serve(args),
         }
     }
 }

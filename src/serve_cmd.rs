@@ -7,12 +7,25 @@ use std::path::PathBuf;
 use anyhow::Context;
 use isostream_pipeline::LogConfig;
 
+#[derive(Debug, clap::Args)]
 pub struct ServeArgs {
+    /// Folder holding the jobs (default: $STATE_DIRECTORY under systemd, else ./isostream-state).
+    #[arg(long)]
     pub state: Option<PathBuf>,
+    /// Address to listen on; a non-loopback address needs a token.
+    #[arg(long, default_value = "127.0.0.1:8440")]
     pub listen: SocketAddr,
+    /// A folder job inputs may be read from (repeatable); without any, only procedural shapes.
+    #[arg(long = "allow-input", value_name = "DIR")]
     pub allow_input: Vec<PathBuf>,
+    /// Require `Authorization: Bearer T` on every request (visible in `ps`: prefer --token-file).
+    #[arg(long, conflicts_with = "token_file")]
     pub token: Option<String>,
+    /// Read the token from a file (surrounding whitespace ignored).
+    #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
+    /// Jobs running at once (each already keeps five stage threads busy).
+    #[arg(long, default_value_t = 1)]
     pub max_parallel_jobs: usize,
 }
 
