@@ -506,12 +506,14 @@ def tables(results, scaling, runs):
 
 
 def main():
+    global RATE
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--bin", help="isostream binary (default: $CARGO_TARGET_DIR or target/release)")
     ap.add_argument("--volumes", default="engine,bonsai,cthead",
                     help=f"comma list of {','.join(VOLUMES)}; empty to skip")
     ap.add_argument("--peers", default="skimage-meshopt,vtk", help=f"comma list of {','.join(PEERS)}")
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--rate", type=float, default=0.2, help="R, the same face target for every tool (default 0.2)")
     ap.add_argument("--sizes", default="128,256,384,512", help="sphere sizes for the scaling run")
     ap.add_argument("--skip-scaling", action="store_true")
     ap.add_argument("--selfx-max", type=int, default=2000000,
@@ -529,6 +531,7 @@ def main():
     ap.add_argument("--out", help=argparse.SUPPRESS)
     ap.add_argument("--stats", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    RATE = args.rate
     if args.worker:
         return worker(args)
 
