@@ -71,7 +71,8 @@ pub(super) fn embedded(pw: DVec3, spokes: &[Spoke]) -> bool {
         d += *n;
     }
     let dd = d.length_squared();
-    if !(dd > 0.0) {
+    // NaN corners fail here and below: not proven.
+    if dd.is_nan() || dd <= 0.0 {
         return false;
     }
     for n in &normals[..k] {
@@ -104,7 +105,7 @@ pub(super) fn embedded(pw: DVec3, spokes: &[Spoke]) -> bool {
         if step < 0.0 {
             step += 4.0;
         }
-        if !(step >= MIN_STEP) {
+        if step.is_nan() || step < MIN_STEP {
             return false;
         }
         total += step;
