@@ -9,6 +9,7 @@
 mod attributes;
 mod config;
 mod error;
+mod monitor;
 mod output;
 mod rss;
 mod sink;
@@ -30,8 +31,9 @@ pub use config::{
     PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
+pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
 pub use output::{OutputLock, lock_output, lock_path, stale_temp_files};
-pub use rss::peak_rss_bytes;
+pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
 pub use source::open_source;
 pub use stages::{Progress, StageSeconds};
@@ -63,9 +65,13 @@ pub struct RunSummary {
     pub sink: SinkStats,
     /// What the user should know about the result (also logged as warnings).
     pub warnings: Vec<String>,
+    /// Per slab: voxels done, faces in / out / resident, RSS, seconds (at most
+    /// [`MAX_SERIES_POINTS`] points; see `monitor`). Plotted by `isostream report`.
+    pub series: TimeSeries,
 }
 
-/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
+/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress
+/// after every slab.
 pub fn run(
     job: &JobConfig,
     job_path: &Path,
@@ -106,6 +112,8 @@ pub fn run(
         })
     })?;
     let sink = sink::Sink::create(&job.output.path, &header)?;
+    let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
+    let observe = |p: &Progress| monitor.observe(p);
     let outputs = stages::Stages {
         source,
         attributes: attribute_sources,
@@ -116,9 +124,10 @@ pub fn run(
         batch_triangles: job.pipeline.batch_triangles,
         allow_empty: job.output.allow_empty,
         cancel,
-        observer,
+        observer: &observe,
     }
     .run()?;
+    let series = monitor.finish();
 
     let sink_stats = outputs.sink;
     let target_faces = (job.simplify.mode == Mode::Rate)
@@ -151,6 +160,7 @@ pub fn run(
         simplify: outputs.simplify,
         sink: sink_stats,
         warnings,
+        series,
     };
     if job.output.summary {
         write_summary(&summary, &summary_path(&job.output.path))?;
