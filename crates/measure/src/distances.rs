@@ -43,6 +43,8 @@ pub const MAX_SAMPLES: f64 = 4_000_000.0;
 /// Default search radius of the output -> full direction, in voxel diagonals. A simplified mesh
 /// within its error bound stays well inside a few voxels of the full-resolution surface.
 pub const DEFAULT_SEARCH_VOXEL_DIAGONALS: f64 = 4.0;
+/// Bins of each direction's distance histogram, over `[0, max_distance]`.
+pub const DISTANCE_BINS: usize = 20;
 /// Default seed: reports are reproducible unless a seed is asked for.
 pub const DEFAULT_SEED: u64 = 0x1505_7EA3;
 
@@ -81,6 +83,9 @@ pub struct DirectedDistance {
     /// L_infinity over the samples: Hausdorff distance.
     pub hausdorff: f64,
     pub samples: u64,
+    /// `(bin start, samples)`: [`DISTANCE_BINS`] bins of equal width over `[0, max_distance]`;
+    /// the last one also counts every sample farther (clipped output samples included).
+    pub histogram: Vec<(f64, u64)>,
 }
 
 /// Both directions, the undirected distances (the larger of the two, section 4) and the same in
@@ -107,20 +112,36 @@ pub struct Distances {
     pub samples_per_area: f64,
 }
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Accumulator {
     sum: f64,
     sum_squares: f64,
     max: f64,
     count: u64,
+    bin_width: f64,
+    bins: [u64; DISTANCE_BINS],
 }
 
 impl Accumulator {
+    /// Histogram bins over `[0, radius]`.
+    fn new(radius: f64) -> Self {
+        Accumulator {
+            sum: 0.0,
+            sum_squares: 0.0,
+            max: 0.0,
+            count: 0,
+            bin_width: radius / DISTANCE_BINS as f64,
+            bins: [0; DISTANCE_BINS],
+        }
+    }
+
     fn add(&mut self, d: f64) {
         self.sum += d;
         self.sum_squares += d * d;
         self.max = self.max.max(d);
         self.count += 1;
+        let bin = (d / self.bin_width) as usize;
+        self.bins[bin.min(DISTANCE_BINS - 1)] += 1;
     }
 
     fn finish(&self) -> DirectedDistance {
@@ -130,6 +151,9 @@ impl Accumulator {
             rms: (self.sum_squares / n).sqrt(),
             hausdorff: self.max,
             samples: self.count,
+            histogram: (self.bins.iter().enumerate())
+                .map(|(i, &k)| (i as f64 * self.bin_width, k))
+                .collect(),
         }
     }
 }
@@ -211,11 +235,11 @@ impl DistanceStream {
             density,
             radius,
             rng: SplitMix64::new(opts.seed ^ 0x5EED_F011_0000_0001),
-            full_to_output: Accumulator::default(),
+            full_to_output: Accumulator::new(radius),
             output_hint: 0,
             samples,
             next: 0,
-            output_to_full: Accumulator::default(),
+            output_to_full: Accumulator::new(radius),
             clipped_samples: 0,
             window: VecDeque::new(),
             full_triangles: 0,
@@ -472,7 +496,7 @@ pub(crate) mod tests {
         let streamed = stream((&op, &ot), &full, 0.7, &opts, radius);
 
         let s = DistanceStream::new(&op, &ot, &opts, radius).unwrap();
-        let mut acc = Accumulator::default();
+        let mut acc = Accumulator::new(radius);
         for p in &s.samples {
             let d = full
                 .iter()
@@ -483,6 +507,8 @@ pub(crate) mod tests {
         let brute = acc.finish();
         let o2f = &streamed.output_to_full;
         assert_eq!(o2f.samples, brute.samples);
+        assert_eq!(o2f.histogram.len(), DISTANCE_BINS);
+        assert_eq!(o2f.histogram.iter().map(|b| b.1).sum::<u64>(), o2f.samples);
         assert!(
             (o2f.mean - brute.mean).abs() < 1e-9 * brute.mean,
             "{o2f:?} {brute:?}"

@@ -54,6 +54,9 @@ pub(crate) struct Control<'a> {
     first: Mutex<Option<RunError>>,
     /// Values the reader saw, for the empty-surface error.
     range: Mutex<DataRange>,
+    /// The caller's span (the service's `job{id}`): entered by every stage thread, so each of
+    /// their log lines carries the caller's fields.
+    parent: tracing::Span,
 }
 
 /// Smallest and largest finite value read, and how many voxels were NaN or infinite.
@@ -98,6 +101,7 @@ impl<'a> Control<'a> {
             cancel,
             abort: AtomicBool::new(false),
             first: Mutex::new(None),
+            parent: tracing::Span::current(),
             range: Mutex::new(DataRange {
                 min: f32::INFINITY,
                 max: f32::NEG_INFINITY,
@@ -142,6 +146,7 @@ impl<'a> Control<'a> {
             }
         }
         let _guard = AbortOnPanic(&self.abort);
+        let _parent = self.parent.enter();
         let r = body();
         match r {
             Err(Stop::Failed(e)) => {
