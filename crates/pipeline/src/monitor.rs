@@ -260,7 +260,10 @@ mod tests {
         assert_eq!(series.stride, 2);
         assert_eq!(series.points.len(), 2);
         let [a, c] = [series.points[0], series.points[1]];
-        assert_eq!((a.slab, a.slabs, a.resident_faces, a.resident_faces_min), (2, 2, 50, 10));
+        assert_eq!(
+            (a.slab, a.slabs, a.resident_faces, a.resident_faces_min),
+            (2, 2, 50, 10)
+        );
         assert_eq!((c.slab, c.faces_in, c.rss_bytes), (4, 40, Some(1060)));
     }
 

@@ -22,7 +22,7 @@ use isostream_extract::attributes::AttributeSlab;
 use isostream_extract::{CubeBatch, ExtractStats, Extractor};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
 use isostream_volume::{Grid, VolumeSource};
-use tracing::{debug, info, info_span};
+use tracing::{debug, info_span};
 
 use crate::attributes::{SliceReader, Slices};
 use crate::error::RunError;
@@ -516,8 +516,9 @@ fn simplify_stage(
                 queued: [depth.cubes.len(), depth.deltas.len(), depth.out.len()],
             };
             observer(&progress);
+            // Every 5 %, for debugging the channels; users get the monitor's timed lines.
             if u64::from(delta.front) % log_every == 0 || delta.end_of_volume {
-                info!(
+                debug!(
                     slab = progress.slabs_done,
                     of = slabs_total,
                     faces_in = progress.faces_in,

@@ -16,10 +16,10 @@ border-bottom:1px solid #ddd}figure{margin:1.5em 0}figcaption{color:#555;font-si
 
 /// The whole page for a run and, when given, its measure report.
 pub fn html(run: &Run, measure: Option<&Measure>) -> Result<String, ReportError> {
-    let name = run
-        .output
-        .file_name()
-        .map_or_else(|| run.output.display().to_string(), |n| n.to_string_lossy().into_owned());
+    let name = run.output.file_name().map_or_else(
+        || run.output.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
     let mut s = String::new();
     let _ = write!(
         s,
@@ -78,7 +78,10 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
     let [nx, ny, nz] = run.dims;
     let mut rows = vec![
         ("input", run.input.clone()),
-        ("grid", format!("{nx} x {ny} x {nz} = {} voxels", run.voxels)),
+        (
+            "grid",
+            format!("{nx} x {ny} x {nz} = {} voxels", run.voxels),
+        ),
         ("iso value, mode", format!("{}, {}", run.iso, run.mode)),
         ("output", run.output.display().to_string()),
         (
@@ -116,7 +119,11 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
             format!(
                 "{} triangles, {}, Euler characteristic {}",
                 q.triangles,
-                if q.closed { "closed manifold" } else { "NOT a closed manifold" },
+                if q.closed {
+                    "closed manifold"
+                } else {
+                    "NOT a closed manifold"
+                },
                 q.euler
             ),
         ));

@@ -57,6 +57,16 @@ fn legend_line(color: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)
     move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
 }
 
+/// An axis label: whole numbers as such, others to three significant digits.
+fn num(v: &f64) -> String {
+    if v.fract() == 0.0 || v.abs() >= 100.0 {
+        format!("{v:.0}")
+    } else {
+        let digits = (2 - v.abs().log10().floor() as i32).clamp(0, 12) as usize;
+        format!("{v:.digits$}")
+    }
+}
+
 fn mib(bytes: u64) -> f64 {
     bytes as f64 / (1024.0 * 1024.0)
 }
@@ -80,10 +90,13 @@ pub fn memory(points: &[SeriesPoint]) -> Result<String, ReportError> {
         chart
             .configure_mesh()
             .x_desc("slab")
+            .x_label_formatter(&num)
+            .y_label_formatter(&num)
             .y_desc(RSS_LABEL)
             .draw()?;
         chart
             .configure_secondary_axes()
+            .y_label_formatter(&num)
             .y_desc(RESIDENT_LABEL)
             .draw()?;
         if points.iter().any(|p| p.slabs > 1) {
@@ -147,7 +160,10 @@ pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
         .collect();
     svg("faces", |root| {
         let x = upto(points.last().map_or(0, |p| p.slab) as f64);
-        let y_max = rates.iter().map(|r| r.1.max(r.2).max(r.3)).fold(0.0, f64::max);
+        let y_max = rates
+            .iter()
+            .map(|r| r.1.max(r.2).max(r.3))
+            .fold(0.0, f64::max);
         let mut chart = ChartBuilder::on(root)
             .caption("Faces per slab", (FONT, 18))
             .margin(12)
@@ -157,6 +173,8 @@ pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
         chart
             .configure_mesh()
             .x_desc("slab")
+            .x_label_formatter(&num)
+            .y_label_formatter(&num)
             .y_desc("faces")
             .draw()?;
         let lines: [(&str, RGBColor, fn(&(f64, f64, f64, f64)) -> f64); 3] = [
@@ -206,6 +224,7 @@ pub fn stage_seconds(stages: &[(String, f64)]) -> Result<String, ReportError> {
                     String::new()
                 }
             })
+            .y_label_formatter(&num)
             .y_desc("seconds")
             .draw()?;
         chart.draw_series(stages.iter().enumerate().map(|(i, (_, s))| {
@@ -242,11 +261,16 @@ pub fn histogram(
             .configure_mesh()
             .disable_x_mesh()
             .x_desc(x_desc)
+            .x_label_formatter(&num)
+            .y_label_formatter(&num)
             .y_desc("count")
             .draw()?;
         chart.draw_series(bins.iter().map(|&(start, n)| {
             Rectangle::new(
-                [(start + 0.05 * width, 0.0), (start + 0.95 * width, n as f64)],
+                [
+                    (start + 0.05 * width, 0.0),
+                    (start + 0.95 * width, n as f64),
+                ],
                 BARS.filled(),
             )
         }))?;
@@ -329,7 +353,10 @@ mod tests {
             assert!(svg.contains(label), "{label} missing");
         }
         assert_eq!(
-            polylines(&svg).iter().filter(|p| points_in(p) == 30).count(),
+            polylines(&svg)
+                .iter()
+                .filter(|p| points_in(p) == 30)
+                .count(),
             3
         );
     }
@@ -348,6 +375,14 @@ mod tests {
         let mut no_rss = saw_tooth(5);
         no_rss.iter_mut().for_each(|p| p.rss_bytes = None);
         assert!(memory(&no_rss).unwrap().contains(RESIDENT_LABEL));
+    }
+
+    #[test]
+    fn axis_numbers_are_short() {
+        assert_eq!(num(&45000.0), "45000");
+        assert_eq!(num(&2.5), "2.50");
+        assert_eq!(num(&0.012345), "0.0123");
+        assert_eq!(num(&150.25), "150");
     }
 
     #[test]
