@@ -476,7 +476,7 @@ impl JobConfig {
             return Err(bad("pipeline.batch_triangles", "at least 1", "0".into()));
         }
         let every = self.log.progress_seconds;
-        if !(every.is_finite() && every >= 0.0 && every <= 1e9) {
+        if !(0.0..=1e9).contains(&every) {
             return Err(bad(
                 "log.progress_seconds",
                 "seconds between progress lines, >= 0 (0: none)",

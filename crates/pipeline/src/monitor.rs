@@ -81,7 +81,10 @@ struct SeriesBuilder {
 
 impl SeriesBuilder {
     fn new(max: usize) -> Self {
-        assert!(max >= 2 && max % 2 == 0, "an even number of points");
+        assert!(
+            max >= 2 && max.is_multiple_of(2),
+            "an even number of points"
+        );
         SeriesBuilder {
             max,
             stride: 1,

@@ -140,29 +140,40 @@ pub fn memory(points: &[SeriesPoint]) -> Result<String, ReportError> {
     })
 }
 
+/// One point of the faces plot.
+struct SlabFaces {
+    slab: f64,
+    faces_in: f64,
+    faces_out: f64,
+    resident: f64,
+}
+
+/// Picks one line of the faces plot out of a point.
+type Column = fn(&SlabFaces) -> f64;
+
 /// Per slab: faces extracted (in) and emitted (out), averaged over the slabs a point stands
 /// for, and the faces resident at its end.
 pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
     let mut previous = (0, 0);
-    let rates: Vec<(f64, f64, f64, f64)> = points
+    let rows: Vec<SlabFaces> = points
         .iter()
         .map(|p| {
             let slabs = p.slabs.max(1) as f64;
-            let r = (
-                p.slab as f64,
-                p.faces_in.saturating_sub(previous.0) as f64 / slabs,
-                p.faces_out.saturating_sub(previous.1) as f64 / slabs,
-                p.resident_faces as f64,
-            );
+            let row = SlabFaces {
+                slab: p.slab as f64,
+                faces_in: p.faces_in.saturating_sub(previous.0) as f64 / slabs,
+                faces_out: p.faces_out.saturating_sub(previous.1) as f64 / slabs,
+                resident: p.resident_faces as f64,
+            };
             previous = (p.faces_in, p.faces_out);
-            r
+            row
         })
         .collect();
     svg("faces", |root| {
         let x = upto(points.last().map_or(0, |p| p.slab) as f64);
-        let y_max = rates
+        let y_max = rows
             .iter()
-            .map(|r| r.1.max(r.2).max(r.3))
+            .map(|r| r.faces_in.max(r.faces_out).max(r.resident))
             .fold(0.0, f64::max);
         let mut chart = ChartBuilder::on(root)
             .caption("Faces per slab", (FONT, 18))
@@ -177,15 +188,15 @@ pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
             .y_label_formatter(&num)
             .y_desc("faces")
             .draw()?;
-        let lines: [(&str, RGBColor, fn(&(f64, f64, f64, f64)) -> f64); 3] = [
-            (FACES_IN_LABEL, FACES_IN, |r| r.1),
-            (FACES_OUT_LABEL, FACES_OUT, |r| r.2),
-            (RESIDENT_LABEL, RESIDENT, |r| r.3),
+        let lines: [(&str, RGBColor, Column); 3] = [
+            (FACES_IN_LABEL, FACES_IN, |r| r.faces_in),
+            (FACES_OUT_LABEL, FACES_OUT, |r| r.faces_out),
+            (RESIDENT_LABEL, RESIDENT, |r| r.resident),
         ];
         for (label, color, value) in lines {
             chart
                 .draw_series(LineSeries::new(
-                    rates.iter().map(|r| (r.0, value(r))),
+                    rows.iter().map(|r| (r.slab, value(r))),
                     color.stroke_width(2),
                 ))?
                 .label(label)
