@@ -238,19 +238,25 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
         path: path.to_path_buf(),
         reason,
     };
+    let bytes = serde_json::to_vec_pretty(summary).map_err(|e| fail(e.to_string()))?;
+    write_atomically(path, &bytes).map_err(|e| fail(e.to_string()))
+}
+
+/// Writes a small file (a summary, a report) under a temporary name next to it, then renames
+/// it: a failure leaves nothing under the final name. The temporary name is
+/// `.NAME.XXXXXX.tmp`, named after the file, so a stale one is recognised.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write as _;
     let dir = path
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    // `.NAME.run.json.XXXXXX.tmp`: named after its output, so a stale one is recognised.
     let prefix = format!(
         ".{}.",
         path.file_name().unwrap_or_default().to_string_lossy()
     );
-    let mut tmp = isostream_smesh::output_builder(&prefix)
-        .tempfile_in(dir)
-        .map_err(|e| fail(e.to_string()))?;
-    serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;
-    tmp.persist(path).map_err(|e| fail(e.to_string()))?;
+    let mut tmp = isostream_smesh::output_builder(&prefix).tempfile_in(dir)?;
+    tmp.write_all(bytes)?;
+    tmp.persist(path).map_err(|e| e.error)?;
     Ok(())
 }

@@ -11,7 +11,9 @@ use serde::Deserialize;
 
 use crate::ReportError;
 
-/// The run summary, as far as the report is concerned.
+/// The run summary, as far as the report is concerned: the fields of `RunSummary` it shows,
+/// read on their own (not `RunSummary` itself, which also holds every stage's statistics), so a
+/// summary of another version still makes a page.
 #[derive(Debug, Clone, Deserialize)]
 pub struct Run {
     pub input: String,

@@ -36,22 +36,8 @@ pub enum ReportError {
 /// Writes the page under a temporary name in the same folder and renames it: a failure leaves
 /// no half-written report under the final name.
 pub fn write(path: &Path, html: &str) -> Result<(), ReportError> {
-    use std::io::Write as _;
-    let fail = |reason: String| ReportError::Write {
+    isostream_pipeline::write_atomically(path, html.as_bytes()).map_err(|e| ReportError::Write {
         path: path.to_path_buf(),
-        reason,
-    };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".report.")
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| fail(e.to_string()))?;
-    tmp.write_all(html.as_bytes())
-        .map_err(|e| fail(e.to_string()))?;
-    tmp.persist(path).map_err(|e| fail(e.error.to_string()))?;
-    Ok(())
+        reason: e.to_string(),
+    })
 }

@@ -4,7 +4,7 @@
 //! Every series is named in its chart's legend, so the SVG says what it shows (the tests look
 //! for those names).
 
-use plotters::coord::Shift;
+use plotters::coord::{CoordTranslate, Shift};
 use plotters::prelude::*;
 
 use isostream_pipeline::SeriesPoint;
@@ -51,6 +51,19 @@ fn svg(
 /// A range that plotters can draw even when every value is 0.
 fn upto(max: f64) -> std::ops::Range<f64> {
     0.0..if max > 0.0 { max * 1.05 } else { 1.0 }
+}
+
+/// The legend box, top left: every series is named in it.
+fn legend<'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, CT>,
+) -> DrawResult<()> {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
 }
 
 fn legend_line(color: RGBColor) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
@@ -130,13 +143,7 @@ pub fn memory(points: &[SeriesPoint]) -> Result<String, ReportError> {
             ))?
             .label(RSS_LABEL)
             .legend(legend_line(RSS));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        legend(&mut chart)
     })
 }
 
@@ -202,13 +209,7 @@ pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
                 .label(label)
                 .legend(legend_line(color));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
-        Ok(())
+        legend(&mut chart)
     })
 }
 
