@@ -24,7 +24,7 @@ pub struct ServeArgs {
     /// Read the token from a file (surrounding whitespace ignored).
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
-    /// Jobs running at once (each already keeps five stage threads busy).
+    /// Jobs running at once (each already keeps its stage threads and extraction pool busy).
     #[arg(long, default_value_t = 1)]
     pub max_parallel_jobs: usize,
 }
