@@ -600,6 +600,16 @@ mod tests {
     }
 
     #[test]
+    fn zero_threads_are_refused() {
+        let text = format!("{MINIMAL}\n[pipeline]\nthreads = 0\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("pipeline.threads"), "{err}");
+        let text = format!("{MINIMAL}\n[pipeline]\nthreads = 3\n");
+        assert_eq!(parse(&text).unwrap().pipeline.threads(), 3);
+        assert!(parse(MINIMAL).unwrap().pipeline.threads() >= 1);
+    }
+
+    #[test]
     fn output_extension_is_checked() {
         let text = MINIMAL.replace(".smb", ".xyz");
         let err = parse(&text).unwrap_err().to_string();
