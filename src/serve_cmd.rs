@@ -33,7 +33,8 @@ pub struct ServeArgs {
     /// Read the token from a file (surrounding whitespace ignored).
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
-    /// Jobs running at once (default 1: each already keeps five stage threads busy).
+    /// Jobs running at once (default 1: each already keeps its stage threads and extraction
+    /// pool busy).
     #[arg(long)]
     pub max_parallel_jobs: Option<usize>,
     /// Log lines as `text` (default) or `json` (one object per line, the job id in its span).

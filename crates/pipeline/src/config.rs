@@ -209,6 +209,18 @@ pub struct PipelineConfig {
     /// Most triangles per batch sent from the extractor.
     #[serde(default = "default_batch_triangles")]
     pub batch_triangles: usize,
+    /// Threads extracting slabs in parallel (default: one per core). The output does not
+    /// depend on it: slabs reach the detector in order.
+    pub threads: Option<usize>,
+}
+
+impl PipelineConfig {
+    /// Extraction threads: `threads`, else the machine's cores.
+    pub fn threads(&self) -> usize {
+        self.threads.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        })
+    }
 }
 
 fn default_capacity() -> usize {
@@ -228,6 +240,7 @@ impl Default for PipelineConfig {
             channel_capacity: default_capacity(),
             memory_budget_mib: default_budget(),
             batch_triangles: default_batch_triangles(),
+            threads: None,
         }
     }
 }
@@ -475,6 +488,13 @@ impl JobConfig {
         if p.batch_triangles == 0 {
             return Err(bad("pipeline.batch_triangles", "at least 1", "0".into()));
         }
+        if p.threads == Some(0) {
+            return Err(bad(
+                "pipeline.threads",
+                "at least 1 (or leave it out for one per core)",
+                "0".into(),
+            ));
+        }
         let every = self.log.progress_seconds;
         if !(0.0..=1e9).contains(&every) {
             return Err(bad(
@@ -610,6 +630,16 @@ mod tests {
         }
         let text = format!("{MINIMAL}\n[log]\nlevel = \"warn,isostream_pipeline=debug\"\n");
         parse(&text).unwrap();
+    }
+
+    #[test]
+    fn zero_threads_are_refused() {
+        let text = format!("{MINIMAL}\n[pipeline]\nthreads = 0\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("pipeline.threads"), "{err}");
+        let text = format!("{MINIMAL}\n[pipeline]\nthreads = 3\n");
+        assert_eq!(parse(&text).unwrap().pipeline.threads(), 3);
+        assert!(parse(MINIMAL).unwrap().pipeline.threads() >= 1);
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! The wiring of an isostream job: config, stage threads, bounded channels, run summary.
 //!
 //! This is the only crate that spawns threads. Each stage (read, extract, detect, simplify,
-//! write) runs on its own thread; the channels between them are bounded, so a slow stage makes
+//! write) runs on its own thread, extraction on a pool of `[pipeline] threads`; the channels between them are bounded, so a slow stage makes
 //! the earlier ones wait instead of queueing without limit: together with the simplifier's
 //! retirement this keeps memory bounded by the sweep front. See ARCHITECTURE.md.
 #![deny(unsafe_code)]
@@ -9,8 +9,11 @@
 mod attributes;
 mod config;
 mod error;
+mod extract_pool;
+mod flow;
 mod monitor;
 mod output;
+mod range;
 mod rss;
 mod sink;
 mod source;
@@ -115,13 +118,14 @@ pub fn run(
     let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
     let observe = |p: &Progress| monitor.observe(p);
     let outputs = stages::Stages {
-        source,
-        attributes: attribute_sources,
+        reader: SliceReader::new(source, attribute_sources),
+        input: input.clone(),
         iso: job.extract.iso as f32,
         simplifier,
         sink,
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
+        threads: job.pipeline.threads(),
         allow_empty: job.output.allow_empty,
         cancel,
         observer: &observe,

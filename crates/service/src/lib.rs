@@ -39,7 +39,7 @@ pub struct ServeConfig {
     pub allow_input: Vec<PathBuf>,
     /// When set, every request needs `Authorization: Bearer <token>`.
     pub token: Option<String>,
-    /// Jobs running at once; each one already keeps five stage threads busy.
+    /// Jobs running at once; each one already keeps its stage threads and extraction pool busy.
     pub max_parallel_jobs: usize,
 }
 
