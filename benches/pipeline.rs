@@ -91,6 +91,9 @@ fn delta_stream(grid: Grid, slices: &[Vec<f32>], iso: f32) -> (Vec<MeshDelta>, u
         detector.process(&batch, &mut delta);
         deltas.push(delta);
     });
+    if let Some(last) = deltas.last_mut() {
+        detector.finish(last);
+    }
     (deltas, triangles)
 }
 
@@ -110,7 +113,7 @@ fn simplify_stream(grid: Grid, deltas: &[MeshDelta]) -> isostream_simplify::Simp
     };
     let mut simplifier = Simplifier::new(config).unwrap();
     let mut out = OutBatch::default();
-    for delta in deltas {
+    for (i, delta) in deltas.iter().enumerate() {
         for v in &delta.vertices {
             simplifier.add_vertex(v.id, v.pos, v.rank, &[]);
         }
@@ -120,7 +123,7 @@ fn simplify_stream(grid: Grid, deltas: &[MeshDelta]) -> isostream_simplify::Simp
         for &id in &delta.modifiable {
             simplifier.set_modifiable(id);
         }
-        if delta.end_of_volume {
+        if i + 1 == deltas.len() {
             simplifier.finish(&mut out);
         } else {
             simplifier.end_batch(delta.front, &mut out);
