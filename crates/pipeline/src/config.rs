@@ -55,6 +55,9 @@ pub struct InputConfig {
     /// The array to read from a multi-array file (VTK), or the child array / OME-Zarr level
     /// (its `path`) of a Zarr group, by name.
     pub array: Option<String>,
+    /// See the volume at `k` times its resolution along each axis by trilinear interpolation
+    /// (dims `(n - 1) k + 1`, spacing / k), never materialised: `[kx, ky, kz]`, each >= 1.
+    pub upsample: Option<[u64; 3]>,
 }
 
 impl InputConfig {
@@ -77,6 +80,11 @@ impl InputConfig {
 pub struct ExtractConfig {
     /// The iso value. Voxels strictly above it are inside.
     pub iso: f64,
+    /// Empty-space skipping: blocks of cubes whose value bounds cannot cross `iso` are not
+    /// looked at (an upsampled input does not even compute their voxels). The output is the
+    /// same bytes either way; `false` is for comparisons.
+    #[serde(default = "yes")]
+    pub skip_empty: bool,
 }
 
 /// How the surface is simplified.
@@ -390,6 +398,13 @@ impl JobConfig {
                 format!("{sp:?}"),
             ));
         }
+        if let Some(k) = i.upsample.filter(|k| k.contains(&0)) {
+            return Err(bad(
+                "input.upsample",
+                "three integers >= 1 ([kx, ky, kz]; 1 keeps an axis)",
+                format!("{k:?}"),
+            ));
+        }
         if let Some(o) = i.origin.filter(|o| o.iter().any(|s| !s.is_finite())) {
             return Err(bad("input.origin", "three finite values", format!("{o:?}")));
         }
@@ -597,6 +612,30 @@ mod tests {
         }
         let text = format!("{MINIMAL}\n[log]\nlevel = \"warn,isostream_pipeline=debug\"\n");
         parse(&text).unwrap();
+    }
+
+    #[test]
+    fn upsample_factors_are_checked() {
+        let text = MINIMAL.replace(
+            "size = [16, 16, 16]",
+            "size = [16, 16, 16]\nupsample = [2, 0, 1]",
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(
+            err.contains("input.upsample") && err.contains(">= 1"),
+            "{err}"
+        );
+        let text = MINIMAL.replace(
+            "size = [16, 16, 16]",
+            "size = [16, 16, 16]\nupsample = [2, -1, 1]",
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("upsample"), "{err}");
+        let text = MINIMAL.replace(
+            "size = [16, 16, 16]",
+            "size = [16, 16, 16]\nupsample = [2, 3, 1]",
+        );
+        assert_eq!(parse(&text).unwrap().input.upsample, Some([2, 3, 1]));
     }
 
     #[test]

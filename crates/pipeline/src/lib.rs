@@ -109,8 +109,12 @@ pub fn run(
         })
     })?;
     let sink = sink::Sink::create(&job.output.path, &header)?;
+    let mut reader = SliceReader::new(source, attribute_sources);
+    if job.extract.skip_empty {
+        reader = reader.skip_empty(job.extract.iso as f32);
+    }
     let outputs = stages::Stages {
-        reader: SliceReader::new(source, attribute_sources),
+        reader,
         input: input.clone(),
         iso: job.extract.iso as f32,
         simplifier,
@@ -118,6 +122,7 @@ pub fn run(
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
         threads: job.pipeline.threads(),
+        skip_empty: job.extract.skip_empty,
         allow_empty: job.output.allow_empty,
         cancel,
         observer,

@@ -61,6 +61,8 @@ pub(crate) struct Stages<'a> {
     pub batch_triangles: usize,
     /// Extraction workers (`[pipeline] threads`, at least 1).
     pub threads: usize,
+    /// Empty-space skipping (`[extract] skip_empty`).
+    pub skip_empty: bool,
     /// Accept a surface without any triangle (`[output] allow_empty`); else it is an error.
     pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
@@ -78,6 +80,7 @@ impl Stages<'_> {
             capacity,
             batch_triangles,
             threads,
+            skip_empty,
             allow_empty,
             cancel,
             observer,
@@ -112,7 +115,7 @@ impl Stages<'_> {
                 .map(|_| {
                     let jobs = job_rx.clone();
                     s.spawn(move || {
-                        let step = WorkStep::new(grid, iso, batch_triangles, ctl);
+                        let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, ctl);
                         run("extract", ctl, step, jobs, Outbox::none(ctl))
                     })
                 })
