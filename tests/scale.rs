@@ -115,3 +115,46 @@ fn the_summary_counts_skipped_cubes() {
         s.extract
     );
 }
+
+/// Runs a procedural shape with `[simplify]` and `[output]` extras; returns the summary.
+fn run_shape(shape: &str, n: u64, simplify: &str, output: &str) -> isostream_pipeline::RunSummary {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[input]\nshape = \"{shape}\"\nsize = [{n}, {n}, {n}]\n\n[extract]\niso = 0.0\n\n\
+             [simplify]\n{simplify}\n\n[output]\npath = \"out.smb\"\n{output}\n"
+        ),
+    )
+    .unwrap();
+    let summary = run_job(&job);
+    let mesh = common::Mesh::read(&dir.path().join("out.smb"));
+    let report = mesh.check();
+    assert!(report.is_valid_manifold(), "{report:?}");
+    summary
+}
+
+/// Extreme rates meet their target within 5 %: R = 1e-4 given as a face target, and as a rate.
+#[test]
+fn extreme_rates_meet_their_target() {
+    let s = run_shape("sphere", 128, "", "faces = 40");
+    assert!(s.faces_extracted > 70_000, "{}", s.faces_extracted);
+    let rate = s.rate.unwrap();
+    assert!(rate < 1e-3, "{rate}");
+    assert_eq!(s.target_faces, Some(40));
+    assert!(
+        s.faces_written.abs_diff(40) <= 2,
+        "{} faces",
+        s.faces_written
+    );
+
+    let s = run_shape("sphere", 128, "rate = 0.0005", "");
+    let target = s.target_faces.unwrap();
+    assert_eq!(target, (0.0005 * s.faces_extracted as f64).round() as u64);
+    assert!(
+        s.faces_written.abs_diff(target) as f64 <= 0.05 * target as f64,
+        "{} faces for {target}",
+        s.faces_written
+    );
+}

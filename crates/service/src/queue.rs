@@ -456,6 +456,7 @@ fn run_error_kind(e: &RunError) -> &'static str {
         | RunError::Lock { .. } => "run_output",
         RunError::EmptySurface { .. } => "run_empty_surface",
         RunError::ClassicalOverBudget { .. } => "run_over_budget",
+        RunError::IndexLimit { .. } => "run_index_limit",
         RunError::Cancelled => "run_cancelled",
         RunError::Internal { .. } => "run_internal",
     }
