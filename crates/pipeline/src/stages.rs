@@ -194,6 +194,8 @@ pub(crate) struct Extraction {
 }
 
 type Handle<'s, T> = std::thread::ScopedJoinHandle<'s, StageResult<T>>;
+/// The reader's handle and the workers' (busy seconds and counters each).
+type ExtractionHandles<'s> = (Handle<'s, (f64, ())>, Vec<Handle<'s, (f64, ExtractStats)>>);
 
 impl Extraction {
     /// Spawns the reader and the workers; the slabs' batches come back in order on `order`.
@@ -202,7 +204,7 @@ impl Extraction {
         s: &'s std::thread::Scope<'s, 'e>,
         order: Sender<Msg<Receiver<SlabBatches>>>,
         ctl: &'e Control<'e>,
-    ) -> (Handle<'s, (f64, ())>, Vec<Handle<'s, (f64, ExtractStats)>>) {
+    ) -> ExtractionHandles<'s> {
         let Extraction {
             reader,
             iso,
