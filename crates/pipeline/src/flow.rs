@@ -58,6 +58,9 @@ pub(crate) struct Control<'a> {
     first: Mutex<Option<RunError>>,
     /// Values the extractors saw, for the empty-surface error.
     range: Mutex<DataRange>,
+    /// The caller's span (the service's `job{id}`), parent of every stage's span: each log line
+    /// of a stage thread carries the caller's fields.
+    parent: tracing::Span,
 }
 
 impl<'a> Control<'a> {
@@ -67,6 +70,7 @@ impl<'a> Control<'a> {
             abort: AtomicBool::new(false),
             first: Mutex::new(None),
             range: Mutex::new(DataRange::default()),
+            parent: tracing::Span::current(),
         }
     }
 
@@ -248,7 +252,7 @@ pub(crate) fn run<S: Step>(
     mut out: Outbox<'_, S::Out>,
 ) -> StageResult<(f64, S::Done)> {
     ctl.stage(|| {
-        let _span = info_span!("stage", name).entered();
+        let _span = info_span!(parent: &ctl.parent, "stage", name).entered();
         let mut busy = Duration::ZERO;
         loop {
             ctl.check()?;

@@ -12,6 +12,7 @@ mod error;
 mod extract_pool;
 mod flow;
 mod index_limit;
+mod monitor;
 mod output;
 mod range;
 mod rss;
@@ -34,8 +35,9 @@ pub use config::{
     PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
+pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
 pub use output::{OutputLock, lock_output, lock_path, stale_temp_files};
-pub use rss::peak_rss_bytes;
+pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
 pub use source::open_source;
 pub use stages::{Progress, StageSeconds};
@@ -69,9 +71,13 @@ pub struct RunSummary {
     pub sink: SinkStats,
     /// What the user should know about the result (also logged as warnings).
     pub warnings: Vec<String>,
+    /// Per slab: voxels done, faces in / out / resident, RSS, seconds (at most
+    /// [`MAX_SERIES_POINTS`] points; see `monitor`). Plotted by `isostream report`.
+    pub series: TimeSeries,
 }
 
-/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
+/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress
+/// after every slab.
 pub fn run(
     job: &JobConfig,
     job_path: &Path,
@@ -125,6 +131,8 @@ pub fn run(
     if job.extract.skip_empty {
         reader = reader.skip_empty(job.extract.iso as f32);
     }
+    let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
+    let observe = |p: &Progress| monitor.observe(p);
     let outputs = stages::Stages {
         reader,
         input: input.clone(),
@@ -137,9 +145,10 @@ pub fn run(
         skip_empty: job.extract.skip_empty,
         allow_empty: job.output.allow_empty,
         cancel,
-        observer,
+        observer: &observe,
     }
     .run()?;
+    let series = monitor.finish();
 
     let sink_stats = outputs.sink;
     let target_faces = (job.simplify.mode == Mode::Rate).then(|| {
@@ -176,6 +185,7 @@ pub fn run(
         simplify: outputs.simplify,
         sink: sink_stats,
         warnings,
+        series,
     };
     if job.output.summary {
         write_summary(&summary, &summary_path(&job.output.path))?;
@@ -281,19 +291,25 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
         path: path.to_path_buf(),
         reason,
     };
+    let bytes = serde_json::to_vec_pretty(summary).map_err(|e| fail(e.to_string()))?;
+    write_atomically(path, &bytes).map_err(|e| fail(e.to_string()))
+}
+
+/// Writes a small file (a summary, a report) under a temporary name next to it, then renames
+/// it: a failure leaves nothing under the final name. The temporary name is
+/// `.NAME.XXXXXX.tmp`, named after the file, so a stale one is recognised.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write as _;
     let dir = path
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    // `.NAME.run.json.XXXXXX.tmp`: named after its output, so a stale one is recognised.
     let prefix = format!(
         ".{}.",
         path.file_name().unwrap_or_default().to_string_lossy()
     );
-    let mut tmp = isostream_smesh::output_builder(&prefix)
-        .tempfile_in(dir)
-        .map_err(|e| fail(e.to_string()))?;
-    serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;
-    tmp.persist(path).map_err(|e| fail(e.to_string()))?;
+    let mut tmp = isostream_smesh::output_builder(&prefix).tempfile_in(dir)?;
+    tmp.write_all(bytes)?;
+    tmp.persist(path).map_err(|e| e.error)?;
     Ok(())
 }

@@ -10,7 +10,7 @@ use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
-use tracing::info;
+use tracing::debug;
 
 use crate::attributes::SliceReader;
 use crate::error::RunError;
@@ -395,8 +395,10 @@ impl SimplifyStep<'_> {
                 ],
             };
             (self.observer)(&progress);
+            // Every 5 %, with the queue depths, for debugging; users get the monitor's timed
+            // `progress` lines (rate, ETA, RSS).
             if u64::from(front) % self.log_every == 0 || last {
-                info!(
+                debug!(
                     slab = progress.slabs_done,
                     of = self.slabs_total,
                     faces_in = progress.faces_in,

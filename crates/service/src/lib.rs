@@ -11,6 +11,7 @@
 #![deny(unsafe_code)]
 
 mod admission;
+mod config;
 mod error;
 mod http;
 mod metrics;
@@ -24,6 +25,7 @@ use std::sync::Arc;
 use tokio_util::sync::CancellationToken;
 use tracing::info;
 
+pub use config::ServeFile;
 pub use error::ServiceError;
 
 /// How `isostream serve` was started (the command line, already parsed).
