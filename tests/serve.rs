@@ -228,6 +228,7 @@ fn a_job_is_submitted_followed_and_its_mesh_fetched() {
     for needle in [
         "isostream_jobs{state=\"done\"} 1",
         "isostream_faces_in_total",
+        "isostream_voxels_total 32768",
         "isostream_stage_busy_seconds_total{stage=\"simplify\"}",
         "isostream_peak_rss_bytes",
         "isostream_resident_faces",
