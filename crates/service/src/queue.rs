@@ -392,6 +392,7 @@ impl Queue {
         match outcome {
             Ok(summary) => {
                 self.metrics.stage_seconds(&summary.stage_seconds);
+                self.metrics.voxels(summary.voxels);
                 job.record.state = JobState::Done;
                 job.record.summary = summary_without_series(&summary);
                 job.progress.resident_faces = 0;
