@@ -33,7 +33,7 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
 
 pub fn run(job_path: &Path, quiet: bool, clean_stale: bool) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
-    crate::logging::init(&job.log);
+    crate::logging::init(&job.log, None);
 
     // Ctrl-C, SIGTERM and SIGHUP (ctrlc's `termination` feature) all stop the run the same way:
     // every stage stops, the temporary file is removed, exit code 130.

@@ -136,13 +136,13 @@ impl Store {
         write_atomic(&self.job_dir(&record.id).join(STATE_FILE), &bytes)
     }
 
-    /// Removes everything but the job file and the state: the output, its summary and any
-    /// temporary file a killed run left behind.
+    /// Removes everything but the job file, the state and the log: the output, its summary and
+    /// any temporary file a killed run left behind.
     pub fn clear_outputs(&self, id: &str) -> std::io::Result<()> {
         for entry in std::fs::read_dir(self.job_dir(id))? {
             let entry = entry?;
             let name = entry.file_name();
-            if name != JOB_FILE && name != STATE_FILE {
+            if name != JOB_FILE && name != STATE_FILE && name != crate::joblog::LOG_FILE {
                 std::fs::remove_file(entry.path())?;
             }
         }
