@@ -111,7 +111,7 @@ impl CubeBatch {
 }
 
 /// Counters over everything extracted so far.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct ExtractStats {
     /// Cubes visited.
     pub cubes: u64,
@@ -149,6 +149,15 @@ impl Extractor {
             stats: ExtractStats::default(),
             columns: Vec::new(),
             batch_sizes: [0; 3],
+        }
+    }
+
+    /// An extractor continuing a sweep (after a checkpoint) whose counters so far are `stats`:
+    /// a slab's batches depend on its two slices only, so nothing else carries over.
+    pub fn resume(grid: Grid, iso: f32, stats: ExtractStats) -> Self {
+        Extractor {
+            stats,
+            ..Extractor::new(grid, iso)
         }
     }
 
