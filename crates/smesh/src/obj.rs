@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, SinkCore};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 /// Streaming OBJ writer.
@@ -30,6 +30,21 @@ impl ObjSink {
             ));
         }
         out.write_all(text.as_bytes())?;
+        Ok(ObjSink { core, out })
+    }
+
+    /// Continues a checkpointed sink (see [`MeshSink::checkpoint`]).
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        state: SinkState,
+    ) -> Result<ObjSink, SmeshError> {
+        let [mark] = state.marks::<1>(path)?;
+        if !matches!(state.format, Saved::Obj) {
+            return Err(mismatch(path, "OBJ"));
+        }
+        let out = AtomicFile::reopen(path, mark)?;
+        let core = SinkCore::resume(path, header, state.tracker)?;
         Ok(ObjSink { core, out })
     }
 }
@@ -55,6 +70,14 @@ impl MeshSink for ObjSink {
         self.core.finish()?;
         let bytes = self.out.finish()?;
         Ok(self.core.stats(bytes))
+    }
+
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        Ok(SinkState {
+            files: vec![self.out.mark()?],
+            tracker: self.core.tracker.clone(),
+            format: Saved::Obj,
+        })
     }
 }
 

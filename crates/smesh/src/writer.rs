@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, SinkCore};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
 use crate::sma::SmaEncoder;
 use crate::smb::SmbEncoder;
 use crate::{Format, Header, Place, SmeshError, StreamFault, Subject, WriteStats, index};
@@ -44,6 +44,23 @@ impl StreamWriter {
                 });
             }
         };
+        Ok(StreamWriter { core, out, encoder })
+    }
+
+    /// Continues a checkpointed writer (see [`MeshSink::checkpoint`]).
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        state: SinkState,
+    ) -> Result<StreamWriter, SmeshError> {
+        let [mark] = state.marks::<1>(path)?;
+        let encoder = match (Format::from_path(path)?, &state.format) {
+            (Format::Sma, Saved::Sma) => Encoder::Sma(SmaEncoder),
+            (Format::Smb, Saved::Smb(e)) => Encoder::Smb(e.clone()),
+            _ => return Err(mismatch(path, "SMA or SMB")),
+        };
+        let out = AtomicFile::reopen(path, mark)?;
+        let core = SinkCore::resume(path, header, state.tracker)?;
         Ok(StreamWriter { core, out, encoder })
     }
 
@@ -122,5 +139,15 @@ impl MeshSink for StreamWriter {
     }
     fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
         StreamWriter::finish(*self)
+    }
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        Ok(SinkState {
+            files: vec![self.out.mark()?],
+            tracker: self.core.tracker.clone(),
+            format: match &self.encoder {
+                Encoder::Sma(_) => Saved::Sma,
+                Encoder::Smb(e) => Saved::Smb(e.clone()),
+            },
+        })
     }
 }
