@@ -7,6 +7,7 @@
 #![deny(unsafe_code)]
 
 mod attributes;
+mod checkpoint;
 mod config;
 mod error;
 mod output;
@@ -26,8 +27,8 @@ use tracing::{info, warn};
 
 pub use attributes::{AttributeConfig, Derived, SliceReader, Slices};
 pub use config::{
-    ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat, Mode, OutputConfig,
-    PipelineConfig, PriorityKind, SimplifyConfig,
+    CheckpointConfig, CheckpointEvery, ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat,
+    Mode, OutputConfig, PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
 pub use output::{OutputLock, lock_output, lock_path, stale_temp_files};
