@@ -80,14 +80,6 @@ pub fn path_for(output: &Path) -> PathBuf {
     output.with_file_name(format!(".{name}.ckpt"))
 }
 
-/// Smallest and largest finite value read, and how many voxels were NaN or infinite.
-#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
-pub(crate) struct DataRange {
-    pub min: f32,
-    pub max: f32,
-    pub non_finite: u64,
-}
-
 /// The reader's part of the cut.
 #[derive(Debug, Clone, Copy, Serialize, Deserialize)]
 pub(crate) struct ReaderState {
@@ -95,7 +87,7 @@ pub(crate) struct ReaderState {
     pub z: u64,
     /// Hash of iso slice `z`, checked when it is read again.
     pub carried: u64,
-    pub range: DataRange,
+    pub range: crate::stages::DataRange,
 }
 
 /// What the stages saved at one cut, each encoded by its own stage.
@@ -212,23 +204,25 @@ pub(crate) fn write(path: &Path, ckpt: &Checkpoint) -> Result<(), RunError> {
         reason: format!("cannot write the checkpoint: {reason}"),
     };
     let body = encode(ckpt);
-    let mut bytes = Vec::with_capacity(body.len() + 64);
-    bytes.extend_from_slice(MAGIC);
-    bytes.extend_from_slice(&FORMAT.to_le_bytes());
-    bytes.push(VERSION.len() as u8);
-    bytes.extend_from_slice(VERSION.as_bytes());
-    bytes.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(&body);
-    bytes.extend_from_slice(&hash(&body).to_le_bytes());
+    let mut head = Vec::with_capacity(64);
+    head.extend_from_slice(MAGIC);
+    head.extend_from_slice(&FORMAT.to_le_bytes());
+    head.push(VERSION.len() as u8);
+    head.extend_from_slice(VERSION.as_bytes());
+    head.extend_from_slice(&(body.len() as u64).to_le_bytes());
     let dir = dir_of(path);
+    // `.NAME.ckpt.XXXXXX.tmp`: recognised as stale by `stale_temp_files`.
     let prefix = format!(
-        ".{}.",
+        "{}.",
         path.file_name().unwrap_or_default().to_string_lossy()
     );
     let mut tmp = isostream_smesh::output_builder(&prefix)
         .tempfile_in(dir)
         .map_err(|e| fail(e.to_string()))?;
-    tmp.write_all(&bytes).map_err(|e| fail(e.to_string()))?;
+    [&head[..], &body, &hash(&body).to_le_bytes()]
+        .iter()
+        .try_for_each(|part| tmp.write_all(part))
+        .map_err(|e| fail(e.to_string()))?;
     tmp.as_file().sync_all().map_err(|e| fail(e.to_string()))?;
     tmp.persist(path).map_err(|e| fail(e.to_string()))?;
     #[cfg(unix)]
@@ -330,12 +324,34 @@ pub(crate) fn discard(path: &Path) -> Result<(), RunError> {
     })
 }
 
+/// Removes the checkpoint of a completed run (its temporary files became the output or were
+/// removed by the sink).
+pub(crate) fn remove(path: &Path) -> Result<(), RunError> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(RunError::Checkpoint {
+            path: path.to_path_buf(),
+            reason: format!("cannot remove the checkpoint of the completed run: {e}"),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// The temporary files a readable checkpoint of `output` refers to (not stale: a resume needs
 /// them).
-pub fn referenced_files(output: &Path) -> Vec<PathBuf> {
+pub(crate) fn referenced_files(output: &Path) -> Vec<PathBuf> {
     read(&path_for(output))
         .map(|c| c.parts.sink.files().map(Path::to_path_buf).collect())
         .unwrap_or_default()
+}
+
+/// What a resume of `output` needs: its checkpoint and the files it refers to; empty when there
+/// is no readable checkpoint.
+pub fn resumable_files(output: &Path) -> Vec<PathBuf> {
+    let files = referenced_files(output);
+    match files.is_empty() {
+        true => files,
+        false => std::iter::once(path_for(output)).chain(files).collect(),
+    }
 }
 
 fn dir_of(path: &Path) -> &Path {
@@ -363,11 +379,7 @@ mod tests {
                 reader: ReaderState {
                     z: 3,
                     carried: 11,
-                    range: DataRange {
-                        min: 0.0,
-                        max: 1.0,
-                        non_finite: 0,
-                    },
+                    range: crate::stages::DataRange::EMPTY,
                 },
                 extract: Default::default(),
                 detect: vec![1, 2, 3],

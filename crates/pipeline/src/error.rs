@@ -76,6 +76,10 @@ pub enum RunError {
     Checkpoint { path: PathBuf, reason: String },
     #[error("{}: {what}; run with --restart instead of --resume to start over", path.display())]
     ResumeMismatch { path: PathBuf, what: String },
+    #[error(
+        "the input changed since the checkpoint ({what}); run with --restart instead of --resume to start over"
+    )]
+    InputChanged { what: String },
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]
     Internal { stage: &'static str, reason: String },
 }

@@ -12,6 +12,7 @@
 //! failed writer does not disconnect the simplifier's channel, and a full channel would otherwise
 //! block its producer forever (the deadlock of a write error on a full disk).
 
+use std::path::PathBuf;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -25,6 +26,8 @@ use isostream_volume::{Grid, VolumeSource};
 use tracing::{debug, info, info_span};
 
 use crate::attributes::{SliceReader, Slices};
+use crate::checkpoint::{self, Checkpoint, InputIdentity, Parts, ReaderState};
+use crate::config::CheckpointEvery;
 use crate::error::RunError;
 use crate::sink::Sink;
 
@@ -57,14 +60,20 @@ pub(crate) struct Control<'a> {
 }
 
 /// Smallest and largest finite value read, and how many voxels were NaN or infinite.
-#[derive(Debug, Clone, Copy)]
-struct DataRange {
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub(crate) struct DataRange {
     min: f32,
     max: f32,
     non_finite: u64,
 }
 
 impl DataRange {
+    pub(crate) const EMPTY: DataRange = DataRange {
+        min: f32::INFINITY,
+        max: f32::NEG_INFINITY,
+        non_finite: 0,
+    };
+
     fn add(&mut self, values: &[f32]) {
         for &v in values {
             if v.is_finite() {
@@ -98,11 +107,7 @@ impl<'a> Control<'a> {
             cancel,
             abort: AtomicBool::new(false),
             first: Mutex::new(None),
-            range: Mutex::new(DataRange {
-                min: f32::INFINITY,
-                max: f32::NEG_INFINITY,
-                non_finite: 0,
-            }),
+            range: Mutex::new(DataRange::EMPTY),
         }
     }
 
@@ -228,20 +233,56 @@ pub(crate) struct Stages<'a> {
     pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
     pub observer: &'a (dyn Fn(&Progress) + Sync),
+    /// Save checkpoints (`None`: never).
+    pub checkpoints: Option<Plan>,
+    /// Continue from a checkpoint (the simplifier and the sink above are restored already).
+    pub resume: Option<Resume>,
 }
 
-/// Messages to the writer: batches, then `End` when the volume is complete.
+/// When and where the run saves checkpoints, and what identifies it.
+pub(crate) struct Plan {
+    pub every: CheckpointEvery,
+    pub path: PathBuf,
+    pub job: u64,
+    pub input: InputIdentity,
+}
+
+/// The states of the first stages at the checkpoint a run continues from.
+pub(crate) struct Resume {
+    pub reader: ReaderState,
+    pub extract: ExtractStats,
+    pub detector: Detector,
+}
+
+/// What travels between the first stages: data, or the checkpoint marker carrying the states of
+/// the stages it has passed (see `checkpoint`).
+enum Msg<T> {
+    Data(T),
+    Cut(Box<Cut>),
+}
+
+/// The marker: each stage fills in its state as it passes.
+struct Cut {
+    reader: ReaderState,
+    extract: ExtractStats,
+    detect: Vec<u8>,
+    simplify: Vec<u8>,
+}
+
+/// Messages to the writer: batches, the checkpoint marker, then `End` when the volume is
+/// complete.
 enum ToWriter {
     Batch(OutBatch),
+    Cut(Box<Cut>),
     End,
 }
 
 impl Stages<'_> {
     pub fn run(self) -> Result<StageOutputs, RunError> {
         let grid = self.source.grid();
-        let (slice_tx, slice_rx) = bounded::<Slices>(2);
-        let (cube_tx, cube_rx) = bounded::<CubeBatch>(self.capacity);
-        let (delta_tx, delta_rx) = bounded::<MeshDelta>(self.capacity);
+        let (slice_tx, slice_rx) = bounded::<Msg<Slices>>(2);
+        let (cube_tx, cube_rx) = bounded::<Msg<CubeBatch>>(self.capacity);
+        let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(self.capacity);
         let (out_tx, out_rx) = bounded::<ToWriter>(self.capacity);
         let depth = Depths {
             cubes: cube_rx.clone(),
@@ -258,8 +299,15 @@ impl Stages<'_> {
             allow_empty,
             cancel,
             observer,
+            checkpoints,
+            resume,
             ..
         } = self;
+        let (reader_resume, extract_resume, detector) = match resume {
+            Some(r) => (Some(r.reader), Some(r.extract), r.detector),
+            None => (None, None, Detector::new(grid.dims)),
+        };
+        let every = checkpoints.as_ref().map(|p| p.every);
         let input = source.describe();
         let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
         let ctl = Control::new(cancel);
@@ -269,20 +317,28 @@ impl Stages<'_> {
             let reader = s.spawn(move || {
                 ctl.stage(|| {
                     let reader = SliceReader::new(source, attributes);
-                    read_stage(reader, grid, slice_tx, ctl)
+                    read_stage(reader, grid, reader_resume, every, slice_tx, ctl)
                 })
             });
             let extractor = s.spawn(move || {
-                ctl.stage(|| extract_stage(grid, iso, batch_triangles, slice_rx, cube_tx, ctl))
+                ctl.stage(|| {
+                    let extractor = match extract_resume {
+                        Some(stats) => Extractor::resume(grid, iso, stats),
+                        None => Extractor::new(grid, iso),
+                    };
+                    extract_stage(extractor, grid, batch_triangles, slice_rx, cube_tx, ctl)
+                })
             });
             let detector =
-                s.spawn(move || ctl.stage(|| detect_stage(grid, cube_rx, delta_tx, ctl)));
+                s.spawn(move || ctl.stage(|| detect_stage(detector, cube_rx, delta_tx, ctl)));
             let simplifier = s.spawn(move || {
                 ctl.stage(|| {
                     simplify_stage(simplifier, grid, delta_rx, out_tx, &depth, observer, ctl)
                 })
             });
-            let writer = s.spawn(move || ctl.stage(|| write_stage(sink, out_rx, empty, ctl)));
+            let writer = s.spawn(move || {
+                ctl.stage(|| write_stage(sink, out_rx, empty, checkpoints.as_ref(), grid, ctl))
+            });
 
             // Join every stage. The first failure recorded (in time, whichever stage) is the
             // cause; a panic counts as a failure of its stage.
@@ -356,49 +412,124 @@ fn join<T>(
 }
 
 struct Depths {
-    cubes: Receiver<CubeBatch>,
-    deltas: Receiver<MeshDelta>,
+    cubes: Receiver<Msg<CubeBatch>>,
+    deltas: Receiver<Msg<MeshDelta>>,
     out: Receiver<ToWriter>,
+}
+
+/// Whether the reader sends the checkpoint marker after slice `z` (the cut after slab `z - 1`).
+/// Never after the first slice of the run nor after the last slice of the volume: a checkpoint
+/// there would save nothing new.
+struct Schedule {
+    every: Option<CheckpointEvery>,
+    first: u64,
+    last: u64,
+    since: Instant,
+}
+
+impl Schedule {
+    fn due(&mut self, z: u64) -> bool {
+        if z == self.first || z >= self.last {
+            return false;
+        }
+        let due = match self.every {
+            None => false,
+            Some(CheckpointEvery::Slabs(n)) => (z - self.first) % n == 0,
+            Some(CheckpointEvery::Seconds(s)) => self.since.elapsed().as_secs_f64() >= s,
+        };
+        if due {
+            self.since = Instant::now();
+        }
+        due
+    }
 }
 
 fn read_stage(
     mut reader: SliceReader,
     grid: Grid,
-    tx: Sender<Slices>,
+    resume: Option<ReaderState>,
+    every: Option<CheckpointEvery>,
+    tx: Sender<Msg<Slices>>,
     ctl: &Control<'_>,
 ) -> StageResult<f64> {
     let _span = info_span!("read").entered();
     let mut busy = Duration::ZERO;
-    for _ in 0..grid.dims[2] {
+    let first = resume.map_or(0, |r| r.z);
+    if let Some(r) = resume {
+        reader.seek(first)?;
+        *ctl.range.lock().unwrap_or_else(|p| p.into_inner()) = r.range;
+    }
+    let mut schedule = Schedule {
+        every,
+        first,
+        last: grid.dims[2].saturating_sub(1),
+        since: Instant::now(),
+    };
+    for z in first..grid.dims[2] {
         ctl.check()?;
         let t = Instant::now();
         let Some(slices) = reader.next_slices()? else {
             break;
         };
-        ctl.range
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .add(&slices.iso);
+        if let Some(r) = resume
+            && z == first
+            && checkpoint::hash_slice(&slices.iso) != r.carried
+        {
+            return Err(Stop::Failed(RunError::InputChanged {
+                what: format!("slice {z} holds other values than when the checkpoint was taken"),
+            }));
+        }
+        let cut = schedule.due(z).then(|| checkpoint::hash_slice(&slices.iso));
+        let range = {
+            let mut range = ctl.range.lock().unwrap_or_else(|p| p.into_inner());
+            // The carried slice was counted before the checkpoint.
+            if resume.is_none() || z != first {
+                range.add(&slices.iso);
+            }
+            *range
+        };
         busy += t.elapsed();
-        send(ctl, &tx, slices)?;
+        send(ctl, &tx, Msg::Data(slices))?;
+        if let Some(carried) = cut {
+            let reader = ReaderState { z, carried, range };
+            send(ctl, &tx, Msg::Cut(Box::new(Cut::new(reader))))?;
+        }
     }
     debug!(seconds = busy.as_secs_f64(), "read done");
     Ok(busy.as_secs_f64())
 }
 
+impl Cut {
+    fn new(reader: ReaderState) -> Self {
+        Cut {
+            reader,
+            extract: ExtractStats::default(),
+            detect: Vec::new(),
+            simplify: Vec::new(),
+        }
+    }
+}
+
 fn extract_stage(
+    mut extractor: Extractor,
     grid: Grid,
-    iso: f32,
     batch_triangles: usize,
-    rx: Receiver<Slices>,
-    tx: Sender<CubeBatch>,
+    rx: Receiver<Msg<Slices>>,
+    tx: Sender<Msg<CubeBatch>>,
     ctl: &Control<'_>,
 ) -> StageResult<(f64, ExtractStats)> {
     let _span = info_span!("extract").entered();
-    let mut extractor = Extractor::new(grid, iso);
     let mut busy = Duration::ZERO;
     let mut lower: Option<Slices> = None;
-    while let Some(upper) = recv(ctl, &rx)? {
+    while let Some(msg) = recv(ctl, &rx)? {
+        let upper = match msg {
+            Msg::Data(slices) => slices,
+            Msg::Cut(mut cut) => {
+                cut.extract = extractor.stats();
+                send(ctl, &tx, Msg::Cut(cut))?;
+                continue;
+            }
+        };
         let z = upper.z;
         if let Some(lo) = &lower {
             let started = Instant::now();
@@ -417,7 +548,7 @@ fn extract_stage(
                 batch_triangles,
                 |batch| {
                     let t = Instant::now();
-                    let sent = send(ctl, &tx, batch);
+                    let sent = send(ctl, &tx, Msg::Data(batch));
                     blocked += t.elapsed();
                     sent
                 },
@@ -433,21 +564,28 @@ fn extract_stage(
 }
 
 fn detect_stage(
-    grid: Grid,
-    rx: Receiver<CubeBatch>,
-    tx: Sender<MeshDelta>,
+    mut detector: Detector,
+    rx: Receiver<Msg<CubeBatch>>,
+    tx: Sender<Msg<MeshDelta>>,
     ctl: &Control<'_>,
 ) -> StageResult<(f64, DetectStats)> {
     let _span = info_span!("detect").entered();
-    let mut detector = Detector::new(grid.dims);
     let mut busy = Duration::ZERO;
-    while let Some(batch) = recv(ctl, &rx)? {
+    while let Some(msg) = recv(ctl, &rx)? {
+        let batch = match msg {
+            Msg::Data(batch) => batch,
+            Msg::Cut(mut cut) => {
+                cut.detect = checkpoint::encode(&detector.snapshot());
+                send(ctl, &tx, Msg::Cut(cut))?;
+                continue;
+            }
+        };
         let t = Instant::now();
         let mut delta = MeshDelta::default();
         detector.process(&batch, &mut delta);
         busy += t.elapsed();
         let end = delta.end_of_volume;
-        send(ctl, &tx, delta)?;
+        send(ctl, &tx, Msg::Data(delta))?;
         if end {
             return Ok((busy.as_secs_f64(), detector.stats()));
         }
@@ -458,7 +596,7 @@ fn detect_stage(
 fn simplify_stage(
     mut simplifier: Simplifier,
     grid: Grid,
-    rx: Receiver<MeshDelta>,
+    rx: Receiver<Msg<MeshDelta>>,
     tx: Sender<ToWriter>,
     depth: &Depths,
     observer: &(dyn Fn(&Progress) + Sync),
@@ -469,7 +607,17 @@ fn simplify_stage(
     let log_every = (slabs_total / 20).max(1);
     let mut busy = Duration::ZERO;
     let mut last_front = 0u32;
-    while let Some(delta) = recv(ctl, &rx)? {
+    while let Some(msg) = recv(ctl, &rx)? {
+        let delta = match msg {
+            Msg::Data(delta) => delta,
+            Msg::Cut(mut cut) => {
+                let t = Instant::now();
+                cut.simplify = checkpoint::encode(&simplifier);
+                busy += t.elapsed();
+                send(ctl, &tx, ToWriter::Cut(cut))?;
+                continue;
+            }
+        };
         let t = Instant::now();
         let stride = delta
             .attrs
@@ -542,6 +690,8 @@ fn write_stage(
     mut sink: Sink,
     rx: Receiver<ToWriter>,
     empty: Option<EmptyCheck<'_>>,
+    plan: Option<&Plan>,
+    grid: Grid,
     ctl: &Control<'_>,
 ) -> StageResult<(f64, crate::sink::SinkStats)> {
     let _span = info_span!("write").entered();
@@ -550,6 +700,11 @@ fn write_stage(
         let t = Instant::now();
         match msg {
             ToWriter::Batch(batch) => sink.write(&batch)?,
+            ToWriter::Cut(cut) => {
+                if let Some(plan) = plan {
+                    save_checkpoint(&mut sink, *cut, plan, grid)?;
+                }
+            }
             ToWriter::End => {
                 if let Some(check) = empty
                     && sink.triangles() == 0
@@ -569,6 +724,34 @@ fn write_stage(
         }
         busy += t.elapsed();
     }
-    // Upstream hung up before the end: dropping the sink removes the partial file.
+    // Upstream hung up before the end: dropping the sink removes the partial file (unless a
+    // checkpoint refers to it).
     Err(Stop::Disconnected)
+}
+
+/// The writer's end of the cut: the output's files are flushed and fsynced to the saved lengths
+/// first, then the checkpoint is written atomically.
+fn save_checkpoint(sink: &mut Sink, cut: Cut, plan: &Plan, grid: Grid) -> Result<(), RunError> {
+    let t = Instant::now();
+    let ckpt = Checkpoint {
+        job: plan.job,
+        input: plan.input.clone(),
+        slabs_total: grid.dims[2] - 1,
+        parts: Parts {
+            reader: cut.reader,
+            extract: cut.extract,
+            detect: cut.detect,
+            simplify: cut.simplify,
+            sink: sink.checkpoint()?,
+        },
+    };
+    checkpoint::write(&plan.path, &ckpt)?;
+    info!(
+        slab = ckpt.slabs_done(),
+        of = ckpt.slabs_total,
+        bytes = ckpt.parts.simplify.len() + ckpt.parts.detect.len(),
+        seconds = t.elapsed().as_secs_f64(),
+        "checkpoint saved"
+    );
+    Ok(())
 }
