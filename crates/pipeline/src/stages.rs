@@ -434,7 +434,7 @@ impl Schedule {
         }
         let due = match self.every {
             None => false,
-            Some(CheckpointEvery::Slabs(n)) => (z - self.first) % n == 0,
+            Some(CheckpointEvery::Slabs(n)) => (z - self.first).is_multiple_of(n),
             Some(CheckpointEvery::Seconds(s)) => self.since.elapsed().as_secs_f64() >= s,
         };
         if due {
