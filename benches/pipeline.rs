@@ -84,6 +84,9 @@ fn simplification(c: &mut Criterion) {
         detector.process(&batch, &mut delta);
         deltas.push(delta);
     });
+    if let Some(last) = deltas.last_mut() {
+        detector.finish(last);
+    }
     drop(slices);
     let config = SimplifyConfig {
         sweep: Some(Sweep {
@@ -103,7 +106,7 @@ fn simplification(c: &mut Criterion) {
         b.iter(|| {
             let mut simplifier = Simplifier::new(config.clone()).unwrap();
             let mut out = OutBatch::default();
-            for delta in &deltas {
+            for (i, delta) in deltas.iter().enumerate() {
                 for v in &delta.vertices {
                     simplifier.add_vertex(v.id, v.pos, v.rank, &[]);
                 }
@@ -113,7 +116,7 @@ fn simplification(c: &mut Criterion) {
                 for &id in &delta.modifiable {
                     simplifier.set_modifiable(id);
                 }
-                if delta.end_of_volume {
+                if i + 1 == deltas.len() {
                     simplifier.finish(&mut out);
                 } else {
                     simplifier.end_batch(delta.front, &mut out);

@@ -69,6 +69,18 @@ pub enum Command {
         #[arg(long)]
         seed: Option<u64>,
     },
+    /// Make one self-contained HTML page with plots of a run: memory over the sweep, faces per
+    /// slab, stage busy time, and with `--measure` the min-angle and distance histograms.
+    Report {
+        /// The run summary a run wrote next to its output (`<output>.run.json`).
+        run: PathBuf,
+        /// Where to write the page.
+        #[arg(short, long, value_name = "HTML")]
+        output: PathBuf,
+        /// The JSON of `isostream measure --json` for the same output.
+        #[arg(long, value_name = "JSON")]
+        measure: Option<PathBuf>,
+    },
     /// Run a durable queue of jobs, submitted and watched over HTTP (see docs/service.md).
     Serve(crate::serve_cmd::ServeArgs),
 }
@@ -106,6 +118,11 @@ impl Command {
             } => {
                 crate::measure_cmd::measure(volume.as_deref(), &mesh, json, samples_per_area, seed)
             }
+            Command::Report {
+                run,
+                output,
+                measure,
+            } => crate::run_cmd::report_page(&run, &output, measure.as_deref()),
             Command::Serve(args) => crate::serve_cmd::serve(args),
         }
     }

@@ -11,7 +11,7 @@ pub fn init(log: &LogConfig) {
         .unwrap_or_else(|_| EnvFilter::new("info"));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
-        .with_writer(std::io::stderr)
+        .with_writer(|| crate::progress::LogWriter)
         // Colour codes only for a person at a terminal, not in files, pipes or CI logs.
         .with_ansi(std::io::stderr().is_terminal())
         .with_target(false);

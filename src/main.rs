@@ -1,12 +1,14 @@
 //! `isostream`: the command line. All flag handling lives here; the work is in the crates.
 //!
 //! Errors reach the user as one line (`error: ...`) naming the file and the fix, with a
-//! non-zero exit code: 2 for a bad job or bad input (a mesh given to check, convert or measure
-//! included), 130 for Ctrl-C, SIGTERM or SIGHUP, 1 otherwise.
+//! non-zero exit code: 2 for a bad job or bad input (a mesh given to check, convert, measure or
+//! report included, and a service configuration `serve` refuses), 130 for Ctrl-C, SIGTERM or
+//! SIGHUP, 1 otherwise.
 
 mod cli;
 mod logging;
 mod measure_cmd;
+mod progress;
 mod run_cmd;
 mod serve_cmd;
 
@@ -66,6 +68,20 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                     1
                 }
                 _ => 2,
+            };
+        }
+        // serve: a configuration to fix (flags, config file) is 2, so that a supervisor can
+        // tell it from a failure worth retrying.
+        if let Some(e) = cause.downcast_ref::<isostream_service::ServiceError>() {
+            return if e.is_bad_config() { 2 } else { 1 };
+        }
+        // report: a run summary or measure file missing or not one is bad input (2).
+        if let Some(e) = cause.downcast_ref::<isostream_report::ReportError>() {
+            return match e {
+                isostream_report::ReportError::Read { .. }
+                | isostream_report::ReportError::NotRun { .. }
+                | isostream_report::ReportError::NotMeasure { .. } => 2,
+                _ => 1,
             };
         }
         if let Some(e) = cause.downcast_ref::<isostream_measure::MeasureError>() {

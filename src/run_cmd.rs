@@ -6,8 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressStyle};
-use isostream_pipeline::{JobConfig, Progress, RunSummary};
+use isostream_pipeline::{JobConfig, LogFormat, Progress, RunSummary};
 
 pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
@@ -54,28 +53,18 @@ pub fn run(
     // of this output found now cannot belong to a live run.
     let _lock = isostream_pipeline::lock_output(&job.output.path)?;
     stale_files(&job.output.path, clean_stale)?;
-    let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
-        let bar = ProgressBar::new(0);
-        bar.set_style(
-            ProgressStyle::with_template("{elapsed_precise} [{bar:40}] slab {pos}/{len} {msg}")
-                .unwrap_or_else(|_| ProgressStyle::default_bar())
-                .progress_chars("=> "),
-        );
-        bar
-    });
+    // A bar for a person at a terminal; JSON logs are for machines, which get the periodic
+    // `progress` lines instead.
+    let bar = (!quiet && std::io::stderr().is_terminal() && job.log.format != LogFormat::Json)
+        .then(crate::progress::bar);
     let observer = |p: &Progress| {
         if let Some(bar) = &bar {
-            bar.set_length(p.slabs_total);
-            bar.set_position(p.slabs_done);
-            bar.set_message(format!(
-                "faces in {} out {} resident {}",
-                p.faces_in, p.faces_out, p.resident_faces
-            ));
+            crate::progress::update(bar, p);
         }
     };
     let summary = isostream_pipeline::run_from(&job, job_path, start, &cancel, &observer);
     if let Some(bar) = &bar {
-        bar.finish_and_clear();
+        crate::progress::finish(bar);
     }
     let summary = summary?;
     report(&summary);
@@ -135,6 +124,21 @@ fn report(s: &RunSummary) {
         s.seconds,
         s.peak_rss_bytes.map(mib).unwrap_or(f64::NAN)
     );
+}
+
+/// `isostream report`: the run summary (and a measure report) as one HTML page.
+pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow::Result<()> {
+    let summary = isostream_report::Run::load(run)?;
+    let measure = measure.map(isostream_report::Measure::load).transpose()?;
+    let page = isostream_report::html(&summary, measure.as_ref())?;
+    isostream_report::write(output, &page)?;
+    println!(
+        "{}: report of {} ({} bytes)",
+        normalised(output).display(),
+        run.display(),
+        page.len()
+    );
+    Ok(())
 }
 
 pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {

@@ -1,21 +1,30 @@
-//! `serve`: turns the flags into an `isostream_service::ServeConfig` and runs the service.
+//! `serve`: merges the flags with `--config FILE` into an `isostream_service::ServeConfig` and
+//! runs the service.
 
 use std::io::Write;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use anyhow::Context;
-use isostream_pipeline::LogConfig;
+use isostream_pipeline::{LogConfig, LogFormat};
+use isostream_service::ServeFile;
+
+const DEFAULT_LISTEN: &str = "127.0.0.1:8440";
 
 #[derive(Debug, clap::Args)]
 pub struct ServeArgs {
+    /// A TOML file with any of the keys below (state, listen, allow_input, token_file,
+    /// max_parallel_jobs, log_format); flags given here win. Example: config/serve.toml.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// Folder holding the jobs (default: $STATE_DIRECTORY under systemd, else ./isostream-state).
     #[arg(long)]
     pub state: Option<PathBuf>,
-    /// Address to listen on; a non-loopback address needs a token.
-    #[arg(long, default_value = "127.0.0.1:8440")]
-    pub listen: SocketAddr,
-    /// A folder job inputs may be read from (repeatable); without any, only procedural shapes.
+    /// Address to listen on (default 127.0.0.1:8440); a non-loopback address needs a token.
+    #[arg(long)]
+    pub listen: Option<SocketAddr>,
+    /// A folder job inputs may be read from (repeatable; adds to the config file's); without
+    /// any, only procedural shapes.
     #[arg(long = "allow-input", value_name = "DIR")]
     pub allow_input: Vec<PathBuf>,
     /// Require `Authorization: Bearer T` on every request (visible in `ps`: prefer --token-file).
@@ -24,33 +33,63 @@ pub struct ServeArgs {
     /// Read the token from a file (surrounding whitespace ignored).
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
-    /// Jobs running at once (each already keeps five stage threads busy).
-    #[arg(long, default_value_t = 1)]
-    pub max_parallel_jobs: usize,
+    /// Jobs running at once (default 1: each already keeps its stage threads and extraction
+    /// pool busy).
+    #[arg(long)]
+    pub max_parallel_jobs: Option<usize>,
+    /// Log lines as `text` (default) or `json` (one object per line, the job id in its span).
+    #[arg(long, value_parser = ["text", "json"])]
+    pub log_format: Option<String>,
 }
 
 pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
-    crate::logging::init(&LogConfig::default());
-    let token = match (&args.token, &args.token_file) {
-        (_, Some(file)) => Some(
+    let file = match &args.config {
+        Some(path) => ServeFile::load(path)?,
+        None => ServeFile::default(),
+    };
+    let format = match args.log_format.as_deref() {
+        Some("json") => LogFormat::Json,
+        Some(_) => LogFormat::Text,
+        None => file.log_format.unwrap_or_default(),
+    };
+    crate::logging::init(&LogConfig {
+        format,
+        ..LogConfig::default()
+    });
+    let token = match (
+        &args.token,
+        args.token_file.as_ref().or(file.token_file.as_ref()),
+    ) {
+        (Some(token), _) => Some(token.clone()),
+        (None, Some(file)) => Some(
             std::fs::read_to_string(file)
                 .with_context(|| format!("--token-file {}", file.display()))?
                 .trim()
                 .to_string(),
         ),
-        (token, None) => token.clone(),
+        (None, None) => None,
     };
     // systemd's StateDirectory= exports the folder it made for us.
     let state_dir = args
         .state
+        .or(file.state)
         .or_else(|| std::env::var_os("STATE_DIRECTORY").map(PathBuf::from))
         .unwrap_or_else(|| PathBuf::from("isostream-state"));
+    let listen = args
+        .listen
+        .or(file.listen)
+        .unwrap_or_else(|| DEFAULT_LISTEN.parse().expect("a valid address"));
+    let mut allow_input = file.allow_input;
+    allow_input.extend(args.allow_input);
     let config = isostream_service::ServeConfig {
         state_dir,
-        listen: args.listen,
-        allow_input: args.allow_input,
+        listen,
+        allow_input,
         token,
-        max_parallel_jobs: args.max_parallel_jobs,
+        max_parallel_jobs: args
+            .max_parallel_jobs
+            .or(file.max_parallel_jobs)
+            .unwrap_or(1),
     };
     isostream_service::serve(config, |addr| {
         // One line on stdout that scripts (and the tests) wait for; logs go to stderr.

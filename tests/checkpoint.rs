@@ -74,8 +74,8 @@ proptest! {
     #![proptest_config(ProptestConfig { cases: 20, ..ProptestConfig::default() })]
 
     /// Stopped at one or two random slabs (a checkpoint after every slab or every few), resumed,
-    /// with a random channel capacity: the same bytes as an uninterrupted run without
-    /// checkpoints.
+    /// with random channel capacities and extraction threads: the same bytes as an
+    /// uninterrupted run without checkpoints (one thread, default capacities).
     #[test]
     fn a_run_stopped_anywhere_resumes_to_the_same_bytes(
         mode in 0..MODES.len(),
@@ -85,6 +85,7 @@ proptest! {
         n in 16u64..28,
         every in 1u64..4,
         capacity in 1usize..12,
+        threads in 1usize..4,
         stops in prop::collection::vec(0.0..1.0f64, 1..3),
     ) {
         let dir = tempfile::tempdir().unwrap();
@@ -93,13 +94,13 @@ proptest! {
         let reference = load(
             dir.path(),
             "ref.toml",
-            &job_text(SHAPES[shape], n, &simplify, &format!("ref.{ext}"), ""),
+            &job_text(SHAPES[shape], n, &simplify, &format!("ref.{ext}"), "threads = 1"),
         );
         run(&reference, Start::Fresh, None).unwrap();
         let expected = std::fs::read(dir.path().join(format!("ref.{ext}"))).unwrap();
 
         let pipeline = format!(
-            "channel_capacity = {capacity}\ncheckpoint = {{ every_slabs = {every} }}"
+            "channel_capacity = {capacity}\nthreads = {threads}\ncheckpoint = {{ every_slabs = {every} }}"
         );
         let output = format!("out.{ext}");
         let job = load(

@@ -45,7 +45,6 @@ pub struct MeshDelta {
     pub modifiable: Vec<u64>,
     /// Number of slabs completely extracted after this delta.
     pub front: u32,
-    pub end_of_volume: bool,
 }
 
 impl MeshDelta {
@@ -55,7 +54,6 @@ impl MeshDelta {
         self.triangles.clear();
         self.modifiable.clear();
         self.front = 0;
-        self.end_of_volume = false;
     }
 }
 
@@ -209,16 +207,17 @@ impl Detector {
         self.stats.vertices = self.next_id;
         self.stats.triangles += batch.triangles.len() as u64;
         out.front = u32::try_from(batch.slab + u64::from(batch.end_of_slab)).unwrap_or(u32::MAX);
-        if batch.end_of_volume {
-            // Table 1's "last traversed" cube releases everything; if that cube was empty the
-            // map is already empty, otherwise it was released above. Drain defensively so a
-            // vertex can never stay unmodifiable at the end of the stream.
-            let mut rest: Vec<u64> = self.front.drain().map(|(_, id)| id).collect();
-            rest.sort_unstable();
-            self.stats.released_at_end += rest.len() as u64;
-            out.modifiable.extend(rest);
-            out.end_of_volume = true;
-        }
+    }
+
+    /// End of the stream: every vertex still waiting becomes modifiable, appended to `out`
+    /// (the delta of the last batch, so the consumer sees one final delta). Table 1's "last
+    /// traversed" cube releases everything, so this is empty on a complete stream; it drains
+    /// defensively so that no vertex can stay unmodifiable.
+    pub fn finish(&mut self, out: &mut MeshDelta) {
+        let mut rest: Vec<u64> = self.front.drain().map(|(_, id)| id).collect();
+        rest.sort_unstable();
+        self.stats.released_at_end += rest.len() as u64;
+        out.modifiable.extend(rest);
     }
 
     /// Vertices currently waiting for their last cube.

@@ -40,7 +40,8 @@ pub struct Cube {
 
 /// Non-empty cubes of consecutive rows of one slab, in traversal order (x fastest, then y,
 /// then z). Triangles index the cube's own vertex range (local 0..vertex_count),
-/// counter-clockwise seen from outside.
+/// counter-clockwise seen from outside. The end of the volume is not a batch's business: the
+/// stream's consumer knows it (the pipeline's channels end with an end message).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct CubeBatch {
     pub slab: u64,
@@ -51,7 +52,6 @@ pub struct CubeBatch {
     /// [`Extractor::extract_slab_with_attributes`]; empty without attributes.
     pub attrs: Vec<f32>,
     pub end_of_slab: bool,
-    pub end_of_volume: bool,
 }
 
 impl CubeBatch {
@@ -63,7 +63,6 @@ impl CubeBatch {
         self.triangles.clear();
         self.attrs.clear();
         self.end_of_slab = false;
-        self.end_of_volume = false;
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -101,7 +100,6 @@ impl CubeBatch {
             triangles: Vec::with_capacity(sizes[2]),
             attrs: Vec::new(),
             end_of_slab: false,
-            end_of_volume: false,
         }
     }
 
@@ -121,6 +119,29 @@ pub struct ExtractStats {
     /// NaN or infinite voxels (treated as outside). Slice 0 is counted with slab 0 and every
     /// other slice as the upper slice of its slab, so a full sweep counts each voxel once.
     pub non_finite_voxels: u64,
+}
+
+/// What one slab added to an extractor's counters (`after - before`).
+impl std::ops::Sub for ExtractStats {
+    type Output = Self;
+    fn sub(self, o: Self) -> Self {
+        Self {
+            cubes: self.cubes - o.cubes,
+            active_cubes: self.active_cubes - o.active_cubes,
+            triangles: self.triangles - o.triangles,
+            non_finite_voxels: self.non_finite_voxels - o.non_finite_voxels,
+        }
+    }
+}
+
+/// Counters of several extractors of one stream (slabs extracted in parallel) add up.
+impl std::ops::AddAssign for ExtractStats {
+    fn add_assign(&mut self, o: Self) {
+        self.cubes += o.cubes;
+        self.active_cubes += o.active_cubes;
+        self.triangles += o.triangles;
+        self.non_finite_voxels += o.non_finite_voxels;
+    }
 }
 
 /// The streaming marching-cubes extractor of one volume at one iso value.
@@ -164,9 +185,9 @@ impl Extractor {
     /// Extracts slab z (cubes between slices z and z+1, z in `0..dims[2] - 1`). Emits batches
     /// holding whole rows, flushing when a batch reaches `max_triangles` (at least one row per
     /// batch, and never an empty batch before the last); the last batch of the slab has
-    /// `end_of_slab = true` (an empty one if needed), and on the last slab
-    /// `end_of_volume = true`. The first error returned by `emit` stops the slab and is
-    /// returned.
+    /// `end_of_slab = true` (an empty one if needed). Slabs are independent: extracting them in
+    /// any order (or on several extractors) gives the same batches. The first error returned by
+    /// `emit` stops the slab and is returned.
     ///
     /// # Panics
     /// If z is not a slab of the grid or a slice does not hold `grid.slice_len()` values.
@@ -212,7 +233,6 @@ impl Extractor {
         }
         self.remember_sizes(&batch);
         batch.end_of_slab = true;
-        batch.end_of_volume = z + 2 == nz;
         emit(batch)
     }
 
@@ -367,7 +387,6 @@ mod tests {
         for (z, b) in batches.iter().enumerate() {
             assert_eq!(b.slab, z as u64);
             assert!(b.end_of_slab);
-            assert_eq!(b.end_of_volume, z == 1);
             assert_eq!(b.cubes.len(), 4);
             for cube in &b.cubes {
                 assert_eq!((cube.vertex_count, cube.triangle_count), (3, 1));
@@ -389,16 +408,11 @@ mod tests {
         assert_eq!(batches.len(), 4);
         let flags: Vec<_> = batches
             .iter()
-            .map(|b| (b.slab, b.cubes.len(), b.end_of_slab, b.end_of_volume))
+            .map(|b| (b.slab, b.cubes.len(), b.end_of_slab))
             .collect();
         assert_eq!(
             flags,
-            [
-                (0, 2, false, false),
-                (0, 2, true, false),
-                (1, 2, false, false),
-                (1, 2, true, true)
-            ]
+            [(0, 2, false), (0, 2, true), (1, 2, false), (1, 2, true)]
         );
         // Cubes of a batch come in traversal order.
         assert_eq!(batches[1].cubes[0].coord, [0, 1, 0]);
@@ -463,7 +477,7 @@ mod tests {
             Ok::<_, ()>(())
         })
         .unwrap();
-        assert!(batches[0].end_of_volume);
+        assert!(batches[0].end_of_slab);
         for v in &batches[0].vertices {
             assert!(v.key.0 > u64::from(u32::MAX));
             let ([_, _, vz], axis) = v.key.decode(grid.dims);

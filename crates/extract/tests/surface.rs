@@ -59,9 +59,8 @@ fn stream(grid: Grid, data: &[f32], iso: f32, max_triangles: usize) -> Streamed 
     };
     let mut previous_coord = None;
     let mut expected_slab = 0;
-    for (i, b) in batches.iter().enumerate() {
+    for b in &batches {
         assert_eq!(b.slab, expected_slab);
-        assert_eq!(b.end_of_volume, i + 1 == batches.len());
         if b.end_of_slab {
             expected_slab += 1;
         } else {

@@ -43,6 +43,12 @@ pub const MAX_SAMPLES: f64 = 4_000_000.0;
 /// Default search radius of the output -> full direction, in voxel diagonals. A simplified mesh
 /// within its error bound stays well inside a few voxels of the full-resolution surface.
 pub const DEFAULT_SEARCH_VOXEL_DIAGONALS: f64 = 4.0;
+/// Most bins of each direction's distance histogram.
+pub const DISTANCE_BINS: usize = 20;
+/// Samples are counted in this many bins over `[0, max_distance]` as they come (the largest
+/// distance is not known before the end), then merged into at most [`DISTANCE_BINS`] covering
+/// the distances seen: the bins follow the data even when it stays far inside the search radius.
+const FINE_BINS: usize = 4096;
 /// Default seed: reports are reproducible unless a seed is asked for.
 pub const DEFAULT_SEED: u64 = 0x1505_7EA3;
 
@@ -81,6 +87,10 @@ pub struct DirectedDistance {
     /// L_infinity over the samples: Hausdorff distance.
     pub hausdorff: f64,
     pub samples: u64,
+    /// `(bin start, samples)`: at most [`DISTANCE_BINS`] bins of equal width from 0 up to just
+    /// past the largest distance (the width a multiple of `max_distance / 4096`); distances past
+    /// `max_distance` (clipped output samples included) count in the last bin.
+    pub histogram: Vec<(f64, u64)>,
 }
 
 /// Both directions, the undirected distances (the larger of the two, section 4) and the same in
@@ -107,20 +117,36 @@ pub struct Distances {
     pub samples_per_area: f64,
 }
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Accumulator {
     sum: f64,
     sum_squares: f64,
     max: f64,
     count: u64,
+    bin_width: f64,
+    bins: Vec<u64>,
 }
 
 impl Accumulator {
+    /// Histogram bins over `[0, radius]`.
+    fn new(radius: f64) -> Self {
+        Accumulator {
+            sum: 0.0,
+            sum_squares: 0.0,
+            max: 0.0,
+            count: 0,
+            bin_width: radius / FINE_BINS as f64,
+            bins: vec![0; FINE_BINS],
+        }
+    }
+
     fn add(&mut self, d: f64) {
         self.sum += d;
         self.sum_squares += d * d;
         self.max = self.max.max(d);
         self.count += 1;
+        let bin = (d / self.bin_width) as usize;
+        self.bins[bin.min(FINE_BINS - 1)] += 1;
     }
 
     fn finish(&self) -> DirectedDistance {
@@ -130,7 +156,19 @@ impl Accumulator {
             rms: (self.sum_squares / n).sqrt(),
             hausdorff: self.max,
             samples: self.count,
+            histogram: self.histogram(),
         }
+    }
+
+    /// The fine bins up to the last one used, merged into at most [`DISTANCE_BINS`].
+    fn histogram(&self) -> Vec<(f64, u64)> {
+        let used = self.bins.iter().rposition(|&k| k > 0).map_or(1, |i| i + 1);
+        let per = used.div_ceil(DISTANCE_BINS);
+        self.bins[..used]
+            .chunks(per)
+            .enumerate()
+            .map(|(i, c)| ((i * per) as f64 * self.bin_width, c.iter().sum()))
+            .collect()
     }
 }
 
@@ -211,11 +249,11 @@ impl DistanceStream {
             density,
             radius,
             rng: SplitMix64::new(opts.seed ^ 0x5EED_F011_0000_0001),
-            full_to_output: Accumulator::default(),
+            full_to_output: Accumulator::new(radius),
             output_hint: 0,
             samples,
             next: 0,
-            output_to_full: Accumulator::default(),
+            output_to_full: Accumulator::new(radius),
             clipped_samples: 0,
             window: VecDeque::new(),
             full_triangles: 0,
@@ -347,6 +385,25 @@ pub(crate) mod tests {
     use crate::bias::tests::geodesic_sphere;
     use crate::triangle::closest_point;
 
+    #[test]
+    fn histogram_bins_follow_the_data() {
+        let mut acc = Accumulator::new(100.0);
+        for i in 0..1000 {
+            acc.add(i as f64 / 1000.0);
+        }
+        let h = acc.histogram();
+        assert!(h.len() >= DISTANCE_BINS / 2 && h.len() <= DISTANCE_BINS);
+        assert_eq!(h.iter().map(|b| b.1).sum::<u64>(), 1000);
+        // The bins span the data (below 1), not the search radius (100).
+        let end = h.last().unwrap().0 + h[1].0;
+        assert!((0.999..1.2).contains(&end), "{h:?}");
+        // A distance past the radius counts in the last bin.
+        acc.add(250.0);
+        let h = acc.histogram();
+        assert_eq!(h.len(), DISTANCE_BINS);
+        assert_eq!(h.last().unwrap().1, 1);
+    }
+
     /// A square `[0, size]^2` at height `z`, split into `n x n` cells of two triangles.
     pub(crate) fn plane(size: f64, n: u32, z: f64) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
         let step = size / n as f64;
@@ -472,7 +529,7 @@ pub(crate) mod tests {
         let streamed = stream((&op, &ot), &full, 0.7, &opts, radius);
 
         let s = DistanceStream::new(&op, &ot, &opts, radius).unwrap();
-        let mut acc = Accumulator::default();
+        let mut acc = Accumulator::new(radius);
         for p in &s.samples {
             let d = full
                 .iter()
@@ -483,6 +540,21 @@ pub(crate) mod tests {
         let brute = acc.finish();
         let o2f = &streamed.output_to_full;
         assert_eq!(o2f.samples, brute.samples);
+        for h in [&o2f.histogram, &streamed.full_to_output.histogram] {
+            assert!(
+                h.len() <= DISTANCE_BINS && h.len() >= DISTANCE_BINS / 2,
+                "{h:?}"
+            );
+            // Bins of equal width that cover the largest distance.
+            let width = h[1].0 - h[0].0;
+            assert!(
+                h.windows(2)
+                    .all(|w| (w[1].0 - w[0].0 - width).abs() < 1e-12)
+            );
+        }
+        let (last, width) = (o2f.histogram.last().unwrap().0, radius / FINE_BINS as f64);
+        assert!(last <= o2f.hausdorff && o2f.hausdorff < last + (o2f.histogram[1].0 + width));
+        assert_eq!(o2f.histogram.iter().map(|b| b.1).sum::<u64>(), o2f.samples);
         assert!(
             (o2f.mean - brute.mean).abs() < 1e-9 * brute.mean,
             "{o2f:?} {brute:?}"

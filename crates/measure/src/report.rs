@@ -119,6 +119,7 @@ mod tests {
             rms: x,
             hausdorff: x,
             samples: 10,
+            histogram: vec![(0.0, 10)],
         }
     }
 

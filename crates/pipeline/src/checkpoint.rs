@@ -87,7 +87,33 @@ pub(crate) struct ReaderState {
     pub z: u64,
     /// Hash of iso slice `z`, checked when it is read again.
     pub carried: u64,
-    pub range: crate::stages::DataRange,
+    pub range: crate::range::DataRange,
+}
+
+/// The checkpoint marker as it travels through the stages, each adding its state (the reader
+/// its slice and hash, the ordered intake of the extractors' slabs their counters and data
+/// range, the detector and the simplifier their encoded states).
+pub(crate) struct Cut {
+    pub reader: ReaderState,
+    pub extract: isostream_extract::ExtractStats,
+    pub detect: Vec<u8>,
+    pub simplify: Vec<u8>,
+}
+
+impl Cut {
+    /// The marker the reader sends after slice `z`, whose values hash to `carried`.
+    pub fn new(z: u64, carried: u64) -> Box<Cut> {
+        Box::new(Cut {
+            reader: ReaderState {
+                z,
+                carried,
+                range: Default::default(),
+            },
+            extract: Default::default(),
+            detect: Vec::new(),
+            simplify: Vec::new(),
+        })
+    }
 }
 
 /// What the stages saved at one cut, each encoded by its own stage.
@@ -121,11 +147,13 @@ impl Checkpoint {
 }
 
 /// Everything of the job that decides the output bytes. Left out: how often to checkpoint, the
-/// channel capacities (the bytes do not depend on them: `tests/checkpoint.rs`) and logging.
+/// channel capacities and the extraction threads (the bytes do not depend on them:
+/// `tests/checkpoint.rs`) and logging.
 pub(crate) fn job_hash(job: &JobConfig) -> u64 {
     let mut job = job.clone();
     job.pipeline.checkpoint = Default::default();
     job.pipeline.channel_capacity = 0;
+    job.pipeline.threads = None;
     job.log = Default::default();
     hash(&serde_json::to_vec(&job).unwrap_or_default())
 }
@@ -379,7 +407,7 @@ mod tests {
                 reader: ReaderState {
                     z: 3,
                     carried: 11,
-                    range: crate::stages::DataRange::EMPTY,
+                    range: Default::default(),
                 },
                 extract: Default::default(),
                 detect: vec![1, 2, 3],

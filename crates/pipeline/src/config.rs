@@ -212,7 +212,20 @@ pub struct PipelineConfig {
     /// When to save a resumable state (`isostream run --resume`).
     #[serde(default)]
     pub checkpoint: CheckpointConfig,
+    /// Threads extracting slabs in parallel (default: one per core). The output does not
+    /// depend on it: slabs reach the detector in order.
+    pub threads: Option<usize>,
 }
+
+impl PipelineConfig {
+    /// Extraction threads: `threads`, else the machine's cores.
+    pub fn threads(&self) -> usize {
+        self.threads.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        })
+    }
+}
+
 
 /// `[pipeline] checkpoint = { every_seconds = 60 }` (or `every_slabs = N`, or `enabled = false`).
 /// Without the key, jobs on volumes of at least [`CheckpointConfig::AUTO_MIN_VOXELS`] voxels
@@ -273,6 +286,7 @@ impl Default for PipelineConfig {
             memory_budget_mib: default_budget(),
             batch_triangles: default_batch_triangles(),
             checkpoint: CheckpointConfig::default(),
+            threads: None,
         }
     }
 }
@@ -285,13 +299,38 @@ pub enum LogFormat {
     Json,
 }
 
-#[derive(Debug, Clone, Serialize, Deserialize, Default)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LogConfig {
     #[serde(default)]
     pub format: LogFormat,
     /// A tracing filter such as "info" or "isostream_pipeline=debug"; RUST_LOG wins when set.
     pub level: Option<String>,
+    /// Seconds between two `progress` log lines (rate, ETA, faces, RSS); 0 for none.
+    #[serde(default = "default_progress_seconds")]
+    pub progress_seconds: f64,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            format: LogFormat::default(),
+            level: None,
+            progress_seconds: default_progress_seconds(),
+        }
+    }
+}
+
+fn default_progress_seconds() -> f64 {
+    10.0
+}
+
+impl LogConfig {
+    /// How often a run logs its progress; `None` when `progress_seconds = 0`.
+    pub fn progress_interval(&self) -> Option<std::time::Duration> {
+        (self.progress_seconds > 0.0)
+            .then(|| std::time::Duration::from_secs_f64(self.progress_seconds))
+    }
 }
 
 /// A `[log] level` must parse as a tracing filter, and a bare word must be a level: `debugg`
@@ -526,6 +565,21 @@ impl JobConfig {
                 "0".into(),
             ));
         }
+        if p.threads == Some(0) {
+            return Err(bad(
+                "pipeline.threads",
+                "at least 1 (or leave it out for one per core)",
+                "0".into(),
+            ));
+        }
+        let every = self.log.progress_seconds;
+        if !(0.0..=1e9).contains(&every) {
+            return Err(bad(
+                "log.progress_seconds",
+                "seconds between progress lines, >= 0 (0: none)",
+                every.to_string(),
+            ));
+        }
         if let Some(level) = &self.log.level {
             check_log_filter(level).map_err(|why| {
                 bad(
@@ -691,6 +745,31 @@ mod tests {
                 "{bad}: {e}"
             );
         }
+    }
+
+    #[test]
+    fn zero_threads_are_refused() {
+        let text = format!("{MINIMAL}\n[pipeline]\nthreads = 0\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("pipeline.threads"), "{err}");
+        let text = format!("{MINIMAL}\n[pipeline]\nthreads = 3\n");
+        assert_eq!(parse(&text).unwrap().pipeline.threads(), 3);
+        assert!(parse(MINIMAL).unwrap().pipeline.threads() >= 1);
+    }
+
+    #[test]
+    fn progress_interval_is_checked() {
+        for bad in ["-1.0", "nan", "inf"] {
+            let text = format!("{MINIMAL}\n[log]\nprogress_seconds = {bad}\n");
+            let err = parse(&text).unwrap_err().to_string();
+            assert!(err.contains("log.progress_seconds"), "{bad}: {err}");
+        }
+        let text = format!("{MINIMAL}\n[log]\nprogress_seconds = 0\n");
+        assert_eq!(parse(&text).unwrap().log.progress_interval(), None);
+        assert_eq!(
+            parse(MINIMAL).unwrap().log.progress_interval(),
+            Some(std::time::Duration::from_secs(10))
+        );
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! The wiring of an isostream job: config, stage threads, bounded channels, run summary.
 //!
 //! This is the only crate that spawns threads. Each stage (read, extract, detect, simplify,
-//! write) runs on its own thread; the channels between them are bounded, so a slow stage makes
+//! write) runs on its own thread, extraction on a pool of `[pipeline] threads`; the channels between them are bounded, so a slow stage makes
 //! the earlier ones wait instead of queueing without limit: together with the simplifier's
 //! retirement this keeps memory bounded by the sweep front. See ARCHITECTURE.md.
 #![deny(unsafe_code)]
@@ -10,7 +10,11 @@ mod attributes;
 mod checkpoint;
 mod config;
 mod error;
+mod extract_pool;
+mod flow;
+mod monitor;
 mod output;
+mod range;
 mod rss;
 mod sink;
 mod source;
@@ -32,8 +36,9 @@ pub use config::{
     Mode, OutputConfig, PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
+pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
 pub use output::{OutputLock, lock_output, lock_path, stale_temp_files};
-pub use rss::peak_rss_bytes;
+pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
 pub use source::open_source;
 pub use stages::{Progress, StageSeconds};
@@ -68,6 +73,9 @@ pub struct RunSummary {
     pub resumed_at_slab: Option<u64>,
     /// What the user should know about the result (also logged as warnings).
     pub warnings: Vec<String>,
+    /// Per slab: voxels done, faces in / out / resident, RSS, seconds (at most
+    /// [`MAX_SERIES_POINTS`] points; see `monitor`). Plotted by `isostream report`.
+    pub series: TimeSeries,
 }
 
 /// How a run treats the checkpoint an earlier run of the same output left (see `checkpoint`).
@@ -86,6 +94,8 @@ pub enum Start {
 
 /// Runs a validated job from the beginning (refusing to when a checkpoint exists: see
 /// [`run_from`]). `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
+/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress
+/// after every slab.
 pub fn run(
     job: &JobConfig,
     job_path: &Path,
@@ -237,6 +247,8 @@ fn run_job(
         }
         _ => (sink::Sink::create(&job.output.path, &header)?, None),
     };
+    let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
+    let observe = |p: &Progress| monitor.observe(p);
     let resumed_at_slab = resume.as_ref().map(|r| r.reader.z);
     let checkpoints = every.zip(identity).map(|(every, input)| stages::Plan {
         every,
@@ -244,21 +256,28 @@ fn run_job(
         job: checkpoint::job_hash(job),
         input,
     });
+    let mut reader = SliceReader::new(source, attribute_sources);
+    if let Some(r) = &resume {
+        // The checkpoint's carried slice is read again (and checked against its hash).
+        reader.seek(r.reader.z)?;
+    }
     let outputs = stages::Stages {
-        source,
-        attributes: attribute_sources,
+        reader,
+        input: input.clone(),
         iso: job.extract.iso as f32,
         simplifier,
         sink,
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
+        threads: job.pipeline.threads(),
         allow_empty: job.output.allow_empty,
         cancel,
-        observer,
+        observer: &observe,
         checkpoints,
         resume,
     }
     .run()?;
+    let series = monitor.finish();
     // The output is complete under its final name: the checkpoint has served.
     checkpoint::remove(ckpt_path)?;
 
@@ -294,6 +313,7 @@ fn run_job(
         sink: sink_stats,
         resumed_at_slab,
         warnings,
+        series,
     };
     if job.output.summary {
         write_summary(&summary, &summary_path(&job.output.path))?;
@@ -371,19 +391,25 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
         path: path.to_path_buf(),
         reason,
     };
+    let bytes = serde_json::to_vec_pretty(summary).map_err(|e| fail(e.to_string()))?;
+    write_atomically(path, &bytes).map_err(|e| fail(e.to_string()))
+}
+
+/// Writes a small file (a summary, a report) under a temporary name next to it, then renames
+/// it: a failure leaves nothing under the final name. The temporary name is
+/// `.NAME.XXXXXX.tmp`, named after the file, so a stale one is recognised.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write as _;
     let dir = path
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    // `.NAME.run.json.XXXXXX.tmp`: named after its output, so a stale one is recognised.
     let prefix = format!(
         ".{}.",
         path.file_name().unwrap_or_default().to_string_lossy()
     );
-    let mut tmp = isostream_smesh::output_builder(&prefix)
-        .tempfile_in(dir)
-        .map_err(|e| fail(e.to_string()))?;
-    serde_json::to_writer_pretty(&mut tmp, summary).map_err(|e| fail(e.to_string()))?;
-    tmp.persist(path).map_err(|e| fail(e.to_string()))?;
+    let mut tmp = isostream_smesh::output_builder(&prefix).tempfile_in(dir)?;
+    tmp.write_all(bytes)?;
+    tmp.persist(path).map_err(|e| e.error)?;
     Ok(())
 }

@@ -1,194 +1,27 @@
-//! The five stages, each on its own thread, joined by bounded channels.
-//!
-//! Every stage ends in one of three ways: it saw the end-of-volume marker and passed it on
-//! (success), its own work failed (it records the error in the shared [`Control`], which raises
-//! the abort flag), or it saw the abort flag / a neighbour hang up (it stops quietly: someone
-//! else has the error to report). Only the writer can make a file appear, and only after it has
-//! received the end marker, so an error or Ctrl-C anywhere leaves no output.
-//!
-//! No stage ever blocks for good on a channel: sends and receives wait in short slices
-//! ([`POLL`]) and look at the abort and cancel flags in between. A channel alone is not enough to
-//! stop a neighbour: the progress observer keeps clones of the receivers (queue depths), so a
-//! failed writer does not disconnect the simplifier's channel, and a full channel would otherwise
-//! block its producer forever (the deadlock of a write error on a full disk).
+//! The stages of a run and their wiring: read -> extract (a pool of workers, see
+//! `extract_pool.rs`) -> detect -> simplify -> write, each on its own thread(s), joined by bounded
+//! channels of [`Msg`]. How a stage is driven, timed and stopped is in `flow.rs`; this file says
+//! what each stage does with one input and at its end.
 
+use std::convert::Infallible;
 use std::path::PathBuf;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
 
-use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender, bounded};
+use crossbeam_channel::{Receiver, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
-use isostream_extract::attributes::AttributeSlab;
-use isostream_extract::{CubeBatch, ExtractStats, Extractor};
+use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
-use isostream_volume::{Grid, VolumeSource};
-use tracing::{debug, info, info_span};
+use tracing::{debug, info};
 
-use crate::attributes::{SliceReader, Slices};
-use crate::checkpoint::{self, Checkpoint, InputIdentity, Parts, ReaderState};
+use crate::attributes::SliceReader;
+use crate::checkpoint::{self, Checkpoint, Cut, InputIdentity, Parts, ReaderState};
 use crate::config::CheckpointEvery;
 use crate::error::RunError;
+use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabBatches, WorkStep};
+use crate::range::DataRange;
+use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
 use crate::sink::Sink;
-
-/// How a stage stopped when it did not finish.
-pub(crate) enum Stop {
-    /// A neighbour hung up; it reports the cause.
-    Disconnected,
-    Failed(RunError),
-}
-
-impl From<RunError> for Stop {
-    fn from(e: RunError) -> Self {
-        Stop::Failed(e)
-    }
-}
-
-type StageResult<T> = Result<T, Stop>;
-
-/// How long a blocked send or receive waits before it looks at the abort and cancel flags again.
-const POLL: Duration = Duration::from_millis(20);
-
-/// Shared by every stage: the user's cancel flag, and the first error of any stage (recording it
-/// raises the abort flag that stops every other stage, whatever the state of the channels).
-pub(crate) struct Control<'a> {
-    cancel: &'a AtomicBool,
-    abort: AtomicBool,
-    first: Mutex<Option<RunError>>,
-    /// Values the reader saw, for the empty-surface error.
-    range: Mutex<DataRange>,
-}
-
-/// Smallest and largest finite value read, and how many voxels were NaN or infinite.
-#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
-pub(crate) struct DataRange {
-    min: f32,
-    max: f32,
-    non_finite: u64,
-}
-
-impl DataRange {
-    pub(crate) const EMPTY: DataRange = DataRange {
-        min: f32::INFINITY,
-        max: f32::NEG_INFINITY,
-        non_finite: 0,
-    };
-
-    fn add(&mut self, values: &[f32]) {
-        for &v in values {
-            if v.is_finite() {
-                self.min = self.min.min(v);
-                self.max = self.max.max(v);
-            } else {
-                self.non_finite += 1;
-            }
-        }
-    }
-
-    /// "[0, 255] (12 NaN or infinite voxels)", or what to say when no voxel was finite.
-    fn describe(&self) -> String {
-        if self.min > self.max {
-            return format!(
-                "the volume has no finite voxel (all {} are NaN or infinite)",
-                self.non_finite
-            );
-        }
-        let mut s = format!("the data range is [{}, {}]", self.min, self.max);
-        if self.non_finite > 0 {
-            s.push_str(&format!(" ({} NaN or infinite voxels)", self.non_finite));
-        }
-        s
-    }
-}
-
-impl<'a> Control<'a> {
-    fn new(cancel: &'a AtomicBool) -> Self {
-        Self {
-            cancel,
-            abort: AtomicBool::new(false),
-            first: Mutex::new(None),
-            range: Mutex::new(DataRange::EMPTY),
-        }
-    }
-
-    /// Records a stage's failure (only the first one is kept) and stops every stage.
-    fn fail(&self, e: RunError) {
-        let mut first = self.first.lock().unwrap_or_else(|p| p.into_inner());
-        if first.is_none() {
-            *first = Some(e);
-        }
-        self.abort.store(true, Ordering::SeqCst);
-    }
-
-    /// Err when the run must stop: the user cancelled, or another stage failed.
-    fn check(&self) -> StageResult<()> {
-        if self.cancel.load(Ordering::Relaxed) {
-            return Err(Stop::Failed(RunError::Cancelled));
-        }
-        if self.abort.load(Ordering::SeqCst) {
-            return Err(Stop::Disconnected);
-        }
-        Ok(())
-    }
-
-    fn take_first(&self) -> Option<RunError> {
-        self.first.lock().unwrap_or_else(|p| p.into_inner()).take()
-    }
-
-    /// Runs a stage body; a failure is recorded the moment it happens, so the others stop.
-    fn stage<T>(&self, body: impl FnOnce() -> StageResult<T>) -> StageResult<T> {
-        /// A panicking stage stops the others too (the join reports the panic).
-        struct AbortOnPanic<'c>(&'c AtomicBool);
-        impl Drop for AbortOnPanic<'_> {
-            fn drop(&mut self) {
-                if std::thread::panicking() {
-                    self.0.store(true, Ordering::SeqCst);
-                }
-            }
-        }
-        let _guard = AbortOnPanic(&self.abort);
-        let r = body();
-        match r {
-            Err(Stop::Failed(e)) => {
-                self.fail(e);
-                Err(Stop::Disconnected)
-            }
-            Err(Stop::Disconnected) => {
-                // Whoever hung up has recorded (or will record) the cause; make sure nobody
-                // keeps waiting on us.
-                self.abort.store(true, Ordering::SeqCst);
-                Err(Stop::Disconnected)
-            }
-            ok => ok,
-        }
-    }
-}
-
-/// Sends, waiting while the channel is full, but never past an abort or a cancel.
-fn send<T>(ctl: &Control<'_>, tx: &Sender<T>, mut value: T) -> StageResult<()> {
-    loop {
-        match tx.send_timeout(value, POLL) {
-            Ok(()) => return Ok(()),
-            Err(SendTimeoutError::Disconnected(_)) => return Err(Stop::Disconnected),
-            Err(SendTimeoutError::Timeout(v)) => {
-                ctl.check()?;
-                value = v;
-            }
-        }
-    }
-}
-
-/// Receives the next message; `None` when the producer hung up. Never waits past an abort or a
-/// cancel.
-fn recv<T>(ctl: &Control<'_>, rx: &Receiver<T>) -> StageResult<Option<T>> {
-    loop {
-        match rx.recv_timeout(POLL) {
-            Ok(v) => return Ok(Some(v)),
-            Err(RecvTimeoutError::Disconnected) => return Ok(None),
-            Err(RecvTimeoutError::Timeout) => ctl.check()?,
-        }
-    }
-}
 
 /// Snapshot passed to the progress observer after every completed slab.
 #[derive(Debug, Clone, Copy)]
@@ -198,11 +31,12 @@ pub struct Progress {
     pub faces_in: u64,
     pub faces_out: u64,
     pub resident_faces: u64,
-    /// Batches waiting in the extract->detect, detect->simplify and simplify->write channels.
+    /// Slabs extracted or being extracted that the detector has not taken yet, and batches
+    /// waiting in the detect->simplify and simplify->write channels.
     pub queued: [usize; 3],
 }
 
-/// Busy time of each stage (time blocked on channels excluded).
+/// Busy time of each stage (time blocked on channels excluded). `extract` adds up the workers.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct StageSeconds {
     pub read: f64,
@@ -221,21 +55,25 @@ pub(crate) struct StageOutputs {
 }
 
 pub(crate) struct Stages<'a> {
-    pub source: Box<dyn VolumeSource>,
-    /// Attribute sources, read slice by slice with the iso volume.
-    pub attributes: Vec<crate::attributes::Source>,
+    /// The iso volume and the attributes, read slice by slice.
+    pub reader: SliceReader,
+    /// What the volume is, for the empty-surface error.
+    pub input: String,
     pub iso: f32,
     pub simplifier: Simplifier,
     pub sink: Sink,
     pub capacity: usize,
     pub batch_triangles: usize,
+    /// Extraction workers (`[pipeline] threads`, at least 1).
+    pub threads: usize,
     /// Accept a surface without any triangle (`[output] allow_empty`); else it is an error.
     pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
     pub observer: &'a (dyn Fn(&Progress) + Sync),
     /// Save checkpoints (`None`: never).
     pub checkpoints: Option<Plan>,
-    /// Continue from a checkpoint (the simplifier and the sink above are restored already).
+    /// Continue from a checkpoint (the simplifier and the sink above are restored already, the
+    /// reader is at the checkpoint's carried slice).
     pub resume: Option<Resume>,
 }
 
@@ -247,109 +85,137 @@ pub(crate) struct Plan {
     pub input: InputIdentity,
 }
 
-/// The states of the first stages at the checkpoint a run continues from.
+/// What the stages before the simplifier saved at the checkpoint a run continues from.
 pub(crate) struct Resume {
     pub reader: ReaderState,
     pub extract: ExtractStats,
     pub detector: Detector,
 }
 
-/// What travels between the first stages: data, or the checkpoint marker carrying the states of
-/// the stages it has passed (see `checkpoint`).
-enum Msg<T> {
-    Data(T),
-    Cut(Box<Cut>),
-}
-
-/// The marker: each stage fills in its state as it passes.
-struct Cut {
-    reader: ReaderState,
-    extract: ExtractStats,
-    detect: Vec<u8>,
-    simplify: Vec<u8>,
-}
-
-/// Messages to the writer: batches, the checkpoint marker, then `End` when the volume is
-/// complete.
-enum ToWriter {
-    Batch(OutBatch),
-    Cut(Box<Cut>),
-    End,
-}
-
 impl Stages<'_> {
     pub fn run(self) -> Result<StageOutputs, RunError> {
-        let grid = self.source.grid();
-        let (slice_tx, slice_rx) = bounded::<Msg<Slices>>(2);
-        let (cube_tx, cube_rx) = bounded::<Msg<CubeBatch>>(self.capacity);
-        let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(self.capacity);
-        let (out_tx, out_rx) = bounded::<ToWriter>(self.capacity);
-        let depth = Depths {
-            cubes: cube_rx.clone(),
-            deltas: delta_rx.clone(),
-            out: out_rx.clone(),
-        };
         let Stages {
-            source,
-            attributes,
+            reader,
+            input,
             iso,
             simplifier,
             sink,
+            capacity,
             batch_triangles,
+            threads,
             allow_empty,
             cancel,
             observer,
             checkpoints,
             resume,
-            ..
         } = self;
-        let (reader_resume, extract_resume, detector) = match resume {
-            Some(r) => (Some(r.reader), Some(r.extract), r.detector),
-            None => (None, None, Detector::new(grid.dims)),
+        let grid = reader.grid();
+        let first = resume.as_ref().map_or(0, |r| r.reader.z);
+        let schedule = Schedule::new(checkpoints.as_ref().map(|p| p.every), first, grid.dims[2]);
+        let carried = resume.as_ref().map(|r| r.reader.carried);
+        let (range, mut extract_stats, detector) = match resume {
+            Some(r) => (r.reader.range, r.extract, r.detector),
+            None => (
+                DataRange::default(),
+                ExtractStats::default(),
+                Detector::new(grid.dims),
+            ),
         };
-        let every = checkpoints.as_ref().map(|p| p.every);
-        let input = source.describe();
+        let extract_before = extract_stats;
+        let threads = threads.max(1);
+        let (job_tx, job_rx) = unbounded();
+        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
+        let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
+        let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
+        let depth = Depths {
+            slabs: order_rx.clone(),
+            deltas: delta_rx.clone(),
+            out: out_rx.clone(),
+        };
         let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
         let ctl = Control::new(cancel);
         let ctl = &ctl;
+        ctl.add_range(&range);
 
         std::thread::scope(|s| {
-            let reader = s.spawn(move || {
-                ctl.stage(|| {
-                    let reader = SliceReader::new(source, attributes);
-                    read_stage(reader, grid, reader_resume, every, slice_tx, ctl)
-                })
+            let read = s.spawn(move || {
+                let step = ReadStep::new(reader, job_tx, threads, ctl, schedule, carried);
+                run(
+                    "read",
+                    ctl,
+                    step,
+                    first..grid.dims[2],
+                    Outbox::new(ctl, order_tx),
+                )
             });
-            let extractor = s.spawn(move || {
-                ctl.stage(|| {
-                    let extractor = match extract_resume {
-                        Some(stats) => Extractor::resume(grid, iso, stats),
-                        None => Extractor::new(grid, iso),
-                    };
-                    extract_stage(extractor, grid, batch_triangles, slice_rx, cube_tx, ctl)
+            let workers: Vec<_> = (0..threads)
+                .map(|_| {
+                    let jobs = job_rx.clone();
+                    // The counters before the checkpoint go to the first worker.
+                    let stats = std::mem::take(&mut extract_stats);
+                    s.spawn(move || {
+                        let step = WorkStep::new(grid, iso, batch_triangles, stats);
+                        run("extract", ctl, step, jobs, Outbox::none(ctl))
+                    })
                 })
+                .collect();
+            drop(job_rx);
+            let detect = s.spawn(move || {
+                let step = DetectStep {
+                    detector,
+                    pending: None,
+                };
+                run(
+                    "detect",
+                    ctl,
+                    step,
+                    Ordered::new(order_rx, extract_before, range),
+                    Outbox::new(ctl, delta_tx),
+                )
             });
-            let detector =
-                s.spawn(move || ctl.stage(|| detect_stage(detector, cube_rx, delta_tx, ctl)));
-            let simplifier = s.spawn(move || {
-                ctl.stage(|| {
-                    simplify_stage(simplifier, grid, delta_rx, out_tx, &depth, observer, ctl)
-                })
+            let simplify = s.spawn(move || {
+                let slabs_total = grid.dims[2] - 1;
+                let step = SimplifyStep {
+                    simplifier,
+                    front: None,
+                    last_front: u32::try_from(first).unwrap_or(u32::MAX),
+                    slabs_total,
+                    log_every: (slabs_total / 20).max(1),
+                    depth: &depth,
+                    observer,
+                };
+                run("simplify", ctl, step, delta_rx, Outbox::new(ctl, out_tx))
             });
-            let writer = s.spawn(move || {
-                ctl.stage(|| write_stage(sink, out_rx, empty, checkpoints.as_ref(), grid, ctl))
+            let write = s.spawn(move || {
+                let step = WriteStep {
+                    sink,
+                    empty,
+                    ctl,
+                    plan: checkpoints.as_ref(),
+                    slabs_total: grid.dims[2] - 1,
+                };
+                run("write", ctl, step, out_rx, Outbox::none(ctl))
             });
 
             // Join every stage. The first failure recorded (in time, whichever stage) is the
             // cause; a panic counts as a failure of its stage.
-            let read = join(reader, "read");
-            let extract = join(extractor, "extract");
-            let detect = join(detector, "detect");
-            let simplify = join(simplifier, "simplify");
-            let write = join(writer, "write");
+            let read = join(read, "read");
+            let mut extract = Ok((0.0, ExtractStats::default()));
+            for w in workers {
+                extract = match (extract, join(w, "extract")) {
+                    (Ok((s, mut st)), Ok((ws, wst))) => {
+                        st += wst;
+                        Ok((s + ws, st))
+                    }
+                    (Err(e), _) | (_, Err(e)) => Err(e),
+                };
+            }
+            let detect = join(detect, "detect");
+            let simplify = join(simplify, "simplify");
+            let write = join(write, "write");
             match (read, extract, detect, simplify, write) {
                 (
-                    Ok(read),
+                    Ok((read, ())),
                     Ok((extract_s, extract)),
                     Ok((detect_s, detect)),
                     Ok((simplify_s, simplify)),
@@ -411,258 +277,102 @@ fn join<T>(
     })
 }
 
+/// Queue depths for the progress observer.
 struct Depths {
-    cubes: Receiver<Msg<CubeBatch>>,
+    slabs: Receiver<Msg<Receiver<SlabBatches>>>,
     deltas: Receiver<Msg<MeshDelta>>,
-    out: Receiver<ToWriter>,
+    out: Receiver<Msg<OutBatch>>,
 }
 
-/// Whether the reader sends the checkpoint marker after slice `z` (the cut after slab `z - 1`).
-/// Never after the first slice of the run nor after the last slice of the volume: a checkpoint
-/// there would save nothing new.
-struct Schedule {
-    every: Option<CheckpointEvery>,
-    first: u64,
-    last: u64,
-    since: Instant,
+/// Cube batches -> indexed deltas. The delta of the last batch is held back until the end is
+/// known, so the detector's final release joins it and the simplifier sees one final delta.
+struct DetectStep {
+    detector: Detector,
+    pending: Option<MeshDelta>,
 }
 
-impl Schedule {
-    fn due(&mut self, z: u64) -> bool {
-        if z == self.first || z >= self.last {
-            return false;
-        }
-        let due = match self.every {
-            None => false,
-            Some(CheckpointEvery::Slabs(n)) => (z - self.first).is_multiple_of(n),
-            Some(CheckpointEvery::Seconds(s)) => self.since.elapsed().as_secs_f64() >= s,
-        };
-        if due {
-            self.since = Instant::now();
-        }
-        due
-    }
-}
+impl Step for DetectStep {
+    type In = CubeBatch;
+    type Out = MeshDelta;
+    type Done = DetectStats;
 
-fn read_stage(
-    mut reader: SliceReader,
-    grid: Grid,
-    resume: Option<ReaderState>,
-    every: Option<CheckpointEvery>,
-    tx: Sender<Msg<Slices>>,
-    ctl: &Control<'_>,
-) -> StageResult<f64> {
-    let _span = info_span!("read").entered();
-    let mut busy = Duration::ZERO;
-    let first = resume.map_or(0, |r| r.z);
-    if let Some(r) = resume {
-        reader.seek(first)?;
-        *ctl.range.lock().unwrap_or_else(|p| p.into_inner()) = r.range;
-    }
-    let mut schedule = Schedule {
-        every,
-        first,
-        last: grid.dims[2].saturating_sub(1),
-        since: Instant::now(),
-    };
-    for z in first..grid.dims[2] {
-        ctl.check()?;
-        let t = Instant::now();
-        let Some(slices) = reader.next_slices()? else {
-            break;
-        };
-        if let Some(r) = resume
-            && z == first
-            && checkpoint::hash_slice(&slices.iso) != r.carried
-        {
-            return Err(Stop::Failed(RunError::InputChanged {
-                what: format!("slice {z} holds other values than when the checkpoint was taken"),
-            }));
-        }
-        let cut = schedule.due(z).then(|| checkpoint::hash_slice(&slices.iso));
-        let range = {
-            let mut range = ctl.range.lock().unwrap_or_else(|p| p.into_inner());
-            // The carried slice was counted before the checkpoint.
-            if resume.is_none() || z != first {
-                range.add(&slices.iso);
-            }
-            *range
-        };
-        busy += t.elapsed();
-        send(ctl, &tx, Msg::Data(slices))?;
-        if let Some(carried) = cut {
-            let reader = ReaderState { z, carried, range };
-            send(ctl, &tx, Msg::Cut(Box::new(Cut::new(reader))))?;
-        }
-    }
-    debug!(seconds = busy.as_secs_f64(), "read done");
-    Ok(busy.as_secs_f64())
-}
-
-impl Cut {
-    fn new(reader: ReaderState) -> Self {
-        Cut {
-            reader,
-            extract: ExtractStats::default(),
-            detect: Vec::new(),
-            simplify: Vec::new(),
-        }
-    }
-}
-
-fn extract_stage(
-    mut extractor: Extractor,
-    grid: Grid,
-    batch_triangles: usize,
-    rx: Receiver<Msg<Slices>>,
-    tx: Sender<Msg<CubeBatch>>,
-    ctl: &Control<'_>,
-) -> StageResult<(f64, ExtractStats)> {
-    let _span = info_span!("extract").entered();
-    let mut busy = Duration::ZERO;
-    let mut lower: Option<Slices> = None;
-    while let Some(msg) = recv(ctl, &rx)? {
-        let upper = match msg {
-            Msg::Data(slices) => slices,
-            Msg::Cut(mut cut) => {
-                cut.extract = extractor.stats();
-                send(ctl, &tx, Msg::Cut(cut))?;
-                continue;
-            }
-        };
-        let z = upper.z;
-        if let Some(lo) = &lower {
-            let started = Instant::now();
-            let mut blocked = Duration::ZERO;
-            let attrs: Vec<AttributeSlab<'_>> = lo
-                .attrs
-                .iter()
-                .zip(&upper.attrs)
-                .map(|(l, u)| AttributeSlab { lower: l, upper: u })
-                .collect();
-            extractor.extract_slab_with_attributes(
-                z - 1,
-                &lo.iso,
-                &upper.iso,
-                &attrs,
-                batch_triangles,
-                |batch| {
-                    let t = Instant::now();
-                    let sent = send(ctl, &tx, Msg::Data(batch));
-                    blocked += t.elapsed();
-                    sent
-                },
-            )?;
-            busy += started.elapsed().saturating_sub(blocked);
-        }
-        lower = Some(upper);
-        if z + 1 == grid.dims[2] {
-            return Ok((busy.as_secs_f64(), extractor.stats()));
-        }
-    }
-    Err(Stop::Disconnected)
-}
-
-fn detect_stage(
-    mut detector: Detector,
-    rx: Receiver<Msg<CubeBatch>>,
-    tx: Sender<Msg<MeshDelta>>,
-    ctl: &Control<'_>,
-) -> StageResult<(f64, DetectStats)> {
-    let _span = info_span!("detect").entered();
-    let mut busy = Duration::ZERO;
-    while let Some(msg) = recv(ctl, &rx)? {
-        let batch = match msg {
-            Msg::Data(batch) => batch,
-            Msg::Cut(mut cut) => {
-                cut.detect = checkpoint::encode(&detector.snapshot());
-                send(ctl, &tx, Msg::Cut(cut))?;
-                continue;
-            }
-        };
-        let t = Instant::now();
+    fn batch(&mut self, batch: CubeBatch, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
         let mut delta = MeshDelta::default();
-        detector.process(&batch, &mut delta);
-        busy += t.elapsed();
-        let end = delta.end_of_volume;
-        send(ctl, &tx, Msg::Data(delta))?;
-        if end {
-            return Ok((busy.as_secs_f64(), detector.stats()));
+        self.detector.process(&batch, &mut delta);
+        match self.pending.replace(delta) {
+            Some(ready) => out.send(ready),
+            None => Ok(()),
         }
     }
-    Err(Stop::Disconnected)
+
+    /// The delta held back goes out first: the cut is never after the last slab, so a later
+    /// batch still carries the final release, and the simplifier sees the same deltas.
+    fn cut(&mut self, mut cut: Box<Cut>, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
+        if let Some(ready) = self.pending.take() {
+            out.send(ready)?;
+        }
+        cut.detect = checkpoint::encode(&self.detector.snapshot());
+        out.cut(cut)
+    }
+
+    fn end(mut self, out: &mut Outbox<'_, MeshDelta>) -> StageResult<DetectStats> {
+        let mut last = self.pending.take().unwrap_or_default();
+        self.detector.finish(&mut last);
+        out.send(last)?;
+        Ok(self.detector.stats())
+    }
 }
 
-fn simplify_stage(
-    mut simplifier: Simplifier,
-    grid: Grid,
-    rx: Receiver<Msg<MeshDelta>>,
-    tx: Sender<ToWriter>,
-    depth: &Depths,
-    observer: &(dyn Fn(&Progress) + Sync),
-    ctl: &Control<'_>,
-) -> StageResult<(f64, SimplifyStats)> {
-    let _span = info_span!("simplify").entered();
-    let slabs_total = grid.dims[2] - 1;
-    let log_every = (slabs_total / 20).max(1);
-    let mut busy = Duration::ZERO;
-    let mut last_front = 0u32;
-    while let Some(msg) = recv(ctl, &rx)? {
-        let delta = match msg {
-            Msg::Data(delta) => delta,
-            Msg::Cut(mut cut) => {
-                let t = Instant::now();
-                cut.simplify = checkpoint::encode(&simplifier);
-                busy += t.elapsed();
-                send(ctl, &tx, ToWriter::Cut(cut))?;
-                continue;
-            }
-        };
-        let t = Instant::now();
-        let stride = delta
-            .attrs
-            .len()
-            .checked_div(delta.vertices.len())
-            .unwrap_or(0);
-        for (i, v) in delta.vertices.iter().enumerate() {
-            let attrs = delta.attrs.get(i * stride..(i + 1) * stride).unwrap_or(&[]);
-            simplifier.add_vertex(v.id, v.pos, v.rank, attrs);
-        }
-        for &tri in &delta.triangles {
-            simplifier.add_triangle(tri);
-        }
-        for &id in &delta.modifiable {
-            simplifier.set_modifiable(id);
-        }
-        let mut out = OutBatch::default();
-        if delta.end_of_volume {
-            simplifier.finish(&mut out);
-        } else {
-            simplifier.end_batch(delta.front, &mut out);
-        }
-        busy += t.elapsed();
-        if let Some(faces) = simplifier.in_core_overflow() {
+/// Deltas -> simplified batches. A delta is added as soon as it arrives, but its batch is closed
+/// (`end_batch`) only when the next one arrives: the last one is closed by `finish` instead.
+struct SimplifyStep<'a> {
+    simplifier: Simplifier,
+    /// The front of the delta added last, whose batch is still open.
+    front: Option<u32>,
+    last_front: u32,
+    slabs_total: u64,
+    log_every: u64,
+    depth: &'a Depths,
+    observer: &'a (dyn Fn(&Progress) + Sync),
+}
+
+impl SimplifyStep<'_> {
+    /// Sends what the simplifier emitted and reports progress when the front moved.
+    fn emit(
+        &mut self,
+        out: OutBatch,
+        front: u32,
+        tx: &mut Outbox<'_, OutBatch>,
+    ) -> StageResult<()> {
+        if let Some(faces) = self.simplifier.in_core_overflow() {
             return Err(Stop::Failed(RunError::ClassicalOverBudget { faces }));
         }
         if !out.elements.is_empty() {
-            send(ctl, &tx, ToWriter::Batch(out))?;
+            tx.send(out)?;
         }
-        if delta.front > last_front || delta.end_of_volume {
-            last_front = delta.front;
-            let st = simplifier.stats();
+        let last = u64::from(front) == self.slabs_total;
+        if front > self.last_front || last {
+            self.last_front = front;
+            let st = self.simplifier.stats();
             let progress = Progress {
-                slabs_done: u64::from(delta.front),
-                slabs_total,
+                slabs_done: u64::from(front),
+                slabs_total: self.slabs_total,
                 faces_in: st.faces_in,
                 faces_out: st.faces_out,
                 resident_faces: st.faces_resident as u64,
-                queued: [depth.cubes.len(), depth.deltas.len(), depth.out.len()],
+                queued: [
+                    self.depth.slabs.len(),
+                    self.depth.deltas.len(),
+                    self.depth.out.len(),
+                ],
             };
-            observer(&progress);
-            if u64::from(delta.front) % log_every == 0 || delta.end_of_volume {
-                info!(
+            (self.observer)(&progress);
+            // Every 5 %, with the queue depths, for debugging; users get the monitor's timed
+            // `progress` lines (rate, ETA, RSS).
+            if u64::from(front) % self.log_every == 0 || last {
+                debug!(
                     slab = progress.slabs_done,
-                    of = slabs_total,
+                    of = self.slabs_total,
                     faces_in = progress.faces_in,
                     faces_out = progress.faces_out,
                     resident = progress.resident_faces,
@@ -671,12 +381,59 @@ fn simplify_stage(
                 );
             }
         }
-        if delta.end_of_volume {
-            send(ctl, &tx, ToWriter::End)?;
-            return Ok((busy.as_secs_f64(), simplifier.stats()));
-        }
+        Ok(())
     }
-    Err(Stop::Disconnected)
+}
+
+impl Step for SimplifyStep<'_> {
+    type In = MeshDelta;
+    type Out = OutBatch;
+    type Done = SimplifyStats;
+
+    fn batch(&mut self, delta: MeshDelta, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        if let Some(front) = self.front.take() {
+            let mut out = OutBatch::default();
+            self.simplifier.end_batch(front, &mut out);
+            self.emit(out, front, tx)?;
+        }
+        let stride = delta
+            .attrs
+            .len()
+            .checked_div(delta.vertices.len())
+            .unwrap_or(0);
+        for (i, v) in delta.vertices.iter().enumerate() {
+            let attrs = delta.attrs.get(i * stride..(i + 1) * stride).unwrap_or(&[]);
+            self.simplifier.add_vertex(v.id, v.pos, v.rank, attrs);
+        }
+        for &tri in &delta.triangles {
+            self.simplifier.add_triangle(tri);
+        }
+        for &id in &delta.modifiable {
+            self.simplifier.set_modifiable(id);
+        }
+        self.front = Some(delta.front);
+        Ok(())
+    }
+
+    /// The open batch is closed first (as the next delta would close it: more slabs follow a
+    /// cut), so the saved simplifier is between two batches and its output precedes the cut.
+    fn cut(&mut self, mut cut: Box<Cut>, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        if let Some(front) = self.front.take() {
+            let mut out = OutBatch::default();
+            self.simplifier.end_batch(front, &mut out);
+            self.emit(out, front, tx)?;
+        }
+        cut.simplify = checkpoint::encode(&self.simplifier);
+        tx.cut(cut)
+    }
+
+    fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
+        let mut out = OutBatch::default();
+        self.simplifier.finish(&mut out);
+        let front = u32::try_from(self.slabs_total).unwrap_or(u32::MAX);
+        self.emit(out, front, tx)?;
+        Ok(self.simplifier.stats())
+    }
 }
 
 /// What the writer needs to refuse an empty surface.
@@ -686,72 +443,72 @@ struct EmptyCheck<'a> {
     iso: f32,
 }
 
-fn write_stage(
-    mut sink: Sink,
-    rx: Receiver<ToWriter>,
-    empty: Option<EmptyCheck<'_>>,
-    plan: Option<&Plan>,
-    grid: Grid,
-    ctl: &Control<'_>,
-) -> StageResult<(f64, crate::sink::SinkStats)> {
-    let _span = info_span!("write").entered();
-    let mut busy = Duration::ZERO;
-    while let Some(msg) = recv(ctl, &rx)? {
-        let t = Instant::now();
-        match msg {
-            ToWriter::Batch(batch) => sink.write(&batch)?,
-            ToWriter::Cut(cut) => {
-                if let Some(plan) = plan {
-                    save_checkpoint(&mut sink, *cut, plan, grid)?;
-                }
-            }
-            ToWriter::End => {
-                if let Some(check) = empty
-                    && sink.triangles() == 0
-                {
-                    // The reader has finished: the range covers the whole volume.
-                    let range = *ctl.range.lock().unwrap_or_else(|p| p.into_inner());
-                    return Err(Stop::Failed(RunError::EmptySurface {
-                        input: check.input.to_string(),
-                        iso: check.iso,
-                        range: range.describe(),
-                    }));
-                }
-                let stats = sink.finish()?;
-                busy += t.elapsed();
-                return Ok((busy.as_secs_f64(), stats));
-            }
-        }
-        busy += t.elapsed();
-    }
-    // Upstream hung up before the end: dropping the sink removes the partial file (unless a
-    // checkpoint refers to it).
-    Err(Stop::Disconnected)
+/// Simplified batches -> the output file, which appears only at the end.
+struct WriteStep<'a, 'c> {
+    sink: Sink,
+    empty: Option<EmptyCheck<'a>>,
+    ctl: &'c Control<'c>,
+    plan: Option<&'a Plan>,
+    slabs_total: u64,
 }
 
-/// The writer's end of the cut: the output's files are flushed and fsynced to the saved lengths
-/// first, then the checkpoint is written atomically.
-fn save_checkpoint(sink: &mut Sink, cut: Cut, plan: &Plan, grid: Grid) -> Result<(), RunError> {
-    let t = Instant::now();
-    let ckpt = Checkpoint {
-        job: plan.job,
-        input: plan.input.clone(),
-        slabs_total: grid.dims[2] - 1,
-        parts: Parts {
-            reader: cut.reader,
-            extract: cut.extract,
-            detect: cut.detect,
-            simplify: cut.simplify,
-            sink: sink.checkpoint()?,
-        },
-    };
-    checkpoint::write(&plan.path, &ckpt)?;
-    info!(
-        slab = ckpt.slabs_done(),
-        of = ckpt.slabs_total,
-        bytes = ckpt.parts.simplify.len() + ckpt.parts.detect.len(),
-        seconds = t.elapsed().as_secs_f64(),
-        "checkpoint saved"
-    );
-    Ok(())
+impl Step for WriteStep<'_, '_> {
+    type In = OutBatch;
+    type Out = Infallible;
+    type Done = crate::sink::SinkStats;
+
+    fn batch(&mut self, batch: OutBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        Ok(self.sink.write(&batch)?)
+    }
+
+    /// The end of the cut: the output's files are flushed and fsynced to the lengths saved,
+    /// then the checkpoint is written atomically.
+    fn cut(&mut self, cut: Box<Cut>, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        let Some(plan) = self.plan else {
+            return Ok(());
+        };
+        let t = Instant::now();
+        let Cut {
+            reader,
+            extract,
+            detect,
+            simplify,
+        } = *cut;
+        let ckpt = Checkpoint {
+            job: plan.job,
+            input: plan.input.clone(),
+            slabs_total: self.slabs_total,
+            parts: Parts {
+                reader,
+                extract,
+                detect,
+                simplify,
+                sink: self.sink.checkpoint()?,
+            },
+        };
+        checkpoint::write(&plan.path, &ckpt)?;
+        info!(
+            slab = ckpt.slabs_done(),
+            of = ckpt.slabs_total,
+            bytes = ckpt.parts.simplify.len() + ckpt.parts.detect.len(),
+            seconds = t.elapsed().as_secs_f64(),
+            "checkpoint saved"
+        );
+        Ok(())
+    }
+
+    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<crate::sink::SinkStats> {
+        if let Some(check) = self.empty
+            && self.sink.triangles() == 0
+        {
+            // Every slab has been extracted: the range covers the whole volume.
+            return Err(Stop::Failed(RunError::EmptySurface {
+                input: check.input.to_string(),
+                iso: check.iso,
+                range: self.ctl.range().describe(),
+            }));
+        }
+        // Dropping the sink on any earlier error removes the partial file.
+        Ok(self.sink.finish()?)
+    }
 }

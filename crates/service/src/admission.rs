@@ -9,7 +9,7 @@
 use std::path::{Component, Path, PathBuf};
 
 use axum::http::StatusCode;
-use isostream_pipeline::JobConfig;
+use isostream_pipeline::{JobConfig, LogConfig};
 
 use crate::error::{ApiError, ServiceError};
 
@@ -105,6 +105,9 @@ pub(crate) struct Admitted {
     pub toml: String,
 }
 
+/// The shortest interval between two progress lines a job may ask of the service's log.
+const MIN_PROGRESS_SECONDS: f64 = 1.0;
+
 /// Parses, confines and validates a submitted job whose files will live in `job_dir`.
 /// Opens the input like `isostream validate` does, so it may block on the file system.
 pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitted, ApiError> {
@@ -119,9 +122,17 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
         }
     }
     job.output.path = job_dir.join(output_name(&job.output.path));
-    // The service keeps every run summary and does its own logging.
+    // The service keeps every run summary and does its own logging (format, level); a job only
+    // chooses how often its progress is logged, at most once a second.
     job.output.summary = true;
-    job.log = Default::default();
+    job.log = LogConfig {
+        // 0 (none) stays; a bad value stays too, for validation to name it.
+        progress_seconds: match job.log.progress_seconds {
+            s if s > 0.0 => s.max(MIN_PROGRESS_SECONDS),
+            s => s,
+        },
+        ..LogConfig::default()
+    };
     job.validate(origin)
         .map_err(|e| ApiError::bad_job(e.to_string()))?;
     isostream_pipeline::open_source(&job.input).map_err(|e| ApiError::bad_job(e.to_string()))?;

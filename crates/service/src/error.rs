@@ -9,6 +9,9 @@ use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 
 /// Why `isostream serve` could not start or stopped.
+///
+/// [`ServiceError::is_bad_config`] separates a configuration to fix (the binary exits with 2, and
+/// the systemd unit does not restart it) from a failure of the environment (exit 1).
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
     #[error(
@@ -23,6 +26,8 @@ pub enum ServiceError {
     AllowInput { path: PathBuf, reason: String },
     #[error("state folder {}: {reason}; choose a writable --state folder", path.display())]
     State { path: PathBuf, reason: String },
+    #[error("{}: {reason} (the keys are those of docs/service.md's flags)", path.display())]
+    Config { path: PathBuf, reason: String },
     #[error("cannot listen on {addr}: {source}")]
     Bind {
         addr: SocketAddr,
@@ -32,6 +37,20 @@ pub enum ServiceError {
     Runtime(std::io::Error),
     #[error("the HTTP server stopped: {0}")]
     Serve(std::io::Error),
+}
+
+impl ServiceError {
+    /// The flags or the config file must change before a start can succeed.
+    pub fn is_bad_config(&self) -> bool {
+        matches!(
+            self,
+            ServiceError::ExposedWithoutToken { .. }
+                | ServiceError::EmptyToken
+                | ServiceError::NoParallelism
+                | ServiceError::AllowInput { .. }
+                | ServiceError::Config { .. }
+        )
+    }
 }
 
 /// A refused request: the status and a one-line reason, sent as `{"error": reason}`.

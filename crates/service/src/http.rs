@@ -49,6 +49,7 @@ pub(crate) fn router(state: AppState) -> Router {
         .route("/jobs/{id}", get(show).delete(cancel))
         .route("/jobs/{id}/events", get(events))
         .route("/jobs/{id}/output", get(output))
+        .route("/jobs/{id}/report", get(report))
         .layer(DefaultBodyLimit::max(MAX_BODY))
         // Outermost: the token is checked before a body is read.
         .layer(middleware::from_fn_with_state(state.clone(), guard))
@@ -198,18 +199,38 @@ async fn events(
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }
 
-/// The mesh, streamed from its file (it may be far larger than memory).
-async fn output(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
-    let view = s.queue.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
+/// The job, once it is done; else 404 or 409 saying what exists when.
+fn done_job(s: &AppState, id: &str, what: &str) -> Result<JobView, ApiError> {
+    let view = s.queue.get(id).ok_or_else(|| ApiError::not_found(id))?;
     if view.record.state != JobState::Done {
         return Err(ApiError::new(
             StatusCode::CONFLICT,
             format!(
-                "job {id} is {}: its output exists once it is done",
+                "job {id} is {}: its {what} exists once it is done",
                 view.record.state.name()
             ),
         ));
     }
+    Ok(view)
+}
+
+/// The run report (`isostream report`'s page) from the run summary in the job's folder.
+async fn report(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+    let view = done_job(&s, &id, "report")?;
+    let summary = isostream_pipeline::summary_path(&s.queue.job_dir(&id).join(&view.record.output));
+    let page = tokio::task::spawn_blocking(move || {
+        let run = isostream_report::Run::load(&summary)?;
+        isostream_report::html(&run, None)
+    })
+    .await
+    .map_err(|e| ApiError::internal(e.to_string()))?
+    .map_err(|e| ApiError::internal(format!("cannot make the report: {e}")))?;
+    Ok(Html(page).into_response())
+}
+
+/// The mesh, streamed from its file (it may be far larger than memory).
+async fn output(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+    let view = done_job(&s, &id, "output")?;
     let path = s.queue.job_dir(&id).join(&view.record.output);
     let file = tokio::fs::File::open(&path)
         .await

@@ -11,6 +11,7 @@
 #![deny(unsafe_code)]
 
 mod admission;
+mod config;
 mod error;
 mod http;
 mod metrics;
@@ -24,6 +25,7 @@ use std::sync::Arc;
 use tokio_util::sync::CancellationToken;
 use tracing::info;
 
+pub use config::ServeFile;
 pub use error::ServiceError;
 
 /// How `isostream serve` was started (the command line, already parsed).
@@ -37,7 +39,7 @@ pub struct ServeConfig {
     pub allow_input: Vec<PathBuf>,
     /// When set, every request needs `Authorization: Bearer <token>`.
     pub token: Option<String>,
-    /// Jobs running at once; each one already keeps five stage threads busy.
+    /// Jobs running at once; each one already keeps its stage threads and extraction pool busy.
     pub max_parallel_jobs: usize,
 }
 

@@ -53,6 +53,8 @@ pub(crate) struct JobView {
     pub url: String,
     /// Present once the job is done.
     pub output_url: Option<String>,
+    /// The run report with plots; present once the job is done.
+    pub report_url: Option<String>,
     pub progress: ProgressView,
 }
 
@@ -93,6 +95,7 @@ fn view_of(record: &JobRecord, progress: ProgressView) -> JobView {
     let url = format!("/jobs/{}", record.id);
     JobView {
         output_url: (record.state == JobState::Done).then(|| format!("{url}/output")),
+        report_url: (record.state == JobState::Done).then(|| format!("{url}/report")),
         url,
         record: record.clone(),
         progress,
@@ -398,7 +401,7 @@ impl Queue {
             Ok(summary) => {
                 self.metrics.stage_seconds(&summary.stage_seconds);
                 job.record.state = JobState::Done;
-                job.record.summary = serde_json::to_value(&summary).ok();
+                job.record.summary = summary_without_series(&summary);
                 job.progress.resident_faces = 0;
                 job.config = None;
                 info!(
@@ -466,6 +469,16 @@ fn resumable(config: Option<&JobConfig>) -> Vec<std::path::PathBuf> {
     config.map_or_else(Vec::new, |c| {
         isostream_pipeline::resumable_files(&c.output.path)
     })
+}
+
+/// The run summary as `state.json`, the job views and every event carry it: without its time
+/// series (up to a thousand points), which only the report reads, from `<output>.run.json`.
+fn summary_without_series(summary: &RunSummary) -> Option<serde_json::Value> {
+    let mut value = serde_json::to_value(summary).ok()?;
+    if let Some(map) = value.as_object_mut() {
+        map.remove("series");
+    }
+    Some(value)
 }
 
 fn run_error_kind(e: &RunError) -> &'static str {

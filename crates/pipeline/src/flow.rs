@@ -1,0 +1,297 @@
+//! How stages talk and stop: one message protocol on every channel ([`Msg`]), the shared
+//! [`Control`] (cancel, abort, first error), and one runner ([`run`]) that drives any [`Step`]
+//! with its span, its busy time and the hang-up and abort rules. The stages themselves
+//! (`stages.rs`, `extract_pool.rs`) only say what to do with one input and at the end.
+//!
+//! Every stage ends in one of three ways: its input ended with [`Msg::End`] and it sent its own
+//! `End` (success), its own work failed (it records the error in the shared [`Control`], which
+//! raises the abort flag), or it saw the abort flag / a neighbour hang up (it stops quietly:
+//! someone else has the error to report). Only the writer can make a file appear, and only after
+//! it has received `End`, so an error or Ctrl-C anywhere leaves no output.
+//!
+//! No stage ever blocks for good on a channel: sends and receives wait in short slices
+//! ([`POLL`]) and look at the abort and cancel flags in between. A channel alone is not enough to
+//! stop a neighbour: the progress observer keeps clones of the receivers (queue depths), so a
+//! failed writer does not disconnect the simplifier's channel, and a full channel would otherwise
+//! block its producer forever (the deadlock of a write error on a full disk).
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender};
+use tracing::{debug, info_span};
+
+use crate::checkpoint::Cut;
+use crate::error::RunError;
+use crate::range::DataRange;
+
+/// What every channel carries: batches, the checkpoint marker between two of them (see
+/// `checkpoint`), then `End` once the producer is done. A channel that disconnects before its
+/// `End` means its producer stopped early (failed or aborted).
+pub(crate) enum Msg<T> {
+    Batch(T),
+    Cut(Box<Cut>),
+    End,
+}
+
+/// What an inbox yields: the next input, or the checkpoint marker.
+pub(crate) enum In<T> {
+    Item(T),
+    Cut(Box<Cut>),
+}
+
+/// How a stage stopped when it did not finish.
+pub(crate) enum Stop {
+    /// A neighbour hung up or the run was aborted; whoever failed reports the cause.
+    Disconnected,
+    Failed(RunError),
+}
+
+impl From<RunError> for Stop {
+    fn from(e: RunError) -> Self {
+        Stop::Failed(e)
+    }
+}
+
+pub(crate) type StageResult<T> = Result<T, Stop>;
+
+/// How long a blocked send or receive waits before it looks at the abort and cancel flags again.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Shared by every stage: the user's cancel flag, and the first error of any stage (recording it
+/// raises the abort flag that stops every other stage, whatever the state of the channels).
+pub(crate) struct Control<'a> {
+    cancel: &'a AtomicBool,
+    abort: AtomicBool,
+    first: Mutex<Option<RunError>>,
+    /// Values the extractors saw, for the empty-surface error.
+    range: Mutex<DataRange>,
+    /// The caller's span (the service's `job{id}`), parent of every stage's span: each log line
+    /// of a stage thread carries the caller's fields.
+    parent: tracing::Span,
+}
+
+impl<'a> Control<'a> {
+    pub fn new(cancel: &'a AtomicBool) -> Self {
+        Self {
+            cancel,
+            abort: AtomicBool::new(false),
+            first: Mutex::new(None),
+            range: Mutex::new(DataRange::default()),
+            parent: tracing::Span::current(),
+        }
+    }
+
+    /// Records a stage's failure (only the first one is kept) and stops every stage.
+    fn fail(&self, e: RunError) {
+        let mut first = self.first.lock().unwrap_or_else(|p| p.into_inner());
+        if first.is_none() {
+            *first = Some(e);
+        }
+        self.abort.store(true, Ordering::SeqCst);
+    }
+
+    /// Err when the run must stop: the user cancelled, or another stage failed.
+    pub fn check(&self) -> StageResult<()> {
+        if self.cancel.load(Ordering::Relaxed) {
+            return Err(Stop::Failed(RunError::Cancelled));
+        }
+        if self.abort.load(Ordering::SeqCst) {
+            return Err(Stop::Disconnected);
+        }
+        Ok(())
+    }
+
+    pub fn take_first(&self) -> Option<RunError> {
+        self.first.lock().unwrap_or_else(|p| p.into_inner()).take()
+    }
+
+    /// Adds what one slab's extractor saw to the run's data range.
+    pub fn add_range(&self, part: &DataRange) {
+        self.range
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .merge(part);
+    }
+
+    pub fn range(&self) -> DataRange {
+        *self.range.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Runs a stage body; a failure is recorded the moment it happens, so the others stop.
+    fn stage<T>(&self, body: impl FnOnce() -> StageResult<T>) -> StageResult<T> {
+        /// A panicking stage stops the others too (the join reports the panic).
+        struct AbortOnPanic<'c>(&'c AtomicBool);
+        impl Drop for AbortOnPanic<'_> {
+            fn drop(&mut self) {
+                if std::thread::panicking() {
+                    self.0.store(true, Ordering::SeqCst);
+                }
+            }
+        }
+        let _guard = AbortOnPanic(&self.abort);
+        match body() {
+            Err(Stop::Failed(e)) => {
+                self.fail(e);
+                Err(Stop::Disconnected)
+            }
+            Err(Stop::Disconnected) => {
+                // Whoever hung up has recorded (or will record) the cause; make sure nobody
+                // keeps waiting on us.
+                self.abort.store(true, Ordering::SeqCst);
+                Err(Stop::Disconnected)
+            }
+            ok => ok,
+        }
+    }
+}
+
+/// Sends, waiting while the channel is full, but never past an abort or a cancel.
+pub(crate) fn send<T>(ctl: &Control<'_>, tx: &Sender<T>, mut value: T) -> StageResult<()> {
+    loop {
+        match tx.send_timeout(value, POLL) {
+            Ok(()) => return Ok(()),
+            Err(SendTimeoutError::Disconnected(_)) => return Err(Stop::Disconnected),
+            Err(SendTimeoutError::Timeout(v)) => {
+                ctl.check()?;
+                value = v;
+            }
+        }
+    }
+}
+
+/// Receives the next value; a hang-up is [`Stop::Disconnected`]. Never waits past an abort or a
+/// cancel.
+pub(crate) fn recv<T>(ctl: &Control<'_>, rx: &Receiver<T>) -> StageResult<T> {
+    loop {
+        match rx.recv_timeout(POLL) {
+            Ok(v) => return Ok(v),
+            Err(RecvTimeoutError::Disconnected) => return Err(Stop::Disconnected),
+            Err(RecvTimeoutError::Timeout) => ctl.check()?,
+        }
+    }
+}
+
+/// Where a stage's inputs come from; `None` once they have ended.
+pub(crate) trait Inbox {
+    type Item;
+    fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<In<Self::Item>>>;
+}
+
+/// A channel of [`Msg`]: its `End` ends the input.
+impl<T> Inbox for Receiver<Msg<T>> {
+    type Item = T;
+    fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<In<T>>> {
+        Ok(match recv(ctl, self)? {
+            Msg::Batch(v) => Some(In::Item(v)),
+            Msg::Cut(cut) => Some(In::Cut(cut)),
+            Msg::End => None,
+        })
+    }
+}
+
+/// The first stage's input: the slice numbers.
+impl Inbox for std::ops::Range<u64> {
+    type Item = u64;
+    fn next(&mut self, _: &Control<'_>) -> StageResult<Option<In<u64>>> {
+        Ok(Iterator::next(self).map(In::Item))
+    }
+}
+
+/// Where a stage's outputs go. Time spent blocked on a full channel is not busy time.
+pub(crate) struct Outbox<'c, T> {
+    ctl: &'c Control<'c>,
+    /// `None` for the last stages (workers answer on their jobs' own channels, the writer
+    /// writes a file).
+    tx: Option<Sender<Msg<T>>>,
+    blocked: Duration,
+}
+
+impl<'c, T> Outbox<'c, T> {
+    pub fn new(ctl: &'c Control<'c>, tx: Sender<Msg<T>>) -> Self {
+        Self {
+            ctl,
+            tx: Some(tx),
+            blocked: Duration::ZERO,
+        }
+    }
+
+    /// For a stage without an output channel.
+    pub fn none(ctl: &'c Control<'c>) -> Self {
+        Self {
+            ctl,
+            tx: None,
+            blocked: Duration::ZERO,
+        }
+    }
+
+    pub fn send(&mut self, value: T) -> StageResult<()> {
+        self.put(Msg::Batch(value))
+    }
+
+    /// Passes the checkpoint marker on, behind everything sent so far.
+    pub fn cut(&mut self, cut: Box<Cut>) -> StageResult<()> {
+        self.put(Msg::Cut(cut))
+    }
+
+    fn put(&mut self, msg: Msg<T>) -> StageResult<()> {
+        let Some(tx) = &self.tx else {
+            return Ok(());
+        };
+        let t = Instant::now();
+        let sent = send(self.ctl, tx, msg);
+        self.blocked += t.elapsed();
+        sent
+    }
+}
+
+/// One stage's work: what to do with each input, and once after the last.
+pub(crate) trait Step {
+    type In;
+    type Out;
+    /// What the stage reports when it finished (its counters).
+    type Done;
+    fn batch(&mut self, input: Self::In, out: &mut Outbox<'_, Self::Out>) -> StageResult<()>;
+    /// The checkpoint marker: add this stage's state to it and pass it on. Stages without state
+    /// of their own pass it on as it is.
+    fn cut(&mut self, cut: Box<Cut>, out: &mut Outbox<'_, Self::Out>) -> StageResult<()> {
+        out.cut(cut)
+    }
+    fn end(self, out: &mut Outbox<'_, Self::Out>) -> StageResult<Self::Done>;
+}
+
+/// Runs a stage to its end: takes inputs until they end, hands each to the step, then calls its
+/// `end` and sends `End`. Returns the seconds the step was busy (blocked sends excluded) and what
+/// it reported. Failures are recorded in `ctl` as they happen, so every other stage stops.
+pub(crate) fn run<S: Step>(
+    name: &'static str,
+    ctl: &Control<'_>,
+    mut step: S,
+    mut inbox: impl Inbox<Item = S::In>,
+    mut out: Outbox<'_, S::Out>,
+) -> StageResult<(f64, S::Done)> {
+    ctl.stage(|| {
+        let _span = info_span!(parent: &ctl.parent, "stage", name).entered();
+        let mut busy = Duration::ZERO;
+        loop {
+            ctl.check()?;
+            let Some(input) = inbox.next(ctl)? else {
+                break;
+            };
+            let t = Instant::now();
+            match input {
+                In::Item(input) => step.batch(input, &mut out)?,
+                In::Cut(cut) => step.cut(cut, &mut out)?,
+            }
+            busy += t.elapsed();
+        }
+        let t = Instant::now();
+        let done = step.end(&mut out)?;
+        busy += t.elapsed();
+        let seconds = busy.saturating_sub(out.blocked).as_secs_f64();
+        out.put(Msg::End)?;
+        debug!(seconds, "{name} done");
+        Ok((seconds, done))
+    })
+}

@@ -1,0 +1,300 @@
+//! What a run shows while it goes and leaves behind: the per-slab time series of the run summary
+//! (memory, faces, time over the sweep: the view of Hou and Chen's Fig. 5) and a structured
+//! progress log line every `[log] progress_seconds`.
+//!
+//! Both are fed by the stages' progress observer, called on the simplifier's thread after every
+//! completed slab; the monitor wraps the caller's observer, so the stages know nothing of it.
+//!
+//! The series is bounded: it holds at most [`MAX_SERIES_POINTS`] points whatever the volume. When
+//! it is full, neighbouring points are merged pairwise and each later point covers twice as many
+//! slabs (`stride` 1, 2, 4, ...). A merged point keeps the cumulative counts of its last slab, the
+//! largest resident face count and RSS of its slabs (so the peaks survive) and the smallest
+//! resident face count (so the saw-tooth stays visible as a band).
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use isostream_volume::Grid;
+use serde::{Deserialize, Serialize};
+use tracing::info;
+
+use crate::rss::current_rss_bytes;
+use crate::stages::Progress;
+
+/// Most points a run summary's series holds (between half this and this once decimated).
+pub const MAX_SERIES_POINTS: usize = 1024;
+
+/// The state of the run at the end of one slab, or of several merged slabs.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SeriesPoint {
+    /// Slabs completed (the last slab this point covers).
+    pub slab: u64,
+    /// Slabs this point stands for: 1 until the series is decimated.
+    pub slabs: u64,
+    /// Voxels read so far.
+    pub voxels_done: u64,
+    /// Full-resolution faces the simplifier received so far.
+    pub faces_in: u64,
+    /// Faces it emitted so far.
+    pub faces_out: u64,
+    /// Most faces resident in the simplifier at the end of any of the point's slabs.
+    pub resident_faces: u64,
+    /// Fewest faces resident at the end of any of the point's slabs.
+    pub resident_faces_min: u64,
+    /// Largest resident set size of the process (from the OS) at the end of any of its slabs.
+    pub rss_bytes: Option<u64>,
+    /// Seconds since the run started, at its last slab.
+    pub seconds: f64,
+}
+
+impl SeriesPoint {
+    /// `self` followed by `later`, as one point.
+    fn merge(self, later: SeriesPoint) -> SeriesPoint {
+        SeriesPoint {
+            slabs: self.slabs + later.slabs,
+            resident_faces: self.resident_faces.max(later.resident_faces),
+            resident_faces_min: self.resident_faces_min.min(later.resident_faces_min),
+            rss_bytes: self.rss_bytes.max(later.rss_bytes),
+            ..later
+        }
+    }
+}
+
+/// The per-slab time series of a run, at most [`MAX_SERIES_POINTS`] points.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TimeSeries {
+    /// Observed slabs merged into each point (1, 2, 4, ...; the last point may hold fewer).
+    pub stride: u64,
+    pub points: Vec<SeriesPoint>,
+}
+
+/// Builds a [`TimeSeries`] one observation at a time, within `max` points.
+#[derive(Debug)]
+struct SeriesBuilder {
+    max: usize,
+    stride: u64,
+    points: Vec<SeriesPoint>,
+    /// Observations merged so far into the point not yet pushed, and that point.
+    pending: Option<(u64, SeriesPoint)>,
+    last_slab: u64,
+}
+
+impl SeriesBuilder {
+    fn new(max: usize) -> Self {
+        assert!(
+            max >= 2 && max.is_multiple_of(2),
+            "an even number of points"
+        );
+        SeriesBuilder {
+            max,
+            stride: 1,
+            points: Vec::new(),
+            pending: None,
+            last_slab: 0,
+        }
+    }
+
+    /// `point.slabs` is filled in here from the previous observation.
+    fn push(&mut self, mut point: SeriesPoint) {
+        point.slabs = point.slab.saturating_sub(self.last_slab);
+        self.last_slab = point.slab;
+        let (count, merged) = match self.pending.take() {
+            Some((n, p)) => (n + 1, p.merge(point)),
+            None => (1, point),
+        };
+        if count < self.stride {
+            self.pending = Some((count, merged));
+            return;
+        }
+        self.points.push(merged);
+        if self.points.len() == self.max {
+            self.points = self
+                .points
+                .chunks(2)
+                .map(|pair| pair[0].merge(pair[1]))
+                .collect();
+            self.stride *= 2;
+        }
+    }
+
+    fn finish(mut self) -> TimeSeries {
+        self.points.extend(self.pending.map(|(_, p)| p));
+        TimeSeries {
+            stride: self.stride,
+            points: self.points,
+        }
+    }
+}
+
+/// Watches a run through its progress observer: records the series, logs progress every
+/// `log_every`, and passes every `Progress` on to the caller's observer.
+pub(crate) struct Monitor<'a> {
+    started: Instant,
+    voxels_per_slab: u64,
+    voxels: u64,
+    log_every: Option<Duration>,
+    observer: &'a (dyn Fn(&Progress) + Sync),
+    state: Mutex<State>,
+}
+
+struct State {
+    series: SeriesBuilder,
+    last_log: Instant,
+}
+
+impl<'a> Monitor<'a> {
+    /// `log_every`: `None` logs no progress lines.
+    pub fn new(
+        grid: Grid,
+        log_every: Option<Duration>,
+        observer: &'a (dyn Fn(&Progress) + Sync),
+    ) -> Self {
+        let started = Instant::now();
+        Monitor {
+            started,
+            voxels_per_slab: grid.dims[0] * grid.dims[1],
+            voxels: grid.voxel_count(),
+            log_every,
+            observer,
+            state: Mutex::new(State {
+                series: SeriesBuilder::new(MAX_SERIES_POINTS),
+                last_log: started,
+            }),
+        }
+    }
+
+    /// The observer the stages call after every slab.
+    pub fn observe(&self, p: &Progress) {
+        let seconds = self.started.elapsed().as_secs_f64();
+        // Slab k done means slices 0..=k were read.
+        let voxels_done = ((p.slabs_done + 1) * self.voxels_per_slab).min(self.voxels);
+        let rss_bytes = current_rss_bytes();
+        {
+            let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            state.series.push(SeriesPoint {
+                slab: p.slabs_done,
+                slabs: 1,
+                voxels_done,
+                faces_in: p.faces_in,
+                faces_out: p.faces_out,
+                resident_faces: p.resident_faces,
+                resident_faces_min: p.resident_faces,
+                rss_bytes,
+                seconds,
+            });
+            if let Some(every) = self.log_every
+                && state.last_log.elapsed() >= every
+            {
+                state.last_log = Instant::now();
+                log_progress(p, voxels_done, self.voxels, seconds, rss_bytes);
+            }
+        }
+        (self.observer)(p);
+    }
+
+    pub fn finish(self) -> TimeSeries {
+        self.state
+            .into_inner()
+            .unwrap_or_else(|e| e.into_inner())
+            .series
+            .finish()
+    }
+}
+
+/// One structured line: where the sweep is, how fast it goes, when it should end.
+fn log_progress(p: &Progress, voxels_done: u64, voxels: u64, seconds: f64, rss: Option<u64>) {
+    let rate = voxels_done as f64 / seconds.max(1e-9);
+    let eta_s = (voxels - voxels_done) as f64 / rate.max(1e-9);
+    let round1 = |x: f64| (x * 10.0).round() / 10.0;
+    info!(
+        slab = p.slabs_done,
+        of = p.slabs_total,
+        percent = round1(100.0 * voxels_done as f64 / voxels.max(1) as f64),
+        voxels_per_s = rate.round(),
+        elapsed_s = round1(seconds),
+        eta_s = round1(eta_s),
+        faces_in = p.faces_in,
+        faces_out = p.faces_out,
+        resident_faces = p.resident_faces,
+        rss_mib = round1(rss.unwrap_or(0) as f64 / (1024.0 * 1024.0)),
+        "progress"
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn point(slab: u64, resident: u64) -> SeriesPoint {
+        SeriesPoint {
+            slab,
+            slabs: 1,
+            voxels_done: slab * 100,
+            faces_in: slab * 10,
+            faces_out: slab * 2,
+            resident_faces: resident,
+            resident_faces_min: resident,
+            rss_bytes: Some(1000 + resident),
+            seconds: slab as f64 * 0.5,
+        }
+    }
+
+    #[test]
+    fn short_runs_keep_every_slab() {
+        let mut b = SeriesBuilder::new(8);
+        for s in 1..=5 {
+            b.push(point(s, s * 3));
+        }
+        let series = b.finish();
+        assert_eq!(series.stride, 1);
+        assert_eq!(series.points.len(), 5);
+        assert_eq!(series.points[2], point(3, 9));
+    }
+
+    #[test]
+    fn a_full_series_is_halved_keeping_peaks_and_troughs() {
+        let mut b = SeriesBuilder::new(4);
+        // A saw-tooth: 10, 50, 20, 60.
+        for (s, r) in [(1, 10), (2, 50), (3, 20), (4, 60)] {
+            b.push(point(s, r));
+        }
+        let series = b.finish();
+        assert_eq!(series.stride, 2);
+        assert_eq!(series.points.len(), 2);
+        let [a, c] = [series.points[0], series.points[1]];
+        assert_eq!(
+            (a.slab, a.slabs, a.resident_faces, a.resident_faces_min),
+            (2, 2, 50, 10)
+        );
+        assert_eq!((c.slab, c.faces_in, c.rss_bytes), (4, 40, Some(1060)));
+    }
+
+    proptest! {
+        /// Whatever the length: bounded, cumulative counts of the last slab kept, every slab
+        /// accounted for, extremes kept.
+        #[test]
+        fn bounded_and_faithful(
+            residents in prop::collection::vec(0u64..1000, 1..600),
+            gaps in prop::collection::vec(1u64..3, 600),
+        ) {
+            let mut b = SeriesBuilder::new(16);
+            let mut slab = 0;
+            for (i, &r) in residents.iter().enumerate() {
+                slab += gaps[i];
+                b.push(point(slab, r));
+            }
+            let s = b.finish();
+            prop_assert!(s.points.len() <= 16);
+            let last = *s.points.last().unwrap();
+            prop_assert_eq!(last.slab, slab);
+            prop_assert_eq!(last.faces_in, slab * 10);
+            prop_assert_eq!(s.points.iter().map(|p| p.slabs).sum::<u64>(), slab);
+            prop_assert!(s.points.windows(2).all(|w| w[0].slab < w[1].slab));
+            let max = s.points.iter().map(|p| p.resident_faces).max();
+            let min = s.points.iter().map(|p| p.resident_faces_min).min();
+            prop_assert_eq!(max, residents.iter().copied().max());
+            prop_assert_eq!(min, residents.iter().copied().min());
+        }
+    }
+}

@@ -1,0 +1,104 @@
+//! What the report reads: the run summary (`<output>.run.json`) and, optionally, the JSON of
+//! `isostream measure --json`. Only the fields the report shows are read and every other one is
+//! ignored, so summaries of older or newer versions still make a report (a summary without a time
+//! series gets a page that says so instead of the sweep plots).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use isostream_pipeline::TimeSeries;
+use serde::Deserialize;
+
+use crate::ReportError;
+
+/// The run summary, as far as the report is concerned: the fields of `RunSummary` it shows,
+/// read on their own (not `RunSummary` itself, which also holds every stage's statistics), so a
+/// summary of another version still makes a page.
+#[derive(Debug, Clone, Deserialize)]
+pub struct Run {
+    pub input: String,
+    pub dims: [u64; 3],
+    pub voxels: u64,
+    pub iso: f64,
+    pub mode: String,
+    pub output: PathBuf,
+    pub faces_extracted: u64,
+    pub target_faces: Option<u64>,
+    pub faces_written: u64,
+    pub vertices_written: u64,
+    pub seconds: f64,
+    /// Busy seconds by stage name (whatever stages the run had).
+    pub stage_seconds: BTreeMap<String, f64>,
+    pub peak_rss_bytes: Option<u64>,
+    pub peak_resident_faces: u64,
+    #[serde(default)]
+    pub warnings: Vec<String>,
+    /// Absent in summaries written before the series existed.
+    pub series: Option<TimeSeries>,
+}
+
+/// `(bin start, count)` pairs.
+pub type Bins = Vec<(f64, u64)>;
+
+/// The measure report, as far as the report is concerned.
+#[derive(Debug, Clone, Deserialize)]
+pub struct Measure {
+    pub quality: Quality,
+    pub distances: Option<Distances>,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct Quality {
+    pub triangles: u64,
+    pub closed: bool,
+    pub euler: i64,
+    pub min_angle_histogram: Bins,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct Distances {
+    pub full_to_output: Directed,
+    pub output_to_full: Directed,
+    pub max_distance: f64,
+    pub rms_pct: f64,
+    pub hausdorff_pct: f64,
+}
+
+#[derive(Debug, Clone, Deserialize)]
+pub struct Directed {
+    pub mean: f64,
+    pub rms: f64,
+    pub hausdorff: f64,
+    /// Absent in reports of versions before the histogram existed.
+    #[serde(default)]
+    pub histogram: Bins,
+}
+
+impl Run {
+    /// Reads `<output>.run.json`.
+    pub fn load(path: &Path) -> Result<Run, ReportError> {
+        let text = read(path)?;
+        serde_json::from_str(&text).map_err(|e| ReportError::NotRun {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+    }
+}
+
+impl Measure {
+    /// Reads the output of `isostream measure --json`.
+    pub fn load(path: &Path) -> Result<Measure, ReportError> {
+        let text = read(path)?;
+        serde_json::from_str(&text).map_err(|e| ReportError::NotMeasure {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+    }
+}
+
+fn read(path: &Path) -> Result<String, ReportError> {
+    std::fs::read_to_string(path).map_err(|source| ReportError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}

@@ -1,0 +1,43 @@
+//! The run report: one self-contained HTML page (no script, no external resource: the machines
+//! it is read on may have no internet) with SVG plots drawn in Rust, from a run summary
+//! (`<output>.run.json`) and optionally the JSON of `isostream measure --json`.
+//!
+//! Used by `isostream report` and by the service's `GET /jobs/{id}/report`.
+#![deny(unsafe_code)]
+
+mod page;
+pub mod plots;
+
+mod input;
+
+use std::path::{Path, PathBuf};
+
+pub use input::{Bins, Directed, Distances, Measure, Quality, Run};
+pub use page::html;
+
+/// Why a report could not be made. One line each, naming the file and what to give instead.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    #[error("{}: cannot read: {source}", path.display())]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: not an isostream run summary ({reason}); give the `<output>.run.json` that `isostream run` wrote", path.display())]
+    NotRun { path: PathBuf, reason: String },
+    #[error("{}: not a measure report ({reason}); make one with `isostream measure --volume JOB.toml MESH --json > M.json`", path.display())]
+    NotMeasure { path: PathBuf, reason: String },
+    #[error("drawing the {plot} plot: {reason}")]
+    Plot { plot: &'static str, reason: String },
+    #[error("{}: cannot write the report: {reason}", path.display())]
+    Write { path: PathBuf, reason: String },
+}
+
+/// Writes the page under a temporary name in the same folder and renames it: a failure leaves
+/// no half-written report under the final name.
+pub fn write(path: &Path, html: &str) -> Result<(), ReportError> {
+    isostream_pipeline::write_atomically(path, html.as_bytes()).map_err(|e| ReportError::Write {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
+}

@@ -1,0 +1,278 @@
+//! The HTML page around the plots: a table of the run's figures, its warnings, then the plots,
+//! each in a `<figure id=...>` (`memory`, `faces`, `stages`, `min-angles`, `distances-*`).
+
+use std::fmt::Write as _;
+
+use crate::input::{Measure, Run};
+use crate::{ReportError, plots};
+
+/// Stages in pipeline order; any other stage a summary names follows, alphabetically.
+const STAGE_ORDER: [&str; 5] = ["read", "extract", "detect", "simplify", "write"];
+
+const STYLE: &str = "body{font:14px/1.4 system-ui,sans-serif;margin:2em;color:#222;max-width:800px}\
+h1{font-size:1.3em}table{border-collapse:collapse}td,th{text-align:left;padding:3px 10px;\
+border-bottom:1px solid #ddd}figure{margin:1.5em 0}figcaption{color:#555;font-size:.9em}\
+.warn{color:#a04000}svg{max-width:100%;height:auto}";
+
+/// The whole page for a run and, when given, its measure report.
+pub fn html(run: &Run, measure: Option<&Measure>) -> Result<String, ReportError> {
+    let name = run.output.file_name().map_or_else(
+        || run.output.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>isostream report: {}</title>\
+         <style>{STYLE}</style></head><body>\n<h1>isostream run: {}</h1>\n",
+        escape(&name),
+        escape(&name)
+    );
+    summary_table(&mut s, run, measure);
+    for w in &run.warnings {
+        let _ = writeln!(s, "<p class=\"warn\">warning: {}</p>", escape(w));
+    }
+    match run.series.as_ref().filter(|t| !t.points.is_empty()) {
+        Some(series) => {
+            let per_point = if series.stride > 1 {
+                format!(" Each point stands for {} slabs (the series keeps at most {} points): lines show the largest value of its slabs, the band the range.", series.stride, isostream_pipeline::MAX_SERIES_POINTS)
+            } else {
+                String::new()
+            };
+            figure(
+                &mut s,
+                "memory",
+                &plots::memory(&series.points)?,
+                &format!("Resident set size from the OS and faces resident in the simplifier at the end of each slab: the faces rise as slabs arrive and drop when the simplifier decimates or retires (Hou and Chen, Fig. 5).{per_point}"),
+            );
+            figure(
+                &mut s,
+                "faces",
+                &plots::faces(&series.points)?,
+                "Full-resolution faces extracted and simplified faces written per slab, and the faces resident at its end.",
+            );
+        }
+        None => s.push_str(
+            "<p>This summary has no time series (written by an older isostream): no sweep plots.</p>\n",
+        ),
+    }
+    figure(
+        &mut s,
+        "stages",
+        &plots::stage_seconds(&stages(run))?,
+        "Seconds each stage was busy (time blocked on its channels excluded); the stages run at the same time, each on its own thread.",
+    );
+    if let Some(m) = measure {
+        measure_figures(&mut s, m)?;
+    }
+    let _ = write!(
+        s,
+        "<p><small>made by isostream {} (<code>isostream report</code>)</small></p>\n</body></html>\n",
+        env!("CARGO_PKG_VERSION")
+    );
+    Ok(s)
+}
+
+fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
+    let mib = |b: u64| format!("{:.1} MiB", b as f64 / (1024.0 * 1024.0));
+    let [nx, ny, nz] = run.dims;
+    let mut rows = vec![
+        ("input", run.input.clone()),
+        (
+            "grid",
+            format!("{nx} x {ny} x {nz} = {} voxels", run.voxels),
+        ),
+        ("iso value, mode", format!("{}, {}", run.iso, run.mode)),
+        ("output", run.output.display().to_string()),
+        (
+            "faces",
+            format!(
+                "{} extracted -> {} written{} ({} vertices)",
+                run.faces_extracted,
+                run.faces_written,
+                run.target_faces
+                    .map_or(String::new(), |t| format!(" (target {t})")),
+                run.vertices_written
+            ),
+        ),
+        (
+            "time",
+            format!(
+                "{:.2} s ({:.1} Mvoxels/s)",
+                run.seconds,
+                run.voxels as f64 / run.seconds.max(1e-9) / 1e6
+            ),
+        ),
+        (
+            "peak memory",
+            format!(
+                "{} RSS, {} faces resident",
+                run.peak_rss_bytes.map_or("unknown".into(), mib),
+                run.peak_resident_faces
+            ),
+        ),
+    ];
+    if let Some(m) = measure {
+        let q = &m.quality;
+        rows.push((
+            "measured mesh",
+            format!(
+                "{} triangles, {}, Euler characteristic {}",
+                q.triangles,
+                if q.closed {
+                    "closed manifold"
+                } else {
+                    "NOT a closed manifold"
+                },
+                q.euler
+            ),
+        ));
+        if let Some(d) = &m.distances {
+            rows.push((
+                "distance to the full surface",
+                format!(
+                    "RMS {:.4} % and Hausdorff {:.4} % of the diagonal (full -> output mean {:.4}, output -> full mean {:.4})",
+                    d.rms_pct, d.hausdorff_pct, d.full_to_output.mean, d.output_to_full.mean
+                ),
+            ));
+        }
+    }
+    s.push_str("<table>\n");
+    for (k, v) in rows {
+        let _ = writeln!(s, "<tr><th>{k}</th><td>{}</td></tr>", escape(&v));
+    }
+    s.push_str("</table>\n");
+}
+
+fn measure_figures(s: &mut String, m: &Measure) -> Result<(), ReportError> {
+    figure(
+        s,
+        "min-angles",
+        &plots::histogram(
+            "Minimum angle of each triangle",
+            "degrees",
+            &m.quality.min_angle_histogram,
+            "min-angle",
+        )?,
+        "Triangles by their smallest angle (60 degrees: equilateral), from isostream measure.",
+    );
+    let Some(d) = &m.distances else {
+        return Ok(());
+    };
+    for (id, title, dir) in [
+        (
+            "distances-full-to-output",
+            "Distance from the full-resolution surface to the output",
+            &d.full_to_output,
+        ),
+        (
+            "distances-output-to-full",
+            "Distance from the output to the full-resolution surface",
+            &d.output_to_full,
+        ),
+    ] {
+        if dir.histogram.is_empty() {
+            continue;
+        }
+        figure(
+            s,
+            id,
+            &plots::histogram(title, "distance", &dir.histogram, "distance")?,
+            &format!(
+                "Samples by distance (mean {:.4}, RMS {:.4}, Hausdorff {:.4}); the last bin also counts samples farther than the search radius {:.4}.",
+                dir.mean, dir.rms, dir.hausdorff, d.max_distance
+            ),
+        );
+    }
+    Ok(())
+}
+
+fn stages(run: &Run) -> Vec<(String, f64)> {
+    let mut out: Vec<(String, f64)> = STAGE_ORDER
+        .iter()
+        .filter_map(|n| run.stage_seconds.get(*n).map(|&v| (n.to_string(), v)))
+        .collect();
+    out.extend(
+        run.stage_seconds
+            .iter()
+            .filter(|(k, _)| !STAGE_ORDER.contains(&k.as_str()))
+            .map(|(k, &v)| (k.clone(), v)),
+    );
+    out
+}
+
+fn figure(s: &mut String, id: &str, svg: &str, caption: &str) {
+    let _ = writeln!(
+        s,
+        "<figure id=\"{id}\">\n{svg}\n<figcaption>{}</figcaption></figure>",
+        escape(caption)
+    );
+}
+
+/// Text into HTML: the five characters that could open markup or end an attribute.
+fn escape(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn run_json(series: bool) -> serde_json::Value {
+        let mut v = serde_json::json!({
+            "input": "sphere <64^3>", "dims": [64, 64, 64], "voxels": 262144, "iso": 0.0,
+            "mode": "rate", "output": "/tmp/out/<x>.smb", "faces_extracted": 1000,
+            "target_faces": 200, "faces_written": 201, "vertices_written": 103, "seconds": 0.5,
+            "stage_seconds": {"read": 0.1, "extract": 0.2, "detect": 0.1, "simplify": 0.3,
+                              "write": 0.01, "upsample": 0.05},
+            "peak_rss_bytes": 30000000, "peak_resident_faces": 300,
+            "warnings": ["rate target missed"], "unknown_future_field": 1
+        });
+        if series {
+            v["series"] = serde_json::json!({"stride": 1, "points": [
+                {"slab": 1, "slabs": 1, "voxels_done": 8192, "faces_in": 10, "faces_out": 0,
+                 "resident_faces": 10, "resident_faces_min": 10, "rss_bytes": 1000000, "seconds": 0.1},
+                {"slab": 2, "slabs": 1, "voxels_done": 12288, "faces_in": 30, "faces_out": 5,
+                 "resident_faces": 25, "resident_faces_min": 25, "rss_bytes": null, "seconds": 0.2}]});
+        }
+        v
+    }
+
+    #[test]
+    fn a_page_has_its_figures_and_escapes_text() {
+        let run: Run = serde_json::from_value(run_json(true)).unwrap();
+        let page = html(&run, None).unwrap();
+        for id in ["memory", "faces", "stages"] {
+            assert!(page.contains(&format!("<figure id=\"{id}\">")), "{id}");
+        }
+        assert!(page.contains("&lt;x&gt;.smb") && !page.contains("<x>"));
+        assert!(page.contains("warning: rate target missed"));
+        // Pipeline order first, other stages after.
+        let at = |n: &str| page.find(&format!("\n{n}\n</text>")).unwrap();
+        assert!(at("read") < at("simplify") && at("write") < at("upsample"));
+        // Self-contained: nothing to fetch (the SVG namespace URI is a name, not a resource).
+        for fetches in ["<script", "<link", "src=", "href=", "url("] {
+            assert!(!page.contains(fetches), "{fetches}");
+        }
+    }
+
+    #[test]
+    fn an_old_summary_gets_a_page_without_sweep_plots() {
+        let run: Run = serde_json::from_value(run_json(false)).unwrap();
+        let page = html(&run, None).unwrap();
+        assert!(page.contains("no time series"));
+        assert!(!page.contains("<figure id=\"memory\">"));
+        assert!(page.contains("<figure id=\"stages\">"));
+    }
+}

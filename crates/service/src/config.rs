@@ -1,0 +1,99 @@
+//! `isostream serve --config FILE`: the service's flags as a TOML file (see
+//! `config/serve.toml`); a flag given on the command line wins over the file. Relative paths
+//! are resolved against the file's folder, so the file works from any working directory.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use isostream_pipeline::LogFormat;
+use serde::Deserialize;
+
+use crate::ServiceError;
+
+/// Every key is optional; none given means the flags' defaults.
+#[derive(Debug, Default, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ServeFile {
+    /// `--state`.
+    pub state: Option<PathBuf>,
+    /// `--listen`.
+    pub listen: Option<SocketAddr>,
+    /// `--allow-input`, every folder.
+    #[serde(default)]
+    pub allow_input: Vec<PathBuf>,
+    /// `--token-file` (the token itself is never written in this file, which is easier to leak).
+    pub token_file: Option<PathBuf>,
+    /// `--max-parallel-jobs`.
+    pub max_parallel_jobs: Option<usize>,
+    /// `--log-format`: `text` or `json`.
+    pub log_format: Option<LogFormat>,
+}
+
+impl ServeFile {
+    pub fn load(path: &Path) -> Result<ServeFile, ServiceError> {
+        let fail = |reason: String| ServiceError::Config {
+            path: path.to_path_buf(),
+            reason,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(e.to_string()))?;
+        let mut file: ServeFile = toml::from_str(&text).map_err(|e| {
+            let line = e
+                .span()
+                .map_or(0, |s| text[..s.start].matches('\n').count() + 1);
+            fail(format!("line {line}: {}", e.message().trim()))
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let resolve = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        file.state.iter_mut().for_each(resolve);
+        file.token_file.iter_mut().for_each(resolve);
+        file.allow_input.iter_mut().for_each(resolve);
+        Ok(file)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_are_read_and_paths_resolved_against_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("serve.toml");
+        std::fs::write(
+            &path,
+            "state = \"state\"\nlisten = \"127.0.0.1:9000\"\nallow_input = [\"/data\", \"more\"]\nmax_parallel_jobs = 2\nlog_format = \"json\"\n",
+        )
+        .unwrap();
+        let f = ServeFile::load(&path).unwrap();
+        assert_eq!(f.state, Some(dir.path().join("state")));
+        assert_eq!(f.listen, Some("127.0.0.1:9000".parse().unwrap()));
+        assert_eq!(
+            f.allow_input,
+            [PathBuf::from("/data"), dir.path().join("more")]
+        );
+        assert_eq!(
+            (f.max_parallel_jobs, f.log_format),
+            (Some(2), Some(LogFormat::Json))
+        );
+    }
+
+    #[test]
+    fn an_unknown_key_is_named_with_its_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("serve.toml");
+        std::fs::write(&path, "state = \"s\"\ntoken = \"x\"\n").unwrap();
+        let err = ServeFile::load(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("serve.toml") && err.contains("line 2") && err.contains("token"),
+            "{err}"
+        );
+        let err = ServeFile::load(&dir.path().join("none.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("none.toml"), "{err}");
+    }
+}

@@ -1,0 +1,65 @@
+//! The terminal progress bar of `isostream run` (slabs, rate, ETA, faces, RSS), and a log writer
+//! that prints log lines above the bar instead of through it.
+
+use std::io::Write;
+use std::sync::Mutex;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use isostream_pipeline::Progress;
+
+/// The bar on screen, if any: log lines are written around it.
+static SHOWN: Mutex<Option<ProgressBar>> = Mutex::new(None);
+
+fn shown() -> std::sync::MutexGuard<'static, Option<ProgressBar>> {
+    SHOWN.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// A bar on stderr, registered so that log lines go above it.
+pub fn bar() -> ProgressBar {
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {percent:>3}% slab {pos}/{len} {per_sec} ETA {eta} {msg}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    *shown() = Some(bar.clone());
+    bar
+}
+
+pub fn update(bar: &ProgressBar, p: &Progress) {
+    bar.set_length(p.slabs_total);
+    bar.set_position(p.slabs_done);
+    let rss = isostream_pipeline::current_rss_bytes().map_or(String::new(), |b| {
+        format!(", RSS {:.0} MiB", b as f64 / (1 << 20) as f64)
+    });
+    bar.set_message(format!(
+        "| faces in {} out {} resident {}{rss}",
+        p.faces_in, p.faces_out, p.resident_faces
+    ));
+}
+
+pub fn finish(bar: &ProgressBar) {
+    shown().take();
+    bar.finish_and_clear();
+}
+
+/// stderr for tracing: each formatted line (tracing-subscriber writes one event in one call) is
+/// printed with the bar hidden, then the bar is drawn again below it.
+pub struct LogWriter;
+
+impl Write for LogWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let bar = shown().clone();
+        match bar {
+            Some(bar) => bar.suspend(|| std::io::stderr().write_all(buf))?,
+            None => std::io::stderr().write_all(buf)?,
+        }
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        std::io::stderr().flush()
+    }
+}

@@ -1,0 +1,210 @@
+//! `isostream report` end to end: a real run (with JSON progress lines), its measure report, the
+//! HTML page and the SVG series in it; bad files give one line and no page.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{assert_one_line_error, isostream, stderr};
+use serde_json::Value;
+
+const JOB: &str = "[input]\nshape = \"gyroid\"\nsize = [40, 40, 40]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.2\n[output]\npath = \"gyroid.smb\"\n[log]\nformat = \"json\"\nprogress_seconds = 0.000001\n";
+
+/// The `<figure id=...>` element of the page, up to its end.
+fn figure<'a>(page: &'a str, id: &str) -> &'a str {
+    let start = page
+        .find(&format!("<figure id=\"{id}\">"))
+        .unwrap_or_else(|| panic!("no figure {id}"));
+    let len = page[start..].find("</figure>").unwrap();
+    &page[start..start + len]
+}
+
+/// Points of every `<polyline>` of an SVG.
+fn polyline_lengths(svg: &str) -> Vec<usize> {
+    svg.split("<polyline")
+        .skip(1)
+        .map(|p| {
+            let attr = p.split("points=\"").nth(1).unwrap();
+            attr[..attr.find('"').unwrap()].split_whitespace().count()
+        })
+        .collect()
+}
+
+fn texts(svg: &str) -> Vec<&str> {
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|t| Some(t[t.find('>')? + 1..t.find("</text>")?].trim()))
+        .collect()
+}
+
+fn run(dir: &Path) -> Value {
+    let job = dir.join("job.toml");
+    std::fs::write(&job, JOB).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(["run", "--quiet"])
+        .arg(&job)
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The periodic progress line: one JSON object with the rate and the ETA.
+    let progress: Vec<Value> = stderr(&o)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["fields"]["message"] == "progress" && v["fields"]["eta_s"].is_number())
+        .collect();
+    assert!(!progress.is_empty(), "{}", stderr(&o));
+    for key in [
+        "voxels_per_s",
+        "percent",
+        "resident_faces",
+        "rss_mib",
+        "slab",
+    ] {
+        assert!(
+            progress[0]["fields"][key].is_number(),
+            "{key}: {}",
+            progress[0]
+        );
+    }
+    let summary = std::fs::read_to_string(dir.join("gyroid.smb.run.json")).unwrap();
+    serde_json::from_str(&summary).unwrap()
+}
+
+#[test]
+fn a_run_and_its_measure_make_one_page_of_plots() {
+    let dir = tempfile::tempdir().unwrap();
+    let summary = run(dir.path());
+    let points = summary["series"]["points"].as_array().unwrap();
+    assert_eq!(summary["series"]["stride"], 1);
+    // Slabs 1..=39 each once (a gyroid has triangles in every slab), the last one the totals.
+    assert_eq!(points.len(), 39, "{}", summary["series"]);
+    let last = points.last().unwrap();
+    assert_eq!(last["faces_in"], summary["faces_extracted"]);
+    assert_eq!(last["faces_out"], summary["faces_written"]);
+    assert_eq!(last["voxels_done"], summary["voxels"]);
+    assert!(points.iter().all(|p| p["rss_bytes"].as_u64().unwrap() > 0));
+    // Taken at the end of each slab: at most the peak, which can fall inside a slab.
+    let peak = points
+        .iter()
+        .map(|p| p["resident_faces"].as_u64().unwrap())
+        .max();
+    let in_run = summary["peak_resident_faces"].as_u64().unwrap();
+    assert!(
+        peak.unwrap() > 0 && peak.unwrap() <= in_run,
+        "{peak:?} {in_run}"
+    );
+
+    let measure = dir.path().join("measure.json");
+    let o = isostream(&[
+        "measure",
+        "--json",
+        "--volume",
+        &dir.path().join("job.toml").to_string_lossy(),
+        &dir.path().join("gyroid.smb").to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(&measure, &o.stdout).unwrap();
+
+    let page_path = dir.path().join("report.html");
+    let o = isostream(&[
+        "report",
+        &dir.path().join("gyroid.smb.run.json").to_string_lossy(),
+        "-o",
+        &page_path.to_string_lossy(),
+        "--measure",
+        &measure.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let page = std::fs::read_to_string(&page_path).unwrap();
+    assert!(page.starts_with("<!doctype html>"));
+
+    // Memory: RSS and resident faces, one point per slab each.
+    let memory = figure(&page, "memory");
+    let labels = texts(memory);
+    assert!(labels.contains(&"RSS (MiB)") && labels.contains(&"resident faces"));
+    let lines = polyline_lengths(memory);
+    assert_eq!(
+        lines.iter().filter(|&&n| n == points.len()).count(),
+        2,
+        "{lines:?}"
+    );
+    // Faces: in, out, resident.
+    let faces = figure(&page, "faces");
+    for label in ["faces in per slab", "faces out per slab", "resident faces"] {
+        assert!(texts(faces).contains(&label), "{label}");
+    }
+    assert_eq!(
+        polyline_lengths(faces)
+            .iter()
+            .filter(|&&n| n == points.len())
+            .count(),
+        3
+    );
+    let stages = texts(figure(&page, "stages"));
+    for stage in ["read", "extract", "detect", "simplify", "write"] {
+        assert!(stages.contains(&stage), "{stage}: {stages:?}");
+    }
+    // Histograms: one bar per bin of the measure report (plus the background rectangle).
+    let m: Value = serde_json::from_slice(&std::fs::read(&measure).unwrap()).unwrap();
+    let angle_bins = m["quality"]["min_angle_histogram"]
+        .as_array()
+        .unwrap()
+        .len();
+    assert_eq!(
+        figure(&page, "min-angles").matches("<rect").count(),
+        1 + angle_bins
+    );
+    for (id, key) in [
+        ("distances-full-to-output", "full_to_output"),
+        ("distances-output-to-full", "output_to_full"),
+    ] {
+        let bins = m["distances"][key]["histogram"].as_array().unwrap();
+        assert!(bins.len() > 1, "{key}: {bins:?}");
+        let total: u64 = bins.iter().map(|b| b[1].as_u64().unwrap()).sum();
+        assert_eq!(Some(total), m["distances"][key]["samples"].as_u64());
+        assert_eq!(figure(&page, id).matches("<rect").count(), 1 + bins.len());
+    }
+}
+
+#[test]
+fn bad_files_give_one_line_and_no_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let page = dir.path().join("report.html");
+    let out = page.to_string_lossy().into_owned();
+    let missing = dir.path().join("missing.run.json");
+    let o = isostream(&["report", &missing.to_string_lossy(), "-o", &out]);
+    assert_one_line_error(&o, 2, &["missing.run.json", "cannot read"]);
+
+    let not_run = dir.path().join("job.toml");
+    std::fs::write(&not_run, JOB).unwrap();
+    let o = isostream(&["report", &not_run.to_string_lossy(), "-o", &out]);
+    assert_one_line_error(
+        &o,
+        2,
+        &["job.toml", "not an isostream run summary", "run.json"],
+    );
+
+    let summary = run(dir.path());
+    let run_json = dir.path().join("gyroid.smb.run.json");
+    assert!(summary["series"].is_object());
+    let o = isostream(&[
+        "report",
+        &run_json.to_string_lossy(),
+        "-o",
+        &out,
+        "--measure",
+        &run_json.to_string_lossy(),
+    ]);
+    assert_one_line_error(&o, 2, &["gyroid.smb.run.json", "not a measure report"]);
+    assert!(!page.exists());
+
+    let o = isostream(&[
+        "report",
+        &run_json.to_string_lossy(),
+        "-o",
+        &dir.path().join("no/such/folder/r.html").to_string_lossy(),
+    ]);
+    assert_one_line_error(&o, 1, &["r.html", "cannot write the report"]);
+}
