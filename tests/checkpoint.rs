@@ -225,7 +225,11 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     // Another iso value is another job.
     load(dir.path(), "job.toml", &text("iso = 0.1"));
     let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
-    assert_one_line_error(&o, 1, &["the job file changed since the checkpoint", "--restart"]);
+    assert_one_line_error(
+        &o,
+        1,
+        &["the job file changed since the checkpoint", "--restart"],
+    );
     load(dir.path(), "job.toml", &text("iso = 0.0"));
 
     // Corrupt (one bit), truncated, of another version, not a checkpoint.
@@ -313,8 +317,6 @@ fn kill_9_then_resume_gives_the_same_bytes() {
         let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
-    assert!(
-        std::fs::read(&output).unwrap() == std::fs::read(dir.path().join("ref.ply")).unwrap()
-    );
+    assert!(std::fs::read(&output).unwrap() == std::fs::read(dir.path().join("ref.ply")).unwrap());
     assert!(!ckpt.exists());
 }

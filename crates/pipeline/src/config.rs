@@ -226,7 +226,6 @@ impl PipelineConfig {
     }
 }
 
-
 /// `[pipeline] checkpoint = { every_seconds = 60 }` (or `every_slabs = N`, or `enabled = false`).
 /// Without the key, jobs on volumes of at least [`CheckpointConfig::AUTO_MIN_VOXELS`] voxels
 /// checkpoint every [`CheckpointConfig::DEFAULT_SECONDS`] seconds and smaller ones never.

@@ -19,8 +19,8 @@ use crate::checkpoint::{self, Checkpoint, Cut, InputIdentity, Parts, ReaderState
 use crate::config::CheckpointEvery;
 use crate::error::RunError;
 use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabBatches, WorkStep};
-use crate::range::DataRange;
 use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
+use crate::range::DataRange;
 use crate::sink::Sink;
 
 /// Snapshot passed to the progress observer after every completed slab.
