@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 /// Streaming OBJ writer.
@@ -39,12 +39,7 @@ impl ObjSink {
         header: &Header,
         state: SinkState,
     ) -> Result<ObjSink, SmeshError> {
-        let [mark] = state.marks::<1>(path)?;
-        if !matches!(state.format, Saved::Obj) {
-            return Err(mismatch(path, "OBJ"));
-        }
-        let out = AtomicFile::reopen(path, mark)?;
-        let core = SinkCore::resume(path, header, state.tracker)?;
+        let (core, out, _) = state.reopen_one(path, header, |f| matches!(f, Saved::Obj), "OBJ")?;
         Ok(ObjSink { core, out })
     }
 }
@@ -73,11 +68,7 @@ impl MeshSink for ObjSink {
     }
 
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
-        Ok(SinkState {
-            files: vec![self.out.mark()?],
-            tracker: self.core.tracker.clone(),
-            format: Saved::Obj,
-        })
+        SinkState::of_one(&mut self.out, &self.core, Saved::Obj)
     }
 }
 

@@ -4,7 +4,7 @@
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-use crate::atomic::FileMark;
+use crate::atomic::{AtomicFile, FileMark};
 use crate::track::Tracker;
 use crate::{Place, SmeshError, StreamFault, Subject};
 
@@ -77,6 +77,37 @@ impl SinkState {
     /// Triangles written when the checkpoint was taken.
     pub fn triangles(&self) -> u64 {
         self.tracker.triangles()
+    }
+
+    /// The state of a sink that writes its output and nothing else.
+    pub(crate) fn of_one(
+        out: &mut AtomicFile,
+        core: &SinkCore,
+        format: Saved,
+    ) -> Result<SinkState, SmeshError> {
+        Ok(SinkState {
+            files: vec![out.mark()?],
+            tracker: core.tracker.clone(),
+            format,
+        })
+    }
+
+    /// The core and the reopened output of a sink that writes its output and nothing else, and
+    /// its format's part; `fits` says whether that part is the sink's (`name` when not).
+    pub(crate) fn reopen_one(
+        self,
+        path: &Path,
+        header: &Header,
+        fits: impl Fn(&Saved) -> bool,
+        name: &str,
+    ) -> Result<(SinkCore, AtomicFile, Saved), SmeshError> {
+        let [mark] = self.marks::<1>(path)?;
+        if !fits(&self.format) {
+            return Err(mismatch(path, name));
+        }
+        let out = AtomicFile::reopen(path, mark)?;
+        let core = SinkCore::resume(path, header, self.tracker)?;
+        Ok((core, out, self.format))
     }
 
     /// The files in order, when there are `n` of them (else the state is not this format's).

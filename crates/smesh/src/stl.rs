@@ -11,7 +11,7 @@ use std::io::BufReader;
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 const COUNT_AT: u64 = 80;
@@ -54,12 +54,7 @@ impl StlSink {
         header: &Header,
         state: SinkState,
     ) -> Result<StlSink, SmeshError> {
-        let [mark] = state.marks::<1>(path)?;
-        if !matches!(state.format, Saved::Stl) {
-            return Err(mismatch(path, "STL"));
-        }
-        let out = AtomicFile::reopen(path, mark)?;
-        let core = SinkCore::resume(path, header, state.tracker)?;
+        let (core, out, _) = state.reopen_one(path, header, |f| matches!(f, Saved::Stl), "STL")?;
         Ok(StlSink { core, out })
     }
 }
@@ -115,11 +110,7 @@ impl MeshSink for StlSink {
     }
 
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
-        Ok(SinkState {
-            files: vec![self.out.mark()?],
-            tracker: self.core.tracker.clone(),
-            format: Saved::Stl,
-        })
+        SinkState::of_one(&mut self.out, &self.core, Saved::Stl)
     }
 }
 

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::sma::SmaEncoder;
 use crate::smb::SmbEncoder;
 use crate::{Format, Header, Place, SmeshError, StreamFault, Subject, WriteStats, index};
@@ -53,14 +53,18 @@ impl StreamWriter {
         header: &Header,
         state: SinkState,
     ) -> Result<StreamWriter, SmeshError> {
-        let [mark] = state.marks::<1>(path)?;
-        let encoder = match (Format::from_path(path)?, &state.format) {
-            (Format::Sma, Saved::Sma) => Encoder::Sma(SmaEncoder),
-            (Format::Smb, Saved::Smb(e)) => Encoder::Smb(e.clone()),
-            _ => return Err(mismatch(path, "SMA or SMB")),
+        let format = Format::from_path(path)?;
+        let fits = |f: &Saved| {
+            matches!(
+                (format, f),
+                (Format::Sma, Saved::Sma) | (Format::Smb, Saved::Smb(_))
+            )
         };
-        let out = AtomicFile::reopen(path, mark)?;
-        let core = SinkCore::resume(path, header, state.tracker)?;
+        let (core, out, saved) = state.reopen_one(path, header, fits, "SMA or SMB")?;
+        let encoder = match saved {
+            Saved::Smb(e) => Encoder::Smb(e),
+            _ => Encoder::Sma(SmaEncoder),
+        };
         Ok(StreamWriter { core, out, encoder })
     }
 
@@ -141,13 +145,10 @@ impl MeshSink for StreamWriter {
         StreamWriter::finish(*self)
     }
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
-        Ok(SinkState {
-            files: vec![self.out.mark()?],
-            tracker: self.core.tracker.clone(),
-            format: match &self.encoder {
-                Encoder::Sma(_) => Saved::Sma,
-                Encoder::Smb(e) => Saved::Smb(e.clone()),
-            },
-        })
+        let format = match &self.encoder {
+            Encoder::Sma(_) => Saved::Sma,
+            Encoder::Smb(e) => Saved::Smb(e.clone()),
+        };
+        SinkState::of_one(&mut self.out, &self.core, format)
     }
 }
