@@ -3,9 +3,13 @@
 use std::io::IsTerminal;
 
 use isostream_pipeline::{LogConfig, LogFormat};
+use isostream_service::JobLogLayer;
 use tracing_subscriber::EnvFilter;
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
 
-pub fn init(log: &LogConfig) {
+/// `jobs`: the service's per-job log files, written next to the usual lines.
+pub fn init(log: &LogConfig, jobs: Option<JobLogLayer>) {
     let filter = EnvFilter::try_from_default_env()
         .or_else(|_| EnvFilter::try_new(log.level.as_deref().unwrap_or("info")))
         .unwrap_or_else(|_| EnvFilter::new("info"));
@@ -17,7 +21,7 @@ pub fn init(log: &LogConfig) {
         .with_target(false);
     // A second init (tests, repeated calls) is harmless: keep the first subscriber.
     let _ = match log.format {
-        LogFormat::Text => builder.try_init(),
-        LogFormat::Json => builder.json().try_init(),
+        LogFormat::Text => builder.finish().with(jobs).try_init(),
+        LogFormat::Json => builder.json().finish().with(jobs).try_init(),
     };
 }

@@ -48,7 +48,8 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 RunError::Config(_)
                 | RunError::Volume(_)
                 | RunError::EmptySurface { .. }
-                | RunError::ClassicalOverBudget { .. } => 2,
+                | RunError::ClassicalOverBudget { .. }
+                | RunError::IndexLimit { .. } => 2,
                 _ => 1,
             };
         }

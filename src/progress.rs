@@ -4,7 +4,7 @@
 use std::io::Write;
 use std::sync::Mutex;
 
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{ProgressBar, ProgressState, ProgressStyle};
 use isostream_pipeline::Progress;
 
 /// The bar on screen, if any: log lines are written around it.
@@ -16,12 +16,16 @@ fn shown() -> std::sync::MutexGuard<'static, Option<ProgressBar>> {
 
 /// A bar on stderr, registered so that log lines go above it.
 pub fn bar() -> ProgressBar {
-    let bar = ProgressBar::new(0);
+    // Length 1 until the first slab says how many there are: 0 would show 100 %.
+    let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {percent:>3}% slab {pos}/{len} {per_sec} ETA {eta} {msg}",
+            "{elapsed_precise} [{bar:30}] {percent:>3}% slab {pos}/{len} {rate} ETA {eta} {msg}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .with_key("rate", |s: &ProgressState, w: &mut dyn std::fmt::Write| {
+            let _ = write!(w, "{:.1} slabs/s", s.per_sec());
+        })
         .progress_chars("=> "),
     );
     *shown() = Some(bar.clone());

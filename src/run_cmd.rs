@@ -38,7 +38,7 @@ pub fn run(
     start: isostream_pipeline::Start,
 ) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
-    crate::logging::init(&job.log);
+    crate::logging::init(&job.log, None);
 
     // Ctrl-C, SIGTERM and SIGHUP (ctrlc's `termination` feature) all stop the run the same way:
     // every stage stops, the temporary file is removed (kept, with the checkpoint, once a

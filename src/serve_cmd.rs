@@ -52,10 +52,6 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
         Some(_) => LogFormat::Text,
         None => file.log_format.unwrap_or_default(),
     };
-    crate::logging::init(&LogConfig {
-        format,
-        ..LogConfig::default()
-    });
     let token = match (
         &args.token,
         args.token_file.as_ref().or(file.token_file.as_ref()),
@@ -75,6 +71,13 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .or(file.state)
         .or_else(|| std::env::var_os("STATE_DIRECTORY").map(PathBuf::from))
         .unwrap_or_else(|| PathBuf::from("isostream-state"));
+    crate::logging::init(
+        &LogConfig {
+            format,
+            ..LogConfig::default()
+        },
+        Some(isostream_service::JobLogLayer::new(&state_dir)),
+    );
     let listen = args
         .listen
         .or(file.listen)

@@ -1,5 +1,6 @@
 //! Issue 10 (gigavoxel scale): what must not change the output. Parallel extraction gives the
-//! same bytes for any number of threads.
+//! same bytes for any number of threads, and empty-space skipping the same bytes as no skipping,
+//! on stored and on upsampled volumes.
 
 mod common;
 
@@ -11,8 +12,23 @@ use proptest::prelude::*;
 /// Runs `vol` with `simplify` and extra `[pipeline]` lines in `dir` (the header names the input
 /// path, so runs to compare share it); returns the output's bytes.
 fn output_bytes(dir: &Path, vol: &TestVolume, simplify: &str, pipeline: &str) -> Vec<u8> {
+    output_bytes_with(dir, vol, simplify, pipeline, &[])
+}
+
+/// As [`output_bytes`], with `(section, line)` pairs added at the top of their sections.
+fn output_bytes_with(
+    dir: &Path,
+    vol: &TestVolume,
+    simplify: &str,
+    pipeline: &str,
+    lines: &[(&str, &str)],
+) -> Vec<u8> {
     let job = vol.job(dir, simplify, "out.smb");
     let mut text = std::fs::read_to_string(&job).unwrap();
+    for (section, line) in lines {
+        let header = format!("[{section}]\n");
+        text = text.replacen(&header, &format!("{header}{line}\n"), 1);
+    }
     text.push_str(pipeline);
     std::fs::write(&job, text).unwrap();
     run_job(&job);
@@ -41,4 +57,104 @@ proptest! {
             prop_assert!(one == many, "{threads} threads changed the output");
         }
     }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Skipping blocks that cannot cross the iso value changes nothing: stored random volumes
+    /// (bounds from the slices, NaNs included) and upsampled ones (bounds from the source cells,
+    /// voxels of skipped cells never computed).
+    #[test]
+    fn skipping_empty_space_does_not_change_the_output(
+        n in 4u64..20, levels in 2u32..5, seed in any::<u64>(), smooth in any::<bool>(),
+        nan in any::<bool>(), k in prop::array::uniform3(1u64..4), upsample in any::<bool>(),
+        rate in 0.05f64..1.0,
+    ) {
+        let mut vol = if smooth {
+            random_blobs([n + 2, n, n + 1], 2, seed)
+        } else {
+            random_levels([n, n + 1, n / 2 + 2], levels, 1.0, seed)
+        };
+        if nan {
+            let i = (seed % vol.data.len() as u64) as usize;
+            vol.data[i] = f32::NAN;
+        }
+        let simplify = format!("mode = \"rate\"\nrate = {rate}\nbatch = 100");
+        let up = format!("upsample = {k:?}");
+        let mut lines = vec![];
+        if upsample {
+            lines.push(("input", up.as_str()));
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let skipped = output_bytes_with(dir.path(), &vol, &simplify, "threads = 2\n", &lines);
+        lines.push(("extract", "skip_empty = false"));
+        let plain = output_bytes_with(dir.path(), &vol, &simplify, "threads = 2\n", &lines);
+        prop_assert!(skipped == plain, "skipping changed the output");
+    }
+}
+
+/// The run summary counts skipped and active cubes; an upsampled sphere skips most of them.
+#[test]
+fn the_summary_counts_skipped_cubes() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        "[input]\nshape = \"sphere\"\nsize = [24, 24, 24]\nupsample = [4, 4, 4]\n\n\
+         [extract]\niso = 0.0\n\n[simplify]\nmode = \"none\"\n\n[output]\npath = \"out.smb\"\n",
+    )
+    .unwrap();
+    let s = run_job(&job);
+    assert_eq!(s.dims, [93, 93, 93]);
+    assert_eq!(s.extract.cubes, 92 * 92 * 92);
+    assert!(s.extract.active_cubes > 0);
+    assert!(
+        s.extract.skipped_cubes > s.extract.cubes / 2,
+        "{:?}",
+        s.extract
+    );
+}
+
+/// Runs a procedural shape with `[simplify]` and `[output]` extras; returns the summary.
+fn run_shape(shape: &str, n: u64, simplify: &str, output: &str) -> isostream_pipeline::RunSummary {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[input]\nshape = \"{shape}\"\nsize = [{n}, {n}, {n}]\n\n[extract]\niso = 0.0\n\n\
+             [simplify]\n{simplify}\n\n[output]\npath = \"out.smb\"\n{output}\n"
+        ),
+    )
+    .unwrap();
+    let summary = run_job(&job);
+    let mesh = common::Mesh::read(&dir.path().join("out.smb"));
+    let report = mesh.check();
+    assert!(report.is_valid_manifold(), "{report:?}");
+    summary
+}
+
+/// Extreme rates meet their target within 5 %: R = 1e-4 given as a face target, and as a rate.
+#[test]
+fn extreme_rates_meet_their_target() {
+    let s = run_shape("sphere", 128, "", "faces = 40");
+    assert!(s.faces_extracted > 70_000, "{}", s.faces_extracted);
+    let rate = s.rate.unwrap();
+    assert!(rate < 1e-3, "{rate}");
+    assert_eq!(s.target_faces, Some(40));
+    assert!(
+        s.faces_written.abs_diff(40) <= 2,
+        "{} faces",
+        s.faces_written
+    );
+
+    let s = run_shape("sphere", 128, "rate = 0.0005", "");
+    let target = s.target_faces.unwrap();
+    assert_eq!(target, (0.0005 * s.faces_extracted as f64).round() as u64);
+    assert!(
+        s.faces_written.abs_diff(target) as f64 <= 0.05 * target as f64,
+        "{} faces for {target}",
+        s.faces_written
+    );
 }

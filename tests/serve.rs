@@ -228,6 +228,7 @@ fn a_job_is_submitted_followed_and_its_mesh_fetched() {
     for needle in [
         "isostream_jobs{state=\"done\"} 1",
         "isostream_faces_in_total",
+        "isostream_voxels_total 32768",
         "isostream_stage_busy_seconds_total{stage=\"simplify\"}",
         "isostream_peak_rss_bytes",
         "isostream_resident_faces",
@@ -424,10 +425,10 @@ fn jobs_are_cancelled_queued_or_running() {
     assert_eq!(code, 409, "{body}");
     let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
     assert_eq!(code, 409);
-    // Nothing half-written kept.
+    // Nothing half-written kept; the log stays.
     assert_eq!(
         files_in(&state.join("jobs").join(&first)),
-        ["job.toml", "state.json"]
+        ["job.log", "job.toml", "state.json"]
     );
 }
 
@@ -520,7 +521,7 @@ fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
     let job_dir = state.join("jobs").join(&id);
     assert_eq!(
         files_in(&job_dir),
-        ["job.toml", "state.json"],
+        ["job.log", "job.toml", "state.json"],
         "no partial output"
     );
     let stored = json(&std::fs::read_to_string(job_dir.join("state.json")).unwrap());

@@ -145,7 +145,7 @@ fn attributes_follow_new_vertices() {
             lower: &attr[z * 16..][..16],
             upper: &attr[(z + 1) * 16..][..16],
         }];
-        ex.extract_slab_with_attributes(z as u64, lo, hi, &a, 1000, |b| {
+        ex.extract_slab_with_attributes(z as u64, lo, hi, &a, None, 1000, |b| {
             det.process(&b, &mut delta);
             Ok::<_, ()>(())
         })

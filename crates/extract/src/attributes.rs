@@ -6,7 +6,7 @@
 //! `t` that placed the vertex ([`crate::interp::crossing`]), so an attribute equal to the iso
 //! field itself is exactly the iso value everywhere, and a field linear along the edge is exact.
 
-use isostream_volume::Grid;
+use isostream_volume::{Grid, SlabBounds};
 
 use crate::interp::crossing;
 use crate::slab::{CubeBatch, Extractor};
@@ -19,17 +19,19 @@ pub struct AttributeSlab<'a> {
 }
 
 impl Extractor {
-    /// [`Extractor::extract_slab`], and every batch's `attrs` filled with the attributes'
-    /// values at its vertices (`attributes.len()` values per vertex, vertex-major).
+    /// [`Extractor::extract_slab_skipping`], and every batch's `attrs` filled with the
+    /// attributes' values at its vertices (`attributes.len()` values per vertex, vertex-major).
     ///
     /// # Panics
     /// As `extract_slab`, and if an attribute slice does not hold `grid.slice_len()` values.
+    #[allow(clippy::too_many_arguments)] // one slab: its slices, attributes, bounds and sink
     pub fn extract_slab_with_attributes<E>(
         &mut self,
         z: u64,
         lower: &[f32],
         upper: &[f32],
         attributes: &[AttributeSlab<'_>],
+        bounds: Option<&SlabBounds>,
         max_triangles: usize,
         mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
     ) -> Result<(), E> {
@@ -41,7 +43,7 @@ impl Extractor {
                 .all(|a| a.lower.len() == n && a.upper.len() == n),
             "attribute slices must hold {n} values"
         );
-        self.extract_slab(z, lower, upper, max_triangles, |mut batch| {
+        self.extract_slab_skipping(z, lower, upper, bounds, max_triangles, |mut batch| {
             if !attributes.is_empty() {
                 sample(&grid, iso, z, [lower, upper], attributes, &mut batch);
             }
@@ -176,16 +178,24 @@ mod tests {
                     upper: &iso_s[z + 1],
                 },
             ];
-            ex.extract_slab_with_attributes(z as u64, &iso_s[z], &iso_s[z + 1], &attrs, 7, |b| {
-                assert_eq!(b.attrs.len(), 2 * b.vertices.len());
-                for (v, a) in b.vertices.iter().zip(b.attrs.chunks(2)) {
-                    let want = lin(v.pos.x, v.pos.y, v.pos.z);
-                    assert!((f64::from(a[0]) - want).abs() < 1e-4, "{a:?} {want}");
-                    assert!((a[1] - 1.5).abs() < 1e-5, "{a:?}");
-                    vertices += 1;
-                }
-                Ok::<_, ()>(())
-            })
+            ex.extract_slab_with_attributes(
+                z as u64,
+                &iso_s[z],
+                &iso_s[z + 1],
+                &attrs,
+                None,
+                7,
+                |b| {
+                    assert_eq!(b.attrs.len(), 2 * b.vertices.len());
+                    for (v, a) in b.vertices.iter().zip(b.attrs.chunks(2)) {
+                        let want = lin(v.pos.x, v.pos.y, v.pos.z);
+                        assert!((f64::from(a[0]) - want).abs() < 1e-4, "{a:?} {want}");
+                        assert!((a[1] - 1.5).abs() < 1e-5, "{a:?}");
+                        vertices += 1;
+                    }
+                    Ok::<_, ()>(())
+                },
+            )
             .unwrap();
         }
         assert!(vertices > 20);

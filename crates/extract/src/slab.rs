@@ -12,7 +12,7 @@
 //! `cargo run --release -p isostream-extract --example throughput` measures it.
 
 use glam::DVec3;
-use isostream_volume::Grid;
+use isostream_volume::{Grid, SlabBounds};
 use serde::Serialize;
 
 use crate::cube::{corner_offset, edge_axis, edge_corners};
@@ -111,8 +111,10 @@ impl CubeBatch {
 /// Counters over everything extracted so far.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct ExtractStats {
-    /// Cubes visited.
+    /// Cubes of the slabs extracted (skipped ones included).
     pub cubes: u64,
+    /// Cubes in blocks whose value bounds cannot cross the iso value: not looked at.
+    pub skipped_cubes: u64,
     /// Cubes with at least one triangle.
     pub active_cubes: u64,
     pub triangles: u64,
@@ -130,6 +132,7 @@ impl std::ops::Sub for ExtractStats {
             active_cubes: self.active_cubes - o.active_cubes,
             triangles: self.triangles - o.triangles,
             non_finite_voxels: self.non_finite_voxels - o.non_finite_voxels,
+            skipped_cubes: self.skipped_cubes - o.skipped_cubes,
         }
     }
 }
@@ -138,6 +141,7 @@ impl std::ops::Sub for ExtractStats {
 impl std::ops::AddAssign for ExtractStats {
     fn add_assign(&mut self, o: Self) {
         self.cubes += o.cubes;
+        self.skipped_cubes += o.skipped_cubes;
         self.active_cubes += o.active_cubes;
         self.triangles += o.triangles;
         self.non_finite_voxels += o.non_finite_voxels;
@@ -197,6 +201,25 @@ impl Extractor {
         lower: &[f32],
         upper: &[f32],
         max_triangles: usize,
+        emit: impl FnMut(CubeBatch) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.extract_slab_skipping(z, lower, upper, None, max_triangles, emit)
+    }
+
+    /// [`Self::extract_slab`], skipping the blocks of cubes that `bounds` (the slab's value
+    /// bounds, from the volume) proves cannot cross the iso value: their voxels are not read,
+    /// their cubes are counted in [`ExtractStats::skipped_cubes`], and the batches are the same
+    /// as without `bounds`, since such cubes have no triangle.
+    ///
+    /// # Panics
+    /// As `extract_slab`.
+    pub fn extract_slab_skipping<E>(
+        &mut self,
+        z: u64,
+        lower: &[f32],
+        upper: &[f32],
+        bounds: Option<&SlabBounds>,
+        max_triangles: usize,
         mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
     ) -> Result<(), E> {
         let [nx, ny, nz] = self.grid.dims;
@@ -223,7 +246,10 @@ impl Extractor {
                 &upper[y0..y1],
                 &upper[y1..y1 + nx],
             ];
-            self.extract_row([0, y, z], quad, &mut batch);
+            match bounds {
+                None => self.extract_row([0, y, z], quad, &mut batch),
+                Some(b) => self.extract_row_blocks(b, [y, z], quad, &mut batch),
+            }
             let full = !batch.cubes.is_empty() && batch.triangles.len() >= max_triangles;
             if full && y + 1 < rows {
                 self.remember_sizes(&batch);
@@ -256,7 +282,38 @@ impl Extractor {
         self.stats
     }
 
-    /// Appends the non-empty cubes of the row of cubes starting at voxel `start` (x = 0).
+    /// Appends the non-empty cubes of row `y` of slab `z` that lie in blocks of `bounds` that may
+    /// cross the iso value (runs of such blocks at once).
+    fn extract_row_blocks(
+        &mut self,
+        bounds: &SlabBounds,
+        [y, z]: [u64; 2],
+        quad: RowQuad<'_>,
+        batch: &mut CubeBatch,
+    ) {
+        let cubes = quad[0].len() - 1;
+        let [bw, bh] = bounds.block();
+        let by = (y / bh) as usize;
+        let bw = bw as usize;
+        let mut bx = 0;
+        while bx < bounds.count()[0] {
+            let active = |b: usize| bounds.may_cross(b, by, self.iso);
+            let first = bx;
+            while bx < bounds.count()[0] && active(bx) == active(first) {
+                bx += 1;
+            }
+            let (x0, x1) = (first * bw, (bx * bw).min(cubes));
+            if active(first) {
+                let part = quad.map(|row| &row[x0..=x1]);
+                self.extract_row([x0 as u64, y, z], part, batch);
+            } else {
+                self.stats.skipped_cubes += (x1 - x0) as u64;
+            }
+        }
+    }
+
+    /// Appends the non-empty cubes of the row of cubes whose voxels `quad` holds, starting at
+    /// voxel `start`.
     fn extract_row(&mut self, start: [u64; 3], quad: RowQuad<'_>, batch: &mut CubeBatch) {
         let iso = self.iso;
         // The case index is built incrementally along x: the inside bits of the four voxels of
@@ -289,7 +346,7 @@ impl Extractor {
             let index = columns[x] | (columns[x + 1] << 1);
             if index != 0 && index != 0xff {
                 let coord = [start[0] + x as u64, start[1], start[2]];
-                push_cube(&self.grid, iso, coord, index, &quad, batch);
+                push_cube(&self.grid, iso, (coord, x), index, &quad, batch);
             }
             x += 1;
         }
@@ -301,17 +358,17 @@ impl Extractor {
 /// Eight column codes with all four voxels inside.
 const ALL_INSIDE_RUN: u64 = u64::from_le_bytes([0b0101_0101; 8]);
 
-/// Appends one non-empty cube: its crossing edges' vertices and its triangles.
+/// Appends one non-empty cube (its minimum voxel, and its x in `quad`): its crossing edges'
+/// vertices and its triangles.
 fn push_cube(
     grid: &Grid,
     iso: f32,
-    coord: [u64; 3],
+    (coord, x): ([u64; 3], usize),
     index: u8,
     quad: &RowQuad<'_>,
     batch: &mut CubeBatch,
 ) {
     let case = table::case(index);
-    let x = coord[0] as usize;
     let value = |c: u8| quad[(c >> 1) as usize][x + (c & 1) as usize];
     let first_vertex = batch.vertices.len();
     for &e in case.edges() {
@@ -379,6 +436,7 @@ mod tests {
             stats,
             ExtractStats {
                 cubes: 8,
+                skipped_cubes: 0,
                 active_cubes: 8,
                 triangles: 8,
                 non_finite_voxels: 0
@@ -483,6 +541,44 @@ mod tests {
             let ([_, _, vz], axis) = v.key.decode(grid.dims);
             assert!(vz == z || (vz == z + 1 && axis != 2), "{vz} {axis}");
             assert!(v.pos.z >= z as f64 && v.pos.z <= (z + 1) as f64);
+        }
+    }
+
+    #[test]
+    fn skipping_blocks_changes_nothing_but_the_work() {
+        // A ball of radius 4 in 13 x 11 x 9, plus NaN in a corner: most blocks are skippable.
+        let grid = Grid::new([13, 11, 9], [1.0; 3], [0.0; 3]).unwrap();
+        let data: Vec<f32> = (0..13 * 11 * 9)
+            .map(|i| {
+                let [x, y, z] = [i % 13, (i / 13) % 11, i / 143].map(|c| c as f32);
+                if i == 0 {
+                    return f32::NAN;
+                }
+                16.0 - ((x - 6.0).powi(2) + (y - 5.0).powi(2) + (z - 4.0).powi(2))
+            })
+            .collect();
+        let n = grid.slice_len();
+        for block in [[1, 1], [2, 3], [5, 4], [16, 16]] {
+            let (mut plain, mut skip) = (Extractor::new(grid, 0.5), Extractor::new(grid, 0.5));
+            let (mut a, mut b) = (Vec::new(), Vec::new());
+            for z in 0..8 {
+                let (lo, up) = (&data[z * n..][..n], &data[(z + 1) * n..][..n]);
+                let bounds = SlabBounds::from_slices(&grid, block, lo, up);
+                plain
+                    .extract_slab(z as u64, lo, up, 5, |x| Ok::<_, ()>(a.push(x)))
+                    .unwrap();
+                skip.extract_slab_skipping(z as u64, lo, up, Some(&bounds), 5, |x| {
+                    Ok::<_, ()>(b.push(x))
+                })
+                .unwrap();
+            }
+            assert_eq!(a, b, "block {block:?}");
+            let (p, s) = (plain.stats(), skip.stats());
+            assert_eq!((p.active_cubes, p.triangles), (s.active_cubes, s.triangles));
+            assert_eq!(p.skipped_cubes, 0);
+            // One block of 16 x 16 holds the whole ball: nothing to skip there.
+            assert_eq!(s.skipped_cubes > 0, block[0] < 16, "block {block:?}");
+            assert!(s.skipped_cubes + s.active_cubes <= s.cubes);
         }
     }
 

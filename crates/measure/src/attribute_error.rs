@@ -93,50 +93,58 @@ pub fn attribute_errors(
             .zip(&upper.1)
             .map(|(l, u)| AttributeSlab { lower: l, upper: u })
             .collect();
-        extractor.extract_slab_with_attributes(z, &lower.0, &upper.0, &slabs, 1 << 16, |b| {
-            for cube in &b.cubes {
-                let first = cube.first_vertex as usize;
-                for t in b.cube_triangles(cube) {
-                    let idx = t.map(|i| first + i as usize);
-                    let tri: Triangle = idx.map(|i| b.vertices[i].pos);
-                    let expected = density * area(&tri);
-                    let mut count = expected.floor() as u64;
-                    if rng.next_f64() < expected - count as f64 {
-                        count += 1;
-                    }
-                    for _ in 0..count {
-                        let s = rng.next_f64().sqrt();
-                        let r = rng.next_f64();
-                        let w = [1.0 - s, s * (1.0 - r), s * r];
-                        let p = w[0] * tri[0] + w[1] * tri[1] + w[2] * tri[2];
-                        bvh.nearest(p, &mut hint);
-                        let Some(near) = bvh.triangle(hint) else {
-                            continue;
-                        };
-                        let q = closest_point(p, near);
-                        let wq = barycentric(near, q);
-                        let corner_attrs = near.map(out_attr);
-                        let [Some(a0), Some(a1), Some(a2)] = corner_attrs else {
-                            continue;
-                        };
-                        samples += 1;
-                        for (j, e) in acc.iter_mut().enumerate() {
-                            let truth: f64 = (0..3)
-                                .map(|k| w[k] * f64::from(b.attrs[idx[k] * m + j]))
-                                .sum();
-                            let got = wq[0] * f64::from(a0[j])
-                                + wq[1] * f64::from(a1[j])
-                                + wq[2] * f64::from(a2[j]);
-                            let d = (truth - got).abs();
-                            e.0 += d;
-                            e.1 += d * d;
-                            e.2 = e.2.max(d);
+        extractor.extract_slab_with_attributes(
+            z,
+            &lower.0,
+            &upper.0,
+            &slabs,
+            None,
+            1 << 16,
+            |b| {
+                for cube in &b.cubes {
+                    let first = cube.first_vertex as usize;
+                    for t in b.cube_triangles(cube) {
+                        let idx = t.map(|i| first + i as usize);
+                        let tri: Triangle = idx.map(|i| b.vertices[i].pos);
+                        let expected = density * area(&tri);
+                        let mut count = expected.floor() as u64;
+                        if rng.next_f64() < expected - count as f64 {
+                            count += 1;
+                        }
+                        for _ in 0..count {
+                            let s = rng.next_f64().sqrt();
+                            let r = rng.next_f64();
+                            let w = [1.0 - s, s * (1.0 - r), s * r];
+                            let p = w[0] * tri[0] + w[1] * tri[1] + w[2] * tri[2];
+                            bvh.nearest(p, &mut hint);
+                            let Some(near) = bvh.triangle(hint) else {
+                                continue;
+                            };
+                            let q = closest_point(p, near);
+                            let wq = barycentric(near, q);
+                            let corner_attrs = near.map(out_attr);
+                            let [Some(a0), Some(a1), Some(a2)] = corner_attrs else {
+                                continue;
+                            };
+                            samples += 1;
+                            for (j, e) in acc.iter_mut().enumerate() {
+                                let truth: f64 = (0..3)
+                                    .map(|k| w[k] * f64::from(b.attrs[idx[k] * m + j]))
+                                    .sum();
+                                let got = wq[0] * f64::from(a0[j])
+                                    + wq[1] * f64::from(a1[j])
+                                    + wq[2] * f64::from(a2[j]);
+                                let d = (truth - got).abs();
+                                e.0 += d;
+                                e.1 += d * d;
+                                e.2 = e.2.max(d);
+                            }
                         }
                     }
                 }
-            }
-            Ok::<_, MeasureError>(())
-        })?;
+                Ok::<_, MeasureError>(())
+            },
+        )?;
         lower = upper;
     }
     let n = samples.max(1) as f64;
@@ -210,6 +218,7 @@ mod tests {
                 &iso[z * n..(z + 1) * n],
                 &iso[(z + 1) * n..(z + 2) * n],
                 &a,
+                None,
                 1 << 16,
                 |b| {
                     for (v, x) in b.vertices.iter().zip(&b.attrs) {

@@ -203,7 +203,8 @@ pub(crate) fn open(
                     },
                 ),
             };
-            let source = isostream_volume::open_path(&path, &options)?;
+            let source =
+                crate::source::upsampled(isostream_volume::open_path(&path, &options)?, input)?;
             if source.grid().dims != grid.dims {
                 return Err(RunError::Volume(isostream_volume::VolumeError::Grid {
                     origin: path.display().to_string(),
@@ -238,6 +239,9 @@ pub struct SliceReader {
     /// Iso slices `next_z - 1` and `next_z` (and `next_z + 1` once read ahead).
     prev: Option<Vec<f32>>,
     ahead: Option<Vec<f32>>,
+    /// Empty-space skipping at this iso value: iso slices are exact only near the surface
+    /// (`VolumeSource::read_slice_near`).
+    near: Option<f32>,
 }
 
 impl SliceReader {
@@ -250,12 +254,37 @@ impl SliceReader {
             next_z: 0,
             prev: None,
             ahead: None,
+            near: None,
         }
+    }
+
+    /// Reads iso slices exact only near the surface at `iso` (empty-space skipping). Ignored
+    /// when a gradient is derived: it needs the neighbours of every surface voxel.
+    pub(crate) fn skip_empty(mut self, iso: f32) -> Self {
+        if !self
+            .attributes
+            .iter()
+            .any(|a| matches!(a, Source::Gradient))
+        {
+            self.near = Some(iso);
+        }
+        self
+    }
+
+    /// Value bounds of slab z's blocks when the iso volume knows them without its voxels.
+    pub(crate) fn slab_bounds(
+        &mut self,
+        z: u64,
+    ) -> Result<Option<std::sync::Arc<isostream_volume::SlabBounds>>, RunError> {
+        Ok(self.iso.slab_bounds(z)?)
     }
 
     fn read_iso(&mut self, z: u64) -> Result<Vec<f32>, RunError> {
         let mut s = vec![0f32; self.grid.slice_len()];
-        self.iso.read_slice(z, &mut s)?;
+        match self.near {
+            Some(iso) => self.iso.read_slice_near(z, iso, &mut s)?,
+            None => self.iso.read_slice(z, &mut s)?,
+        }
         Ok(s)
     }
 

@@ -55,6 +55,9 @@ pub struct InputConfig {
     /// The array to read from a multi-array file (VTK), or the child array / OME-Zarr level
     /// (its `path`) of a Zarr group, by name.
     pub array: Option<String>,
+    /// See the volume at `k` times its resolution along each axis by trilinear interpolation
+    /// (dims `(n - 1) k + 1`, spacing / k), never materialised: `[kx, ky, kz]`, each >= 1.
+    pub upsample: Option<[u64; 3]>,
 }
 
 impl InputConfig {
@@ -77,6 +80,11 @@ impl InputConfig {
 pub struct ExtractConfig {
     /// The iso value. Voxels strictly above it are inside.
     pub iso: f64,
+    /// Empty-space skipping: blocks of cubes whose value bounds cannot cross `iso` are not
+    /// looked at (an upsampled input does not even compute their voxels). The output is the
+    /// same bytes either way; `false` is for comparisons.
+    #[serde(default = "yes")]
+    pub skip_empty: bool,
 }
 
 /// How the surface is simplified.
@@ -102,9 +110,8 @@ pub enum Mode {
 pub struct SimplifyConfig {
     #[serde(default)]
     pub mode: Mode,
-    /// R: output faces / input faces, in (0, 1].
-    #[serde(default = "default_rate")]
-    pub rate: f64,
+    /// R: output faces / input faces, in (0, 1] (default 0.2; exclusive with `[output] faces`).
+    pub rate: Option<f64>,
     /// B: faces extracted between two decimations.
     #[serde(default = "default_batch")]
     pub batch: u64,
@@ -148,9 +155,8 @@ fn default_lambda() -> f64 {
     0.5
 }
 
-fn default_rate() -> f64 {
-    0.2
-}
+/// R when neither `rate` nor `[output] faces` is given.
+const DEFAULT_RATE: f64 = 0.2;
 fn default_batch() -> u64 {
     10_000
 }
@@ -161,11 +167,18 @@ fn default_retire_lag() -> u32 {
     8
 }
 
+impl SimplifyConfig {
+    /// `rate`, or its default.
+    pub fn rate(&self) -> f64 {
+        self.rate.unwrap_or(DEFAULT_RATE)
+    }
+}
+
 impl Default for SimplifyConfig {
     fn default() -> Self {
         Self {
             mode: Mode::default(),
-            rate: default_rate(),
+            rate: None,
             batch: default_batch(),
             initial_rate: default_initial_rate(),
             retire_lag: default_retire_lag(),
@@ -191,6 +204,9 @@ pub struct OutputConfig {
     /// by default that is an error naming the data range, and nothing is written.
     #[serde(default)]
     pub allow_empty: bool,
+    /// Mode `rate`: aim at this many output faces instead of `[simplify] rate`; the rate is
+    /// then this over the extracted face count, which a first extraction pass counts.
+    pub faces: Option<u64>,
 }
 
 fn yes() -> bool {
@@ -460,6 +476,13 @@ impl JobConfig {
                 format!("{sp:?}"),
             ));
         }
+        if let Some(k) = i.upsample.filter(|k| k.contains(&0)) {
+            return Err(bad(
+                "input.upsample",
+                "three integers >= 1 ([kx, ky, kz]; 1 keeps an axis)",
+                format!("{k:?}"),
+            ));
+        }
         if let Some(o) = i.origin.filter(|o| o.iter().any(|s| !s.is_finite())) {
             return Err(bad("input.origin", "three finite values", format!("{o:?}")));
         }
@@ -471,12 +494,28 @@ impl JobConfig {
             ));
         }
         let s = &self.simplify;
-        if !(s.rate > 0.0 && s.rate <= 1.0) {
-            return Err(bad(
-                "simplify.rate",
-                "a value in (0, 1]",
-                s.rate.to_string(),
-            ));
+        if let Some(rate) = s.rate.filter(|r| !(*r > 0.0 && *r <= 1.0)) {
+            return Err(bad("simplify.rate", "a value in (0, 1]", rate.to_string()));
+        }
+        match (self.output.faces, s.rate, s.mode) {
+            (Some(0), _, _) => {
+                return Err(bad("output.faces", "at least 1 face", "0".into()));
+            }
+            (Some(_), Some(rate), _) => {
+                return Err(bad(
+                    "output.faces",
+                    "absent when [simplify] rate is given (one target: remove one of them)",
+                    format!("faces and rate = {rate}"),
+                ));
+            }
+            (Some(n), None, mode) if mode != Mode::Rate => {
+                return Err(bad(
+                    "output.faces",
+                    "used only with [simplify] mode = \"rate\" (remove it or change the mode)",
+                    format!("{n} with mode {mode:?}"),
+                ));
+            }
+            _ => {}
         }
         if !(s.initial_rate > 0.0 && s.initial_rate <= 1.0) {
             return Err(bad(
@@ -744,6 +783,52 @@ mod tests {
                 "{bad}: {e}"
             );
         }
+    }
+
+    #[test]
+    fn upsample_factors_are_checked() {
+        let text = MINIMAL.replace(
+            "size = [16, 16, 16]",
+            "size = [16, 16, 16]\nupsample = [2, 0, 1]",
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(
+            err.contains("input.upsample") && err.contains(">= 1"),
+            "{err}"
+        );
+        let text = MINIMAL.replace(
+            "size = [16, 16, 16]",
+            "size = [16, 16, 16]\nupsample = [2, -1, 1]",
+        );
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(err.contains("job.toml:5") && err.contains("u64"), "{err}");
+        let text = MINIMAL.replace(
+            "size = [16, 16, 16]",
+            "size = [16, 16, 16]\nupsample = [2, 3, 1]",
+        );
+        assert_eq!(parse(&text).unwrap().input.upsample, Some([2, 3, 1]));
+    }
+
+    #[test]
+    fn faces_and_rate_are_exclusive() {
+        let with = |extra: &str, simplify: &str| {
+            let text = MINIMAL.replace("[output]", &format!("{simplify}\n[output]\n{extra}"));
+            parse(&text)
+        };
+        let err = with("faces = 100", "[simplify]\nrate = 0.1")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("output.faces") && err.contains("rate"),
+            "{err}"
+        );
+        let err = with("faces = 0", "").unwrap_err().to_string();
+        assert!(err.contains("output.faces"), "{err}");
+        let err = with("faces = 10", "[simplify]\nmode = \"none\"")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("mode"), "{err}");
+        assert_eq!(with("faces = 10", "").unwrap().output.faces, Some(10));
     }
 
     #[test]

@@ -56,6 +56,16 @@ pub enum RunError {
         iso: f32,
         range: String,
     },
+    #[error(
+        "{}: this job could write up to {bound} vertices, past the {limit} that {what} hold (nothing was run): write .sma (64-bit indices), or lower the output with [output] faces or a lower [simplify] rate",
+        output.display()
+    )]
+    IndexLimit {
+        output: PathBuf,
+        bound: u64,
+        limit: u64,
+        what: &'static str,
+    },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,
     #[error(

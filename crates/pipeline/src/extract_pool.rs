@@ -16,7 +16,7 @@ use std::time::Instant;
 use crossbeam_channel::{Receiver, Sender, bounded};
 use isostream_extract::attributes::AttributeSlab;
 use isostream_extract::{CubeBatch, ExtractStats, Extractor};
-use isostream_volume::Grid;
+use isostream_volume::{Grid, SlabBounds};
 
 use crate::attributes::{SliceReader, Slices};
 use crate::checkpoint::{self, Cut};
@@ -39,6 +39,8 @@ pub(crate) struct SlabJob {
     z: u64,
     lower: Arc<Slices>,
     upper: Arc<Slices>,
+    /// The slab's value bounds when the volume knows them (an upsampled input).
+    bounds: Option<Arc<SlabBounds>>,
     reply: Sender<SlabBatches>,
 }
 
@@ -99,6 +101,11 @@ impl Schedule {
         }
     }
 
+    /// No checkpoint (the counting pass of `[output] faces`).
+    pub fn never() -> Self {
+        Self::new(None, 0, 0)
+    }
+
     fn due(&mut self, z: u64) -> bool {
         if z == self.first || z >= self.last {
             return false;
@@ -142,6 +149,7 @@ impl Step for ReadStep<'_> {
                 z: z - 1,
                 lower,
                 upper,
+                bounds: self.reader.slab_bounds(z - 1)?,
                 reply,
             };
             // `jobs` is unbounded: `order` (bounded) holds the reader back.
@@ -163,19 +171,33 @@ impl Step for ReadStep<'_> {
     }
 }
 
+/// Cubes per block along x and y when a stored volume's slab bounds come from its slices:
+/// small enough to fit around thin surfaces, large enough that a block's bookkeeping is small
+/// next to its 256 cubes.
+const STORED_BLOCK: [u64; 2] = [16, 16];
+
 /// One worker: extracts whole slabs and answers each on its job's reply channel.
 pub(crate) struct WorkStep {
     extractor: Extractor,
     batch_triangles: usize,
+    /// Empty-space skipping (`[extract] skip_empty`).
+    skip_empty: bool,
 }
 
 impl WorkStep {
     /// `stats`: the counters to start from (a resumed run's first worker carries those of the
     /// slabs done before the checkpoint, so that the workers' counters add up to the job's).
-    pub fn new(grid: Grid, iso: f32, batch_triangles: usize, stats: ExtractStats) -> Self {
+    pub fn new(
+        grid: Grid,
+        iso: f32,
+        batch_triangles: usize,
+        skip_empty: bool,
+        stats: ExtractStats,
+    ) -> Self {
         Self {
             extractor: Extractor::resume(grid, iso, stats),
             batch_triangles,
+            skip_empty,
         }
     }
 }
@@ -200,12 +222,24 @@ impl Step for WorkStep {
             .zip(&up.attrs)
             .map(|(l, u)| AttributeSlab { lower: l, upper: u })
             .collect();
+        let grid = self.extractor.grid();
+        let bounds = self.skip_empty.then(|| {
+            job.bounds.clone().unwrap_or_else(|| {
+                Arc::new(SlabBounds::from_slices(
+                    &grid,
+                    STORED_BLOCK,
+                    &lo.iso,
+                    &up.iso,
+                ))
+            })
+        });
         let mut batches = Vec::new();
         let Ok(()) = self.extractor.extract_slab_with_attributes(
             job.z,
             &lo.iso,
             &up.iso,
             &attrs,
+            bounds.as_deref(),
             self.batch_triangles,
             |b| {
                 batches.push(b);

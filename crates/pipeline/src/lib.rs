@@ -12,6 +12,7 @@ mod config;
 mod error;
 mod extract_pool;
 mod flow;
+mod index_limit;
 mod monitor;
 mod output;
 mod range;
@@ -53,8 +54,10 @@ pub struct RunSummary {
     pub mode: Mode,
     pub output: PathBuf,
     pub faces_extracted: u64,
-    /// Mode `rate`: `round(rate x faces_extracted)`.
+    /// Mode `rate`: `[output] faces`, else `round(rate x faces_extracted)`.
     pub target_faces: Option<u64>,
+    /// Mode `rate`: the rate used (`[output] faces` over the extracted faces when faces is set).
+    pub rate: Option<f64>,
     pub faces_written: u64,
     pub vertices_written: u64,
     pub seconds: f64,
@@ -173,7 +176,16 @@ fn run_job(
         warn!(input = %input, "the input's encoding forces decoding the whole volume at once (one chunk spans every slice): memory grows with the volume; re-chunk it along z");
     }
 
-    let config = simplifier_config(job, grid);
+    let rate = job.simplify.rate();
+    index_limit::check(
+        job,
+        index_limit::vertex_bound(job, grid.voxel_count(), rate),
+    )?;
+    let rate = match job.output.faces {
+        Some(faces) => rate_for_faces(job, faces, cancel)?,
+        None => rate,
+    };
+    let config = simplifier_config(job, grid, rate);
     let mut simplifier = Simplifier::new(config.clone()).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
             path: job_path.to_path_buf(),
@@ -247,6 +259,10 @@ fn run_job(
         }
         _ => (sink::Sink::create(&job.output.path, &header)?, None),
     };
+    let mut reader = SliceReader::new(source, attribute_sources);
+    if job.extract.skip_empty {
+        reader = reader.skip_empty(job.extract.iso as f32);
+    }
     let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
     let observe = |p: &Progress| monitor.observe(p);
     let resumed_at_slab = resume.as_ref().map(|r| r.reader.z);
@@ -256,7 +272,6 @@ fn run_job(
         job: checkpoint::job_hash(job),
         input,
     });
-    let mut reader = SliceReader::new(source, attribute_sources);
     if let Some(r) = &resume {
         // The checkpoint's carried slice is read again (and checked against its hash).
         reader.seek(r.reader.z)?;
@@ -270,6 +285,7 @@ fn run_job(
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
         threads: job.pipeline.threads(),
+        skip_empty: job.extract.skip_empty,
         allow_empty: job.output.allow_empty,
         cancel,
         observer: &observe,
@@ -282,8 +298,11 @@ fn run_job(
     checkpoint::remove(ckpt_path)?;
 
     let sink_stats = outputs.sink;
-    let target_faces = (job.simplify.mode == Mode::Rate)
-        .then(|| (job.simplify.rate * outputs.extract.triangles as f64).round() as u64);
+    let target_faces = (job.simplify.mode == Mode::Rate).then(|| {
+        job.output
+            .faces
+            .unwrap_or_else(|| (rate * outputs.extract.triangles as f64).round() as u64)
+    });
     let warnings: Vec<String> = target_faces
         .and_then(|target| rate_missed(target, sink_stats.triangles, &outputs.simplify))
         .into_iter()
@@ -300,6 +319,7 @@ fn run_job(
         output: job.output.path.clone(),
         faces_extracted: outputs.extract.triangles,
         target_faces,
+        rate: (job.simplify.mode == Mode::Rate).then_some(rate),
         faces_written: sink_stats.triangles,
         vertices_written: sink_stats.vertices,
         seconds: started.elapsed().as_secs_f64(),
@@ -321,9 +341,41 @@ fn run_job(
     Ok(summary)
 }
 
+/// `[output] faces`: the rate that gives that many faces, from the extracted face count, which a
+/// first extraction pass (parallel, empty space skipped, nothing kept) counts. At most 1.
+fn rate_for_faces(job: &JobConfig, faces: u64, cancel: &AtomicBool) -> Result<f64, RunError> {
+    let started = Instant::now();
+    let iso = job.extract.iso as f32;
+    let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new());
+    if job.extract.skip_empty {
+        reader = reader.skip_empty(iso);
+    }
+    let counted = stages::Extraction {
+        reader,
+        iso,
+        batch_triangles: job.pipeline.batch_triangles,
+        threads: job.pipeline.threads(),
+        skip_empty: job.extract.skip_empty,
+        first: 0,
+        schedule: extract_pool::Schedule::never(),
+        carried: None,
+        stats: Default::default(),
+    }
+    .count(cancel)?;
+    let rate = (faces as f64 / counted.triangles.max(1) as f64).min(1.0);
+    info!(
+        faces,
+        extracted = counted.triangles,
+        rate,
+        seconds = started.elapsed().as_secs_f64(),
+        "counting pass for output.faces"
+    );
+    Ok(rate)
+}
+
 /// The simplifier's whole configuration: policy, priority, budget, attributes, and the sweep
 /// along z (marching cubes' slabs), in-core for `classical`.
-fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid) -> SimplifierConfig {
+fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -> SimplifierConfig {
     let s = &job.simplify;
     SimplifierConfig {
         priority: attributes::priority(job),
@@ -336,7 +388,7 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid) -> Simplifie
         policy: match s.mode {
             Mode::None => Policy::None,
             Mode::Rate => Policy::Rate {
-                rate: s.rate,
+                rate,
                 batch: s.batch,
                 initial_rate: s.initial_rate,
             },

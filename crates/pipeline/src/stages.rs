@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use crossbeam_channel::{Receiver, bounded, unbounded};
+use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
@@ -66,6 +66,8 @@ pub(crate) struct Stages<'a> {
     pub batch_triangles: usize,
     /// Extraction workers (`[pipeline] threads`, at least 1).
     pub threads: usize,
+    /// Empty-space skipping (`[extract] skip_empty`).
+    pub skip_empty: bool,
     /// Accept a surface without any triangle (`[output] allow_empty`); else it is an error.
     pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
@@ -103,6 +105,7 @@ impl Stages<'_> {
             capacity,
             batch_triangles,
             threads,
+            skip_empty,
             allow_empty,
             cancel,
             observer,
@@ -113,7 +116,7 @@ impl Stages<'_> {
         let first = resume.as_ref().map_or(0, |r| r.reader.z);
         let schedule = Schedule::new(checkpoints.as_ref().map(|p| p.every), first, grid.dims[2]);
         let carried = resume.as_ref().map(|r| r.reader.carried);
-        let (range, mut extract_stats, detector) = match resume {
+        let (range, extract_before, detector) = match resume {
             Some(r) => (r.reader.range, r.extract, r.detector),
             None => (
                 DataRange::default(),
@@ -121,12 +124,10 @@ impl Stages<'_> {
                 Detector::new(grid.dims),
             ),
         };
-        let extract_before = extract_stats;
         let threads = threads.max(1);
-        let (job_tx, job_rx) = unbounded();
-        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
         let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
+        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
         let depth = Depths {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
@@ -137,29 +138,19 @@ impl Stages<'_> {
         let ctl = &ctl;
         ctl.add_range(&range);
 
+        let extraction = Extraction {
+            reader,
+            iso,
+            batch_triangles,
+            threads,
+            skip_empty,
+            first,
+            schedule,
+            carried,
+            stats: extract_before,
+        };
         std::thread::scope(|s| {
-            let read = s.spawn(move || {
-                let step = ReadStep::new(reader, job_tx, threads, ctl, schedule, carried);
-                run(
-                    "read",
-                    ctl,
-                    step,
-                    first..grid.dims[2],
-                    Outbox::new(ctl, order_tx),
-                )
-            });
-            let workers: Vec<_> = (0..threads)
-                .map(|_| {
-                    let jobs = job_rx.clone();
-                    // The counters before the checkpoint go to the first worker.
-                    let stats = std::mem::take(&mut extract_stats);
-                    s.spawn(move || {
-                        let step = WorkStep::new(grid, iso, batch_triangles, stats);
-                        run("extract", ctl, step, jobs, Outbox::none(ctl))
-                    })
-                })
-                .collect();
-            drop(job_rx);
+            let (read, workers) = extraction.spawn(s, order_tx, ctl);
             let detect = s.spawn(move || {
                 let step = DetectStep {
                     detector,
@@ -200,16 +191,7 @@ impl Stages<'_> {
             // Join every stage. The first failure recorded (in time, whichever stage) is the
             // cause; a panic counts as a failure of its stage.
             let read = join(read, "read");
-            let mut extract = Ok((0.0, ExtractStats::default()));
-            for w in workers {
-                extract = match (extract, join(w, "extract")) {
-                    (Ok((s, mut st)), Ok((ws, wst))) => {
-                        st += wst;
-                        Ok((s + ws, st))
-                    }
-                    (Err(e), _) | (_, Err(e)) => Err(e),
-                };
-            }
+            let extract = join_workers(workers);
             let detect = join(detect, "detect");
             let simplify = join(simplify, "simplify");
             let write = join(write, "write");
@@ -247,6 +229,127 @@ impl Stages<'_> {
             }
         })
     }
+}
+
+/// The front half of a run, shared with the counting pass of `[output] faces`: the reader and the
+/// extraction pool, answering slabs in order on `order`.
+pub(crate) struct Extraction {
+    /// At slice `first`.
+    pub reader: SliceReader,
+    pub iso: f32,
+    pub batch_triangles: usize,
+    /// Workers, at least 1.
+    pub threads: usize,
+    pub skip_empty: bool,
+    /// The first slice to read: 0, or a resumed run's carried slice.
+    pub first: u64,
+    /// When to send the checkpoint marker.
+    pub schedule: Schedule,
+    /// Resuming: the hash slice `first` must have.
+    pub carried: Option<u64>,
+    /// The counters of the slabs before `first`.
+    pub stats: ExtractStats,
+}
+
+type Handle<'s, T> = std::thread::ScopedJoinHandle<'s, StageResult<T>>;
+/// The reader's handle and the workers' (busy seconds and counters each).
+type ExtractionHandles<'s> = (Handle<'s, (f64, ())>, Vec<Handle<'s, (f64, ExtractStats)>>);
+
+impl Extraction {
+    /// Spawns the reader and the workers; the slabs' batches come back in order on `order`.
+    fn spawn<'s, 'e: 's>(
+        self,
+        s: &'s std::thread::Scope<'s, 'e>,
+        order: Sender<Msg<Receiver<SlabBatches>>>,
+        ctl: &'e Control<'e>,
+    ) -> ExtractionHandles<'s> {
+        let Extraction {
+            reader,
+            iso,
+            batch_triangles,
+            threads,
+            skip_empty,
+            first,
+            schedule,
+            carried,
+            mut stats,
+        } = self;
+        let grid = reader.grid();
+        let threads = threads.max(1);
+        let (job_tx, job_rx) = unbounded();
+        let read = s.spawn(move || {
+            let step = ReadStep::new(reader, job_tx, threads, ctl, schedule, carried);
+            let slices = first..grid.dims[2];
+            run("read", ctl, step, slices, Outbox::new(ctl, order))
+        });
+        let workers = (0..threads)
+            .map(|_| {
+                let jobs = job_rx.clone();
+                // The counters before `first` go to the first worker.
+                let stats = std::mem::take(&mut stats);
+                s.spawn(move || {
+                    let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, stats);
+                    run("extract", ctl, step, jobs, Outbox::none(ctl))
+                })
+            })
+            .collect();
+        (read, workers)
+    }
+
+    /// Extracts the whole volume only to count its triangles (`[output] faces` needs the
+    /// extracted face count before simplifying starts).
+    pub fn count(self, cancel: &AtomicBool) -> Result<ExtractStats, RunError> {
+        let ctl = Control::new(cancel);
+        let ctl = &ctl;
+        let (order_tx, order_rx) = bounded(self.threads.max(1));
+        std::thread::scope(|s| {
+            let (read, workers) = self.spawn(s, order_tx, ctl);
+            let drain = run(
+                "count",
+                ctl,
+                Drain,
+                Ordered::new(order_rx, ExtractStats::default(), DataRange::default()),
+                Outbox::none(ctl),
+            );
+            let read = join(read, "read");
+            match (read, join_workers(workers), drain) {
+                (Ok(_), Ok((_, stats)), Ok(_)) => Ok(stats),
+                (read, extract, drain) => Err(ctl.take_first().unwrap_or_else(|| {
+                    first_failure([read.err(), extract.err(), drain.err(), None, None])
+                })),
+            }
+        })
+    }
+}
+
+/// Drops what it gets (the counting pass only needs the extractors' counters).
+struct Drain;
+
+impl Step for Drain {
+    type In = CubeBatch;
+    type Out = Infallible;
+    type Done = ();
+    fn batch(&mut self, _: CubeBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        Ok(())
+    }
+    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        Ok(())
+    }
+}
+
+/// Joins the workers: their busy seconds and counters added up.
+fn join_workers(workers: Vec<Handle<'_, (f64, ExtractStats)>>) -> StageResult<(f64, ExtractStats)> {
+    let mut total = Ok((0.0, ExtractStats::default()));
+    for w in workers {
+        total = match (total, join(w, "extract")) {
+            (Ok((s, mut st)), Ok((ws, wst))) => {
+                st += wst;
+                Ok((s + ws, st))
+            }
+            (Err(e), _) | (_, Err(e)) => Err(e),
+        };
+    }
+    total
 }
 
 fn first_failure(stops: [Option<Stop>; 5]) -> RunError {

@@ -76,7 +76,8 @@ fn num(v: &f64) -> String {
         format!("{v:.0}")
     } else {
         let digits = (2 - v.abs().log10().floor() as i32).clamp(0, 12) as usize;
-        format!("{v:.digits$}")
+        let text = format!("{v:.digits$}");
+        text.trim_end_matches('0').trim_end_matches('.').to_string()
     }
 }
 
@@ -392,7 +393,8 @@ mod tests {
     #[test]
     fn axis_numbers_are_short() {
         assert_eq!(num(&45000.0), "45000");
-        assert_eq!(num(&2.5), "2.50");
+        assert_eq!(num(&2.5), "2.5");
+        assert_eq!(num(&0.05), "0.05");
         assert_eq!(num(&0.012345), "0.0123");
         assert_eq!(num(&150.25), "150");
     }

@@ -50,6 +50,7 @@ pub(crate) fn router(state: AppState) -> Router {
         .route("/jobs/{id}/events", get(events))
         .route("/jobs/{id}/output", get(output))
         .route("/jobs/{id}/report", get(report))
+        .route("/jobs/{id}/log", get(log))
         .layer(DefaultBodyLimit::max(MAX_BODY))
         // Outermost: the token is checked before a body is read.
         .layer(middleware::from_fn_with_state(state.clone(), guard))
@@ -226,6 +227,17 @@ async fn report(State(s): State<AppState>, Path(id): Path<String>) -> Result<Res
     .map_err(|e| ApiError::internal(e.to_string()))?
     .map_err(|e| ApiError::internal(format!("cannot make the report: {e}")))?;
     Ok(Html(page).into_response())
+}
+
+/// The job's log lines (every attempt's), as plain text; empty until its first run.
+async fn log(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+    s.queue.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
+    let text = match tokio::fs::read(s.queue.job_dir(&id).join(crate::joblog::LOG_FILE)).await {
+        Ok(bytes) => bytes,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Vec::new(),
+        Err(e) => return Err(ApiError::internal(format!("cannot read the log: {e}"))),
+    };
+    Ok(([(header::CONTENT_TYPE, "text/plain; charset=utf-8")], text).into_response())
 }
 
 /// The mesh, streamed from its file (it may be far larger than memory).

@@ -14,6 +14,7 @@ mod admission;
 mod config;
 mod error;
 mod http;
+mod joblog;
 mod metrics;
 mod queue;
 mod store;
@@ -27,6 +28,7 @@ use tracing::info;
 
 pub use config::ServeFile;
 pub use error::ServiceError;
+pub use joblog::JobLogLayer;
 
 /// How `isostream serve` was started (the command line, already parsed).
 #[derive(Debug, Clone)]

@@ -25,6 +25,7 @@ fn label(key: &str, value: &str) -> Labels {
 pub(crate) struct Metrics {
     registry: Registry,
     jobs: Family<Labels, Gauge>,
+    voxels: Counter,
     faces_in: Counter,
     faces_out: Counter,
     resident_faces: Gauge,
@@ -45,6 +46,7 @@ impl Metrics {
         let m = Metrics {
             registry: Registry::default(),
             jobs: Family::default(),
+            voxels: Counter::default(),
             faces_in: Counter::default(),
             faces_out: Counter::default(),
             resident_faces: Gauge::default(),
@@ -53,6 +55,11 @@ impl Metrics {
             errors: Family::default(),
         };
         registry.register("jobs", "Jobs by state", m.jobs.clone());
+        registry.register(
+            "voxels",
+            "Voxels swept by finished runs (counted when a run ends)",
+            m.voxels.clone(),
+        );
         registry.register(
             "faces_in",
             "Faces extracted by marching cubes, all runs",
@@ -89,6 +96,10 @@ impl Metrics {
     pub fn faces(&self, more_in: u64, more_out: u64) {
         self.faces_in.inc_by(more_in);
         self.faces_out.inc_by(more_out);
+    }
+
+    pub fn voxels(&self, n: u64) {
+        self.voxels.inc_by(n);
     }
 
     pub fn stage_seconds(&self, s: &StageSeconds) {
@@ -134,6 +145,7 @@ mod tests {
     fn text_names_every_family() {
         let m = Metrics::new();
         m.faces(10, 2);
+        m.voxels(4096);
         m.error("bad_job");
         m.stage_seconds(&StageSeconds::default());
         let text = m.render(&Snapshot {
@@ -143,6 +155,7 @@ mod tests {
         for needle in [
             "isostream_jobs{state=\"queued\"} 0",
             "isostream_faces_in_total 10",
+            "isostream_voxels_total 4096",
             "isostream_faces_out_total 2",
             "isostream_resident_faces 5",
             "isostream_peak_rss_bytes",

@@ -400,6 +400,7 @@ impl Queue {
         match outcome {
             Ok(summary) => {
                 self.metrics.stage_seconds(&summary.stage_seconds);
+                self.metrics.voxels(summary.voxels);
                 job.record.state = JobState::Done;
                 job.record.summary = summary_without_series(&summary);
                 job.progress.resident_faces = 0;
@@ -491,6 +492,7 @@ fn run_error_kind(e: &RunError) -> &'static str {
         | RunError::Lock { .. } => "run_output",
         RunError::EmptySurface { .. } => "run_empty_surface",
         RunError::ClassicalOverBudget { .. } => "run_over_budget",
+        RunError::IndexLimit { .. } => "run_index_limit",
         RunError::Cancelled | RunError::Interrupted { .. } => "run_cancelled",
         RunError::CheckpointFound { .. }
         | RunError::Checkpoint { .. }

@@ -16,7 +16,9 @@
 //!
 //! No reader decodes a whole array up front ([`VolumeSource::loads_whole_volume`] is false for
 //! all of them). [`Procedural`] shapes are computed per slice; [`MemoryVolume`] holds everything
-//! and is meant for tests and small inputs. Errors are [`VolumeError`] values whose message is one
+//! and is meant for tests and small inputs. [`Upsampled`] sees any source through trilinear
+//! interpolation at a higher resolution without materialising it, and knows the value bounds of
+//! its cells ([`SlabBounds`], for empty-space skipping). Errors are [`VolumeError`] values whose message is one
 //! line naming the file, where in it the problem is, and what was expected.
 //!
 //! ```
@@ -29,6 +31,7 @@
 //! ```
 #![deny(unsafe_code)]
 
+mod bounds;
 mod codec;
 mod dtype;
 mod error;
@@ -49,11 +52,13 @@ mod stream;
 #[cfg(test)]
 mod testutil;
 mod tiff;
+mod upsample;
 mod vti;
 mod vtk;
 mod xml;
 mod zarr;
 
+pub use bounds::SlabBounds;
 pub use dtype::{Dtype, Endian};
 pub use error::VolumeError;
 pub use grid::Grid;
@@ -63,3 +68,4 @@ pub use options::OpenOptions;
 pub use procedural::{Procedural, Shape};
 pub use raw::{RawSpec, RawVolume};
 pub use source::VolumeSource;
+pub use upsample::Upsampled;

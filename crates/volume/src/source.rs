@@ -1,6 +1,8 @@
 //! The slice-streaming contract between volume readers and the extractor.
 
-use crate::{Dtype, Grid, VolumeError};
+use std::sync::Arc;
+
+use crate::{Dtype, Grid, SlabBounds, VolumeError};
 
 /// A volume read slice by slice in increasing z. Implementations never hold the whole volume
 /// (an encoding that forces it says so in its docs), because the memory bound of the whole
@@ -22,6 +24,20 @@ pub trait VolumeSource: Send {
     fn loads_whole_volume(&self) -> bool {
         false
     }
+    /// Value bounds per block of cubes of slab z (between slices z and z + 1) when the source
+    /// knows them without computing the voxels (a virtual source such as
+    /// [`crate::Upsampled`]); `None` (the default) when only the voxels can tell, and the
+    /// caller computes them from the slices ([`SlabBounds::from_slices`]).
+    fn slab_bounds(&mut self, _z: u64) -> Result<Option<Arc<SlabBounds>>, VolumeError> {
+        Ok(None)
+    }
+    /// Slice z for extraction at `iso`: exact wherever a cube of slab z - 1 or z may cross
+    /// `iso` (by [`Self::slab_bounds`]), elsewhere any value on the same side of `iso` as the
+    /// exact one, so the same cubes are empty and the same triangles come out. A virtual source
+    /// skips computing those voxels; the default reads the exact slice.
+    fn read_slice_near(&mut self, z: u64, _iso: f32, out: &mut [f32]) -> Result<(), VolumeError> {
+        self.read_slice(z, out)
+    }
 }
 
 /// Lets pipelines hold `Box<dyn VolumeSource>` wherever a source is expected.
@@ -40,6 +56,12 @@ impl VolumeSource for Box<dyn VolumeSource> {
     }
     fn loads_whole_volume(&self) -> bool {
         (**self).loads_whole_volume()
+    }
+    fn slab_bounds(&mut self, z: u64) -> Result<Option<Arc<SlabBounds>>, VolumeError> {
+        (**self).slab_bounds(z)
+    }
+    fn read_slice_near(&mut self, z: u64, iso: f32, out: &mut [f32]) -> Result<(), VolumeError> {
+        (**self).read_slice_near(z, iso, out)
     }
 }
 
