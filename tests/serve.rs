@@ -598,8 +598,12 @@ fn a_job_killed_with_the_service_resumes_from_its_checkpoint() {
     let id = {
         let s = Server::start(&state, &[]);
         let id = submit(&s, &job_text);
+        let job_dir = state.join("jobs").join(&id);
+        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
         wait_for(&s, &id, "past a few checkpoints", |v| {
-            v["state"] == "running" && v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 30
+            v["state"] == "running"
+                && v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 30
+                && saved()
         });
         // Drop sends SIGKILL: no chance to clean up.
         drop(s);
