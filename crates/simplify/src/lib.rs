@@ -388,7 +388,9 @@ impl Simplifier {
         if self.store.vertex(id).is_none_or(|v| v.modifiable) {
             return;
         }
-        let boundary = topology::on_boundary(&self.store, id);
+        // One ring for the boundary test and the new candidates: nothing changes it between.
+        let ring = topology::ring(&self.store, id);
+        let boundary = topology::is_boundary(&ring);
         let Some(v) = self.store.vertex_mut(id) else {
             return;
         };
@@ -402,7 +404,7 @@ impl Simplifier {
                 self.stats.faces_unmodifiable -= 1;
             }
         }
-        self.push_edges(id);
+        self.push_ring_edges(id, &ring, |_| true);
     }
 
     /// After each batch: decimate as the policy says, retire what is behind the front, append
