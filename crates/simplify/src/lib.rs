@@ -345,10 +345,13 @@ impl Simplifier {
                 unmodifiable += u8::from(!x.modifiable);
             }
         }
+        // Without an objective (policy `none`) nothing is ever contracted: no quadric, no
+        // obstacle for the guard (half of a pass-through run's time went into them).
+        let contracting = self.objective.is_some();
         let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
         let cross = (p[1] - p[0]).cross(p[2] - p[0]);
         let len = cross.length();
-        if len > 0.0 {
+        if contracting && len > 0.0 {
             let n = cross / len;
             let area = 0.5 * len;
             let q = Quadric::plane(n, -n.dot(p[0]), area);
@@ -359,9 +362,11 @@ impl Simplifier {
                 }
             }
         }
-        self.add_attribute_quadric(v);
         let t = self.store.add_triangle(Tri { v, unmodifiable });
-        self.isect.insert(t, v, p);
+        if contracting {
+            self.add_attribute_quadric(v);
+            self.isect.insert(t, v, p);
+        }
         self.stats.faces_in += 1;
         self.stats.faces_unmodifiable += usize::from(unmodifiable > 0);
         self.note_resident();
@@ -409,8 +414,13 @@ impl Simplifier {
         if self.store.vertex(id).is_none_or(|v| v.modifiable) {
             return;
         }
-        // One ring for the boundary test and the new candidates: nothing changes it between.
-        let ring = topology::ring(&self.store, id);
+        // One ring for the boundary test and the new candidates: nothing changes it between
+        // (and neither is needed when nothing is contracted).
+        let ring = if self.objective.is_some() {
+            topology::ring(&self.store, id)
+        } else {
+            topology::Ring::new()
+        };
         let boundary = topology::is_boundary(&ring);
         let Some(v) = self.store.vertex_mut(id) else {
             return;
