@@ -58,14 +58,14 @@ const UNFILED: u8 = u8::MAX;
 
 type Cell = [i32; 3];
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Rec {
     v: [u64; 3],
     p: [Vec3; 3],
 }
 
 /// An axis-aligned box in `f32` (exact for `f32` corners).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Aabb {
     lo: Vec3,
     hi: Vec3,
@@ -102,7 +102,7 @@ impl Aabb {
 
 /// A record's entry in a cell: its box inline, so a query scans cells contiguously and fetches
 /// the corners only of the records whose box overlaps the fan.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Entry {
     r: u32,
     bx: Aabb,
@@ -111,7 +111,7 @@ struct Entry {
 }
 
 /// Where a record is filed: its level, cell range and place in the level's record list.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Filed {
     level: u8,
     lo: Cell,
@@ -126,7 +126,7 @@ const NOT_FILED: Filed = Filed {
     slot: 0,
 };
 
-#[derive(Debug, Default)]
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct TriIndex {
     /// Level-0 cell edge; 0 until fixed.
     cell: f64,
