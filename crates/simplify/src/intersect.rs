@@ -26,8 +26,9 @@
 //! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict `f64` orientation signs:
 //!   triangles with no common vertex cross when an edge of one crosses the other; with one common
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
-//!   `topology::geometry_ok`'s). The new fan is also tested against itself (its triangles share
-//!   the new vertex).
+//!   `topology::geometry_ok`'s). The new fan is also checked against itself (its triangles share
+//!   the new vertex): first by a proof that its star is embedded (`star`), which covers every
+//!   pair at once and almost always holds, then, when it does not, pair by pair.
 
 use std::collections::VecDeque;
 
