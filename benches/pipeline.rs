@@ -5,6 +5,9 @@
 //! * `simplify/gyroid64_rate0.2`: `Simplifier` fed with the extractor + detector output of a 64^3
 //!   gyroid (117k triangles), recorded before timing, Hou and Chen's rate policy at R = 0.2
 //!   (throughput in input triangles; 64^3 keeps 10 samples near 10 s at ~100k faces/s);
+//! * `simplify/bonsai_rate0.2`: the same on the delta stream of bonsai (1.1 M faces, from
+//!   `../shared/data`, iso 40), the reference surface; only when the file is present and
+//!   only when benchmarking (`cargo test` runs each bench once, and this one takes seconds);
 //! * `pipeline/sphere128_rate0.1`: a whole `isostream_pipeline::run` (five threads, SMB written to
 //!   a temporary folder) on a 128^3 procedural sphere.
 //!
@@ -43,8 +46,8 @@ fn slices(shape: Shape, n: u64) -> (Grid, Vec<Vec<f32>>) {
 }
 
 /// Runs the extractor over every slab, handing each batch to `sink`; returns the triangle count.
-fn extract_all(grid: Grid, slices: &[Vec<f32>], mut sink: impl FnMut(CubeBatch)) -> u64 {
-    let mut extractor = Extractor::new(grid, 0.0);
+fn extract_all(grid: Grid, slices: &[Vec<f32>], iso: f32, mut sink: impl FnMut(CubeBatch)) -> u64 {
+    let mut extractor = Extractor::new(grid, iso);
     let mut triangles = 0u64;
     for z in 0..slices.len() - 1 {
         extractor
@@ -66,20 +69,24 @@ fn extract_all(grid: Grid, slices: &[Vec<f32>], mut sink: impl FnMut(CubeBatch))
 
 fn extraction(c: &mut Criterion) {
     let (grid, slices) = slices(Shape::Gyroid, N);
-    let triangles = extract_all(grid, &slices, |_| {});
+    let triangles = extract_all(grid, &slices, 0.0, |_| {});
     let mut group = c.benchmark_group("extract");
     group.throughput(Throughput::Elements(triangles));
     group.bench_function("gyroid128", |b| {
-        b.iter(|| black_box(extract_all(grid, &slices, |batch| drop(black_box(batch)))))
+        b.iter(|| {
+            black_box(extract_all(grid, &slices, 0.0, |batch| {
+                drop(black_box(batch))
+            }))
+        })
     });
     group.finish();
 }
 
-fn simplification(c: &mut Criterion) {
-    let (grid, slices) = slices(Shape::Gyroid, N_SIMPLIFY);
+/// The detector's output over a whole volume, recorded once, and its triangle count.
+fn delta_stream(grid: Grid, slices: &[Vec<f32>], iso: f32) -> (Vec<MeshDelta>, u64) {
     let mut detector = Detector::new(grid.dims);
     let mut deltas = Vec::new();
-    let triangles = extract_all(grid, &slices, |batch| {
+    let triangles = extract_all(grid, slices, iso, |batch| {
         let mut delta = MeshDelta::default();
         detector.process(&batch, &mut delta);
         deltas.push(delta);
@@ -87,7 +94,11 @@ fn simplification(c: &mut Criterion) {
     if let Some(last) = deltas.last_mut() {
         detector.finish(last);
     }
-    drop(slices);
+    (deltas, triangles)
+}
+
+/// Feeds a recorded delta stream through a fresh simplifier at rate 0.2.
+fn simplify_stream(grid: Grid, deltas: &[MeshDelta]) -> isostream_simplify::SimplifyStats {
     let config = SimplifyConfig {
         sweep: Some(Sweep {
             direction: glam::DVec3::Z,
@@ -100,33 +111,60 @@ fn simplification(c: &mut Criterion) {
             initial_rate: 0.5,
         })
     };
+    let mut simplifier = Simplifier::new(config).unwrap();
+    let mut out = OutBatch::default();
+    for (i, delta) in deltas.iter().enumerate() {
+        for v in &delta.vertices {
+            simplifier.add_vertex(v.id, v.pos, v.rank, &[]);
+        }
+        for &t in &delta.triangles {
+            simplifier.add_triangle(t);
+        }
+        for &id in &delta.modifiable {
+            simplifier.set_modifiable(id);
+        }
+        if i + 1 == deltas.len() {
+            simplifier.finish(&mut out);
+        } else {
+            simplifier.end_batch(delta.front, &mut out);
+        }
+        out.elements.clear();
+        out.attrs.clear();
+    }
+    simplifier.stats()
+}
+
+fn simplification(c: &mut Criterion) {
+    let (grid, slices) = slices(Shape::Gyroid, N_SIMPLIFY);
+    let (deltas, triangles) = delta_stream(grid, &slices, 0.0);
+    drop(slices);
     let mut group = c.benchmark_group("simplify");
     group.throughput(Throughput::Elements(triangles));
     group.bench_function("gyroid64_rate0.2", |b| {
-        b.iter(|| {
-            let mut simplifier = Simplifier::new(config.clone()).unwrap();
-            let mut out = OutBatch::default();
-            for (i, delta) in deltas.iter().enumerate() {
-                for v in &delta.vertices {
-                    simplifier.add_vertex(v.id, v.pos, v.rank, &[]);
-                }
-                for &t in &delta.triangles {
-                    simplifier.add_triangle(t);
-                }
-                for &id in &delta.modifiable {
-                    simplifier.set_modifiable(id);
-                }
-                if i + 1 == deltas.len() {
-                    simplifier.finish(&mut out);
-                } else {
-                    simplifier.end_batch(delta.front, &mut out);
-                }
-                out.elements.clear();
-                out.attrs.clear();
-            }
-            black_box(simplifier.stats())
-        })
+        b.iter(|| black_box(simplify_stream(grid, &deltas)))
     });
+    let bonsai = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bonsai/bonsai.vti");
+    let benchmarking = std::env::args().any(|a| a == "--bench");
+    if benchmarking && bonsai.is_file() {
+        let mut source =
+            isostream_volume::open_path(&bonsai, &isostream_volume::OpenOptions::default())
+                .unwrap();
+        let grid = source.grid();
+        let slices: Vec<Vec<f32>> = (0..grid.dims[2])
+            .map(|z| {
+                let mut s = vec![0.0f32; grid.slice_len()];
+                source.read_slice(z, &mut s).unwrap();
+                s
+            })
+            .collect();
+        let (deltas, triangles) = delta_stream(grid, &slices, 40.0);
+        drop(slices);
+        group.throughput(Throughput::Elements(triangles));
+        group.sample_size(10);
+        group.bench_function("bonsai_rate0.2", |b| {
+            b.iter(|| black_box(simplify_stream(grid, &deltas)))
+        });
+    }
     group.finish();
 }
 

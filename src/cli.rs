@@ -25,6 +25,13 @@ pub enum Command {
         /// (`.NAME.XXXXXX.tmp`); without it they are only reported.
         #[arg(long)]
         clean_stale: bool,
+        /// Continue from the checkpoint an interrupted run of this job left (after checking that
+        /// the job and the input did not change); without a checkpoint, start from the beginning.
+        #[arg(long, conflicts_with = "restart")]
+        resume: bool,
+        /// Throw away the checkpoint an interrupted run left and start from the beginning.
+        #[arg(long)]
+        restart: bool,
     },
     /// Check a job file (keys, values, input file, output folder) without running it.
     Validate { job: PathBuf },
@@ -85,7 +92,16 @@ impl Command {
                 job,
                 quiet,
                 clean_stale,
-            } => crate::run_cmd::run(&job, quiet, clean_stale),
+                resume,
+                restart,
+            } => {
+                let start = match (resume, restart) {
+                    (true, _) => isostream_pipeline::Start::Resume,
+                    (_, true) => isostream_pipeline::Start::Restart,
+                    _ => isostream_pipeline::Start::Fresh,
+                };
+                crate::run_cmd::run(&job, quiet, clean_stale, start)
+            }
             Command::Validate { job } => crate::run_cmd::validate(&job),
             Command::Convert {
                 input,

@@ -44,7 +44,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
     for cause in err.chain() {
         if let Some(run) = cause.downcast_ref::<RunError>() {
             return match run {
-                RunError::Cancelled => 130,
+                RunError::Cancelled | RunError::Interrupted { .. } => 130,
                 RunError::Config(_)
                 | RunError::Volume(_)
                 | RunError::EmptySurface { .. }

@@ -31,12 +31,18 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(job_path: &Path, quiet: bool, clean_stale: bool) -> anyhow::Result<()> {
+pub fn run(
+    job_path: &Path,
+    quiet: bool,
+    clean_stale: bool,
+    start: isostream_pipeline::Start,
+) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
     crate::logging::init(&job.log, None);
 
     // Ctrl-C, SIGTERM and SIGHUP (ctrlc's `termination` feature) all stop the run the same way:
-    // every stage stops, the temporary file is removed, exit code 130.
+    // every stage stops, the temporary file is removed (kept, with the checkpoint, once a
+    // checkpoint was saved: `--resume` continues), exit code 130.
     let cancel = Arc::new(AtomicBool::new(false));
     {
         let cancel = Arc::clone(&cancel);
@@ -56,7 +62,7 @@ pub fn run(job_path: &Path, quiet: bool, clean_stale: bool) -> anyhow::Result<()
             crate::progress::update(bar, p);
         }
     };
-    let summary = isostream_pipeline::run(&job, job_path, &cancel, &observer);
+    let summary = isostream_pipeline::run_from(&job, job_path, start, &cancel, &observer);
     if let Some(bar) = &bar {
         crate::progress::finish(bar);
     }

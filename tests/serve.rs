@@ -562,20 +562,73 @@ fn a_job_killed_with_the_service_restarts_and_gives_the_same_bytes() {
     wait_for(&s, &third, "done after a restart", |v| v["state"] == "done");
     let served = output_bytes(&s, &id);
 
-    // The same job run directly.
-    let job_file = dir.path().join("direct.toml");
-    std::fs::write(&job_file, &job_text).unwrap();
+    assert_same_as_a_direct_run(dir.path(), &job_text, "gyroid.smb", &served);
+}
+
+/// Runs `job_text` with `isostream run` in `dir` and compares its output `name` with `served`.
+fn assert_same_as_a_direct_run(dir: &Path, job_text: &str, name: &str, served: &[u8]) {
+    let job_file = dir.join("direct.toml");
+    std::fs::write(&job_file, job_text).unwrap();
     let run = isostream(&["run", "--quiet", &job_file.to_string_lossy()]);
     assert!(
         run.status.success(),
         "{}",
         String::from_utf8_lossy(&run.stderr)
     );
-    let direct = std::fs::read(dir.path().join("gyroid.smb")).unwrap();
+    let direct = std::fs::read(dir.join(name)).unwrap();
     assert!(
         served == direct,
         "{} vs {} bytes",
         served.len(),
         direct.len()
     );
+}
+
+/// Issue 12 with issue 11: a job that saves checkpoints, killed with the service mid-run,
+/// continues from its last checkpoint on the next start (not from the beginning) and writes the
+/// same bytes as an uninterrupted run.
+#[test]
+fn a_job_killed_with_the_service_resumes_from_its_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let job_text = format!(
+        "{}\n[pipeline]\ncheckpoint = {{ every_slabs = 5 }}\n",
+        long_job("gyroid.ply")
+    );
+    let id = {
+        let s = Server::start(&state, &[]);
+        let id = submit(&s, &job_text);
+        let job_dir = state.join("jobs").join(&id);
+        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
+        wait_for(&s, &id, "past a few checkpoints", |v| {
+            v["state"] == "running"
+                && v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 30
+                && saved()
+        });
+        // Drop sends SIGKILL: no chance to clean up.
+        drop(s);
+        id
+    };
+    let job_dir = state.join("jobs").join(&id);
+    assert!(
+        files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt")),
+        "{:?}",
+        files_in(&job_dir)
+    );
+
+    let s = Server::start(&state, &[]);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+    assert_eq!(last["attempts"], 2);
+    let view = job(&s, &id);
+    let resumed = view["summary"]["resumed_at_slab"].as_u64();
+    assert!(resumed.is_some_and(|z| z >= 5), "{view}\n{}", s.log());
+    assert!(
+        !files_in(&job_dir).iter().any(|f| f.starts_with('.')),
+        "{:?}",
+        files_in(&job_dir)
+    );
+    let served = output_bytes(&s, &id);
+    // Without checkpoints: the bytes do not depend on them either.
+    assert_same_as_a_direct_run(dir.path(), &long_job("gyroid.ply"), "gyroid.ply", &served);
 }

@@ -58,7 +58,7 @@ impl MeshDelta {
 }
 
 /// Counters for the run summary.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct DetectStats {
     pub vertices: u64,
     pub triangles: u64,
@@ -68,6 +68,35 @@ pub struct DetectStats {
     /// the table is complete; kept as a diagnostic because a non-zero value means lost editing.
     pub released_at_end: u64,
 }
+
+/// A [`Detector`]'s complete state between two batches, for checkpoints: the front map (sorted
+/// by edge key, so equal states encode to equal bytes), the next id and the counters.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct DetectorState {
+    dims: [u64; 3],
+    front: Vec<(u64, u64)>,
+    next_id: u64,
+    stats: DetectStats,
+}
+
+/// A saved state that belongs to a volume of other dimensions.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DimsMismatch {
+    pub saved: [u64; 3],
+    pub volume: [u64; 3],
+}
+
+impl std::fmt::Display for DimsMismatch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the saved detector state is for a {:?} volume, not {:?}",
+            self.saved, self.volume
+        )
+    }
+}
+
+impl std::error::Error for DimsMismatch {}
 
 /// Streaming soup-to-indexed conversion with Table 1 modifiability.
 #[derive(Debug)]
@@ -87,6 +116,43 @@ impl Detector {
             next_id: 0,
             stats: DetectStats::default(),
         }
+    }
+
+    /// The state between two batches (see [`DetectorState`]).
+    pub fn snapshot(&self) -> DetectorState {
+        let mut front: Vec<(u64, u64)> = self.front.iter().map(|(k, &id)| (k.0, id)).collect();
+        front.sort_unstable();
+        DetectorState {
+            dims: self.dims,
+            front,
+            next_id: self.next_id,
+            stats: self.stats,
+        }
+    }
+
+    /// A detector continuing from `state` on a volume of `dims`. Lookups never depend on the
+    /// map's iteration order (the end-of-volume drain is sorted), so it behaves exactly as the
+    /// one that was saved.
+    ///
+    /// # Errors
+    /// `state` was saved for a volume of other dimensions.
+    pub fn restore(dims: [u64; 3], state: DetectorState) -> Result<Self, DimsMismatch> {
+        if state.dims != dims {
+            return Err(DimsMismatch {
+                saved: state.dims,
+                volume: dims,
+            });
+        }
+        Ok(Self {
+            dims,
+            front: state
+                .front
+                .into_iter()
+                .map(|(k, id)| (EdgeKey(k), id))
+                .collect(),
+            next_id: state.next_id,
+            stats: state.stats,
+        })
     }
 
     /// Converts one batch, appending to `out` (which the caller clears or reuses).

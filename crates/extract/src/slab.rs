@@ -109,7 +109,7 @@ impl CubeBatch {
 }
 
 /// Counters over everything extracted so far.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
 pub struct ExtractStats {
     /// Cubes of the slabs extracted (skipped ones included).
     pub cubes: u64,
@@ -121,6 +121,20 @@ pub struct ExtractStats {
     /// NaN or infinite voxels (treated as outside). Slice 0 is counted with slab 0 and every
     /// other slice as the upper slice of its slab, so a full sweep counts each voxel once.
     pub non_finite_voxels: u64,
+}
+
+/// What one slab added to an extractor's counters (`after - before`).
+impl std::ops::Sub for ExtractStats {
+    type Output = Self;
+    fn sub(self, o: Self) -> Self {
+        Self {
+            cubes: self.cubes - o.cubes,
+            active_cubes: self.active_cubes - o.active_cubes,
+            triangles: self.triangles - o.triangles,
+            non_finite_voxels: self.non_finite_voxels - o.non_finite_voxels,
+            skipped_cubes: self.skipped_cubes - o.skipped_cubes,
+        }
+    }
 }
 
 /// Counters of several extractors of one stream (slabs extracted in parallel) add up.
@@ -160,6 +174,15 @@ impl Extractor {
             stats: ExtractStats::default(),
             columns: Vec::new(),
             batch_sizes: [0; 3],
+        }
+    }
+
+    /// An extractor continuing a sweep (after a checkpoint) whose counters so far are `stats`:
+    /// a slab's batches depend on its two slices only, so nothing else carries over.
+    pub fn resume(grid: Grid, iso: f32, stats: ExtractStats) -> Self {
+        Extractor {
+            stats,
+            ..Extractor::new(grid, iso)
         }
     }
 

@@ -302,6 +302,25 @@ impl SliceReader {
         self.grid
     }
 
+    /// Makes slice `z` the next one (resuming at a checkpoint): what `next_slices` returns from
+    /// here is what it returned when it got to `z` the first time.
+    ///
+    /// # Errors
+    /// Reading slice `z - 1` for a derived gradient failed.
+    pub(crate) fn seek(&mut self, z: u64) -> Result<(), RunError> {
+        let gradient = self
+            .attributes
+            .iter()
+            .any(|a| matches!(a, Source::Gradient));
+        self.prev = match z {
+            1.. if gradient => Some(self.read_iso(z - 1)?),
+            _ => None,
+        };
+        self.ahead = None;
+        self.next_z = z;
+        Ok(())
+    }
+
     /// The next slice, `None` after the last.
     ///
     /// # Errors

@@ -225,6 +225,9 @@ pub struct PipelineConfig {
     /// Most triangles per batch sent from the extractor.
     #[serde(default = "default_batch_triangles")]
     pub batch_triangles: usize,
+    /// When to save a resumable state (`isostream run --resume`).
+    #[serde(default)]
+    pub checkpoint: CheckpointConfig,
     /// Threads extracting slabs in parallel (default: one per core). The output does not
     /// depend on it: slabs reach the detector in order.
     pub threads: Option<usize>,
@@ -236,6 +239,47 @@ impl PipelineConfig {
         self.threads.unwrap_or_else(|| {
             std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
         })
+    }
+}
+
+/// `[pipeline] checkpoint = { every_seconds = 60 }` (or `every_slabs = N`, or `enabled = false`).
+/// Without the key, jobs on volumes of at least [`CheckpointConfig::AUTO_MIN_VOXELS`] voxels
+/// checkpoint every [`CheckpointConfig::DEFAULT_SECONDS`] seconds and smaller ones never.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct CheckpointConfig {
+    /// `false`: never; `true`: every [`CheckpointConfig::DEFAULT_SECONDS`] unless an interval
+    /// is given.
+    pub enabled: Option<bool>,
+    pub every_seconds: Option<f64>,
+    pub every_slabs: Option<u64>,
+}
+
+/// How often a run saves a checkpoint, at the first slab boundary after the interval.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CheckpointEvery {
+    Seconds(f64),
+    Slabs(u64),
+}
+
+impl CheckpointConfig {
+    /// Checkpoints are on by default from 512^3 voxels (2^27): such jobs run for minutes (bonsai's
+    /// 2^24 voxels take seconds; see docs/performance.md), so losing one costs something, while
+    /// a checkpoint every minute costs little (docs/performance.md).
+    pub const AUTO_MIN_VOXELS: u64 = 1 << 27;
+    pub const DEFAULT_SECONDS: f64 = 60.0;
+
+    /// The interval for a volume of `voxels`, `None` when the run saves no checkpoint.
+    pub fn every(&self, voxels: u64) -> Option<CheckpointEvery> {
+        if self.enabled == Some(false) {
+            return None;
+        }
+        match (self.every_seconds, self.every_slabs) {
+            (_, Some(n)) => Some(CheckpointEvery::Slabs(n)),
+            (Some(s), None) => Some(CheckpointEvery::Seconds(s)),
+            (None, None) => (self.enabled == Some(true) || voxels >= Self::AUTO_MIN_VOXELS)
+                .then_some(CheckpointEvery::Seconds(Self::DEFAULT_SECONDS)),
+        }
     }
 }
 
@@ -256,6 +300,7 @@ impl Default for PipelineConfig {
             channel_capacity: default_capacity(),
             memory_budget_mib: default_budget(),
             batch_triangles: default_batch_triangles(),
+            checkpoint: CheckpointConfig::default(),
             threads: None,
         }
     }
@@ -527,6 +572,37 @@ impl JobConfig {
         if p.batch_triangles == 0 {
             return Err(bad("pipeline.batch_triangles", "at least 1", "0".into()));
         }
+        let c = &p.checkpoint;
+        if c.every_seconds.is_some() && c.every_slabs.is_some() {
+            return Err(bad(
+                "pipeline.checkpoint",
+                "either `every_seconds` or `every_slabs`, not both",
+                "both".into(),
+            ));
+        }
+        if c.enabled == Some(false) && (c.every_seconds.is_some() || c.every_slabs.is_some()) {
+            return Err(bad(
+                "pipeline.checkpoint",
+                "no interval when `enabled = false`",
+                "an interval".into(),
+            ));
+        }
+        if let Some(s) = c.every_seconds
+            && !(s > 0.0 && s.is_finite())
+        {
+            return Err(bad(
+                "pipeline.checkpoint.every_seconds",
+                "a number of seconds > 0",
+                s.to_string(),
+            ));
+        }
+        if c.every_slabs == Some(0) {
+            return Err(bad(
+                "pipeline.checkpoint.every_slabs",
+                "at least 1",
+                "0".into(),
+            ));
+        }
         if p.threads == Some(0) {
             return Err(bad(
                 "pipeline.threads",
@@ -669,6 +745,44 @@ mod tests {
         }
         let text = format!("{MINIMAL}\n[log]\nlevel = \"warn,isostream_pipeline=debug\"\n");
         parse(&text).unwrap();
+    }
+
+    #[test]
+    fn checkpoint_intervals() {
+        let job = |c: &str| {
+            let job = parse(&format!("{MINIMAL}\n[pipeline]\ncheckpoint = {c}\n"))?;
+            job.validate(Path::new("job.toml")).map(|()| job)
+        };
+        let every = |c: &str, voxels| job(c).unwrap().pipeline.checkpoint.every(voxels);
+        let big = CheckpointConfig::AUTO_MIN_VOXELS;
+        assert_eq!(every("{}", big - 1), None);
+        assert_eq!(every("{}", big), Some(CheckpointEvery::Seconds(60.0)));
+        assert_eq!(every("{ enabled = false }", big), None);
+        assert_eq!(
+            every("{ enabled = true }", 8),
+            Some(CheckpointEvery::Seconds(60.0))
+        );
+        assert_eq!(
+            every("{ every_slabs = 3 }", 8),
+            Some(CheckpointEvery::Slabs(3))
+        );
+        assert_eq!(
+            every("{ every_seconds = 0.5 }", 8),
+            Some(CheckpointEvery::Seconds(0.5))
+        );
+        for bad in [
+            "{ every_slabs = 0 }",
+            "{ every_seconds = -1 }",
+            "{ every_seconds = 1, every_slabs = 1 }",
+            "{ enabled = false, every_slabs = 2 }",
+            "{ every = 2 }",
+        ] {
+            let e = job(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("checkpoint") || e.contains("every"),
+                "{bad}: {e}"
+            );
+        }
     }
 
     #[test]

@@ -68,6 +68,28 @@ pub enum RunError {
     },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,
+    #[error(
+        "interrupted: no output was written yet; the checkpoint at {percent:.0} % ({}) is kept: add --resume to continue",
+        checkpoint.display()
+    )]
+    Interrupted { checkpoint: PathBuf, percent: f64 },
+    #[error(
+        "{}: found a checkpoint at {percent:.0} % ({}); add --resume to continue, or --restart to start over",
+        output.display(), checkpoint.display()
+    )]
+    CheckpointFound {
+        output: PathBuf,
+        checkpoint: PathBuf,
+        percent: f64,
+    },
+    #[error("{}: {reason}; run with --restart to start over", path.display())]
+    Checkpoint { path: PathBuf, reason: String },
+    #[error("{}: {what}; run with --restart instead of --resume to start over", path.display())]
+    ResumeMismatch { path: PathBuf, what: String },
+    #[error(
+        "the input changed since the checkpoint ({what}); run with --restart instead of --resume to start over"
+    )]
+    InputChanged { what: String },
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]
     Internal { stage: &'static str, reason: String },
 }

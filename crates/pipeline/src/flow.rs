@@ -22,14 +22,23 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender};
 use tracing::{debug, info_span};
 
+use crate::checkpoint::Cut;
 use crate::error::RunError;
 use crate::range::DataRange;
 
-/// What every channel carries: batches, then `End` once the producer is done. A channel that
-/// disconnects before its `End` means its producer stopped early (failed or aborted).
+/// What every channel carries: batches, the checkpoint marker between two of them (see
+/// `checkpoint`), then `End` once the producer is done. A channel that disconnects before its
+/// `End` means its producer stopped early (failed or aborted).
 pub(crate) enum Msg<T> {
     Batch(T),
+    Cut(Box<Cut>),
     End,
+}
+
+/// What an inbox yields: the next input, or the checkpoint marker.
+pub(crate) enum In<T> {
+    Item(T),
+    Cut(Box<Cut>),
 }
 
 /// How a stage stopped when it did not finish.
@@ -167,15 +176,16 @@ pub(crate) fn recv<T>(ctl: &Control<'_>, rx: &Receiver<T>) -> StageResult<T> {
 /// Where a stage's inputs come from; `None` once they have ended.
 pub(crate) trait Inbox {
     type Item;
-    fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<Self::Item>>;
+    fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<In<Self::Item>>>;
 }
 
 /// A channel of [`Msg`]: its `End` ends the input.
 impl<T> Inbox for Receiver<Msg<T>> {
     type Item = T;
-    fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<T>> {
+    fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<In<T>>> {
         Ok(match recv(ctl, self)? {
-            Msg::Batch(v) => Some(v),
+            Msg::Batch(v) => Some(In::Item(v)),
+            Msg::Cut(cut) => Some(In::Cut(cut)),
             Msg::End => None,
         })
     }
@@ -184,8 +194,8 @@ impl<T> Inbox for Receiver<Msg<T>> {
 /// The first stage's input: the slice numbers.
 impl Inbox for std::ops::Range<u64> {
     type Item = u64;
-    fn next(&mut self, _: &Control<'_>) -> StageResult<Option<u64>> {
-        Ok(Iterator::next(self))
+    fn next(&mut self, _: &Control<'_>) -> StageResult<Option<In<u64>>> {
+        Ok(Iterator::next(self).map(In::Item))
     }
 }
 
@@ -220,6 +230,11 @@ impl<'c, T> Outbox<'c, T> {
         self.put(Msg::Batch(value))
     }
 
+    /// Passes the checkpoint marker on, behind everything sent so far.
+    pub fn cut(&mut self, cut: Box<Cut>) -> StageResult<()> {
+        self.put(Msg::Cut(cut))
+    }
+
     fn put(&mut self, msg: Msg<T>) -> StageResult<()> {
         let Some(tx) = &self.tx else {
             return Ok(());
@@ -238,6 +253,11 @@ pub(crate) trait Step {
     /// What the stage reports when it finished (its counters).
     type Done;
     fn batch(&mut self, input: Self::In, out: &mut Outbox<'_, Self::Out>) -> StageResult<()>;
+    /// The checkpoint marker: add this stage's state to it and pass it on. Stages without state
+    /// of their own pass it on as it is.
+    fn cut(&mut self, cut: Box<Cut>, out: &mut Outbox<'_, Self::Out>) -> StageResult<()> {
+        out.cut(cut)
+    }
     fn end(self, out: &mut Outbox<'_, Self::Out>) -> StageResult<Self::Done>;
 }
 
@@ -260,7 +280,10 @@ pub(crate) fn run<S: Step>(
                 break;
             };
             let t = Instant::now();
-            step.batch(input, &mut out)?;
+            match input {
+                In::Item(input) => step.batch(input, &mut out)?,
+                In::Cut(cut) => step.cut(cut, &mut out)?,
+            }
             busy += t.elapsed();
         }
         let t = Instant::now();

@@ -7,6 +7,7 @@
 #![deny(unsafe_code)]
 
 mod attributes;
+mod checkpoint;
 mod config;
 mod error;
 mod extract_pool;
@@ -30,9 +31,10 @@ use serde::Serialize;
 use tracing::{info, warn};
 
 pub use attributes::{AttributeConfig, Derived, SliceReader, Slices};
+pub use checkpoint::{path_for as checkpoint_path, resumable_files};
 pub use config::{
-    ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat, Mode, OutputConfig,
-    PipelineConfig, PriorityKind, SimplifyConfig,
+    CheckpointConfig, CheckpointEvery, ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat,
+    Mode, OutputConfig, PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
 pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
@@ -69,6 +71,9 @@ pub struct RunSummary {
     pub detect: isostream_detect::DetectStats,
     pub simplify: isostream_simplify::SimplifyStats,
     pub sink: SinkStats,
+    /// The slab this run continued from (`--resume`), `None` when it started at the beginning.
+    /// Counters cover the whole job; times cover this run only.
+    pub resumed_at_slab: Option<u64>,
     /// What the user should know about the result (also logged as warnings).
     pub warnings: Vec<String>,
     /// Per slab: voxels done, faces in / out / resident, RSS, seconds (at most
@@ -76,6 +81,22 @@ pub struct RunSummary {
     pub series: TimeSeries,
 }
 
+/// How a run treats the checkpoint an earlier run of the same output left (see `checkpoint`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Start {
+    /// Refuse when there is a checkpoint ([`RunError::CheckpointFound`]): it may hold hours of
+    /// work, which only an explicit `Restart` throws away.
+    #[default]
+    Fresh,
+    /// Continue from the checkpoint when there is one (after checking that the job and the
+    /// input are the same), else start from the beginning.
+    Resume,
+    /// Remove any checkpoint and its temporary files, then start from the beginning.
+    Restart,
+}
+
+/// Runs a validated job from the beginning (refusing to when a checkpoint exists: see
+/// [`run_from`]). `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
 /// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress
 /// after every slab.
 pub fn run(
@@ -84,8 +105,70 @@ pub fn run(
     cancel: &AtomicBool,
     observer: &(dyn Fn(&Progress) + Sync),
 ) -> Result<RunSummary, RunError> {
+    run_from(job, job_path, Start::Fresh, cancel, observer)
+}
+
+/// Runs a validated job, continuing from a checkpoint as `start` says. A run that completes
+/// removes its checkpoint; one that is cancelled after a checkpoint keeps it and its temporary
+/// files and returns [`RunError::Interrupted`].
+pub fn run_from(
+    job: &JobConfig,
+    job_path: &Path,
+    start: Start,
+    cancel: &AtomicBool,
+    observer: &(dyn Fn(&Progress) + Sync),
+) -> Result<RunSummary, RunError> {
+    let ckpt_path = checkpoint::path_for(&job.output.path);
+    let result = run_job(job, job_path, start, &ckpt_path, cancel, observer);
+    match result {
+        Err(RunError::Cancelled) if ckpt_path.exists() => Err(RunError::Interrupted {
+            percent: checkpoint::read(&ckpt_path).map_or(0.0, |c| c.percent()),
+            checkpoint: ckpt_path,
+        }),
+        other => other,
+    }
+}
+
+/// The checkpoint to continue from, as `start` says.
+fn saved_checkpoint(
+    start: Start,
+    ckpt_path: &Path,
+    output: &Path,
+) -> Result<Option<checkpoint::Checkpoint>, RunError> {
+    let exists = ckpt_path.exists();
+    match start {
+        Start::Restart => {
+            checkpoint::discard(ckpt_path)?;
+            Ok(None)
+        }
+        Start::Fresh if exists => Err(match checkpoint::read(ckpt_path) {
+            Ok(c) => RunError::CheckpointFound {
+                output: output.to_path_buf(),
+                checkpoint: ckpt_path.to_path_buf(),
+                percent: c.percent(),
+            },
+            Err(e) => e,
+        }),
+        Start::Resume if exists => checkpoint::read(ckpt_path).map(Some),
+        Start::Resume => {
+            info!(checkpoint = %ckpt_path.display(), "no checkpoint: starting from the beginning");
+            Ok(None)
+        }
+        Start::Fresh => Ok(None),
+    }
+}
+
+fn run_job(
+    job: &JobConfig,
+    job_path: &Path,
+    start: Start,
+    ckpt_path: &Path,
+    cancel: &AtomicBool,
+    observer: &(dyn Fn(&Progress) + Sync),
+) -> Result<RunSummary, RunError> {
     let started = Instant::now();
-    let source = open_source(&job.input)?;
+    let saved = saved_checkpoint(start, ckpt_path, &job.output.path)?;
+    let mut source = open_source(&job.input)?;
     let grid = source.grid();
     let input = source.describe();
     info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");
@@ -102,7 +185,8 @@ pub fn run(
         Some(faces) => rate_for_faces(job, faces, cancel)?,
         None => rate,
     };
-    let simplifier = Simplifier::new(simplifier_config(job, grid, rate)).map_err(|e| {
+    let config = simplifier_config(job, grid, rate);
+    let mut simplifier = Simplifier::new(config.clone()).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
             path: job_path.to_path_buf(),
             key: "simplify".into(),
@@ -110,6 +194,21 @@ pub fn run(
             got: e.to_string(),
         })
     })?;
+    let every = job.pipeline.checkpoint.every(grid.voxel_count());
+    let identity = match every.is_some() || saved.is_some() {
+        true => {
+            let mut first = vec![0f32; grid.slice_len()];
+            source.read_slice(0, &mut first)?;
+            let first = checkpoint::hash_slice(&first);
+            Some(checkpoint::InputIdentity::of(
+                job,
+                input.clone(),
+                grid.dims,
+                first,
+            ))
+        }
+        false => None,
+    };
     let attribute_sources = attributes::open(&job.attributes, &job.input, grid)?;
     let header = Header {
         comments: vec![
@@ -126,13 +225,57 @@ pub fn run(
             got: format!("{}: {e}", job.output.path.display()),
         })
     })?;
-    let sink = sink::Sink::create(&job.output.path, &header)?;
+    let (sink, resume) = match (saved, &identity) {
+        (Some(saved), Some(identity)) => {
+            checkpoint::verify(ckpt_path, &saved, job, identity)?;
+            let parts = saved.parts;
+            simplifier =
+                Simplifier::restore(&config, checkpoint::decode(ckpt_path, &parts.simplify)?)
+                    .map_err(|e| RunError::ResumeMismatch {
+                        path: ckpt_path.to_path_buf(),
+                        what: e.to_string(),
+                    })?;
+            let detector = isostream_detect::Detector::restore(
+                grid.dims,
+                checkpoint::decode(ckpt_path, &parts.detect)?,
+            )
+            .map_err(|e| RunError::ResumeMismatch {
+                path: ckpt_path.to_path_buf(),
+                what: e.to_string(),
+            })?;
+            info!(
+                slab = parts.reader.z,
+                of = grid.dims[2] - 1,
+                checkpoint = %ckpt_path.display(),
+                "resuming from the checkpoint"
+            );
+            let sink = sink::Sink::resume(&job.output.path, &header, parts.sink)?;
+            let resume = stages::Resume {
+                reader: parts.reader,
+                extract: parts.extract,
+                detector,
+            };
+            (sink, Some(resume))
+        }
+        _ => (sink::Sink::create(&job.output.path, &header)?, None),
+    };
     let mut reader = SliceReader::new(source, attribute_sources);
     if job.extract.skip_empty {
         reader = reader.skip_empty(job.extract.iso as f32);
     }
     let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
     let observe = |p: &Progress| monitor.observe(p);
+    let resumed_at_slab = resume.as_ref().map(|r| r.reader.z);
+    let checkpoints = every.zip(identity).map(|(every, input)| stages::Plan {
+        every,
+        path: ckpt_path.to_path_buf(),
+        job: checkpoint::job_hash(job),
+        input,
+    });
+    if let Some(r) = &resume {
+        // The checkpoint's carried slice is read again (and checked against its hash).
+        reader.seek(r.reader.z)?;
+    }
     let outputs = stages::Stages {
         reader,
         input: input.clone(),
@@ -146,9 +289,13 @@ pub fn run(
         allow_empty: job.output.allow_empty,
         cancel,
         observer: &observe,
+        checkpoints,
+        resume,
     }
     .run()?;
     let series = monitor.finish();
+    // The output is complete under its final name: the checkpoint has served.
+    checkpoint::remove(ckpt_path)?;
 
     let sink_stats = outputs.sink;
     let target_faces = (job.simplify.mode == Mode::Rate).then(|| {
@@ -184,6 +331,7 @@ pub fn run(
         detect: outputs.detect,
         simplify: outputs.simplify,
         sink: sink_stats,
+        resumed_at_slab,
         warnings,
         series,
     };
@@ -208,6 +356,10 @@ fn rate_for_faces(job: &JobConfig, faces: u64, cancel: &AtomicBool) -> Result<f6
         batch_triangles: job.pipeline.batch_triangles,
         threads: job.pipeline.threads(),
         skip_empty: job.extract.skip_empty,
+        first: 0,
+        schedule: extract_pool::Schedule::never(),
+        carried: None,
+        stats: Default::default(),
     }
     .count(cancel)?;
     let rate = (faces as f64 / counted.triangles.max(1) as f64).min(1.0);

@@ -74,8 +74,10 @@ fn dir_of(path: &Path) -> &Path {
 }
 
 /// Temporary files that an interrupted run writing `output` may have left next to it (a killed
-/// process cannot remove them): `.NAME.XXXXXX.tmp` (the mesh, see `smesh::output_builder`) and
-/// `.NAME.run.json.XXXXXX.tmp` (the run summary). Sorted; empty when the folder is unreadable.
+/// process cannot remove them): `.NAME.XXXXXX.tmp` (the mesh and its scratch files, see
+/// `smesh::output_builder`), `.NAME.run.json.XXXXXX.tmp` (the run summary) and
+/// `.NAME.ckpt.XXXXXX.tmp` (a checkpoint being written). Files the output's checkpoint refers to
+/// are not stale: `--resume` needs them. Sorted; empty when the folder is unreadable.
 pub fn stale_temp_files(output: &Path) -> Vec<PathBuf> {
     let Some(name) = output.file_name().map(|n| n.to_string_lossy().into_owned()) else {
         return Vec::new();
@@ -94,13 +96,27 @@ pub fn stale_temp_files(output: &Path) -> Vec<PathBuf> {
             else {
                 return false;
             };
-            let mid = mid.strip_prefix("run.json.").unwrap_or(mid);
+            let mid = mid
+                .strip_prefix("run.json.")
+                .or_else(|| mid.strip_prefix("ckpt."))
+                .unwrap_or(mid);
             mid.len() == 6 && mid.chars().all(|c| c.is_ascii_alphanumeric())
         })
         .map(|e| e.path())
         .collect();
+    let kept = crate::checkpoint::referenced_files(output);
+    found.retain(|p| !kept.iter().any(|k| same_path(k, p)));
     found.sort();
     found
+}
+
+/// Whether two paths name the same file (a checkpoint may hold a relative path).
+fn same_path(a: &Path, b: &Path) -> bool {
+    a == b
+        || matches!(
+            (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+            (Ok(x), Ok(y)) if x == y
+        )
 }
 
 /// The lock file of an output: `.NAME.lock` next to it.

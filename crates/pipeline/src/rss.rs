@@ -24,8 +24,9 @@ mod tests {
     #[test]
     #[cfg(target_os = "linux")]
     fn reads_plausible_values() {
-        let peak = super::peak_rss_bytes().expect("VmHWM on Linux");
+        // Now first: the peak, read after it, cannot be lower whatever other threads allocate.
         let now = super::current_rss_bytes().expect("VmRSS on Linux");
+        let peak = super::peak_rss_bytes().expect("VmHWM on Linux");
         assert!(now > 1024 * 1024, "{now}");
         assert!(peak >= now, "{peak} < {now}");
     }

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use isostream_simplify::{OutBatch, OutElement};
-use isostream_smesh::{ConvertOptions, Header, MeshSink, WriteStats};
+use isostream_smesh::{ConvertOptions, Header, MeshSink, SinkState, WriteStats};
 
 use crate::error::RunError;
 
@@ -33,6 +33,22 @@ impl Sink {
             path: path.to_path_buf(),
             triangles: 0,
         })
+    }
+
+    /// Continues the sink a checkpoint saved (its temporary files cut back to the saved lengths).
+    pub fn resume(path: &Path, header: &Header, state: SinkState) -> Result<Self, RunError> {
+        let triangles = state.triangles();
+        Ok(Self {
+            inner: isostream_smesh::resume_sink(path, header, &ConvertOptions::default(), state)?,
+            attributes: header.attribute_names.len(),
+            path: path.to_path_buf(),
+            triangles,
+        })
+    }
+
+    /// Flushes and fsyncs the output's files for a checkpoint; returns where the sink stands.
+    pub fn checkpoint(&mut self) -> Result<SinkState, RunError> {
+        Ok(self.inner.checkpoint()?)
     }
 
     /// Triangles written so far.

@@ -4,18 +4,23 @@
 //! what each stage does with one input and at its end.
 
 use std::convert::Infallible;
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
+use std::time::Instant;
 
 use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
-use tracing::debug;
+use tracing::{debug, info};
 
 use crate::attributes::SliceReader;
+use crate::checkpoint::{self, Checkpoint, Cut, InputIdentity, Parts, ReaderState};
+use crate::config::CheckpointEvery;
 use crate::error::RunError;
-use crate::extract_pool::{Ordered, ReadStep, SlabBatches, WorkStep};
+use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabBatches, WorkStep};
 use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
+use crate::range::DataRange;
 use crate::sink::Sink;
 
 /// Snapshot passed to the progress observer after every completed slab.
@@ -67,6 +72,26 @@ pub(crate) struct Stages<'a> {
     pub allow_empty: bool,
     pub cancel: &'a AtomicBool,
     pub observer: &'a (dyn Fn(&Progress) + Sync),
+    /// Save checkpoints (`None`: never).
+    pub checkpoints: Option<Plan>,
+    /// Continue from a checkpoint (the simplifier and the sink above are restored already, the
+    /// reader is at the checkpoint's carried slice).
+    pub resume: Option<Resume>,
+}
+
+/// When and where the run saves checkpoints, and what identifies it.
+pub(crate) struct Plan {
+    pub every: CheckpointEvery,
+    pub path: PathBuf,
+    pub job: u64,
+    pub input: InputIdentity,
+}
+
+/// What the stages before the simplifier saved at the checkpoint a run continues from.
+pub(crate) struct Resume {
+    pub reader: ReaderState,
+    pub extract: ExtractStats,
+    pub detector: Detector,
 }
 
 impl Stages<'_> {
@@ -84,8 +109,21 @@ impl Stages<'_> {
             allow_empty,
             cancel,
             observer,
+            checkpoints,
+            resume,
         } = self;
         let grid = reader.grid();
+        let first = resume.as_ref().map_or(0, |r| r.reader.z);
+        let schedule = Schedule::new(checkpoints.as_ref().map(|p| p.every), first, grid.dims[2]);
+        let carried = resume.as_ref().map(|r| r.reader.carried);
+        let (range, extract_before, detector) = match resume {
+            Some(r) => (r.reader.range, r.extract, r.detector),
+            None => (
+                DataRange::default(),
+                ExtractStats::default(),
+                Detector::new(grid.dims),
+            ),
+        };
         let threads = threads.max(1);
         let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
@@ -98,6 +136,7 @@ impl Stages<'_> {
         let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
         let ctl = Control::new(cancel);
         let ctl = &ctl;
+        ctl.add_range(&range);
 
         let extraction = Extraction {
             reader,
@@ -105,19 +144,23 @@ impl Stages<'_> {
             batch_triangles,
             threads,
             skip_empty,
+            first,
+            schedule,
+            carried,
+            stats: extract_before,
         };
         std::thread::scope(|s| {
             let (read, workers) = extraction.spawn(s, order_tx, ctl);
             let detect = s.spawn(move || {
                 let step = DetectStep {
-                    detector: Detector::new(grid.dims),
+                    detector,
                     pending: None,
                 };
                 run(
                     "detect",
                     ctl,
                     step,
-                    Ordered::new(order_rx),
+                    Ordered::new(order_rx, extract_before, range),
                     Outbox::new(ctl, delta_tx),
                 )
             });
@@ -126,7 +169,7 @@ impl Stages<'_> {
                 let step = SimplifyStep {
                     simplifier,
                     front: None,
-                    last_front: 0,
+                    last_front: u32::try_from(first).unwrap_or(u32::MAX),
                     slabs_total,
                     log_every: (slabs_total / 20).max(1),
                     depth: &depth,
@@ -135,7 +178,13 @@ impl Stages<'_> {
                 run("simplify", ctl, step, delta_rx, Outbox::new(ctl, out_tx))
             });
             let write = s.spawn(move || {
-                let step = WriteStep { sink, empty, ctl };
+                let step = WriteStep {
+                    sink,
+                    empty,
+                    ctl,
+                    plan: checkpoints.as_ref(),
+                    slabs_total: grid.dims[2] - 1,
+                };
                 run("write", ctl, step, out_rx, Outbox::none(ctl))
             });
 
@@ -185,12 +234,21 @@ impl Stages<'_> {
 /// The front half of a run, shared with the counting pass of `[output] faces`: the reader and the
 /// extraction pool, answering slabs in order on `order`.
 pub(crate) struct Extraction {
+    /// At slice `first`.
     pub reader: SliceReader,
     pub iso: f32,
     pub batch_triangles: usize,
     /// Workers, at least 1.
     pub threads: usize,
     pub skip_empty: bool,
+    /// The first slice to read: 0, or a resumed run's carried slice.
+    pub first: u64,
+    /// When to send the checkpoint marker.
+    pub schedule: Schedule,
+    /// Resuming: the hash slice `first` must have.
+    pub carried: Option<u64>,
+    /// The counters of the slabs before `first`.
+    pub stats: ExtractStats,
 }
 
 type Handle<'s, T> = std::thread::ScopedJoinHandle<'s, StageResult<T>>;
@@ -211,19 +269,26 @@ impl Extraction {
             batch_triangles,
             threads,
             skip_empty,
+            first,
+            schedule,
+            carried,
+            mut stats,
         } = self;
         let grid = reader.grid();
         let threads = threads.max(1);
         let (job_tx, job_rx) = unbounded();
         let read = s.spawn(move || {
-            let step = ReadStep::new(reader, job_tx, threads, ctl);
-            run("read", ctl, step, 0..grid.dims[2], Outbox::new(ctl, order))
+            let step = ReadStep::new(reader, job_tx, threads, ctl, schedule, carried);
+            let slices = first..grid.dims[2];
+            run("read", ctl, step, slices, Outbox::new(ctl, order))
         });
         let workers = (0..threads)
             .map(|_| {
                 let jobs = job_rx.clone();
+                // The counters before `first` go to the first worker.
+                let stats = std::mem::take(&mut stats);
                 s.spawn(move || {
-                    let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, ctl);
+                    let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, stats);
                     run("extract", ctl, step, jobs, Outbox::none(ctl))
                 })
             })
@@ -243,7 +308,7 @@ impl Extraction {
                 "count",
                 ctl,
                 Drain,
-                Ordered::new(order_rx),
+                Ordered::new(order_rx, ExtractStats::default(), DataRange::default()),
                 Outbox::none(ctl),
             );
             let read = join(read, "read");
@@ -341,6 +406,16 @@ impl Step for DetectStep {
             Some(ready) => out.send(ready),
             None => Ok(()),
         }
+    }
+
+    /// The delta held back goes out first: the cut is never after the last slab, so a later
+    /// batch still carries the final release, and the simplifier sees the same deltas.
+    fn cut(&mut self, mut cut: Box<Cut>, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
+        if let Some(ready) = self.pending.take() {
+            out.send(ready)?;
+        }
+        cut.detect = checkpoint::encode(&self.detector.snapshot());
+        out.cut(cut)
     }
 
     fn end(mut self, out: &mut Outbox<'_, MeshDelta>) -> StageResult<DetectStats> {
@@ -443,6 +518,18 @@ impl Step for SimplifyStep<'_> {
         Ok(())
     }
 
+    /// The open batch is closed first (as the next delta would close it: more slabs follow a
+    /// cut), so the saved simplifier is between two batches and its output precedes the cut.
+    fn cut(&mut self, mut cut: Box<Cut>, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        if let Some(front) = self.front.take() {
+            let mut out = OutBatch::default();
+            self.simplifier.end_batch(front, &mut out);
+            self.emit(out, front, tx)?;
+        }
+        cut.simplify = checkpoint::encode(&self.simplifier);
+        tx.cut(cut)
+    }
+
     fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
         let mut out = OutBatch::default();
         self.simplifier.finish(&mut out);
@@ -464,6 +551,8 @@ struct WriteStep<'a, 'c> {
     sink: Sink,
     empty: Option<EmptyCheck<'a>>,
     ctl: &'c Control<'c>,
+    plan: Option<&'a Plan>,
+    slabs_total: u64,
 }
 
 impl Step for WriteStep<'_, '_> {
@@ -473,6 +562,42 @@ impl Step for WriteStep<'_, '_> {
 
     fn batch(&mut self, batch: OutBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
         Ok(self.sink.write(&batch)?)
+    }
+
+    /// The end of the cut: the output's files are flushed and fsynced to the lengths saved,
+    /// then the checkpoint is written atomically.
+    fn cut(&mut self, cut: Box<Cut>, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        let Some(plan) = self.plan else {
+            return Ok(());
+        };
+        let t = Instant::now();
+        let Cut {
+            reader,
+            extract,
+            detect,
+            simplify,
+        } = *cut;
+        let ckpt = Checkpoint {
+            job: plan.job,
+            input: plan.input.clone(),
+            slabs_total: self.slabs_total,
+            parts: Parts {
+                reader,
+                extract,
+                detect,
+                simplify,
+                sink: self.sink.checkpoint()?,
+            },
+        };
+        checkpoint::write(&plan.path, &ckpt)?;
+        info!(
+            slab = ckpt.slabs_done(),
+            of = ckpt.slabs_total,
+            bytes = ckpt.parts.simplify.len() + ckpt.parts.detect.len(),
+            seconds = t.elapsed().as_secs_f64(),
+            "checkpoint saved"
+        );
+        Ok(())
     }
 
     fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<crate::sink::SinkStats> {

@@ -12,7 +12,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use isostream_pipeline::{JobConfig, Progress, RunError, RunSummary};
+use isostream_pipeline::{JobConfig, Progress, RunError, RunSummary, Start};
 use serde::Serialize;
 use tokio::sync::{Notify, watch};
 use tokio_util::sync::CancellationToken;
@@ -155,9 +155,9 @@ impl Queue {
                 }
             }
             if record.state == JobState::Running {
-                info!(id = %record.id, "restarting a job interrupted while running");
+                info!(id = %record.id, "restarting a job interrupted while running (from its checkpoint if it saved one)");
                 record.state = JobState::Queued;
-                if let Err(e) = store.clear_outputs(&record.id) {
+                if let Err(e) = store.clear_outputs(&record.id, &resumable(config.as_deref())) {
                     warn!(id = %record.id, error = %e, "cannot remove the partial output");
                 }
             }
@@ -316,7 +316,7 @@ impl Queue {
                 job.publish();
                 continue;
             };
-            if let Err(e) = self.store.clear_outputs(&id) {
+            if let Err(e) = self.store.clear_outputs(&id, &resumable(Some(&config))) {
                 warn!(%id, error = %e, "cannot clear the job folder before its run");
             }
             job.record.state = JobState::Running;
@@ -354,7 +354,15 @@ impl Queue {
         let outcome = tokio::task::spawn_blocking(move || {
             let _entered = span.enter();
             let observer = |p: &Progress| queue.progress(&job_id, p);
-            isostream_pipeline::run(&config, Path::new(admission::ORIGIN), &cancel, &observer)
+            // A job folder holds one job: a checkpoint in it is this job's, from a run the
+            // service's stop or crash interrupted.
+            isostream_pipeline::run_from(
+                &config,
+                Path::new(admission::ORIGIN),
+                Start::Resume,
+                &cancel,
+                &observer,
+            )
         })
         .await
         .unwrap_or_else(|e| {
@@ -404,13 +412,16 @@ impl Queue {
                     "run done"
                 );
             }
-            Err(RunError::Cancelled) if shutting_down && !job.cancelled_by_user => {
-                // Interrupted by the service stopping, not by a client: run it again next start.
+            Err(RunError::Cancelled | RunError::Interrupted { .. })
+                if shutting_down && !job.cancelled_by_user =>
+            {
+                // Interrupted by the service stopping, not by a client: run it again next start
+                // (from its checkpoint, which `clear_outputs` below keeps).
                 job.record.state = JobState::Queued;
                 job.record.finished_unix_ms = None;
                 info!("run interrupted by shutdown; it stays queued");
             }
-            Err(RunError::Cancelled) => {
+            Err(RunError::Cancelled | RunError::Interrupted { .. }) => {
                 job.record.state = JobState::Cancelled;
                 job.config = None;
                 info!("run cancelled");
@@ -423,8 +434,12 @@ impl Queue {
                 warn!(error = %e, "run failed");
             }
         }
+        let keep = match job.record.state {
+            JobState::Queued => resumable(job.config.as_deref()),
+            _ => Vec::new(),
+        };
         if job.record.state != JobState::Done
-            && let Err(e) = self.store.clear_outputs(id)
+            && let Err(e) = self.store.clear_outputs(id, &keep)
         {
             warn!(error = %e, "cannot remove the partial output");
         }
@@ -450,6 +465,13 @@ impl Queue {
     }
 }
 
+/// The files of a job's checkpoint (kept while the job may resume from it).
+fn resumable(config: Option<&JobConfig>) -> Vec<std::path::PathBuf> {
+    config.map_or_else(Vec::new, |c| {
+        isostream_pipeline::resumable_files(&c.output.path)
+    })
+}
+
 /// The run summary as `state.json`, the job views and every event carry it: without its time
 /// series (up to a thousand points), which only the report reads, from `<output>.run.json`.
 fn summary_without_series(summary: &RunSummary) -> Option<serde_json::Value> {
@@ -471,7 +493,11 @@ fn run_error_kind(e: &RunError) -> &'static str {
         RunError::EmptySurface { .. } => "run_empty_surface",
         RunError::ClassicalOverBudget { .. } => "run_over_budget",
         RunError::IndexLimit { .. } => "run_index_limit",
-        RunError::Cancelled => "run_cancelled",
+        RunError::Cancelled | RunError::Interrupted { .. } => "run_cancelled",
+        RunError::CheckpointFound { .. }
+        | RunError::Checkpoint { .. }
+        | RunError::ResumeMismatch { .. }
+        | RunError::InputChanged { .. } => "run_checkpoint",
         RunError::Internal { .. } => "run_internal",
     }
 }

@@ -136,13 +136,15 @@ impl Store {
         write_atomic(&self.job_dir(&record.id).join(STATE_FILE), &bytes)
     }
 
-    /// Removes everything but the job file, the state and the log: the output, its summary and
-    /// any temporary file a killed run left behind.
-    pub fn clear_outputs(&self, id: &str) -> std::io::Result<()> {
+    /// Removes everything but the job file, the state, the log and `keep` (a checkpoint and its
+    /// files, which the next run resumes from): the output, its summary and any temporary file a
+    /// killed run left behind.
+    pub fn clear_outputs(&self, id: &str, keep: &[PathBuf]) -> std::io::Result<()> {
         for entry in std::fs::read_dir(self.job_dir(id))? {
             let entry = entry?;
             let name = entry.file_name();
-            if name != JOB_FILE && name != STATE_FILE && name != crate::joblog::LOG_FILE {
+            let kept = keep.iter().any(|k| k.file_name() == Some(name.as_os_str()));
+            if name != JOB_FILE && name != STATE_FILE && name != crate::joblog::LOG_FILE && !kept {
                 std::fs::remove_file(entry.path())?;
             }
         }
@@ -238,7 +240,7 @@ mod tests {
         r.state = JobState::Running;
         store.save(&r).unwrap();
         std::fs::write(store.job_dir("bb").join(".output.smb.x.tmp"), b"half").unwrap();
-        store.clear_outputs("bb").unwrap();
+        store.clear_outputs("bb", &[]).unwrap();
         std::fs::create_dir(store.job_dir("half-made")).unwrap();
 
         let err = Store::open(dir.path()).unwrap_err().to_string();

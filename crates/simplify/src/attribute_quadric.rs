@@ -20,7 +20,7 @@ const FAR_FACTOR: f64 = 4.0;
 const RELATIVE_PIVOT_MIN: f64 = 1e-9;
 
 /// A dense symmetric quadric on R^n (`n = 3 + attributes`), in scaled attribute units.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct AttrQuadric {
     n: usize,
     /// Row-major n x n.

@@ -10,7 +10,7 @@ use std::collections::BinaryHeap;
 /// A queued edge. Deliberately small (32 bytes): the heap is sifted on every push and pop and its
 /// memory traffic dominates the loop, so the placement is recomputed when the edge is popped
 /// instead of stored.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Candidate {
     /// Priority at evaluation time (lower first).
     pub(crate) cost: f64,
@@ -28,6 +28,7 @@ fn ascending(x: (f64, &Candidate), y: (f64, &Candidate)) -> Ordering {
 }
 
 /// Min-heap order by reach (the std heap is a max-heap, hence the reversal).
+#[derive(serde::Serialize, serde::Deserialize)]
 struct ByReach(f64, Candidate);
 
 impl Ord for ByReach {
@@ -53,7 +54,7 @@ macro_rules! order_from_ord {
 }
 order_from_ord!(ByReach);
 
-#[derive(Default)]
+#[derive(Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Candidates {
     queue: CostHeap,
     waiting: BinaryHeap<ByReach>,
@@ -80,7 +81,7 @@ fn key_cost(key: u64) -> f64 {
 
 /// A heap entry of `Q`: the candidate with its cost as an integer sort key, so that comparing
 /// two entries is three integer comparisons (ascending cost, then ids).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Keyed {
     key: u64,
     a: u64,
@@ -115,7 +116,7 @@ impl Keyed {
 /// Min-heap of `Q`, 4-ary: pops dominate (most entries go stale and are popped only to be
 /// dropped), and four children share two cache lines, halving the levels a pop walks compared
 /// with a binary heap. Pops in ascending (cost, a, b), as the binary heap it replaced.
-#[derive(Default)]
+#[derive(Default, serde::Serialize, serde::Deserialize)]
 struct CostHeap(Vec<Keyed>);
 
 impl CostHeap {

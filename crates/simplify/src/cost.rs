@@ -21,7 +21,7 @@ const FAR_FACTOR: f64 = 4.0;
 /// their zero-area triangles do not reach the output.
 pub(crate) const COINCIDENT: f64 = -1.0;
 
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) enum Objective {
     /// Garland and Heckbert: `M = Q_a + Q_b` (area-weighted plane quadrics), cost `M(c)`.
     Quadric,

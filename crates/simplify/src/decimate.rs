@@ -94,7 +94,8 @@ impl Simplifier {
 
     /// Queues the edges from `v` to its free neighbours.
     pub(crate) fn push_edges(&mut self, v: u64) {
-        self.push_edges_where(v, |_| true);
+        let ring = topology::ring(&self.store, v);
+        self.push_ring_edges(v, &ring, |_| true);
     }
 
     /// Queues every edge between free vertices once more (used at the end, when refused edges
@@ -102,18 +103,25 @@ impl Simplifier {
     pub(crate) fn requeue_all(&mut self) {
         let ids: Vec<u64> = self.store.ids().collect();
         for id in ids {
-            self.push_edges_where(id, |n| n > id);
+            let ring = topology::ring(&self.store, id);
+            self.push_ring_edges(id, &ring, |n| n > id);
         }
     }
 
-    fn push_edges_where(&mut self, v: u64, take: impl Fn(u64) -> bool) {
+    /// Queues the edges from `v` to the free neighbours in its `ring` that `take` accepts.
+    pub(crate) fn push_ring_edges(
+        &mut self,
+        v: u64,
+        ring: &topology::Ring,
+        take: impl Fn(u64) -> bool,
+    ) {
         let Some(objective) = self.objective else {
             return;
         };
         if !self.store.vertex(v).is_some_and(Vertex::is_free) {
             return;
         }
-        for (n, _) in topology::ring(&self.store, v) {
+        for &(n, _) in ring {
             if !take(n) || !self.store.vertex(n).is_some_and(Vertex::is_free) {
                 continue;
             }

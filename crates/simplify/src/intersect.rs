@@ -26,8 +26,9 @@
 //! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict `f64` orientation signs:
 //!   triangles with no common vertex cross when an edge of one crosses the other; with one common
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
-//!   `topology::geometry_ok`'s). The new fan is also tested against itself (its triangles share
-//!   the new vertex).
+//!   `topology::geometry_ok`'s). The new fan is also checked against itself (its triangles share
+//!   the new vertex): first by a proof that its star is embedded (`star`), which covers every
+//!   pair at once and almost always holds, then, when it does not, pair by pair.
 
 use std::collections::VecDeque;
 
@@ -36,6 +37,10 @@ use rustc_hash::FxHashMap;
 use smallvec::SmallVec;
 
 use crate::store::{Store, TriId};
+
+mod star;
+
+use star::Spoke;
 
 /// Cell edge in mean triangle edge lengths.
 const CELL_EDGES: f64 = 6.0;
@@ -54,14 +59,14 @@ const UNFILED: u8 = u8::MAX;
 
 type Cell = [i32; 3];
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Rec {
     v: [u64; 3],
     p: [Vec3; 3],
 }
 
 /// An axis-aligned box in `f32` (exact for `f32` corners).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Aabb {
     lo: Vec3,
     hi: Vec3,
@@ -98,7 +103,7 @@ impl Aabb {
 
 /// A record's entry in a cell: its box inline, so a query scans cells contiguously and fetches
 /// the corners only of the records whose box overlaps the fan.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Entry {
     r: u32,
     bx: Aabb,
@@ -107,7 +112,7 @@ struct Entry {
 }
 
 /// Where a record is filed: its level, cell range and place in the level's record list.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Filed {
     level: u8,
     lo: Cell,
@@ -122,7 +127,7 @@ const NOT_FILED: Filed = Filed {
     slot: 0,
 };
 
-#[derive(Debug, Default)]
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct TriIndex {
     /// Level-0 cell edge; 0 until fixed.
     cell: f64,
@@ -245,13 +250,22 @@ impl TriIndex {
                 fan.push((Tri64::new(v, p), bx));
             }
         }
-        for (i, (t, _)) in fan.iter().enumerate() {
-            if fan[..i].iter().any(|(u, _)| cross(t, u)) {
-                return true;
-            }
-        }
         if fan.is_empty() {
             return false;
+        }
+        // Two triangles of an embedded star cannot cross (`star`): for the new fan that proof
+        // replaces its pairwise self-test. (Ring vertices' stars would cover the fan's
+        // neighbours too, but proving them costs more than the pair tests they save.)
+        let fan_spokes: SmallVec<[Spoke; 24]> = fan
+            .iter()
+            .filter_map(|(t, _)| spoke_of(&t.v, &t.p, keep))
+            .collect();
+        if !star::embedded(pos, &fan_spokes) {
+            for (i, (t, _)) in fan.iter().enumerate() {
+                if fan[..i].iter().any(|(u, _)| cross(t, u)) {
+                    return true;
+                }
+            }
         }
         let seen = &self.seen;
         let hits = |r: u32, rb: &Aabb| {
@@ -388,9 +402,15 @@ impl TriIndex {
 
     fn key(&self, level: usize, p: DVec3) -> Cell {
         let size = self.cell * (1u64 << level) as f64;
-        let k = (p / size).floor();
-        // Clamped: far-out coordinates share the outermost cells instead of overflowing.
-        let c = |x: f64| x.clamp(-1e9, 1e9) as i32;
+        let k = p / size;
+        // Clamped: far-out coordinates share the outermost cells instead of overflowing. The
+        // floor by hand: `f64::floor` is a library call on baseline x86-64 (no SSE4.1), and
+        // 2 % of a run went into it.
+        let c = |x: f64| {
+            let x = x.clamp(-1e9, 1e9);
+            let t = x as i32;
+            if f64::from(t) > x { t - 1 } else { t }
+        };
         [c(k.x), c(k.y), c(k.z)]
     }
 
@@ -497,21 +517,54 @@ impl TriIndex {
     }
 }
 
-/// A triangle as the exact test reads it: ids (for shared corners), corners and the normal
-/// `(p1 - p0) x (p2 - p0)`, computed once per triangle rather than once per pair.
+/// Triangle `v` at `p` seen from its corner `apex`, if it has that corner.
+fn spoke_of(v: &[u64; 3], p: &[DVec3; 3], apex: u64) -> Option<Spoke> {
+    let i = v.iter().position(|&x| x == apex)?;
+    let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+    Some(Spoke {
+        s: v[j],
+        e: v[k],
+        ps: p[j],
+        pe: p[k],
+    })
+}
+
+/// A triangle as the exact test reads it: ids (for shared corners), corners, the normal
+/// `(p1 - p0) x (p2 - p0)` and its squared length, computed once per triangle rather than once
+/// per pair.
 #[derive(Debug, Clone, Copy)]
 struct Tri64 {
     v: [u64; 3],
     p: [DVec3; 3],
     n: DVec3,
+    nn: f64,
 }
+
+/// Relative margin of the plane pre-tests: far above `f64` rounding, so a point called clear of
+/// a plane is on that side for the exact predicates too.
+const PLANE_MARGIN_SQ: f64 = 1e-18;
 
 impl Tri64 {
     fn new(v: [u64; 3], p: [DVec3; 3]) -> Self {
+        let n = (p[1] - p[0]).cross(p[2] - p[0]);
         Self {
             v,
             p,
-            n: (p[1] - p[0]).cross(p[2] - p[0]),
+            n,
+            nn: n.length_squared(),
+        }
+    }
+
+    /// Which side of this triangle's plane `x` lies on, with a margin of `1e-9 |n| |x - p0|`:
+    /// `1` above, `-1` below, `0` too close to tell (the exact predicates decide then).
+    /// Compared squared: no square root on the hot path.
+    fn side(&self, x: DVec3) -> i8 {
+        let d = x - self.p[0];
+        let s = d.dot(self.n);
+        if s * s > PLANE_MARGIN_SQ * self.nn * d.length_squared() {
+            if s > 0.0 { 1 } else { -1 }
+        } else {
+            0
         }
     }
 
@@ -519,13 +572,8 @@ impl Tri64 {
     /// above rounding: then no crossing is possible. Near the plane the exact test decides, with
     /// the same orientation predicates as the referee (`isostream_meshcheck`).
     fn clear_of(&self, q: &[DVec3; 3]) -> bool {
-        let scale = self.n.length();
-        let s = q.map(|x| {
-            let d = x - self.p[0];
-            let side = d.dot(self.n);
-            (side, 1e-9 * scale * d.length())
-        });
-        s.iter().all(|&(x, tol)| x > tol) || s.iter().all(|&(x, tol)| x < -tol)
+        let s = self.side(q[0]);
+        s != 0 && s == self.side(q[1]) && s == self.side(q[2])
     }
 }
 
@@ -535,14 +583,10 @@ fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
 }
 
 /// Segment `pq` strictly crosses triangle `t`: the referee's predicate, after a plane test that
-/// dismisses segments clearly on one side (see [`Tri64::clear_of`]).
+/// dismisses segments clearly on one side (see [`Tri64::side`]).
 fn segment_crosses(p: DVec3, q: DVec3, t: &Tri64) -> bool {
-    let side = |x: DVec3| {
-        let d = x - t.p[0];
-        (d.dot(t.n), 1e-9 * t.n.length() * d.length())
-    };
-    let ((sp, tp), (sq, tq)) = (side(p), side(q));
-    if (sp > tp && sq > tq) || (sp < -tp && sq < -tq) {
+    let sp = t.side(p);
+    if sp != 0 && sp == t.side(q) {
         return false;
     }
     let [a, b, c] = t.p;

@@ -92,7 +92,7 @@ use store::{Store, Tri, Vertex};
 
 /// Everything a [`Simplifier`] needs, given at once to [`Simplifier::new`], which validates it:
 /// there is no setter that must come "before the first vertex".
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SimplifyConfig {
     pub policy: Policy,
     /// Edge order and attribute merging, in every policy.
@@ -138,7 +138,7 @@ impl SimplifyConfig {
 /// beyond it (a marching-cubes triangle stays in its cube), so a contraction whose new fan
 /// reaches past the front waits (like a time-lag DELAY) until the front has passed the fan;
 /// otherwise a later triangle could cross it, and no check would see that.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Sweep {
     pub direction: DVec3,
     pub origin: f64,
@@ -160,10 +160,12 @@ pub enum SimplifyError {
     ZeroFaceBudget,
     #[error("the sweep needs a finite direction and origin and a positive spacing")]
     InvalidSweep,
+    #[error("the saved simplifier state was made with another configuration")]
+    ConfigChanged,
 }
 
 /// Counters for the run summary and the tests.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct SimplifyStats {
     /// Faces received (`F_g`).
     pub faces_in: u64,
@@ -219,6 +221,11 @@ pub enum OutElement {
 }
 
 /// The streaming simplifier. See the crate documentation.
+///
+/// Serializable as a whole (checkpoints, see [`Simplifier::restore`]): between two calls the
+/// state is complete, nothing refers outside it, and every map is looked up only, never
+/// iterated, so a restored simplifier continues with exactly the same decisions.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Simplifier {
     config: SimplifyConfig,
     objective: Option<Objective>,
@@ -274,6 +281,20 @@ impl Simplifier {
             next_out: 0,
             stats: SimplifyStats::default(),
         })
+    }
+
+    /// A simplifier saved between two batches (through its `Serialize`, by a checkpoint) and
+    /// deserialized again: it continues exactly where the saved one stood.
+    ///
+    /// # Errors
+    /// [`SimplifyError::ConfigChanged`] when `saved` was made with another configuration than
+    /// `config`: continuing it would not give the run `config` asks for.
+    pub fn restore(config: &SimplifyConfig, saved: Simplifier) -> Result<Self, SimplifyError> {
+        if saved.config == *config {
+            Ok(saved)
+        } else {
+            Err(SimplifyError::ConfigChanged)
+        }
     }
 
     /// In-core mode only: the resident face count once it exceeds `max_resident_faces`.
@@ -388,7 +409,9 @@ impl Simplifier {
         if self.store.vertex(id).is_none_or(|v| v.modifiable) {
             return;
         }
-        let boundary = topology::on_boundary(&self.store, id);
+        // One ring for the boundary test and the new candidates: nothing changes it between.
+        let ring = topology::ring(&self.store, id);
+        let boundary = topology::is_boundary(&ring);
         let Some(v) = self.store.vertex_mut(id) else {
             return;
         };
@@ -402,7 +425,7 @@ impl Simplifier {
                 self.stats.faces_unmodifiable -= 1;
             }
         }
-        self.push_edges(id);
+        self.push_ring_edges(id, &ring, |_| true);
     }
 
     /// After each batch: decimate as the policy says, retire what is behind the front, append

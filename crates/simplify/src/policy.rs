@@ -91,7 +91,7 @@ impl Policy {
 }
 
 /// When decimation runs and where it stops.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) enum Schedule {
     Off,
     /// Down to a face count (Hou and Chen, section 4.2).
@@ -114,7 +114,7 @@ pub(crate) struct FaceCounts {
     pub(crate) resident: usize,
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct RateSchedule {
     rate: f64,
     batch: u64,

@@ -15,7 +15,7 @@ const RELATIVE_DET_MIN: f64 = 1e-9;
 
 /// Upper triangle of a symmetric 4x4 matrix, row by row:
 /// `[a00, a01, a02, a03, a11, a12, a13, a22, a23, a33]`.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Quadric([f64; 10]);
 
 impl Quadric {

@@ -14,7 +14,7 @@ use crate::{OutBatch, OutElement, Simplifier};
 /// Vertices filed by highest rank in a ring of per-rank lists. A contraction that raises a
 /// vertex's rank files it again; the old entry goes stale and is skipped (the vertex records its
 /// current bucket).
-#[derive(Debug, Default)]
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct RankBuckets {
     base: u32,
     lists: VecDeque<Vec<u64>>,

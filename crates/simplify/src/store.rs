@@ -21,7 +21,7 @@ pub(crate) type TriId = u32;
 /// contractions; stored inline to save an allocation per vertex.
 pub(crate) type TriList = SmallVec<[TriId; 8]>;
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Vertex {
     pub(crate) pos: DVec3,
     /// Sum of the area-weighted plane quadrics of the triangles in the vertex's preimage patch:
@@ -101,7 +101,7 @@ impl Vertex {
     }
 }
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Tri {
     pub(crate) v: [u64; 3],
     /// How many of the three vertices are not yet modifiable; `> 0` counts toward Hou and Chen's
@@ -131,7 +131,7 @@ fn handle(slot: usize, generation: u32) -> u64 {
     (u64::from(generation) << 32) | slot as u64
 }
 
-#[derive(Debug, Default)]
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Store {
     verts: Vec<Option<Vertex>>,
     /// Current generation of each slot, bumped when its vertex leaves.

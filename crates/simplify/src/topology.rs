@@ -54,7 +54,7 @@ fn boundary_neighbours(ring: &[(u64, u8)]) -> impl Iterator<Item = u64> + '_ {
     ring.iter().filter(|&&(_, n)| n == 1).map(|&(x, _)| x)
 }
 
-fn is_boundary(ring: &[(u64, u8)]) -> bool {
+pub(crate) fn is_boundary(ring: &[(u64, u8)]) -> bool {
     boundary_neighbours(ring).next().is_some()
 }
 

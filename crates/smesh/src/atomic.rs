@@ -5,11 +5,11 @@
 //! deletes the temporary file, so a crash or an error never leaves a half-written mesh that a later
 //! stage could mistake for a result.
 
-use std::fs::File;
+use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-use tempfile::NamedTempFile;
+use tempfile::TempPath;
 
 use crate::SmeshError;
 
@@ -27,31 +27,144 @@ pub fn output_builder(prefix: &str) -> tempfile::Builder<'_, 'static> {
     b
 }
 
+/// A file under a temporary name next to the path it is for (`.NAME.XXXXXX.tmp`, the name
+/// `stale_temp_files` of the pipeline recognises), deleted when dropped, until a checkpoint
+/// refers to it: from then on it must survive a failure or a kill, for the resumed run.
+pub(crate) struct TempFile {
+    path: PathBuf,
+    out: BufWriter<File>,
+    /// Deletes the file on drop; `None` once a checkpoint refers to it.
+    guard: Option<TempPath>,
+}
+
+impl TempFile {
+    /// A new empty file beside `target`.
+    fn create(target: &Path) -> io::Result<TempFile> {
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let (file, guard) = output_builder(&format!(".{name}."))
+            .tempfile_in(dir_of(target))?
+            .into_parts();
+        Ok(TempFile {
+            path: guard.to_path_buf(),
+            out: BufWriter::with_capacity(1 << 16, file),
+            guard: Some(guard),
+        })
+    }
+
+    /// The file a checkpoint recorded, cut back to the length it had then.
+    fn reopen(mark: &FileMark) -> io::Result<TempFile> {
+        let mut file = OpenOptions::new().read(true).write(true).open(&mark.path)?;
+        let len = file.metadata()?.len();
+        if len < mark.len {
+            return Err(io::Error::new(
+                io::ErrorKind::UnexpectedEof,
+                format!(
+                    "{} has {len} bytes, fewer than the {} the checkpoint recorded",
+                    mark.path.display(),
+                    mark.len
+                ),
+            ));
+        }
+        file.set_len(mark.len)?;
+        file.seek(SeekFrom::Start(mark.len))?;
+        Ok(TempFile {
+            path: mark.path.clone(),
+            out: BufWriter::with_capacity(1 << 16, file),
+            guard: None,
+        })
+    }
+
+    /// Flushes and fsyncs; from now on the file outlives a failure (a checkpoint names it).
+    fn mark(&mut self) -> io::Result<FileMark> {
+        self.out.flush()?;
+        let f = self.out.get_mut();
+        f.sync_data()?;
+        let len = f.stream_position()?;
+        if let Some(guard) = self.guard.take() {
+            guard.keep().map_err(|e| e.error)?;
+        }
+        Ok(FileMark {
+            path: self.path.clone(),
+            len,
+        })
+    }
+
+    /// Flushes and rewinds for reading back (a spill); returns the length.
+    fn rewind(&mut self) -> io::Result<u64> {
+        self.out.flush()?;
+        let f = self.out.get_mut();
+        let len = f.stream_position()?;
+        f.seek(SeekFrom::Start(0))?;
+        Ok(len)
+    }
+
+    /// Renames the file to `target` (flushed and fsynced first); returns its size.
+    fn persist(mut self, target: &Path) -> io::Result<u64> {
+        self.out.flush()?;
+        let f = self.out.get_mut();
+        f.sync_all()?;
+        let bytes = f.metadata()?.len();
+        match self.guard.take() {
+            Some(guard) => guard.persist(target).map_err(|e| e.error)?,
+            None => std::fs::rename(&self.path, target)?,
+        }
+        Ok(bytes)
+    }
+
+    /// Removes the file, even one a checkpoint referred to (its run is complete).
+    fn discard(mut self) {
+        if self.guard.take().is_none() {
+            // Best effort: a leftover scratch file is reported as stale by the next run.
+            let _ = std::fs::remove_file(&self.path);
+        }
+    }
+}
+
+/// A file of a sink as a checkpoint saw it: its temporary name and how many bytes of it count.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct FileMark {
+    pub path: PathBuf,
+    pub len: u64,
+}
+
 pub(crate) struct AtomicFile {
     path: PathBuf,
-    out: BufWriter<NamedTempFile>,
+    tmp: TempFile,
 }
 
 impl AtomicFile {
     pub(crate) fn create(path: &Path) -> Result<AtomicFile, SmeshError> {
-        let dir = dir_of(path);
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let tmp = output_builder(&format!(".{name}."))
-            .tempfile_in(dir)
-            .map_err(|e| {
-                SmeshError::io(
-                    path,
-                    format!("create a temporary file in {}", dir.display()),
-                    e,
-                )
-            })?;
+        let tmp = TempFile::create(path).map_err(|e| {
+            SmeshError::io(
+                path,
+                format!("create a temporary file in {}", dir_of(path).display()),
+                e,
+            )
+        })?;
         Ok(AtomicFile {
             path: path.to_path_buf(),
-            out: BufWriter::with_capacity(1 << 16, tmp),
+            tmp,
         })
+    }
+
+    /// The temporary output of an interrupted run, cut back to its checkpointed length.
+    pub(crate) fn reopen(path: &Path, mark: &FileMark) -> Result<AtomicFile, SmeshError> {
+        let tmp = TempFile::reopen(mark)
+            .map_err(|e| SmeshError::io(path, "reopen the checkpointed temporary output of", e))?;
+        Ok(AtomicFile {
+            path: path.to_path_buf(),
+            tmp,
+        })
+    }
+
+    /// Flushes and fsyncs for a checkpoint (see [`TempFile`]).
+    pub(crate) fn mark(&mut self) -> Result<FileMark, SmeshError> {
+        self.tmp
+            .mark()
+            .map_err(|e| SmeshError::io(&self.path, "flush for a checkpoint", e))
     }
 
     /// The final path, for error messages.
@@ -60,23 +173,24 @@ impl AtomicFile {
     }
 
     pub(crate) fn write_all(&mut self, bytes: &[u8]) -> Result<(), SmeshError> {
-        self.out
+        self.tmp
+            .out
             .write_all(bytes)
             .map_err(|e| SmeshError::io(&self.path, "write", e))
     }
 
     /// A `Write` for formatting code; its errors are turned into ours with `io_error`.
     pub(crate) fn writer(&mut self) -> &mut impl Write {
-        &mut self.out
+        &mut self.tmp.out
     }
 
     pub(crate) fn io_error(&self, e: io::Error) -> SmeshError {
         SmeshError::io(&self.path, "write", e)
     }
 
-    /// Copies the rest of `spill` (see `rewind_spill`) to the end of the output.
-    pub(crate) fn append(&mut self, spill: &mut File) -> Result<(), SmeshError> {
-        io::copy(spill, &mut self.out)
+    /// Copies a spill (see [`Spill::rewind`]) to the end of the output.
+    pub(crate) fn append(&mut self, spill: &mut Spill) -> Result<(), SmeshError> {
+        io::copy(spill.tmp.out.get_mut(), &mut self.tmp.out)
             .map(|_| ())
             .map_err(|e| SmeshError::io(&self.path, "copy spilled data into", e))
     }
@@ -84,8 +198,8 @@ impl AtomicFile {
     /// Overwrites bytes already written at `offset` (header counts known only at the end).
     pub(crate) fn patch(&mut self, offset: u64, bytes: &[u8]) -> Result<(), SmeshError> {
         let res = (|| {
-            self.out.flush()?;
-            let f = self.out.get_mut().as_file_mut();
+            self.tmp.out.flush()?;
+            let f = self.tmp.out.get_mut();
             let end = f.stream_position()?;
             f.seek(SeekFrom::Start(offset))?;
             f.write_all(bytes)?;
@@ -98,8 +212,8 @@ impl AtomicFile {
     /// Cuts the output at `len` bytes (an SMB header without bounding box is shorter).
     pub(crate) fn truncate(&mut self, len: u64) -> Result<(), SmeshError> {
         let res = (|| {
-            self.out.flush()?;
-            let f = self.out.get_mut().as_file_mut();
+            self.tmp.out.flush()?;
+            let f = self.tmp.out.get_mut();
             f.set_len(len)?;
             f.seek(SeekFrom::Start(len))?;
             Ok(())
@@ -110,20 +224,9 @@ impl AtomicFile {
     /// Flushes, fsyncs, renames to the final name; returns the file size.
     pub(crate) fn finish(self) -> Result<u64, SmeshError> {
         let path = self.path;
-        let tmp = self
-            .out
-            .into_inner()
-            .map_err(|e| SmeshError::io(&path, "flush", e.into_error()))?;
-        tmp.as_file()
-            .sync_all()
-            .map_err(|e| SmeshError::io(&path, "fsync", e))?;
-        let bytes = tmp
-            .as_file()
-            .metadata()
-            .map_err(|e| SmeshError::io(&path, "stat", e))?
-            .len();
-        tmp.persist(&path)
-            .map_err(|e| SmeshError::io(&path, "rename the temporary file to", e.error))?;
+        let bytes = self.tmp.persist(&path).map_err(|e| {
+            SmeshError::io(&path, "flush, fsync and rename the temporary file to", e)
+        })?;
         // Make the rename itself durable. Best effort: not every platform can open a directory.
         #[cfg(unix)]
         if let Ok(dir) = File::open(dir_of(&path)) {
@@ -142,32 +245,65 @@ fn dir_of(path: &Path) -> &Path {
     }
 }
 
-/// An anonymous scratch file next to `path` (same disk as the output), deleted when dropped:
-/// where converters park data that must come later in the output than it arrives.
-pub(crate) fn spill_file(path: &Path) -> Result<BufWriter<File>, SmeshError> {
-    let dir = dir_of(path);
-    tempfile::tempfile_in(dir)
-        .map(|f| BufWriter::with_capacity(1 << 16, f))
-        .map_err(|e| {
-            SmeshError::io(
-                path,
-                format!("create a scratch file in {}", dir.display()),
-                e,
-            )
-        })
+/// A scratch file next to the output (same disk): where converters park data that must come
+/// later in the output than it arrives. Named like a temporary output, so that a checkpoint
+/// can refer to it.
+pub(crate) struct Spill {
+    /// The output it belongs to, for error messages.
+    output: PathBuf,
+    tmp: TempFile,
 }
 
-/// Flushes a spill and rewinds it for reading back; returns it with its length.
-pub(crate) fn rewind_spill(path: &Path, spill: BufWriter<File>) -> Result<(File, u64), SmeshError> {
-    let res = spill
-        .into_inner()
-        .map_err(|e| e.into_error())
-        .and_then(|mut f| {
-            let len = f.stream_position()?;
-            f.seek(SeekFrom::Start(0))?;
-            Ok((f, len))
-        });
-    res.map_err(|e| SmeshError::io(path, "read back scratch data for", e))
+impl Spill {
+    pub(crate) fn create(output: &Path) -> Result<Spill, SmeshError> {
+        let tmp = TempFile::create(output).map_err(|e| {
+            SmeshError::io(
+                output,
+                format!("create a scratch file in {}", dir_of(output).display()),
+                e,
+            )
+        })?;
+        Ok(Spill {
+            output: output.to_path_buf(),
+            tmp,
+        })
+    }
+
+    pub(crate) fn reopen(output: &Path, mark: &FileMark) -> Result<Spill, SmeshError> {
+        let tmp = TempFile::reopen(mark)
+            .map_err(|e| SmeshError::io(output, "reopen the checkpointed scratch file of", e))?;
+        Ok(Spill {
+            output: output.to_path_buf(),
+            tmp,
+        })
+    }
+
+    pub(crate) fn writer(&mut self) -> &mut BufWriter<File> {
+        &mut self.tmp.out
+    }
+
+    pub(crate) fn mark(&mut self) -> Result<FileMark, SmeshError> {
+        self.tmp
+            .mark()
+            .map_err(|e| SmeshError::io(&self.output, "flush scratch data for a checkpoint of", e))
+    }
+
+    /// Flushes and rewinds for reading back; returns the length.
+    pub(crate) fn rewind(&mut self) -> Result<u64, SmeshError> {
+        self.tmp
+            .rewind()
+            .map_err(|e| SmeshError::io(&self.output, "read back scratch data for", e))
+    }
+
+    /// The rewound data, for reading.
+    pub(crate) fn reader(&mut self) -> &mut File {
+        self.tmp.out.get_mut()
+    }
+
+    /// Removes the file once the output is complete.
+    pub(crate) fn discard(self) {
+        self.tmp.discard();
+    }
 }
 
 #[cfg(test)]

@@ -7,6 +7,8 @@
 
 use std::path::Path;
 
+use crate::SinkState;
+
 use crate::obj::ObjSink;
 use crate::ply::{PlyEncoding, PlySink};
 use crate::validate::CheckedStream;
@@ -48,6 +50,24 @@ pub fn create_sink(
         Format::Obj => Box::new(ObjSink::create(path, header)?),
         Format::Stl => Box::new(StlSink::create(path, header)?),
         Format::Glb => Box::new(GlbSink::create(path, header, options.normals)?),
+    })
+}
+
+/// A sink continuing a checkpointed one (see [`MeshSink::checkpoint`]): its temporary files are
+/// reopened and cut back to their checkpointed lengths, so it goes on writing the same bytes as
+/// the sink that was checkpointed. `header` and `options` must be the ones it was created with.
+pub fn resume_sink(
+    path: &Path,
+    header: &Header,
+    options: &ConvertOptions,
+    state: SinkState,
+) -> Result<Box<dyn MeshSink>, SmeshError> {
+    Ok(match Format::from_path(path)? {
+        Format::Sma | Format::Smb => Box::new(StreamWriter::resume(path, header, state)?),
+        Format::Ply => Box::new(PlySink::resume(path, header, options.ply_encoding, state)?),
+        Format::Obj => Box::new(ObjSink::resume(path, header, state)?),
+        Format::Stl => Box::new(StlSink::resume(path, header, state)?),
+        Format::Glb => Box::new(GlbSink::resume(path, header, options.normals, state)?),
     })
 }
 

@@ -16,14 +16,13 @@
 use std::collections::BTreeMap;
 
 use rustc_hash::FxHashMap;
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
 use serde_json::json;
 
-use crate::atomic::{AtomicFile, rewind_spill, spill_file};
-use crate::sink::{MeshSink, SinkCore};
+use crate::atomic::{AtomicFile, Spill};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
 use crate::stl::{face_normal, normalized};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
@@ -35,8 +34,8 @@ const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const MAX_ATTRIBUTES: usize = 60;
 
 /// Accumulates area-weighted normals of active vertices and emits them in vertex order.
-#[derive(Default)]
-struct Normals {
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Normals {
     sums: FxHashMap<u64, [f64; 3]>,
     ready: BTreeMap<u64, [f32; 3]>,
     next: u64,
@@ -69,9 +68,9 @@ pub struct GlbSink {
     core: SinkCore,
     out: AtomicFile,
     header: Header,
-    vertices: BufWriter<File>,
-    indices: BufWriter<File>,
-    normals: Option<(Normals, BufWriter<File>)>,
+    vertices: Spill,
+    indices: Spill,
+    normals: Option<(Normals, Spill)>,
 }
 
 impl GlbSink {
@@ -89,7 +88,7 @@ impl GlbSink {
         }
         let out = AtomicFile::create(path)?;
         let normals = if normals {
-            Some((Normals::default(), spill_file(path)?))
+            Some((Normals::default(), Spill::create(path)?))
         } else {
             None
         };
@@ -97,9 +96,45 @@ impl GlbSink {
             core,
             out,
             header: header.clone(),
-            vertices: spill_file(path)?,
-            indices: spill_file(path)?,
+            vertices: Spill::create(path)?,
+            indices: Spill::create(path)?,
             normals,
+        })
+    }
+
+    /// Continues a checkpointed sink (see [`MeshSink::checkpoint`]); `normals` as in `create`.
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        normals: bool,
+        state: SinkState,
+    ) -> Result<GlbSink, SmeshError> {
+        let Saved::Glb(saved) = &state.format else {
+            return Err(mismatch(path, "GLB"));
+        };
+        let (out, vertices, indices, normals) = match (saved, normals) {
+            (Some(n), true) => {
+                let [out, vertices, indices, spill] = state.marks::<4>(path)?;
+                (
+                    out,
+                    vertices,
+                    indices,
+                    Some((n.clone(), Spill::reopen(path, spill)?)),
+                )
+            }
+            (None, false) => {
+                let [out, vertices, indices] = state.marks::<3>(path)?;
+                (out, vertices, indices, None)
+            }
+            _ => return Err(mismatch(path, "GLB normals")),
+        };
+        Ok(GlbSink {
+            out: AtomicFile::reopen(path, out)?,
+            vertices: Spill::reopen(path, vertices)?,
+            indices: Spill::reopen(path, indices)?,
+            normals,
+            header: header.clone(),
+            core: SinkCore::resume(path, header, state.tracker.clone())?,
         })
     }
 
@@ -171,19 +206,19 @@ impl GlbSink {
 
 impl MeshSink for GlbSink {
     fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
-        self.core.spill_vertex(&mut self.vertices, pos, attrs)
+        self.core.spill_vertex(self.vertices.writer(), pos, attrs)
     }
 
     fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
         let (idx, corners) = self.core.triangle_u32(v, last_use, "glTF's u32 indices")?;
         let mut res = idx
             .iter()
-            .try_for_each(|x| self.indices.write_all(&x.to_le_bytes()));
+            .try_for_each(|x| self.indices.writer().write_all(&x.to_le_bytes()));
         if let Some((normals, spill)) = &mut self.normals {
             normals.add(v, corners);
             for (i, &x) in v.iter().enumerate() {
                 if last_use[i] && !v[..i].contains(&x) {
-                    res = res.and_then(|()| normals.done(x, spill));
+                    res = res.and_then(|()| normals.done(x, spill.writer()));
                 }
             }
         }
@@ -193,7 +228,7 @@ impl MeshSink for GlbSink {
     fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {
         self.core.finalize(v)?;
         let res = match &mut self.normals {
-            Some((normals, spill)) => normals.done(v, spill),
+            Some((normals, spill)) => normals.done(v, spill.writer()),
             None => Ok(()),
         };
         res.map_err(|e| self.core.scratch_error(e))
@@ -214,16 +249,16 @@ impl MeshSink for GlbSink {
             normals,
             ..
         } = *self;
-        let mut parts = vec![rewind_spill(&core.path, vertices)?];
-        if let Some((_, spill)) = normals {
-            parts.push(rewind_spill(&core.path, spill)?);
+        let mut parts = vec![vertices];
+        parts.extend(normals.map(|(_, spill)| spill));
+        parts.push(indices);
+        let mut bin_len = 0;
+        for p in &mut parts {
+            bin_len += p.rewind()?;
         }
-        parts.push(rewind_spill(&core.path, indices)?);
-        let bin_len: u64 = if t > 0 {
-            parts.iter().map(|p| p.1).sum()
-        } else {
-            0
-        };
+        if t == 0 {
+            bin_len = 0;
+        }
         let bin_chunk = if t > 0 { 8 + bin_len } else { 0 };
         let total = 12 + 8 + json.len() as u64 + bin_chunk;
         let Ok(total) = u32::try_from(total) else {
@@ -241,12 +276,29 @@ impl MeshSink for GlbSink {
         if t > 0 {
             out.write_all(&(bin_len as u32).to_le_bytes())?;
             out.write_all(b"BIN\0")?;
-            for (mut f, _) in parts {
-                out.append(&mut f)?;
+            for p in &mut parts {
+                out.append(p)?;
             }
         }
         let bytes = out.finish()?;
+        parts.into_iter().for_each(Spill::discard);
         Ok(core.stats(bytes))
+    }
+
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        let mut files = vec![
+            self.out.mark()?,
+            self.vertices.mark()?,
+            self.indices.mark()?,
+        ];
+        if let Some((_, spill)) = &mut self.normals {
+            files.push(spill.mark()?);
+        }
+        Ok(SinkState {
+            files,
+            tracker: self.core.tracker.clone(),
+            format: Saved::Glb(self.normals.as_ref().map(|(n, _)| n.clone())),
+        })
     }
 }
 

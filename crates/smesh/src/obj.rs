@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, SinkCore};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 /// Streaming OBJ writer.
@@ -30,6 +30,16 @@ impl ObjSink {
             ));
         }
         out.write_all(text.as_bytes())?;
+        Ok(ObjSink { core, out })
+    }
+
+    /// Continues a checkpointed sink (see [`MeshSink::checkpoint`]).
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        state: SinkState,
+    ) -> Result<ObjSink, SmeshError> {
+        let (core, out, _) = state.reopen_one(path, header, |f| matches!(f, Saved::Obj), "OBJ")?;
         Ok(ObjSink { core, out })
     }
 }
@@ -55,6 +65,10 @@ impl MeshSink for ObjSink {
         self.core.finish()?;
         let bytes = self.out.finish()?;
         Ok(self.core.stats(bytes))
+    }
+
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        SinkState::of_one(&mut self.out, &self.core, Saved::Obj)
     }
 }
 

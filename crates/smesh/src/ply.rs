@@ -8,14 +8,14 @@
 //! final bytes. Per-vertex attributes become extra `float` vertex properties.
 
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, Read, Write};
 use std::path::Path;
 
 use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult, PropertyType};
 
-use crate::atomic::{AtomicFile, rewind_spill, spill_file};
-use crate::sink::{MeshSink, SinkCore};
+use crate::atomic::{AtomicFile, Spill};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 /// How a PLY body is encoded.
@@ -34,8 +34,8 @@ pub struct PlySink {
     out: AtomicFile,
     encoding: PlyEncoding,
     header: Header,
-    vertices: BufWriter<File>,
-    faces: BufWriter<File>,
+    vertices: Spill,
+    faces: Spill,
 }
 
 impl PlySink {
@@ -53,8 +53,29 @@ impl PlySink {
             out,
             encoding,
             header: header.clone(),
-            vertices: spill_file(path)?,
-            faces: spill_file(path)?,
+            vertices: Spill::create(path)?,
+            faces: Spill::create(path)?,
+        })
+    }
+
+    /// Continues a checkpointed sink (see [`MeshSink::checkpoint`]).
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        encoding: PlyEncoding,
+        state: SinkState,
+    ) -> Result<PlySink, SmeshError> {
+        let [out, vertices, faces] = state.marks::<3>(path)?;
+        if !matches!(state.format, Saved::Ply) {
+            return Err(mismatch(path, "PLY"));
+        }
+        Ok(PlySink {
+            out: AtomicFile::reopen(path, out)?,
+            vertices: Spill::reopen(path, vertices)?,
+            faces: Spill::reopen(path, faces)?,
+            encoding,
+            header: header.clone(),
+            core: SinkCore::resume(path, header, state.tracker.clone())?,
         })
     }
 
@@ -86,7 +107,7 @@ impl PlySink {
 /// Reads the spilled little-endian records back and writes them as ASCII lines.
 fn ascii_from_spill(
     out: &mut AtomicFile,
-    spill: File,
+    spill: &mut File,
     record: usize,
     line: impl Fn(&[u8], &mut String),
 ) -> Result<(), SmeshError> {
@@ -111,7 +132,7 @@ fn le_words(b: &[u8]) -> impl Iterator<Item = [u8; 4]> + '_ {
 
 impl MeshSink for PlySink {
     fn vertex(&mut self, pos: [f32; 3], attrs: &[f32]) -> Result<(), SmeshError> {
-        self.core.spill_vertex(&mut self.vertices, pos, attrs)
+        self.core.spill_vertex(self.vertices.writer(), pos, attrs)
     }
 
     fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError> {
@@ -120,7 +141,7 @@ impl MeshSink for PlySink {
         for (i, x) in idx.iter().enumerate() {
             rec[1 + 4 * i..5 + 4 * i].copy_from_slice(&x.to_le_bytes());
         }
-        let res = self.faces.write_all(&rec);
+        let res = self.faces.writer().write_all(&rec);
         res.map_err(|e| self.core.scratch_error(e))
     }
 
@@ -136,12 +157,12 @@ impl MeshSink for PlySink {
             core,
             mut out,
             encoding,
-            vertices,
-            faces,
+            mut vertices,
+            mut faces,
             header: meta,
         } = this;
-        let (mut vertices, _) = rewind_spill(&core.path, vertices)?;
-        let (mut faces, _) = rewind_spill(&core.path, faces)?;
+        vertices.rewind()?;
+        faces.rewind()?;
         out.write_all(header.as_bytes())?;
         match encoding {
             PlyEncoding::BinaryLittleEndian => {
@@ -150,14 +171,14 @@ impl MeshSink for PlySink {
             }
             PlyEncoding::Ascii => {
                 let stride = 4 * (3 + meta.attribute_names.len());
-                ascii_from_spill(&mut out, vertices, stride, |b, s| {
+                ascii_from_spill(&mut out, vertices.reader(), stride, |b, s| {
                     let vals: Vec<String> = le_words(b)
                         .map(|w| f32::from_le_bytes(w).to_string())
                         .collect();
                     s.push_str(&vals.join(" "));
                     s.push('\n');
                 })?;
-                ascii_from_spill(&mut out, faces, 13, |b, s| {
+                ascii_from_spill(&mut out, faces.reader(), 13, |b, s| {
                     let idx: Vec<String> = le_words(&b[1..])
                         .map(|w| u32::from_le_bytes(w).to_string())
                         .collect();
@@ -166,7 +187,17 @@ impl MeshSink for PlySink {
             }
         }
         let bytes = out.finish()?;
+        vertices.discard();
+        faces.discard();
         Ok(core.stats(bytes))
+    }
+
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        Ok(SinkState {
+            files: vec![self.out.mark()?, self.vertices.mark()?, self.faces.mark()?],
+            tracker: self.core.tracker.clone(),
+            format: Saved::Ply,
+        })
     }
 }
 

@@ -4,6 +4,7 @@
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
+use crate::atomic::{AtomicFile, FileMark};
 use crate::track::Tracker;
 use crate::{Place, SmeshError, StreamFault, Subject};
 
@@ -39,6 +40,89 @@ pub trait MeshSink: Send {
     /// Finalizes a vertex without a triangle (an SMA `x` line; an isolated vertex).
     fn finalize(&mut self, v: u64) -> Result<(), SmeshError>;
     fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError>;
+    /// Flushes and fsyncs every file of the sink and returns where it stands, for a checkpoint:
+    /// [`crate::resume_sink`] continues from there after a crash, writing the same bytes. From
+    /// the first checkpoint on, a failed or killed run leaves its temporary files in place (the
+    /// checkpoint needs them); a finished run removes them.
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError>;
+}
+
+/// Where a sink stood at a checkpoint: its files (temporary output, scratch files) with the
+/// lengths that count, the streaming-rule bookkeeping, and what the format keeps in memory
+/// (SMB's partial block, GLB's pending normals). Serializable; no path in it is final.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct SinkState {
+    pub(crate) files: Vec<FileMark>,
+    pub(crate) tracker: Tracker,
+    pub(crate) format: Saved,
+}
+
+/// The format-specific part of a [`SinkState`].
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub(crate) enum Saved {
+    Sma,
+    Smb(crate::smb::SmbEncoder),
+    Ply,
+    Obj,
+    Stl,
+    Glb(Option<crate::glb::Normals>),
+}
+
+impl SinkState {
+    /// The temporary files the state refers to (they must survive until the run completes).
+    pub fn files(&self) -> impl Iterator<Item = &Path> {
+        self.files.iter().map(|f| f.path.as_path())
+    }
+
+    /// Triangles written when the checkpoint was taken.
+    pub fn triangles(&self) -> u64 {
+        self.tracker.triangles()
+    }
+
+    /// The state of a sink that writes its output and nothing else.
+    pub(crate) fn of_one(
+        out: &mut AtomicFile,
+        core: &SinkCore,
+        format: Saved,
+    ) -> Result<SinkState, SmeshError> {
+        Ok(SinkState {
+            files: vec![out.mark()?],
+            tracker: core.tracker.clone(),
+            format,
+        })
+    }
+
+    /// The core and the reopened output of a sink that writes its output and nothing else, and
+    /// its format's part; `fits` says whether that part is the sink's (`name` when not).
+    pub(crate) fn reopen_one(
+        self,
+        path: &Path,
+        header: &Header,
+        fits: impl Fn(&Saved) -> bool,
+        name: &str,
+    ) -> Result<(SinkCore, AtomicFile, Saved), SmeshError> {
+        let [mark] = self.marks::<1>(path)?;
+        if !fits(&self.format) {
+            return Err(mismatch(path, name));
+        }
+        let out = AtomicFile::reopen(path, mark)?;
+        let core = SinkCore::resume(path, header, self.tracker)?;
+        Ok((core, out, self.format))
+    }
+
+    /// The files in order, when there are `n` of them (else the state is not this format's).
+    pub(crate) fn marks<const N: usize>(&self, path: &Path) -> Result<&[FileMark; N], SmeshError> {
+        <&[FileMark; N]>::try_from(self.files.as_slice())
+            .map_err(|_| mismatch(path, "its number of files"))
+    }
+}
+
+/// A checkpointed state that does not belong to this output's format.
+pub(crate) fn mismatch(path: &Path, what: &str) -> SmeshError {
+    SmeshError::Unsupported {
+        path: path.to_path_buf(),
+        message: format!("the checkpointed writer state does not fit this output format ({what})"),
+    }
 }
 
 /// The rule checking and bookkeeping embedded in every sink.
@@ -83,6 +167,18 @@ impl SinkCore {
             path: path.to_path_buf(),
             tracker: Tracker::default(),
             attributes: header.attribute_names.len(),
+        })
+    }
+
+    /// A core continuing from a checkpoint's bookkeeping.
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        tracker: Tracker,
+    ) -> Result<SinkCore, SmeshError> {
+        Ok(SinkCore {
+            tracker,
+            ..SinkCore::new(path, header)?
         })
     }
 

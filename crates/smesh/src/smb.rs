@@ -44,6 +44,7 @@ fn put_strings(h: &mut Vec<u8>, strings: &[String]) {
     }
 }
 
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct SmbEncoder {
     counts_at: u64,
     descriptor: u32,

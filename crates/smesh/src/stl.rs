@@ -11,7 +11,7 @@ use std::io::BufReader;
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, SinkCore};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 const COUNT_AT: u64 = 80;
@@ -45,6 +45,16 @@ impl StlSink {
         head[..n].copy_from_slice(&text.as_bytes()[..n]);
         out.write_all(&head)?;
         out.write_all(&0u32.to_le_bytes())?;
+        Ok(StlSink { core, out })
+    }
+
+    /// Continues a checkpointed sink (see [`MeshSink::checkpoint`]).
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        state: SinkState,
+    ) -> Result<StlSink, SmeshError> {
+        let (core, out, _) = state.reopen_one(path, header, |f| matches!(f, Saved::Stl), "STL")?;
         Ok(StlSink { core, out })
     }
 }
@@ -97,6 +107,10 @@ impl MeshSink for StlSink {
         self.out.patch(COUNT_AT, &count.to_le_bytes())?;
         let bytes = self.out.finish()?;
         Ok(self.core.stats(bytes))
+    }
+
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        SinkState::of_one(&mut self.out, &self.core, Saved::Stl)
     }
 }
 

@@ -9,7 +9,7 @@ use rustc_hash::FxHashMap;
 
 use crate::StreamFault;
 
-#[derive(Debug, Default)]
+#[derive(Debug, Default, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Tracker {
     vertices: u64,
     triangles: u64,

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, SinkCore};
+use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::sma::SmaEncoder;
 use crate::smb::SmbEncoder;
 use crate::{Format, Header, Place, SmeshError, StreamFault, Subject, WriteStats, index};
@@ -43,6 +43,27 @@ impl StreamWriter {
                     ),
                 });
             }
+        };
+        Ok(StreamWriter { core, out, encoder })
+    }
+
+    /// Continues a checkpointed writer (see [`MeshSink::checkpoint`]).
+    pub(crate) fn resume(
+        path: &Path,
+        header: &Header,
+        state: SinkState,
+    ) -> Result<StreamWriter, SmeshError> {
+        let format = Format::from_path(path)?;
+        let fits = |f: &Saved| {
+            matches!(
+                (format, f),
+                (Format::Sma, Saved::Sma) | (Format::Smb, Saved::Smb(_))
+            )
+        };
+        let (core, out, saved) = state.reopen_one(path, header, fits, "SMA or SMB")?;
+        let encoder = match saved {
+            Saved::Smb(e) => Encoder::Smb(e),
+            _ => Encoder::Sma(SmaEncoder),
         };
         Ok(StreamWriter { core, out, encoder })
     }
@@ -122,5 +143,12 @@ impl MeshSink for StreamWriter {
     }
     fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
         StreamWriter::finish(*self)
+    }
+    fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
+        let format = match &self.encoder {
+            Encoder::Sma(_) => Saved::Sma,
+            Encoder::Smb(e) => Saved::Smb(e.clone()),
+        };
+        SinkState::of_one(&mut self.out, &self.core, format)
     }
 }

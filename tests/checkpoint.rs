@@ -1,0 +1,337 @@
+//! Checkpoint and resume (issue 11): a job stopped at any slab and resumed writes the same bytes
+//! as a run that went through, in every mode and priority, with attributes, in every format; the
+//! bytes do not depend on channel capacities nor on checkpointing; a damaged checkpoint is one
+//! line and the output is left alone; `kill -9` of the binary followed by `--resume` gives the
+//! same bytes too.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use common::{assert_one_line_error, isostream, stderr};
+use isostream_pipeline::{JobConfig, Progress, RunError, Start, checkpoint_path, run_from};
+use proptest::prelude::*;
+
+const MODES: [&str; 4] = [
+    "mode = \"none\"",
+    "mode = \"rate\"\nrate = 0.15\nbatch = 2000",
+    "mode = \"error\"\nerror = 0.02\nisotropy = 0.3",
+    "mode = \"classical\"\nerror = 0.02",
+];
+const PRIORITIES: [&str; 3] = [
+    "priority = \"geometric\"",
+    "priority = \"data-dependent\"",
+    "priority = \"attribute-quadric\"",
+];
+const SHAPES: [&str; 3] = ["gyroid", "link", "torus"];
+const FORMATS: [&str; 6] = ["smb", "sma", "ply", "obj", "stl", "glb"];
+
+/// A procedural job with a derived attribute (so the reader's look-behind slice is exercised
+/// on resume).
+fn job_text(shape: &str, n: u64, simplify: &str, output: &str, pipeline: &str) -> String {
+    format!(
+        "[input]\nshape = \"{shape}\"\nsize = [{n}, {n}, {}]\n\n[extract]\niso = 0.0\n\n[simplify]\n{simplify}\n\n[output]\npath = \"{output}\"\n\n[pipeline]\nbatch_triangles = 300\n{pipeline}\n\n[[attributes]]\nname = \"grad\"\nderive = \"gradient_magnitude\"\n",
+        n + 5
+    )
+}
+
+fn load(dir: &Path, name: &str, text: &str) -> (JobConfig, PathBuf) {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    (JobConfig::load(&path).unwrap(), path)
+}
+
+/// Runs in process; `stop_at`: raise the cancel flag once this many slabs are done.
+fn run(
+    job: &(JobConfig, PathBuf),
+    start: Start,
+    stop_at: Option<u64>,
+) -> Result<isostream_pipeline::RunSummary, RunError> {
+    run_until(job, start, |p| stop_at.is_some_and(|s| p.slabs_done >= s))
+}
+
+/// Runs in process, raising the cancel flag once `stop` says so.
+fn run_until(
+    job: &(JobConfig, PathBuf),
+    start: Start,
+    stop: impl Fn(&Progress) -> bool + Sync,
+) -> Result<isostream_pipeline::RunSummary, RunError> {
+    let cancel = AtomicBool::new(false);
+    let observer = |p: &Progress| {
+        if stop(p) {
+            cancel.store(true, Ordering::Relaxed);
+        }
+    };
+    run_from(&job.0, &job.1, start, &cancel, &observer)
+}
+
+/// Leftovers next to the output: temporary files, checkpoints, locks.
+fn hidden_files(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    names.sort();
+    names
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 20, ..ProptestConfig::default() })]
+
+    /// Stopped at one or two random slabs (a checkpoint after every slab or every few), resumed,
+    /// with random channel capacities and extraction threads: the same bytes as an
+    /// uninterrupted run without checkpoints (one thread, default capacities).
+    #[test]
+    fn a_run_stopped_anywhere_resumes_to_the_same_bytes(
+        mode in 0..MODES.len(),
+        priority in 0..PRIORITIES.len(),
+        shape in 0..SHAPES.len(),
+        format in 0..FORMATS.len(),
+        n in 16u64..28,
+        every in 1u64..4,
+        capacity in 1usize..12,
+        threads in 1usize..4,
+        stops in prop::collection::vec(0.0..1.0f64, 1..3),
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        let simplify = format!("{}\n{}", MODES[mode], PRIORITIES[priority]);
+        let ext = FORMATS[format];
+        let reference = load(
+            dir.path(),
+            "ref.toml",
+            &job_text(SHAPES[shape], n, &simplify, &format!("ref.{ext}"), "threads = 1"),
+        );
+        run(&reference, Start::Fresh, None).unwrap();
+        let expected = std::fs::read(dir.path().join(format!("ref.{ext}"))).unwrap();
+
+        let pipeline = format!(
+            "channel_capacity = {capacity}\nthreads = {threads}\ncheckpoint = {{ every_slabs = {every} }}"
+        );
+        let output = format!("out.{ext}");
+        let job = load(
+            dir.path(),
+            "job.toml",
+            &job_text(SHAPES[shape], n, &simplify, &output, &pipeline),
+        );
+        let slabs = n + 4;
+        let mut stops: Vec<u64> = stops.iter().map(|f| (f * slabs as f64) as u64).collect();
+        stops.sort_unstable();
+        let mut start = Start::Fresh;
+        for stop in stops {
+            match run(&job, start, Some(stop)) {
+                // Cancelled before its first checkpoint, interrupted after one, or done before
+                // the flag was seen: all fine, the next run takes it from there.
+                Err(RunError::Cancelled | RunError::Interrupted { .. }) => {}
+                Ok(_) => break,
+                Err(e) => panic!("stop at {stop}: {e}"),
+            }
+            start = Start::Resume;
+        }
+        let summary = run(&job, Start::Resume, None).unwrap();
+        let got = std::fs::read(dir.path().join(&output)).unwrap();
+        prop_assert!(
+            got == expected,
+            "{} vs {} bytes (resumed at {:?})",
+            got.len(),
+            expected.len(),
+            summary.resumed_at_slab
+        );
+        // Counters cover the whole job, however many runs it took.
+        let reference_summary: serde_json::Value = serde_json::from_slice(
+            &std::fs::read(dir.path().join(format!("ref.{ext}.run.json"))).unwrap(),
+        )
+        .unwrap();
+        prop_assert_eq!(
+            reference_summary["faces_extracted"].as_u64(),
+            Some(summary.faces_extracted)
+        );
+        prop_assert_eq!(
+            reference_summary["simplify"]["contractions"].as_u64(),
+            Some(summary.simplify.contractions)
+        );
+        // The checkpoint and every temporary file are gone.
+        prop_assert!(!checkpoint_path(&dir.path().join(&output)).exists());
+        prop_assert_eq!(hidden_files(dir.path()), Vec::<String>::new());
+    }
+}
+
+/// A real volume (when `../shared/data` is present): stopped twice, resumed, same bytes.
+#[test]
+fn a_real_volume_resumes_to_the_same_bytes() {
+    let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"));
+    let volume = data.join("ironprot/ironProt.vtk");
+    if !volume.exists() {
+        eprintln!("skipped: {} is not here", volume.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let text = |output: &str, pipeline: &str| {
+        format!(
+            "[input]\npath = \"{}\"\n\n[extract]\niso = 86\n\n[simplify]\nmode = \"rate\"\nrate = 0.1\n\n[output]\npath = \"{output}\"\n\n[pipeline]\n{pipeline}\n",
+            volume.display()
+        )
+    };
+    let reference = load(dir.path(), "ref.toml", &text("ref.smb", ""));
+    run(&reference, Start::Fresh, None).unwrap();
+    let job = load(
+        dir.path(),
+        "job.toml",
+        &text("out.smb", "checkpoint = { every_slabs = 4 }"),
+    );
+    // Stopped once past slab 20 with a checkpoint saved (when the writer saves one is up to
+    // the machine's timing), then at slab 45 (or whatever the last checkpoint is then).
+    let ckpt = checkpoint_path(&dir.path().join("out.smb"));
+    let first = run_until(&job, Start::Fresh, |p| p.slabs_done >= 20 && ckpt.exists());
+    assert!(
+        matches!(first, Err(RunError::Interrupted { .. })),
+        "{first:?}"
+    );
+    let second = run(&job, Start::Resume, Some(45));
+    assert!(
+        matches!(
+            second,
+            Err(RunError::Interrupted { .. } | RunError::Cancelled)
+        ),
+        "{second:?}"
+    );
+    let summary = run(&job, Start::Resume, None).unwrap();
+    assert!(summary.resumed_at_slab.is_some());
+    assert!(
+        std::fs::read(dir.path().join("out.smb")).unwrap()
+            == std::fs::read(dir.path().join("ref.smb")).unwrap()
+    );
+}
+
+/// Without `--resume` a checkpoint is reported, not overwritten; `--restart` starts over; a
+/// changed job or input is refused; a corrupt or truncated checkpoint is one line, and nothing
+/// is touched.
+#[test]
+fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = |iso: &str| {
+        job_text(
+            "gyroid",
+            24,
+            "mode = \"rate\"\nrate = 0.2",
+            "out.smb",
+            "checkpoint = { every_slabs = 2 }",
+        )
+        .replace("iso = 0.0", iso)
+    };
+    let job = load(dir.path(), "job.toml", &text("iso = 0.0"));
+    let ckpt = checkpoint_path(&dir.path().join("out.smb"));
+    let stopped = run_until(&job, Start::Fresh, |p| p.slabs_done >= 12 && ckpt.exists());
+    assert!(
+        matches!(stopped, Err(RunError::Interrupted { .. })),
+        "{stopped:?}"
+    );
+    let saved = std::fs::read(&ckpt).unwrap();
+    let before = hidden_files(dir.path());
+    let job_arg = job.1.to_string_lossy().into_owned();
+
+    let o = isostream(&["run", "--quiet", &job_arg]);
+    assert_one_line_error(&o, 1, &["found a checkpoint at", "add --resume"]);
+    assert_eq!(hidden_files(dir.path()), before);
+
+    // Another iso value is another job.
+    load(dir.path(), "job.toml", &text("iso = 0.1"));
+    let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
+    assert_one_line_error(
+        &o,
+        1,
+        &["the job file changed since the checkpoint", "--restart"],
+    );
+    load(dir.path(), "job.toml", &text("iso = 0.0"));
+
+    // Corrupt (one bit), truncated, of another version, not a checkpoint.
+    let mut flipped = saved.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 1;
+    let mut old_version = saved.clone();
+    old_version[16] = 99;
+    for (bytes, needle) in [
+        (flipped, "corrupt checkpoint"),
+        (saved[..saved.len() / 3].to_vec(), "truncated checkpoint"),
+        (old_version, "checkpoint format 99"),
+        (b"hello".to_vec(), "not an isostream checkpoint"),
+    ] {
+        std::fs::write(&ckpt, &bytes).unwrap();
+        let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
+        assert_one_line_error(&o, 1, &[needle, ".out.smb.ckpt", "--restart"]);
+        assert_eq!(hidden_files(dir.path()), before, "{needle}: files touched");
+        assert_eq!(std::fs::read(&ckpt).unwrap(), bytes, "{needle}");
+        assert!(!dir.path().join("out.smb").exists());
+    }
+
+    // --restart throws the checkpoint and its files away and runs from the beginning.
+    std::fs::write(&ckpt, &saved).unwrap();
+    let o = isostream(&["run", "--quiet", "--restart", &job_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!ckpt.exists());
+    assert_eq!(hidden_files(dir.path()), Vec::<String>::new());
+}
+
+/// `kill -9` of `isostream run` at random moments, then `isostream run --resume` until done:
+/// the same bytes as an uninterrupted run.
+#[cfg(unix)]
+#[test]
+fn kill_9_then_resume_gives_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let pipeline = "checkpoint = { every_slabs = 3 }";
+    let simplify = "mode = \"rate\"\nrate = 0.1";
+    let reference = load(
+        dir.path(),
+        "ref.toml",
+        &job_text("gyroid", 64, simplify, "ref.ply", ""),
+    );
+    run(&reference, Start::Fresh, None).unwrap();
+    let job = load(
+        dir.path(),
+        "job.toml",
+        &job_text("gyroid", 64, simplify, "out.ply", pipeline),
+    );
+    let job_arg = job.1.to_string_lossy().into_owned();
+    let ckpt = checkpoint_path(&dir.path().join("out.ply"));
+    let mut kills = 0;
+    let mut rng = common::Rng(11);
+    let output = dir.path().join("out.ply");
+    for _ in 0..4 {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_isostream"))
+            .args(["run", "--quiet", "--resume", &job_arg])
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        // Kill once a new checkpoint is there, plus a random delay that lands anywhere between
+        // two checkpoints (or after the end).
+        let seen = std::fs::metadata(&ckpt).and_then(|m| m.modified()).ok();
+        let t = Instant::now();
+        while t.elapsed() < Duration::from_secs(20)
+            && std::fs::metadata(&ckpt).and_then(|m| m.modified()).ok() == seen
+            && child.try_wait().unwrap().is_none()
+        {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        std::thread::sleep(Duration::from_millis(rng.next_u64() % 150));
+        if child.try_wait().unwrap().is_none() {
+            child.kill().unwrap();
+            kills += 1;
+        }
+        child.wait().unwrap();
+        if output.exists() {
+            break;
+        }
+    }
+    assert!(kills > 0, "the job ended before any kill");
+    if !output.exists() {
+        let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    assert!(std::fs::read(&output).unwrap() == std::fs::read(dir.path().join("ref.ply")).unwrap());
+    assert!(!ckpt.exists());
+}
