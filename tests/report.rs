@@ -208,3 +208,48 @@ fn bad_files_give_one_line_and_no_page() {
     ]);
     assert_one_line_error(&o, 1, &["r.html", "cannot write the report"]);
 }
+
+#[test]
+fn a_long_sweep_keeps_a_bounded_series_that_still_ends_on_the_totals() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    // 2,099 slabs of 12 x 12 voxels: more slabs than the series holds points.
+    std::fs::write(
+        &job,
+        "[input]\nshape = \"gyroid\"\nsize = [12, 12, 2100]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.5\n[output]\npath = \"long.smb\"\n",
+    )
+    .unwrap();
+    let o = isostream(&["run", "--quiet", &job.to_string_lossy()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let run = dir.path().join("long.smb.run.json");
+    let summary: Value = serde_json::from_slice(&std::fs::read(&run).unwrap()).unwrap();
+    let series = &summary["series"];
+    let points = series["points"].as_array().unwrap();
+    let max = isostream_pipeline::MAX_SERIES_POINTS;
+    assert!(
+        points.len() <= max && points.len() > max / 2,
+        "{}",
+        points.len()
+    );
+    assert!(series["stride"].as_u64().unwrap() >= 2);
+    let slabs: u64 = points.iter().map(|p| p["slabs"].as_u64().unwrap()).sum();
+    assert_eq!(slabs, 2099);
+    let last = points.last().unwrap();
+    assert_eq!(last["faces_in"], summary["faces_extracted"]);
+    assert_eq!(last["faces_out"], summary["faces_written"]);
+
+    let page = dir.path().join("long.html");
+    let o = isostream(&[
+        "report",
+        &run.to_string_lossy(),
+        "-o",
+        &page.to_string_lossy(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let page = std::fs::read_to_string(&page).unwrap();
+    let memory = figure(&page, "memory");
+    // Merged points: the resident faces' range drawn as a band, and the caption says so.
+    assert!(memory.contains("<polygon"), "no band");
+    assert!(memory.contains("Each point stands for"));
+    assert!(polyline_lengths(memory).contains(&points.len()));
+}

@@ -2,16 +2,22 @@
 //! it after a crash, a kill or Ctrl-C and writes the same bytes as a run that went through.
 //!
 //! **The cut.** The reader, the first stage, decides when (`[pipeline] checkpoint`) and sends a
-//! marker right after slice `z`; every stage saves its own state when the marker reaches it and
-//! passes it on with the states of the stages before it (Chandy and Lamport's marker rule: the
-//! channels are FIFO, so each stage saves exactly the state it has after slab `z - 1` and before
-//! slab `z`). The writer, last, flushes and fsyncs its files and writes the checkpoint. The
-//! stages do not wait for each other: a checkpoint costs each stage its own encoding time only.
+//! marker (`flow::Msg::Cut`) on the `order` channel right behind slab `z - 1`'s reply; every
+//! later stage saves its own state when the marker reaches it (`flow::Step::cut`) and passes it
+//! on with the states of the stages before it (Chandy and Lamport's marker rule: the channels are
+//! FIFO, so each stage saves exactly the state it has after slab `z - 1` and before slab `z`).
+//! The extraction workers run ahead in any order, so they save nothing: each slab's reply
+//! carries what it added to the counters and the data range, and the detector's ordered intake
+//! sums them in slab order and fills them in. The detector first sends the delta it holds back,
+//! the simplifier first closes its open batch (both as the next input would: a cut is never after
+//! the last slab), so that the saved states are between two batches. The writer, last, flushes
+//! and fsyncs its files and writes the checkpoint. The stages do not wait for each other: a
+//! checkpoint costs each stage its own encoding time only.
 //!
 //! **What is saved.** The reader: the slice to re-read (`z`, the extractor's carried slice,
 //! re-read from the input on resume and checked against its saved hash instead of stored, so a
-//! checkpoint does not grow with the slice area) and the data range seen. The extractor: its
-//! counters (a slab depends on its two slices only). The detector: its front map. The
+//! checkpoint does not grow with the slice area). The extractors: their counters and the data
+//! range of slabs `0..z` (a slab depends on its two slices only). The detector: its front map. The
 //! simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap, waiting
 //! queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
 //! temporary files with their lengths and its bookkeeping (`smesh::SinkState`: SMB's partial

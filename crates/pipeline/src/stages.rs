@@ -526,7 +526,13 @@ impl Step for SimplifyStep<'_> {
             self.simplifier.end_batch(front, &mut out);
             self.emit(out, front, tx)?;
         }
+        let t = Instant::now();
         cut.simplify = checkpoint::encode(&self.simplifier);
+        debug!(
+            bytes = cut.simplify.len(),
+            seconds = t.elapsed().as_secs_f64(),
+            "simplifier state encoded for a checkpoint"
+        );
         tx.cut(cut)
     }
 

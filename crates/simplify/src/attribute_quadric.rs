@@ -11,11 +11,8 @@
 use glam::DVec3;
 
 use crate::store::Store;
-use crate::topology::{self, Sites};
+use crate::topology;
 
-/// Same rule as the geometric placement: an optimum farther than this many edge lengths from
-/// the midpoint is treated as ill-conditioned.
-const FAR_FACTOR: f64 = 4.0;
 /// A pivot below this fraction of the mean diagonal makes the system ill-conditioned.
 const RELATIVE_PIVOT_MIN: f64 = 1e-9;
 
@@ -201,24 +198,13 @@ pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(D
         (Some(x), None) | (None, Some(x)) => (**x).clone(),
         (None, None) => AttrQuadric::zero(n),
     };
-    let (pa, pb) = (va.pos, vb.pos);
-    let mid = 0.5 * (pa + pb);
-    let candidates = match sites {
-        Sites::Free => match q
-            .minimizer()
-            .map(|v| DVec3::new(v[0], v[1], v[2]))
-            .filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length())
-        {
-            Some(x) => [Some(x), None, None],
-            None => [Some(pa), Some(pb), Some(mid)],
-        },
-        Sites::Fixed([p, r]) => [p, r, None],
-    };
-    let (pos, cost) = candidates
-        .into_iter()
-        .flatten()
-        .map(|p| (p, q.cost_at(p).unwrap_or(f64::INFINITY)))
-        .min_by(|x, y| x.1.total_cmp(&y.1))?;
+    let (pos, cost) = crate::cost::place(
+        sites,
+        va.pos,
+        vb.pos,
+        || q.minimizer().map(|v| DVec3::new(v[0], v[1], v[2])),
+        |p| q.cost_at(p).unwrap_or(f64::INFINITY),
+    )?;
     let h = va.quadric + vb.quadric;
     let w = va.area + vb.area;
     let shape = if w > 0.0 {

@@ -53,6 +53,41 @@ pub(crate) fn output_precision(p: DVec3) -> DVec3 {
     p.as_vec3().as_dvec3()
 }
 
+/// The placement of `ab -> c` and its cost, for every priority: among the sites the boundary
+/// rule admits, the minimiser of the quadric when both endpoints are free (unless it is
+/// ill-conditioned, `None`, or farther than `FAR_FACTOR` edge lengths from the midpoint: then
+/// the cheapest of the endpoints and the midpoint); coincident endpoints stay where they are.
+/// Every candidate is rounded by [`output_precision`] before it is costed, so the cost and every
+/// later check judge the coordinates that are written.
+pub(crate) fn place(
+    sites: Sites,
+    pa: DVec3,
+    pb: DVec3,
+    minimizer: impl FnOnce() -> Option<DVec3>,
+    cost: impl Fn(DVec3) -> f64,
+) -> Option<(DVec3, f64)> {
+    let mid = 0.5 * (pa + pb);
+    let candidates = match sites {
+        // Coincident vertices (marching cubes at value == iso): nothing to optimise.
+        Sites::Free if pa == pb => [Some(pa), None, None],
+        Sites::Free => {
+            match minimizer().filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length()) {
+                Some(x) => [Some(x), None, None],
+                None => [Some(pa), Some(pb), Some(mid)],
+            }
+        }
+        Sites::Fixed([p, q]) => [p, q, None],
+    };
+    candidates
+        .into_iter()
+        .flatten()
+        .map(|p| {
+            let p = output_precision(p);
+            (p, cost(p))
+        })
+        .min_by(|x, y| x.1.total_cmp(&y.1))
+}
+
 impl Objective {
     /// `None` when the edge is no candidate: no admissible site, or above the error threshold.
     pub(crate) fn evaluate(
@@ -67,29 +102,14 @@ impl Objective {
         let h = va.quadric + vb.quadric;
         let w = va.area + vb.area;
         let m = self.metric(store, a, b, h, w);
+        let (pos, value) = place(
+            sites,
+            va.pos,
+            vb.pos,
+            || m.minimizer(),
+            |p| m.eval(p).max(0.0),
+        )?;
         let (pa, pb) = (va.pos, vb.pos);
-        let mid = 0.5 * (pa + pb);
-        let candidates = match sites {
-            // Coincident vertices (marching cubes at value == iso): nothing to optimise.
-            Sites::Free if pa == pb => [Some(pa), None, None],
-            Sites::Free => match m
-                .minimizer()
-                .filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length())
-            {
-                Some(x) => [Some(x), None, None],
-                // Ill-conditioned: the best of the endpoints and the midpoint.
-                None => [Some(pa), Some(pb), Some(mid)],
-            },
-            Sites::Fixed([p, q]) => [p, q, None],
-        };
-        let (pos, value) = candidates
-            .into_iter()
-            .flatten()
-            .map(|p| {
-                let p = output_precision(p);
-                (p, m.eval(p).max(0.0))
-            })
-            .min_by(|x, y| x.1.total_cmp(&y.1))?;
         let shape_error = shape_measure(&h, w, pos);
         let cost = match *self {
             Objective::Shape { e0, .. } if shape_error > e0 => return None,
@@ -270,5 +290,27 @@ mod tests {
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
         let len = (s.vertex(a).unwrap().pos - s.vertex(b).unwrap().pos).length();
         assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);
+    }
+
+    /// Every priority places through `place`, and whatever the minimiser says, the chosen site
+    /// is an `f32` point (the attribute quadric's placement used to skip the rounding).
+    #[test]
+    fn placements_are_rounded_and_the_cheapest_site_wins() {
+        let (pa, pb) = (DVec3::new(0.1, 0.2, 0.3), DVec3::new(1.1, 0.2, 0.3));
+        let odd = DVec3::new(0.123_456_789_012_3, 0.2, 0.3);
+        let (p, _) = place(Sites::Free, pa, pb, || Some(odd), |_| 0.0).unwrap();
+        assert_eq!(p, output_precision(p));
+        assert_ne!(p, odd);
+        // Far minimiser: the best of the endpoints and the midpoint.
+        let far = DVec3::splat(100.0);
+        let (p, c) = place(Sites::Free, pa, pb, || Some(far), |x| (x - pb).length()).unwrap();
+        assert_eq!(
+            (p, c),
+            (output_precision(pb), (output_precision(pb) - pb).length())
+        );
+        // Coincident endpoints stay; the minimiser is not even asked.
+        let (p, _) = place(Sites::Free, pa, pa, || panic!("asked"), |_| 0.0).unwrap();
+        assert_eq!(p, output_precision(pa));
+        assert!(place(Sites::Fixed([None, None]), pa, pb, || None, |_| 0.0).is_none());
     }
 }
