@@ -188,6 +188,7 @@ impl Upsampled {
         let cells_x = snx - 1;
         let mut need = vec![true; cells_x];
         let mut fill = vec![0.0f32; cells_x];
+        let mut rows_done = None;
         for (y, out_row) in out.chunks_exact_mut(nx).enumerate() {
             let (iy, ry) = (y as u64 / ky, y as u64 % ky);
             let iy = iy as usize;
@@ -196,7 +197,9 @@ impl Upsampled {
                 (ry == 0 && iy > 0).then(|| iy - 1),
                 (iy < sny - 1).then_some(iy),
             ];
-            if let Some(iso) = iso {
+            // `need` and `fill` depend only on those rows: computed once per change.
+            if let Some(iso) = iso.filter(|_| rows_done != Some(rows)) {
+                rows_done = Some(rows);
                 for (cx, (n, f)) in need.iter_mut().zip(fill.iter_mut()).enumerate() {
                     *n = false;
                     for s in &slabs {
