@@ -260,7 +260,8 @@ impl TriIndex {
             .iter()
             .filter_map(|(t, _)| spoke_of(&t.v, &t.p, keep))
             .collect();
-        if !star::embedded(pos, &fan_spokes) {
+        // (Every fan triangle has the new vertex; the length check keeps the proof whole anyway.)
+        if fan_spokes.len() != fan.len() || !star::embedded(pos, &fan_spokes) {
             for (i, (t, _)) in fan.iter().enumerate() {
                 if fan[..i].iter().any(|(u, _)| cross(t, u)) {
                     return true;
