@@ -45,8 +45,8 @@ use crate::config::JobConfig;
 use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
-/// Bumped whenever the layout of the body changes.
-const FORMAT: u32 = 1;
+/// Bumped whenever the layout of the body changes (2: the simplifier's pass-through band).
+const FORMAT: u32 = 2;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

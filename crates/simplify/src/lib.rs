@@ -15,7 +15,9 @@
 //! * `decimate`: the one contraction loop;
 //! * `intersect`: spatial hash of the resident triangles; rejects contractions whose new fan
 //!   would cross another sheet (thin structures, touching surfaces);
-//! * `retire`: retirement behind the front or for the memory budget, and emission.
+//! * `retire`: retirement behind the front or for the memory budget, and emission;
+//! * `passthrough`: policy `none` when streaming: triangles leave as soon as their vertices are
+//!   complete, without any of the contraction machinery.
 //!
 //! Decisions (the why is at each item's definition):
 //! * **Surface boundary**: boundary vertices never move. An interior vertex may merge into a
@@ -50,7 +52,7 @@
 //!   where the link condition forbids the merge.
 //! * **Retirement** only takes modifiable vertices (one that may still gain triangles could not
 //!   be finalized); one due earlier retires as soon as it becomes modifiable.
-//! * **Bounded band** (lag retirement: modes `error` and `none`): the rank span of every
+//! * **Bounded band** (lag retirement: mode `error`, and `none` in core): the rank span of every
 //!   preimage is at most `2 retire_lag + 2` slabs, so no vertex rides along with the front; stale
 //!   heap entries are compacted away. Rate mode needs no span bound: the budget retires the oldest
 //!   buckets whatever rides ahead, and a rider keeps only its own fan.
@@ -69,6 +71,7 @@ mod cost;
 mod data_dependent;
 mod decimate;
 mod intersect;
+mod passthrough;
 mod policy;
 mod priority;
 mod quadric;
@@ -97,7 +100,7 @@ pub struct SimplifyConfig {
     pub policy: Policy,
     /// Edge order and attribute merging, in every policy.
     pub priority: Priority,
-    /// Modes `error` and `none`: retire vertices whose highest preimage rank is below
+    /// Mode `error` (and `none` in core): retire vertices whose highest preimage rank is below
     /// front - retire_lag (slabs). Rate mode retires by `max_resident_faces` only.
     pub retire_lag: u32,
     /// When more faces than this are resident, decimate (rate) and retire the oldest vertices
@@ -237,6 +240,9 @@ pub struct Simplifier {
     isect: intersect::TriIndex,
     candidates: Candidates,
     buckets: RankBuckets,
+    /// Policy `none` outside in-core mode: the band without contractions (`passthrough`);
+    /// the fields above then stay empty.
+    pass: Option<passthrough::PassThrough>,
     /// Vertices behind the front that could not retire because they were not modifiable yet.
     deferred: Vec<u64>,
     /// Modifiable by the detector's word but beyond the front, by rank (`set_modifiable`).
@@ -265,8 +271,12 @@ impl Simplifier {
         {
             return Err(SimplifyError::InvalidSweep);
         }
+        let objective = config.policy.objective();
+        let pass = (objective.is_none() && !config.in_core)
+            .then(|| passthrough::PassThrough::new(config.attributes));
         Ok(Self {
-            objective: config.policy.objective(),
+            objective,
+            pass,
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
             rank_spacing: config.sweep.map_or(1.0, |w| w.spacing),
@@ -316,11 +326,15 @@ impl Simplifier {
             *v = *a;
         }
         let pos = cost::output_precision(pos);
+        self.stats.vertices_in += 1;
+        if let Some(pass) = &mut self.pass {
+            pass.add_vertex(id, pos, &values);
+            return;
+        }
         let slot = self
             .store
             .insert_vertex(id, Vertex::new(pos, rank, &values));
         self.buckets.push(rank, slot, &mut self.store);
-        self.stats.vertices_in += 1;
     }
 
     /// A new triangle (CCW seen from outside). Adds its area-weighted plane quadric to its
@@ -334,6 +348,12 @@ impl Simplifier {
             ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2],
             "triangle {ids:?} repeats a vertex"
         );
+        if let Some(pass) = &mut self.pass {
+            pass.add_triangle(ids);
+            self.stats.faces_in += 1;
+            self.note_resident();
+            return;
+        }
         let v = ids.map(|id| {
             self.store
                 .slot_of(id)
@@ -381,6 +401,10 @@ impl Simplifier {
     /// what can be contracted now. (A target counting them made passes near a dense slab contract
     /// edges a million times costlier than the in-core run ever does, and ruined low rates.)
     pub fn set_modifiable(&mut self, id: u64) {
+        if let Some(pass) = &mut self.pass {
+            pass.set_modifiable(id);
+            return;
+        }
         let Some(slot) = self.store.slot_of(id) else {
             return;
         };
@@ -441,6 +465,10 @@ impl Simplifier {
     /// After each batch: decimate as the policy says, retire what is behind the front, append
     /// finished output.
     pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
+        if let Some(pass) = &mut self.pass {
+            pass.flush(out, &mut self.stats);
+            return;
+        }
         self.front = f64::from(front);
         self.release_reached();
         if self.config.in_core {
@@ -473,6 +501,10 @@ impl Simplifier {
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.
     pub fn finish(&mut self, out: &mut OutBatch) {
+        if let Some(pass) = &mut self.pass {
+            pass.finish(out, &mut self.stats);
+            return;
+        }
         self.front = f64::INFINITY;
         self.release_reached();
         self.store.forget_all_ids();
@@ -498,6 +530,14 @@ impl Simplifier {
     }
 
     pub fn stats(&self) -> SimplifyStats {
+        if let Some(pass) = &self.pass {
+            return SimplifyStats {
+                faces_resident: pass.resident_faces(),
+                faces_unmodifiable: pass.unmodifiable_faces(),
+                vertices_resident: pass.resident_vertices(),
+                ..self.stats.clone()
+            };
+        }
         SimplifyStats {
             faces_resident: self.store.resident(),
             vertices_resident: self.store.live_vertices(),
@@ -522,7 +562,11 @@ impl Simplifier {
     }
 
     fn note_resident(&mut self) {
-        self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(self.store.resident());
+        let resident = self
+            .pass
+            .as_ref()
+            .map_or(self.store.resident(), passthrough::PassThrough::resident_faces);
+        self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(resident);
     }
 }
 
