@@ -44,6 +44,10 @@ impl Simplifier {
                 self.stats.rejected_other += 1;
                 continue;
             };
+            if self.below_rear(eval.pos) {
+                self.stats.rejected_other += 1;
+                continue;
+            }
             if eval.cost > c.cost {
                 self.candidates.push(Candidate {
                     cost: eval.cost,
@@ -85,6 +89,16 @@ impl Simplifier {
             }
         }
         (far > self.front).then_some(far)
+    }
+
+    /// A cascade's first stage never places a vertex below the rear it announced (`cascade`):
+    /// the second stage edits the surface up to that plane.
+    fn below_rear(&self, pos: DVec3) -> bool {
+        self.config.cascade == crate::Cascade::First
+            && self
+                .config
+                .sweep
+                .is_some_and(|w| w.rank_of(pos) < f64::from(self.rear))
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).

@@ -67,6 +67,7 @@
 
 mod attribute_quadric;
 mod candidates;
+mod cascade;
 mod cost;
 mod data_dependent;
 mod decimate;
@@ -82,6 +83,7 @@ mod topology;
 use glam::DVec3;
 use serde::Serialize;
 
+pub use cascade::{Cascade, Handoff, VertexState};
 pub use policy::Policy;
 pub use priority::Priority;
 
@@ -115,6 +117,9 @@ pub struct SimplifyConfig {
     /// simplifies it at once with the same policy, then emits it. Nothing bounds memory then: the
     /// caller checks [`Simplifier::in_core_overflow`].
     pub in_core: bool,
+    /// Alone or a stage of a cascade (see [`Cascade`]).
+    #[serde(default)]
+    pub cascade: Cascade,
 }
 
 impl SimplifyConfig {
@@ -129,6 +134,7 @@ impl SimplifyConfig {
             attributes: 0,
             sweep: None,
             in_core: false,
+            cascade: Cascade::Single,
         }
     }
 }
@@ -165,6 +171,8 @@ pub enum SimplifyError {
     InvalidSweep,
     #[error("the saved simplifier state was made with another configuration")]
     ConfigChanged,
+    #[error("a cascade stage needs the rate policy, the geometric priority and a sweep, streaming")]
+    InvalidCascade,
 }
 
 /// Counters for the run summary and the tests.
@@ -212,6 +220,10 @@ pub struct OutBatch {
     pub elements: Vec<OutElement>,
     /// attribute values, `attributes` per Vertex element, in order
     pub attrs: Vec<f32>,
+    /// First stage of a cascade: the state of each Vertex element, in order.
+    pub states: Vec<VertexState>,
+    /// First stage of a cascade: its rear and counts after the batch.
+    pub handoff: Option<Handoff>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -249,6 +261,8 @@ pub struct Simplifier {
     beyond_front: std::collections::BinaryHeap<std::cmp::Reverse<(u32, u64)>>,
     /// Rank of the front, `+inf` after `finish`.
     front: f64,
+    /// First stage of a cascade: the rear announced last (no vertex is placed below it).
+    rear: u32,
     next_out: u64,
     stats: SimplifyStats,
 }
@@ -271,6 +285,14 @@ impl Simplifier {
         {
             return Err(SimplifyError::InvalidSweep);
         }
+        if config.cascade != Cascade::Single
+            && !(matches!(config.policy, Policy::Rate { .. })
+                && config.priority == Priority::Geometric
+                && config.sweep.is_some()
+                && !config.in_core)
+        {
+            return Err(SimplifyError::InvalidCascade);
+        }
         let objective = config.policy.objective();
         let pass = (objective.is_none() && !config.in_core)
             .then(|| passthrough::PassThrough::new(config.attributes));
@@ -288,6 +310,7 @@ impl Simplifier {
             deferred: Vec::new(),
             beyond_front: std::collections::BinaryHeap::new(),
             front: 0.0,
+            rear: 0,
             next_out: 0,
             stats: SimplifyStats::default(),
         })
@@ -368,10 +391,12 @@ impl Simplifier {
         // Without an objective (policy `none`) nothing is ever contracted: no quadric, no
         // obstacle for the guard (half of a pass-through run's time went into them).
         let contracting = self.objective.is_some();
+        // A cascade's second stage receives its vertices' quadrics with them.
+        let quadrics = contracting && self.config.cascade != Cascade::Second;
         let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
         let cross = (p[1] - p[0]).cross(p[2] - p[0]);
         let len = cross.length();
-        if contracting && len > 0.0 {
+        if quadrics && len > 0.0 {
             let n = cross / len;
             let area = 0.5 * len;
             let q = Quadric::plane(n, -n.dot(p[0]), area);
@@ -497,6 +522,82 @@ impl Simplifier {
         }
         self.retire_for_memory(out);
         self.compact_candidates();
+        self.hand_off(out, false);
+    }
+
+    /// First stage of a cascade: announces the rear (see `cascade`) with the batch. The rear
+    /// only rises: every vertex held lies at or above the last one announced, and so does every
+    /// vertex still to come (new ones start at the front's slab, contractions below the rear are
+    /// refused).
+    fn hand_off(&mut self, out: &mut OutBatch, end: bool) {
+        if self.config.cascade != Cascade::First {
+            return;
+        }
+        if end {
+            self.rear = u32::MAX;
+        } else if let Some(sweep) = &self.config.sweep {
+            let store = &self.store;
+            let held = cascade::rear_of(
+                sweep,
+                store.ids().filter_map(|id| store.vertex(id).map(|v| v.pos)),
+            );
+            let next = (self.front as u32).saturating_sub(1);
+            self.rear = self.rear.max(held.map_or(next, |h| h.min(next)));
+        }
+        out.handoff = Some(Handoff {
+            rear: self.rear,
+            faces_in: self.stats.faces_in,
+            faces_out: self.stats.faces_out,
+            faces_resident: self.store.resident() as u64,
+        });
+    }
+
+    /// Second stage of a cascade: takes one batch of the first stage's output (vertices with
+    /// their states, triangles, and the end of each vertex as its modifiable notice) and
+    /// returns the front to close it with (the first stage's rear).
+    ///
+    /// # Panics
+    /// If this simplifier is not a second stage, or the batch is not a first stage's.
+    pub fn ingest(&mut self, batch: &OutBatch) -> u32 {
+        assert_eq!(self.config.cascade, Cascade::Second, "ingest is for a second stage");
+        let handoff = batch.handoff.expect("a first stage's batch carries its handoff");
+        let stride = self.config.attributes;
+        let mut states = batch.states.iter();
+        let mut attrs = batch.attrs.chunks(stride.max(1));
+        for e in &batch.elements {
+            match *e {
+                OutElement::Vertex { pos } => {
+                    // The first stage numbers its output 0, 1, 2, ...: those numbers are the ids.
+                    let id = self.stats.vertices_in;
+                    let state = *states.next().expect("a state per vertex");
+                    let values = if stride == 0 {
+                        &[][..]
+                    } else {
+                        attrs.next().unwrap_or(&[])
+                    };
+                    self.add_vertex(id, pos, state.rank_max, values);
+                    if let Some(slot) = self.store.slot_of(id)
+                        && let Some(v) = self.store.vertex_mut(slot)
+                    {
+                        v.quadric = state.quadric;
+                        v.area = state.area;
+                        v.rank_min = state.rank_min;
+                    }
+                }
+                OutElement::Triangle { v, last_use } => {
+                    self.add_triangle(v);
+                    for (id, last) in v.into_iter().zip(last_use) {
+                        if last {
+                            self.set_modifiable(id);
+                        }
+                    }
+                }
+            }
+        }
+        if let Schedule::Rate(rate) = &mut self.schedule {
+            rate.set_source_ratio(handoff.ratio());
+        }
+        handoff.rear
     }
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.
@@ -527,6 +628,7 @@ impl Simplifier {
             }
         }
         self.retire_all(out);
+        self.hand_off(out, true);
     }
 
     pub fn stats(&self) -> SimplifyStats {
@@ -547,9 +649,10 @@ impl Simplifier {
     }
 
     /// Whether vertices retire `retire_lag` slabs behind the front (every policy but rate, which
-    /// retires by the memory budget only).
+    /// retires by the memory budget only, unless it is a cascade's first stage, whose output is
+    /// not final).
     pub(crate) fn lag_retirement(&self) -> bool {
-        !matches!(self.schedule, Schedule::Rate(_))
+        !matches!(self.schedule, Schedule::Rate(_)) || self.config.cascade == Cascade::First
     }
 
     fn face_counts(&self) -> FaceCounts {
