@@ -45,7 +45,8 @@ use crate::config::JobConfig;
 use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
-/// Bumped whenever the layout of the body changes (2: the simplifier's pass-through band).
+/// Bumped whenever the layout of the body changes (2: the simplifier's pass-through band and
+/// a cascade's second simplifier).
 const FORMAT: u32 = 2;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
@@ -104,6 +105,8 @@ pub(crate) struct Cut {
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
     pub simplify: Vec<u8>,
+    /// A cascade's second simplifier (empty without one).
+    pub simplify_second: Vec<u8>,
 }
 
 impl Cut {
@@ -118,6 +121,7 @@ impl Cut {
             extract: Default::default(),
             detect: Vec::new(),
             simplify: Vec::new(),
+            simplify_second: Vec::new(),
         })
     }
 }
@@ -129,6 +133,8 @@ pub(crate) struct Parts {
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
     pub simplify: Vec<u8>,
+    /// A cascade's second simplifier (empty without one).
+    pub simplify_second: Vec<u8>,
     pub sink: isostream_smesh::SinkState,
 }
 
@@ -418,6 +424,7 @@ mod tests {
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
                 simplify: vec![4; 100],
+                simplify_second: vec![5; 10],
                 sink: sink_state(),
             },
         }

@@ -1,6 +1,6 @@
 //! The stages of a run and their wiring: read -> extract (a pool of workers, see
-//! `extract_pool.rs`) -> detect -> simplify -> write, each on its own thread(s), joined by bounded
-//! channels of [`Msg`]. How a stage is driven, timed and stopped is in `flow.rs`; this file says
+//! `extract_pool.rs`) -> detect -> simplify (one simplifier, or a cascade's two stages, each on
+//! its own thread) -> write, each on its own thread(s), joined by bounded channels of [`Msg`]. How a stage is driven, timed and stopped is in `flow.rs`; this file says
 //! what each stage does with one input and at its end.
 
 use std::convert::Infallible;
@@ -43,6 +43,8 @@ pub struct StageSeconds {
     pub extract: f64,
     pub detect: f64,
     pub simplify: f64,
+    /// The second simplifier of a cascade (`[pipeline] simplify_stages = 2`), 0 without one.
+    pub simplify_second: f64,
     pub write: f64,
 }
 
@@ -61,6 +63,8 @@ pub(crate) struct Stages<'a> {
     pub input: String,
     pub iso: f32,
     pub simplifier: Simplifier,
+    /// The second stage of a cascade: `simplifier` is then its first.
+    pub second: Option<Simplifier>,
     pub sink: Sink,
     pub capacity: usize,
     pub batch_triangles: usize,
@@ -101,6 +105,7 @@ impl Stages<'_> {
             input,
             iso,
             simplifier,
+            second,
             sink,
             capacity,
             batch_triangles,
@@ -127,6 +132,14 @@ impl Stages<'_> {
         let threads = threads.max(1);
         let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
+        // With a cascade the first simplifier's batches go to the second, whose go to the writer.
+        let (first_tx, second) = match second {
+            Some(simplifier) => {
+                let (mid_tx, mid_rx) = bounded::<Msg<OutBatch>>(capacity);
+                (mid_tx, Some((simplifier, mid_rx, out_tx)))
+            }
+            None => (out_tx, None),
+        };
         let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
         let depth = Depths {
             slabs: order_rx.clone(),
@@ -175,7 +188,13 @@ impl Stages<'_> {
                     depth: &depth,
                     observer,
                 };
-                run("simplify", ctl, step, delta_rx, Outbox::new(ctl, out_tx))
+                run("simplify", ctl, step, delta_rx, Outbox::new(ctl, first_tx))
+            });
+            let simplify_second = second.map(|(simplifier, rx, tx)| {
+                s.spawn(move || {
+                    let step = SecondStep { simplifier };
+                    run("simplify2", ctl, step, rx, Outbox::new(ctl, tx))
+                })
             });
             let write = s.spawn(move || {
                 let step = WriteStep {
@@ -194,6 +213,14 @@ impl Stages<'_> {
             let extract = join_workers(workers);
             let detect = join(detect, "detect");
             let simplify = join(simplify, "simplify");
+            let simplify_second = simplify_second.map(|h| join(h, "simplify2"));
+            let simplify = match (simplify, simplify_second) {
+                (Ok((s1, first)), Some(Ok((s2, second)))) => {
+                    Ok(((s1, s2), SimplifyStats::of_cascade(&first, &second)))
+                }
+                (_, Some(Err(e))) | (Err(e), _) => Err(e),
+                (Ok((s1, first)), None) => Ok(((s1, 0.0), first)),
+            };
             let write = join(write, "write");
             match (read, extract, detect, simplify, write) {
                 (
@@ -207,7 +234,8 @@ impl Stages<'_> {
                         read,
                         extract: extract_s,
                         detect: detect_s,
-                        simplify: simplify_s,
+                        simplify: simplify_s.0,
+                        simplify_second: simplify_s.1,
                         write: write_s,
                     },
                     extract,
@@ -450,7 +478,8 @@ impl SimplifyStep<'_> {
         if let Some(faces) = self.simplifier.in_core_overflow() {
             return Err(Stop::Failed(RunError::ClassicalOverBudget { faces }));
         }
-        if !out.elements.is_empty() {
+        // A cascade's first stage sends every batch: its handoff moves the second stage's front.
+        if !out.elements.is_empty() || out.handoff.is_some() {
             tx.send(out)?;
         }
         let last = u64::from(front) == self.slabs_total;
@@ -545,6 +574,43 @@ impl Step for SimplifyStep<'_> {
     }
 }
 
+/// A cascade's second stage: the first stage's batches -> simplified batches.
+struct SecondStep {
+    simplifier: Simplifier,
+}
+
+impl Step for SecondStep {
+    type In = OutBatch;
+    type Out = OutBatch;
+    type Done = SimplifyStats;
+
+    fn batch(&mut self, batch: OutBatch, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        let rear = self.simplifier.ingest(&batch);
+        let mut out = OutBatch::default();
+        self.simplifier.end_batch(rear, &mut out);
+        if !out.elements.is_empty() {
+            tx.send(out)?;
+        }
+        Ok(())
+    }
+
+    /// Each batch is closed as it comes, so the state is between two batches here, after
+    /// everything the first stage sent before the cut.
+    fn cut(&mut self, mut cut: Box<Cut>, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        cut.simplify_second = checkpoint::encode(&self.simplifier);
+        tx.cut(cut)
+    }
+
+    fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
+        let mut out = OutBatch::default();
+        self.simplifier.finish(&mut out);
+        if !out.elements.is_empty() {
+            tx.send(out)?;
+        }
+        Ok(self.simplifier.stats())
+    }
+}
+
 /// What the writer needs to refuse an empty surface.
 #[derive(Clone, Copy)]
 struct EmptyCheck<'a> {
@@ -582,6 +648,7 @@ impl Step for WriteStep<'_, '_> {
             extract,
             detect,
             simplify,
+            simplify_second,
         } = *cut;
         let ckpt = Checkpoint {
             job: plan.job,
@@ -592,6 +659,7 @@ impl Step for WriteStep<'_, '_> {
                 extract,
                 detect,
                 simplify,
+                simplify_second,
                 sink: self.sink.checkpoint()?,
             },
         };

@@ -215,6 +215,36 @@ pub struct SimplifyStats {
     pub lag_violations: u64,
 }
 
+impl SimplifyStats {
+    /// The counters of a cascade's two stages as one run's: faces and vertices in of the first,
+    /// out of the second; work and refusals added up; resident and peak faces added (both stages
+    /// hold their bands at the same time, so the sum bounds the peak); the largest cost and
+    /// shape error of either.
+    pub fn of_cascade(first: &Self, second: &Self) -> Self {
+        Self {
+            faces_in: first.faces_in,
+            vertices_in: first.vertices_in,
+            faces_out: second.faces_out,
+            vertices_out: second.vertices_out,
+            faces_resident: first.faces_resident + second.faces_resident,
+            peak_resident_faces: first.peak_resident_faces + second.peak_resident_faces,
+            vertices_resident: first.vertices_resident + second.vertices_resident,
+            faces_unmodifiable: first.faces_unmodifiable + second.faces_unmodifiable,
+            contractions: first.contractions + second.contractions,
+            rejected_link: first.rejected_link + second.rejected_link,
+            rejected_flip: first.rejected_flip + second.rejected_flip,
+            rejected_intersection: first.rejected_intersection + second.rejected_intersection,
+            delayed_front: first.delayed_front + second.delayed_front,
+            rejected_other: first.rejected_other + second.rejected_other,
+            forced_retirements: first.forced_retirements + second.forced_retirements,
+            max_cost: first.max_cost.max(second.max_cost),
+            max_shape_error: first.max_shape_error.max(second.max_shape_error),
+            candidates: first.candidates + second.candidates,
+            lag_violations: first.lag_violations + second.lag_violations,
+        }
+    }
+}
+
 #[derive(Debug, Default, Clone, PartialEq)]
 pub struct OutBatch {
     pub elements: Vec<OutElement>,
