@@ -5,7 +5,7 @@
 
 use std::convert::Infallible;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
@@ -145,7 +145,9 @@ impl Stages<'_> {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
             out: out_rx.clone(),
+            second: second.is_some().then(SecondCounts::default),
         };
+        let depth = &depth;
         let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
         let ctl = Control::new(cancel);
         let ctl = &ctl;
@@ -185,14 +187,17 @@ impl Stages<'_> {
                     last_front: u32::try_from(first).unwrap_or(u32::MAX),
                     slabs_total,
                     log_every: (slabs_total / 20).max(1),
-                    depth: &depth,
+                    depth,
                     observer,
                 };
                 run("simplify", ctl, step, delta_rx, Outbox::new(ctl, first_tx))
             });
             let simplify_second = second.map(|(simplifier, rx, tx)| {
                 s.spawn(move || {
-                    let step = SecondStep { simplifier };
+                    let step = SecondStep {
+                        simplifier,
+                        counts: depth.second.as_ref(),
+                    };
                     run("simplify2", ctl, step, rx, Outbox::new(ctl, tx))
                 })
             });
@@ -413,6 +418,15 @@ struct Depths {
     slabs: Receiver<Msg<Receiver<SlabBatches>>>,
     deltas: Receiver<Msg<MeshDelta>>,
     out: Receiver<Msg<OutBatch>>,
+    /// A cascade's second stage: what it wrote and holds, so that progress reports the run's
+    /// output, not the intermediate surface.
+    second: Option<SecondCounts>,
+}
+
+#[derive(Default)]
+struct SecondCounts {
+    faces_out: AtomicU64,
+    resident: AtomicU64,
 }
 
 /// Cube batches -> indexed deltas. The delta of the last batch is held back until the end is
@@ -486,12 +500,19 @@ impl SimplifyStep<'_> {
         if front > self.last_front || last {
             self.last_front = front;
             let st = self.simplifier.stats();
+            let (faces_out, resident) = match &self.depth.second {
+                Some(c) => (
+                    c.faces_out.load(Ordering::Relaxed),
+                    c.resident.load(Ordering::Relaxed) + st.faces_resident as u64,
+                ),
+                None => (st.faces_out, st.faces_resident as u64),
+            };
             let progress = Progress {
                 slabs_done: u64::from(front),
                 slabs_total: self.slabs_total,
                 faces_in: st.faces_in,
-                faces_out: st.faces_out,
-                resident_faces: st.faces_resident as u64,
+                faces_out,
+                resident_faces: resident,
                 queued: [
                     self.depth.slabs.len(),
                     self.depth.deltas.len(),
@@ -575,11 +596,12 @@ impl Step for SimplifyStep<'_> {
 }
 
 /// A cascade's second stage: the first stage's batches -> simplified batches.
-struct SecondStep {
+struct SecondStep<'a> {
     simplifier: Simplifier,
+    counts: Option<&'a SecondCounts>,
 }
 
-impl Step for SecondStep {
+impl Step for SecondStep<'_> {
     type In = OutBatch;
     type Out = OutBatch;
     type Done = SimplifyStats;
@@ -588,6 +610,11 @@ impl Step for SecondStep {
         let rear = self.simplifier.ingest(&batch);
         let mut out = OutBatch::default();
         self.simplifier.end_batch(rear, &mut out);
+        if let Some(c) = self.counts {
+            let st = self.simplifier.stats();
+            c.faces_out.store(st.faces_out, Ordering::Relaxed);
+            c.resident.store(st.faces_resident as u64, Ordering::Relaxed);
+        }
         if !out.elements.is_empty() {
             tx.send(out)?;
         }
