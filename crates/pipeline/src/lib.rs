@@ -391,11 +391,11 @@ const FIRST_STAGE_LAG: u32 = 3;
 
 /// The rate a cascade's first stage decimates to, for a job at `rate`. The second stage's
 /// contractions cost more (larger triangles, more candidates refused) and it also takes in its
-/// input again, so the first takes more than half of the contractions: at R = 0.2 both stages
-/// then execute 3.2-3.3 G instructions on the engine crop (callgrind per thread; halfway, 0.6,
-/// gave 3.0 and 3.7 G; docs/performance.md).
+/// input again, so the first takes more than half of the contractions: at R = 0.2 the stages
+/// then execute 3.1 and 3.0 G instructions on the engine crop (callgrind per thread; halfway,
+/// 0.6, gave 3.0 and 3.7 G; one simplifier, 5.2 G; docs/performance.md).
 fn intermediate_rate(rate: f64) -> f64 {
-    rate.max(0.43 + 0.57 * rate)
+    rate.max(0.47 + 0.53 * rate)
 }
 
 /// The simplifiers of the job: one, or a cascade's two (`[pipeline] simplify_stages`, see

@@ -55,13 +55,16 @@ impl Simplifier {
                 });
                 continue;
             }
-            if !topology::link_ok(&self.store, c.a, c.b) {
+            // The front first: it is the cheapest test, and what waits for the front is tested
+            // again when it comes back (a cascade's second stage, whose front is the first
+            // stage's rear, delays one candidate in two).
+            if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
+                self.stats.delayed_front += 1;
+                self.candidates.delay(c, reach);
+            } else if !topology::link_ok(&self.store, c.a, c.b) {
                 self.stats.rejected_link += 1;
             } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
                 self.stats.rejected_flip += 1;
-            } else if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
-                self.stats.delayed_front += 1;
-                self.candidates.delay(c, reach);
             } else if eval.cost != COINCIDENT
                 // Merging coincident vertices moves nothing: any crossing of the new fan existed.
                 && self
