@@ -196,7 +196,10 @@ impl Stages<'_> {
                 s.spawn(move || {
                     let step = SecondStep {
                         simplifier,
-                        counts: depth.second.as_ref(),
+                        faces_in: 0,
+                        slabs_total: grid.dims[2] - 1,
+                        depth,
+                        observer,
                     };
                     run("simplify2", ctl, step, rx, Outbox::new(ctl, tx))
                 })
@@ -497,6 +500,10 @@ impl SimplifyStep<'_> {
             tx.send(out)?;
         }
         let last = u64::from(front) == self.slabs_total;
+        // A cascade's second stage reports the end, with the run's totals.
+        if last && self.depth.second.is_some() {
+            return Ok(());
+        }
         if front > self.last_front || last {
             self.last_front = front;
             let st = self.simplifier.stats();
@@ -598,7 +605,11 @@ impl Step for SimplifyStep<'_> {
 /// A cascade's second stage: the first stage's batches -> simplified batches.
 struct SecondStep<'a> {
     simplifier: Simplifier,
-    counts: Option<&'a SecondCounts>,
+    /// Faces extracted so far, from the first stage's hand-offs.
+    faces_in: u64,
+    slabs_total: u64,
+    depth: &'a Depths,
+    observer: &'a (dyn Fn(&Progress) + Sync),
 }
 
 impl Step for SecondStep<'_> {
@@ -608,9 +619,10 @@ impl Step for SecondStep<'_> {
 
     fn batch(&mut self, batch: OutBatch, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
         let rear = self.simplifier.ingest(&batch);
+        self.faces_in = batch.handoff.map_or(self.faces_in, |h| h.faces_in);
         let mut out = OutBatch::default();
         self.simplifier.end_batch(rear, &mut out);
-        if let Some(c) = self.counts {
+        if let Some(c) = &self.depth.second {
             let st = self.simplifier.stats();
             c.faces_out.store(st.faces_out, Ordering::Relaxed);
             c.resident.store(st.faces_resident as u64, Ordering::Relaxed);
@@ -628,13 +640,28 @@ impl Step for SecondStep<'_> {
         tx.cut(cut)
     }
 
+    /// The run's last progress event comes from here (the first stage leaves it): only now are
+    /// the written faces the run's totals.
     fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
         let mut out = OutBatch::default();
         self.simplifier.finish(&mut out);
         if !out.elements.is_empty() {
             tx.send(out)?;
         }
-        Ok(self.simplifier.stats())
+        let st = self.simplifier.stats();
+        (self.observer)(&Progress {
+            slabs_done: self.slabs_total,
+            slabs_total: self.slabs_total,
+            faces_in: self.faces_in,
+            faces_out: st.faces_out,
+            resident_faces: st.faces_resident as u64,
+            queued: [
+                self.depth.slabs.len(),
+                self.depth.deltas.len(),
+                self.depth.out.len(),
+            ],
+        });
+        Ok(st)
     }
 }
 
