@@ -574,8 +574,13 @@ impl Simplifier {
             let next = (self.front as u32).saturating_sub(1);
             self.rear = self.rear.max(held.map_or(next, |h| h.min(next)));
         }
+        let rate = match self.config.policy {
+            Policy::Rate { rate, .. } => rate,
+            _ => 1.0,
+        };
         out.handoff = Some(Handoff {
             rear: self.rear,
+            rate,
             faces_in: self.stats.faces_in,
             faces_out: self.stats.faces_out,
             faces_resident: self.store.resident() as u64,

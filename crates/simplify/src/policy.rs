@@ -128,11 +128,9 @@ pub(crate) struct RateSchedule {
 }
 
 impl RateSchedule {
-    /// The second stage of a cascade: its input is `ratio` of the extracted faces, and its
-    /// first batches already come decimated (no initial phase).
+    /// The second stage of a cascade: its input is `ratio` of the extracted faces.
     pub(crate) fn set_source_ratio(&mut self, ratio: f64) {
         self.source_ratio = ratio;
-        self.initial_phase = false;
     }
 
     /// The rate applied to this simplifier's own input faces.
@@ -303,8 +301,11 @@ mod tests {
             emitted: 0,
             resident: 1000,
         };
-        // (1000 - 100) * (0.1 / 0.5) + 100, no initial phase
-        assert_eq!(r.resident_target(c), 280);
+        // initial phase: (1000 - 100) * 0.5 + 100 = 550 > standard (1000 - 100) * (0.1 / 0.5) + 100
+        assert_eq!(r.resident_target(c), 550);
+        let c = FaceCounts { emitted: 1, ..c };
+        assert_eq!(r.resident_target(c), 279);
+        let c = FaceCounts { emitted: 0, ..c };
         assert_eq!(r.final_target(c), 200);
         r.set_source_ratio(0.05);
         assert_eq!(r.final_target(c), 1000, "never above the input");
