@@ -867,7 +867,10 @@ mod tests {
         assert!(parse(&two).unwrap().cascade());
         let three = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 3\n");
         let err = parse(&three).unwrap_err().to_string();
-        assert!(err.contains("pipeline.simplify_stages") && err.contains("1 or 2"), "{err}");
+        assert!(
+            err.contains("pipeline.simplify_stages") && err.contains("1 or 2"),
+            "{err}"
+        );
         let none = format!("{MINIMAL}\n[simplify]\nmode = \"none\"\n");
         let two = format!("{none}\n[pipeline]\nsimplify_stages = 2\n");
         let err = parse(&two).unwrap_err().to_string();

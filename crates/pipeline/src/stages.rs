@@ -625,7 +625,8 @@ impl Step for SecondStep<'_> {
         if let Some(c) = &self.depth.second {
             let st = self.simplifier.stats();
             c.faces_out.store(st.faces_out, Ordering::Relaxed);
-            c.resident.store(st.faces_resident as u64, Ordering::Relaxed);
+            c.resident
+                .store(st.faces_resident as u64, Ordering::Relaxed);
         }
         if !out.elements.is_empty() {
             tx.send(out)?;

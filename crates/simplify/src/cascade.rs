@@ -90,10 +90,7 @@ impl Handoff {
 
 /// The lowest rank plane (floored) at or below every position in `positions`; `None` when
 /// there is none.
-pub(crate) fn rear_of(
-    sweep: &crate::Sweep,
-    positions: impl Iterator<Item = DVec3>,
-) -> Option<u32> {
+pub(crate) fn rear_of(sweep: &crate::Sweep, positions: impl Iterator<Item = DVec3>) -> Option<u32> {
     positions
         .map(|p| sweep.rank_of(p))
         .min_by(f64::total_cmp)
@@ -133,6 +130,10 @@ mod tests {
         let pts = [DVec3::new(0.0, 0.0, 4.2), DVec3::new(9.0, 0.0, 2.3)];
         assert_eq!(rear_of(&sweep, pts.into_iter()), Some(2)); // (2.3 - 1) / 0.5 = 2.6
         assert_eq!(rear_of(&sweep, std::iter::empty()), None);
-        assert_eq!(rear_of(&sweep, [DVec3::ZERO].into_iter()), Some(0), "clamped");
+        assert_eq!(
+            rear_of(&sweep, [DVec3::ZERO].into_iter()),
+            Some(0),
+            "clamped"
+        );
     }
 }

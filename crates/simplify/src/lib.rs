@@ -594,8 +594,14 @@ impl Simplifier {
     /// # Panics
     /// If this simplifier is not a second stage, or the batch is not a first stage's.
     pub fn ingest(&mut self, batch: &OutBatch) -> u32 {
-        assert_eq!(self.config.cascade, Cascade::Second, "ingest is for a second stage");
-        let handoff = batch.handoff.expect("a first stage's batch carries its handoff");
+        assert_eq!(
+            self.config.cascade,
+            Cascade::Second,
+            "ingest is for a second stage"
+        );
+        let handoff = batch
+            .handoff
+            .expect("a first stage's batch carries its handoff");
         let stride = self.config.attributes;
         let mut states = batch.states.iter();
         let mut attrs = batch.attrs.chunks(stride.max(1));
@@ -700,10 +706,10 @@ impl Simplifier {
     }
 
     fn note_resident(&mut self) {
-        let resident = self
-            .pass
-            .as_ref()
-            .map_or(self.store.resident(), passthrough::PassThrough::resident_faces);
+        let resident = self.pass.as_ref().map_or(
+            self.store.resident(),
+            passthrough::PassThrough::resident_faces,
+        );
         self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(resident);
     }
 }
