@@ -18,7 +18,8 @@
 //! re-read from the input on resume and checked against its saved hash instead of stored, so a
 //! checkpoint does not grow with the slice area). The extractors: their counters and the data
 //! range of slabs `0..z` (a slab depends on its two slices only). The detector: its front map. The
-//! simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap, waiting
+//! pruner (`[simplify] min_component_faces`): its open vertices and the components it holds back
+//! (format 2 added it). The simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap, waiting
 //! queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
 //! temporary files with their lengths and its bookkeeping (`smesh::SinkState`: SMB's partial
 //! block, GLB's pending normals). PLY and GLB need the final counts in a header at the top: their
@@ -46,7 +47,7 @@ use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// Bumped whenever the layout of the body changes.
-const FORMAT: u32 = 1;
+const FORMAT: u32 = 2;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
@@ -98,11 +99,14 @@ pub(crate) struct ReaderState {
 
 /// The checkpoint marker as it travels through the stages, each adding its state (the reader
 /// its slice and hash, the ordered intake of the extractors' slabs their counters and data
-/// range, the detector and the simplifier their encoded states).
+/// range, the detector, the pruner (when `min_component_faces` is set) and the simplifier their
+/// encoded states).
 pub(crate) struct Cut {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
+    /// Empty when the job does not prune.
+    pub prune: Vec<u8>,
     pub simplify: Vec<u8>,
 }
 
@@ -117,6 +121,7 @@ impl Cut {
             },
             extract: Default::default(),
             detect: Vec::new(),
+            prune: Vec::new(),
             simplify: Vec::new(),
         })
     }
@@ -128,6 +133,7 @@ pub(crate) struct Parts {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
+    pub prune: Vec<u8>,
     pub simplify: Vec<u8>,
     pub sink: isostream_smesh::SinkState,
 }
@@ -417,6 +423,7 @@ mod tests {
                 },
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
+                prune: vec![5, 6],
                 simplify: vec![4; 100],
                 sink: sink_state(),
             },

@@ -4,7 +4,7 @@ use glam::DVec3;
 use isostream_detect::{MeshDelta, NewVertex};
 use proptest::prelude::*;
 
-use crate::{Pruner, PrunerState};
+use crate::{Census, Filter, FilterState};
 
 fn vertex(id: u64) -> NewVertex {
     NewVertex {
@@ -24,8 +24,15 @@ fn delta(vertices: &[u64], triangles: &[[u64; 3]], modifiable: &[u64], front: u3
     }
 }
 
-fn pruner(n: u64) -> Pruner {
-    Pruner::new(NonZeroU64::new(n).unwrap())
+/// Both passes over the same deltas: the census, then the filter's output.
+fn prune(n: u64, deltas: &[MeshDelta]) -> (Vec<MeshDelta>, Filter) {
+    let mut census = Census::new(NonZeroU64::new(n).unwrap());
+    for d in deltas {
+        census.add(d);
+    }
+    let mut filter = Filter::new(census.finish());
+    let out = deltas.iter().map(|d| filter.process(d.clone())).collect();
+    (out, filter)
 }
 
 /// The four faces of a tetrahedron on `v`.
@@ -44,7 +51,6 @@ fn ids(d: &MeshDelta) -> Vec<u64> {
 
 #[test]
 fn a_small_closed_component_is_dropped_and_a_large_one_passes_in_order() {
-    let mut p = pruner(5);
     // Tetrahedron 0..4 (4 faces) and two tetrahedra glued at vertex 6: 4..11 (8 faces).
     let small = tetra([0, 1, 2, 3]);
     let big: Vec<[u64; 3]> = tetra([4, 5, 6, 7])
@@ -53,71 +59,61 @@ fn a_small_closed_component_is_dropped_and_a_large_one_passes_in_order() {
         .collect();
     let all: Vec<u64> = (0..11).collect();
     let tris: Vec<[u64; 3]> = small.iter().chain(&big).copied().collect();
-    let out = p.process(delta(&all, &tris, &all, 1));
-    assert_eq!(ids(&out), (4..11).collect::<Vec<_>>());
-    assert_eq!(out.attrs, (4..11).map(|i| i as f32).collect::<Vec<_>>());
-    assert_eq!(out.triangles, big);
-    assert_eq!(out.modifiable, (4..11).collect::<Vec<_>>());
-    assert_eq!(out.front, 1);
-    let st = p.stats();
+    let (out, filter) = prune(5, &[delta(&all, &tris, &all, 1)]);
+    assert_eq!(ids(&out[0]), (4..11).collect::<Vec<_>>());
+    assert_eq!(out[0].attrs, (4..11).map(|i| i as f32).collect::<Vec<_>>());
+    assert_eq!(out[0].triangles, big);
+    assert_eq!(out[0].modifiable, (4..11).collect::<Vec<_>>());
+    assert_eq!(out[0].front, 1);
+    let st = filter.stats();
     assert_eq!(
         (st.components_pruned, st.faces_pruned, st.vertices_pruned),
         (1, 4, 4)
     );
+    assert_eq!(filter.dropped_faces(), 4);
 }
 
 #[test]
-fn a_held_component_holds_the_front_until_it_is_decided() {
-    let mut p = pruner(4);
-    let t = tetra([0, 1, 2, 3]);
-    // Three faces at front 0..2: held (3 < 4), the front passed on stays at 0.
-    let out = p.process(delta(&[0, 1, 2, 3], &t[..2], &[], 2));
-    assert!(out.triangles.is_empty() && out.vertices.is_empty());
-    assert_eq!(out.front, 0);
-    let out = p.process(delta(&[], &t[2..3], &[], 5));
-    assert_eq!(out.front, 0);
-    // The fourth face releases it, in input order, and the front catches up.
-    let out = p.process(delta(&[], &t[3..], &[0, 1, 2, 3], 6));
-    assert_eq!(ids(&out), vec![0, 1, 2, 3]);
-    assert_eq!(out.triangles, t.to_vec());
-    assert_eq!(out.modifiable, vec![0, 1, 2, 3]);
-    assert_eq!(out.front, 6);
-    // A later component that completes below the size lets the front go once dropped.
-    let small = [[4, 5, 6]];
-    let out = p.process(delta(&[4, 5, 6], &small, &[4], 7));
-    assert_eq!(out.front, 6, "held at the front in force when it began");
-    let out = p.process(delta(&[], &[], &[5, 6], 8));
-    assert_eq!((out.front, out.triangles.len()), (8, 0));
-    assert_eq!(p.stats().faces_pruned, 1);
-    assert_eq!(p.stats().peak_held_faces, 3);
+fn pieces_that_merge_later_are_judged_as_one_component() {
+    // Two single triangles (pieces 0 and 3), then one joining them: 3 faces. Size 3 keeps all,
+    // size 4 drops all three, across the deltas they came in.
+    let deltas = [
+        delta(&[0, 1, 2], &[[0, 1, 2]], &[], 0),
+        delta(&[3, 4, 5], &[[3, 4, 5]], &[0], 1),
+        delta(&[], &[[1, 3, 2]], &[1, 2, 3, 4, 5], 2),
+        delta(&[6, 7, 8], &[[6, 7, 8]], &[6, 7, 8], 3),
+    ];
+    let (kept, _) = prune(3, &deltas);
+    let flat: Vec<[u64; 3]> = kept.iter().flat_map(|d| d.triangles.clone()).collect();
+    assert_eq!(flat, vec![[0, 1, 2], [3, 4, 5], [1, 3, 2]]);
+    let (none, filter) = prune(4, &deltas);
+    assert!(
+        none.iter()
+            .all(|d| d.triangles.is_empty() && d.vertices.is_empty())
+    );
+    assert!(none.iter().all(|d| d.modifiable.is_empty()));
+    assert_eq!(
+        none.iter().map(|d| d.front).collect::<Vec<_>>(),
+        vec![0, 1, 2, 3]
+    );
+    assert_eq!(filter.stats().components_pruned, 2);
+    assert_eq!(filter.stats().faces_pruned, 4);
 }
 
 #[test]
-fn components_merged_by_a_triangle_are_released_together_in_input_order() {
-    let mut p = pruner(3);
-    // Two single triangles (held), then a triangle joining them: 3 faces, released at once.
-    let out = p.process(delta(&[0, 1, 2], &[[0, 1, 2]], &[], 0));
-    assert!(out.triangles.is_empty());
-    let out = p.process(delta(&[3, 4, 5], &[[3, 4, 5]], &[0], 1));
-    assert!(out.triangles.is_empty());
-    let out = p.process(delta(&[], &[[1, 3, 2]], &[1, 2, 3, 4, 5], 2));
-    assert_eq!(ids(&out), vec![0, 1, 2, 3, 4, 5]);
-    assert_eq!(out.triangles, vec![[0, 1, 2], [3, 4, 5], [1, 3, 2]]);
-    assert_eq!(out.modifiable, vec![0, 1, 2, 3, 4, 5]);
-    assert_eq!(p.stats().components_pruned, 0);
-}
-
-#[test]
-fn a_triangle_joining_a_released_component_releases_the_held_one() {
-    let mut p = pruner(2);
-    let out = p.process(delta(&[0, 1, 2, 3], &[[0, 1, 2], [0, 2, 3]], &[], 0));
-    assert_eq!(out.triangles.len(), 2, "two faces: released");
-    let out = p.process(delta(&[4, 5, 6], &[[4, 5, 6]], &[], 1));
-    assert!(out.triangles.is_empty(), "one face: held");
-    let out = p.process(delta(&[], &[[3, 2, 4]], &[0, 1, 2, 3, 4, 5, 6], 2));
-    assert_eq!(ids(&out), vec![4, 5, 6]);
-    assert_eq!(out.triangles, vec![[4, 5, 6], [3, 2, 4]]);
-    assert_eq!(out.modifiable, vec![0, 1, 2, 3, 4, 5, 6]);
+fn a_small_piece_joining_a_large_component_is_kept() {
+    // 0..4: two faces (kept at size 2); 4..7: one face, later joined to the first by [3, 2, 4].
+    let deltas = [
+        delta(&[0, 1, 2, 3], &[[0, 1, 2], [0, 2, 3]], &[], 0),
+        delta(&[4, 5, 6], &[[4, 5, 6]], &[], 1),
+        delta(&[], &[[3, 2, 4]], &[0, 1, 2, 3, 4, 5, 6], 2),
+    ];
+    let (out, filter) = prune(2, &deltas);
+    for (o, d) in out.iter().zip(&deltas) {
+        assert_eq!(o.triangles, d.triangles);
+        assert_eq!(o.modifiable, d.modifiable);
+    }
+    assert_eq!(filter.stats().components_pruned, 0);
 }
 
 /// A random stream as the detector makes it: ids in order of first appearance, each vertex
@@ -152,7 +148,10 @@ fn stream(raw: Vec<[u16; 3]>, cuts: Vec<usize>, delays: Vec<u8>) -> Stream {
             last[v as usize] = i;
         }
     }
-    let mut bounds: Vec<usize> = cuts.into_iter().map(|c| c % (triangles.len() + 1)).collect();
+    let mut bounds: Vec<usize> = cuts
+        .into_iter()
+        .map(|c| c % (triangles.len() + 1))
+        .collect();
     bounds.push(0);
     bounds.push(triangles.len());
     bounds.sort_unstable();
@@ -216,18 +215,14 @@ fn components(s: &Stream) -> (Vec<usize>, Vec<u64>) {
     (roots, faces)
 }
 
-fn run(p: &mut Pruner, deltas: &[MeshDelta]) -> Vec<MeshDelta> {
-    deltas.iter().map(|d| p.process(d.clone())).collect()
-}
-
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 200, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
 
-    /// What comes out is exactly the input's components of at least the size, in input order,
-    /// as a valid stream (vertex before its triangles, notice after them), with a front that
-    /// never passes a triangle still to come; a restored snapshot continues identically.
+    /// Each output delta is its input delta without the elements of the components below the
+    /// size (same front, same order), exactly those are dropped, and a filter restored from a
+    /// snapshot continues identically.
     #[test]
-    fn the_output_is_the_large_components_as_a_valid_stream(
+    fn the_output_is_the_input_without_the_small_components(
         raw in proptest::collection::vec([0u16..60, 0u16..60, 0u16..60], 1..120),
         cuts in proptest::collection::vec(0usize..200, 0..12),
         delays in proptest::collection::vec(any::<u8>(), 60),
@@ -236,95 +231,39 @@ proptest! {
     ) {
         let s = stream(raw, cuts, delays);
         let (roots, faces) = components(&s);
-
-        let mut p = pruner(size);
-        let out = run(&mut p, &s.deltas);
-        p.finish();
-
-        let flat = |ds: &[MeshDelta]| {
-            let v: Vec<u64> = ds.iter().flat_map(ids).collect();
-            let a: Vec<f32> = ds.iter().flat_map(|d| d.attrs.clone()).collect();
-            let t: Vec<[u64; 3]> = ds.iter().flat_map(|d| d.triangles.clone()).collect();
-            let m: Vec<u64> = ds.iter().flat_map(|d| d.modifiable.clone()).collect();
-            (v, a, t, m)
-        };
-        // Per kept component, its elements (in the order of the parts they were released with,
-        // so compared sorted); nothing of the others.
-        let by_root = |(v, a, t, m): (Vec<u64>, Vec<f32>, Vec<[u64; 3]>, Vec<u64>)| {
-            let mut g = std::collections::BTreeMap::<usize, (Vec<u64>, Vec<f32>, Vec<[u64; 3]>, Vec<u64>)>::new();
-            for (&v, &a) in v.iter().zip(&a) {
-                let e = g.entry(roots[v as usize]).or_default();
-                e.0.push(v);
-                e.1.push(a);
-            }
-            for t in t {
-                g.entry(roots[t[0] as usize]).or_default().2.push(t);
-            }
-            for m in m {
-                g.entry(roots[m as usize]).or_default().3.push(m);
-            }
-            for e in g.values_mut() {
-                let mut va: Vec<(u64, u32)> = e.0.iter().zip(&e.1).map(|(&v, a)| (v, a.to_bits())).collect();
-                va.sort_unstable();
-                e.0 = va.iter().map(|p| p.0).collect();
-                e.1 = va.iter().map(|p| f32::from_bits(p.1)).collect();
-                e.2.sort_unstable();
-                e.3.sort_unstable();
-            }
-            g
-        };
-        let mut want = by_root(flat(&s.deltas));
-        want.retain(|&r, _| faces[r] >= size);
-        prop_assert_eq!(by_root(flat(&out)), want);
-
-        let dropped: u64 = (0..faces.len()).filter(|&r| roots[r] == r && faces[r] < size)
-            .map(|r| faces[r]).sum();
-        prop_assert_eq!(p.stats().faces_pruned, dropped);
-
-        // Stream order per delta, and the front rule: a triangle passed on lies beyond the
-        // front passed on before it (it arrived after the input front `arrival`).
-        let arrival: std::collections::HashMap<[u64; 3], u32> = s.deltas.iter()
-            .scan(0u32, |front, d| {
-                let f = *front;
-                *front = d.front;
-                Some(d.triangles.iter().map(move |&t| (t, f)).collect::<Vec<_>>())
-            })
-            .flatten()
-            .collect();
-        let mut present = std::collections::HashSet::new();
-        let mut noticed = std::collections::HashSet::new();
-        let mut front = 0u32;
-        let position: std::collections::HashMap<[u64; 3], usize> =
-            s.triangles.iter().enumerate().map(|(i, &t)| (t, i)).collect();
-        for (d, input) in out.iter().zip(&s.deltas) {
-            prop_assert!(d.front >= front && d.front <= input.front);
-            // Each delta in input order (vertex ids and notices are in it too, by construction).
-            prop_assert!(ids(d).is_sorted());
-            prop_assert!(d.triangles.iter().map(|t| position[t]).is_sorted());
-            present.extend(ids(d));
-            for t in &d.triangles {
-                prop_assert!(t.iter().all(|v| present.contains(v) && !noticed.contains(v)));
-                prop_assert!(arrival[t] >= front, "triangle {:?} behind front {}", t, front);
-            }
-            noticed.extend(d.modifiable.iter().copied());
-            front = d.front;
+        let keep = |v: u64| faces[roots[v as usize]] >= size;
+        let (out, filter) = prune(size, &s.deltas);
+        prop_assert_eq!(out.len(), s.deltas.len());
+        for (o, d) in out.iter().zip(&s.deltas) {
+            let vertices: Vec<u64> = ids(d).into_iter().filter(|&v| keep(v)).collect();
+            prop_assert_eq!(ids(o), vertices.clone());
+            prop_assert_eq!(o.attrs.clone(), vertices.iter().map(|&v| v as f32).collect::<Vec<_>>());
+            let tris: Vec<[u64; 3]> = d.triangles.iter().copied().filter(|t| keep(t[0])).collect();
+            prop_assert_eq!(&o.triangles, &tris);
+            let notices: Vec<u64> = d.modifiable.iter().copied().filter(|&v| keep(v)).collect();
+            prop_assert_eq!(&o.modifiable, &notices);
+            prop_assert_eq!(o.front, d.front);
         }
+        let small: Vec<usize> = (0..faces.len()).filter(|&r| roots[r] == r && faces[r] < size).collect();
+        let st = filter.stats();
+        prop_assert_eq!(st.components_pruned, small.len() as u64);
+        prop_assert_eq!(st.faces_pruned, small.iter().map(|&r| faces[r]).sum::<u64>());
+        prop_assert_eq!(st.vertices_pruned, roots.iter().filter(|&&r| faces[r] < size).count() as u64);
+        prop_assert_eq!(filter.dropped_faces(), st.faces_pruned);
 
         // Checkpoint: snapshot after `at` deltas, restore, continue: the same deltas.
         let at = at.min(s.deltas.len());
-        let mut first = pruner(size);
-        let head = run(&mut first, &s.deltas[..at]);
-        let state: PrunerState = first.snapshot();
-        let mut second = Pruner::restore(state.clone());
+        let mut census = Census::new(NonZeroU64::new(size).unwrap());
+        s.deltas.iter().for_each(|d| census.add(d));
+        let mut first = Filter::new(census.finish());
+        let head: Vec<MeshDelta> = s.deltas[..at].iter().map(|d| first.process(d.clone())).collect();
+        let state: FilterState = first.snapshot();
+        let mut second = Filter::restore(state.clone());
         prop_assert_eq!(second.snapshot(), state);
-        let tail = run(&mut second, &s.deltas[at..]);
-        let again: Vec<MeshDelta> = head.into_iter().chain(tail).collect();
-        prop_assert_eq!(flat(&again), flat(&out));
-        prop_assert_eq!(
-            again.iter().map(|d| d.front).collect::<Vec<_>>(),
-            out.iter().map(|d| d.front).collect::<Vec<_>>()
-        );
-        second.finish();
-        prop_assert_eq!(second.stats(), p.stats());
+        let tail = s.deltas[at..].iter().map(|d| second.process(d.clone()));
+        for (a, b) in head.into_iter().chain(tail).zip(&out) {
+            prop_assert_eq!((ids(&a), a.triangles, a.modifiable), (ids(b), b.triangles.clone(), b.modifiable.clone()));
+        }
+        prop_assert_eq!(second.dropped_faces(), st.faces_pruned);
     }
 }
