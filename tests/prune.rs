@@ -206,3 +206,26 @@ fn a_pruned_job_resumes_to_the_same_bytes() {
         assert!(!dir.path().join(format!(".{output}.ckpt")).exists());
     }
 }
+
+/// `[output] faces`: the first pass counts the faces kept, and the rate is set from them.
+#[test]
+fn output_faces_apply_to_the_faces_kept() {
+    let vol = speckled_sphere(40, 9);
+    let big = reference_sizes(&vol)[0];
+    let dir = tempfile::tempdir().unwrap();
+    let job = vol.job(
+        dir.path(),
+        "batch = 500\nmin_component_faces = 200",
+        "out.smb",
+    );
+    let text = std::fs::read_to_string(&job)
+        .unwrap()
+        .replace("allow_empty = true\n", "allow_empty = true\nfaces = 300\n");
+    std::fs::write(&job, text).unwrap();
+    let summary = run_job(&job);
+    assert_eq!(summary.faces_kept as usize, big);
+    assert_eq!(summary.rate, Some(300.0 / big as f64));
+    assert_eq!(summary.target_faces, Some(300));
+    assert!(summary.faces_written <= 306, "{}", summary.faces_written);
+    assert!(summary.warnings.is_empty(), "{:?}", summary.warnings);
+}

@@ -18,9 +18,10 @@
 //! re-read from the input on resume and checked against its saved hash instead of stored, so a
 //! checkpoint does not grow with the slice area). The extractors: their counters and the data
 //! range of slabs `0..z` (a slab depends on its two slices only). The detector: its front map. The
-//! pruner (`[simplify] min_component_faces`): its open vertices and the components it holds back
-//! (format 2 added it). The simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap, waiting
-//! queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
+//! prune filter (`[simplify] min_component_faces`; format 2 added it): the small pieces still
+//! ahead and the open vertices it has passed on or dropped, so a resumed job skips the first
+//! pass. The simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap,
+//! waiting queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
 //! temporary files with their lengths and its bookkeeping (`smesh::SinkState`: SMB's partial
 //! block, GLB's pending normals). PLY and GLB need the final counts in a header at the top: their
 //! sinks already write the body to scratch files and assemble the file at the end, so a
@@ -99,8 +100,8 @@ pub(crate) struct ReaderState {
 
 /// The checkpoint marker as it travels through the stages, each adding its state (the reader
 /// its slice and hash, the ordered intake of the extractors' slabs their counters and data
-/// range, the detector, the pruner (when `min_component_faces` is set) and the simplifier their
-/// encoded states).
+/// range, the detector, the prune filter (when `min_component_faces` is set) and the simplifier
+/// their encoded states).
 pub(crate) struct Cut {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,

@@ -61,7 +61,7 @@ pub struct RunSummary {
     pub faces_kept: u64,
     /// Mode `rate`: `[output] faces`, else `round(rate x faces_kept)`.
     pub target_faces: Option<u64>,
-    /// Mode `rate`: the rate used (`[output] faces` over the extracted faces when faces is set).
+    /// Mode `rate`: the rate used (`[output] faces` over `faces_kept` when faces is set).
     pub rate: Option<f64>,
     pub faces_written: u64,
     pub vertices_written: u64,
