@@ -2,14 +2,16 @@
 //! blobs, the blobs are gone, the sphere is kept and the output stays valid (the referee:
 //! manifold, oriented, Euler characteristic of the kept component, no crossings); without
 //! simplification exactly the large component's triangles remain; 0 is the same bytes as no key;
-//! a pruned job stopped at a checkpoint resumes to the same bytes.
+//! a pruned job stopped at a checkpoint resumes to the same bytes; on random noisy fields, the
+//! same holds for any size.
 
 mod common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use common::{Mesh, Rng, TestVolume, run_job};
+use common::{Mesh, Rng, TestVolume, random_levels, run_job};
 use isostream_pipeline::{JobConfig, Progress, RunError, Start, run_from};
+use proptest::prelude::*;
 
 /// One sphere of radius 9 at the centre and `blobs` spheres of radius 0.8 to 1.6 around it
 /// (none touching it nor the box): `max` of signed distances, inside > 0.
@@ -228,4 +230,87 @@ fn output_faces_apply_to_the_faces_kept() {
     assert_eq!(summary.target_faces, Some(300));
     assert!(summary.faces_written <= 306, "{}", summary.faces_written);
     assert!(summary.warnings.is_empty(), "{:?}", summary.warnings);
+}
+
+/// The reference surface's components of at least `n` triangles, compacted.
+fn reference_kept(vol: &TestVolume, n: usize) -> Mesh {
+    let full = vol.reference();
+    let mut parent: Vec<usize> = (0..full.positions.len()).collect();
+    fn find(p: &mut [usize], mut x: usize) -> usize {
+        while p[x] != x {
+            p[x] = p[p[x]];
+            x = p[x];
+        }
+        x
+    }
+    for t in &full.triangles {
+        for k in 1..3 {
+            let (a, b) = (
+                find(&mut parent, t[0] as usize),
+                find(&mut parent, t[k] as usize),
+            );
+            parent[b] = a;
+        }
+    }
+    let root: Vec<usize> = full
+        .triangles
+        .iter()
+        .map(|t| find(&mut parent, t[0] as usize))
+        .collect();
+    let mut faces = vec![0usize; full.positions.len()];
+    root.iter().for_each(|&r| faces[r] += 1);
+    let mut index = vec![u32::MAX; full.positions.len()];
+    let mut mesh = Mesh {
+        positions: Vec::new(),
+        triangles: Vec::new(),
+    };
+    for (t, &r) in full.triangles.iter().zip(&root) {
+        if faces[r] >= n {
+            let t = t.map(|v| {
+                if index[v as usize] == u32::MAX {
+                    index[v as usize] = mesh.positions.len() as u32;
+                    mesh.positions.push(full.positions[v as usize]);
+                }
+                index[v as usize]
+            });
+            mesh.triangles.push(t);
+        }
+    }
+    mesh
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Random integer fields (many small components, surfaces cut by the box), any size: without
+    /// simplification exactly the reference's components of at least that size; simplified, a
+    /// valid surface with their Euler characteristics and no crossing.
+    #[test]
+    fn any_size_keeps_exactly_the_large_components(
+        nx in 4u64..14, ny in 4u64..14, nz in 4u64..14,
+        levels in 2u32..5, iso_pick in 0usize..4, seed in any::<u64>(),
+        size in 1u64..40, rate in 0.05f64..0.6,
+    ) {
+        let iso = [0.5f32, 1.0, 1.5, 2.0][iso_pick];
+        let vol = random_levels([nx, ny, nz], levels, iso, seed);
+        let want = reference_kept(&vol, size as usize);
+        let dir = tempfile::tempdir().unwrap();
+        let job = vol.job(dir.path(), &format!("mode = \"none\"\nmin_component_faces = {size}"), "none.smb");
+        let summary = run_job(&job);
+        let got = Mesh::read(&dir.path().join("none.smb"));
+        prop_assert_eq!(got.canonical_triangles(), want.canonical_triangles());
+        prop_assert_eq!(summary.faces_kept as usize, want.triangles.len());
+
+        let simplify = format!("rate = {rate}\nbatch = 200\nmin_component_faces = {size}");
+        let job = vol.job(dir.path(), &simplify, "rate.smb");
+        let summary = run_job(&job);
+        prop_assert_eq!(summary.simplify.faces_in as usize, want.triangles.len());
+        let path = dir.path().join("rate.smb");
+        isostream_smesh::validate(&path).unwrap();
+        let mesh = Mesh::read(&path);
+        let report = mesh.check();
+        prop_assert!(report.is_valid_manifold(), "{report:?}");
+        prop_assert_eq!(mesh.self_intersections(), 0);
+        prop_assert_eq!(report.sorted_eulers(), want.check().sorted_eulers());
+    }
 }
