@@ -18,8 +18,10 @@
 //! re-read from the input on resume and checked against its saved hash instead of stored, so a
 //! checkpoint does not grow with the slice area). The extractors: their counters and the data
 //! range of slabs `0..z` (a slab depends on its two slices only). The detector: its front map. The
-//! simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap, waiting
-//! queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
+//! prune filter (`[simplify] min_component_faces`; format 2 added it): the small pieces still
+//! ahead and the open vertices it has passed on or dropped, so a resumed job skips the first
+//! pass. The simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap,
+//! waiting queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
 //! temporary files with their lengths and its bookkeeping (`smesh::SinkState`: SMB's partial
 //! block, GLB's pending normals). PLY and GLB need the final counts in a header at the top: their
 //! sinks already write the body to scratch files and assemble the file at the end, so a
@@ -45,9 +47,9 @@ use crate::config::JobConfig;
 use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
-/// Bumped whenever the layout of the body changes (2: the simplifier's pass-through band and
-/// a cascade's second simplifier).
-const FORMAT: u32 = 2;
+/// Bumped whenever the layout of the body changes (2: the prune stage's state; 3: the
+/// simplifier's pass-through band and a cascade's second simplifier).
+const FORMAT: u32 = 3;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
@@ -99,11 +101,14 @@ pub(crate) struct ReaderState {
 
 /// The checkpoint marker as it travels through the stages, each adding its state (the reader
 /// its slice and hash, the ordered intake of the extractors' slabs their counters and data
-/// range, the detector and the simplifier their encoded states).
+/// range, the detector, the prune filter (when `min_component_faces` is set) and the simplifier
+/// their encoded states).
 pub(crate) struct Cut {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
+    /// Empty when the job does not prune.
+    pub prune: Vec<u8>,
     pub simplify: Vec<u8>,
     /// A cascade's second simplifier (empty without one).
     pub simplify_second: Vec<u8>,
@@ -120,6 +125,7 @@ impl Cut {
             },
             extract: Default::default(),
             detect: Vec::new(),
+            prune: Vec::new(),
             simplify: Vec::new(),
             simplify_second: Vec::new(),
         })
@@ -132,6 +138,7 @@ pub(crate) struct Parts {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
+    pub prune: Vec<u8>,
     pub simplify: Vec<u8>,
     /// A cascade's second simplifier (empty without one).
     pub simplify_second: Vec<u8>,
@@ -423,6 +430,7 @@ mod tests {
                 },
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
+                prune: vec![5, 6],
                 simplify: vec![4; 100],
                 simplify_second: vec![5; 10],
                 sink: sink_state(),
