@@ -228,13 +228,13 @@ fn run_job(
     let (sink, resume) = match (saved, &identity) {
         (Some(saved), Some(identity)) => {
             checkpoint::verify(ckpt_path, &saved, job, identity)?;
-            let parts = saved.parts;
             simplifier =
-                Simplifier::restore(&config, checkpoint::decode(ckpt_path, &parts.simplify)?)
+                Simplifier::restore(&config, checkpoint::decode_simplifier(ckpt_path, &saved)?)
                     .map_err(|e| RunError::ResumeMismatch {
                         path: ckpt_path.to_path_buf(),
                         what: e.to_string(),
                     })?;
+            let parts = saved.parts;
             let detector = isostream_detect::Detector::restore(
                 grid.dims,
                 checkpoint::decode(ckpt_path, &parts.detect)?,
