@@ -84,19 +84,37 @@ fn hash(bytes: &[u8]) -> u64 {
     XxHash64::oneshot(0, bytes)
 }
 
-/// Hash of a slice's values as little-endian bytes (the carried slice's check on resume),
-/// streamed: a slice of a gigavoxel volume is tens of MiB, and a copy of it as bytes would be
-/// as large.
+/// Hash of a slice's values as little-endian bytes (the carried slice's check on resume).
 pub(crate) fn hash_slice(values: &[f32]) -> u64 {
-    let mut h = XxHash64::with_seed(0);
-    let mut buf = [0u8; 4096];
-    for chunk in values.chunks(buf.len() / 4) {
-        for (b, v) in buf.chunks_exact_mut(4).zip(chunk) {
-            b.copy_from_slice(&v.to_le_bytes());
-        }
-        h.write(&buf[..4 * chunk.len()]);
-    }
+    let mut h = SliceHasher::default();
+    h.add(values);
     h.finish()
+}
+
+/// [`hash_slice`] of values given in parts (a slice row by row), never copied: a slice of a
+/// gigavoxel volume is tens of MiB, and a copy of it as bytes would be as large.
+pub(crate) struct SliceHasher(XxHash64);
+
+impl Default for SliceHasher {
+    fn default() -> Self {
+        Self(XxHash64::with_seed(0))
+    }
+}
+
+impl SliceHasher {
+    pub fn add(&mut self, values: &[f32]) {
+        let mut buf = [0u8; 4096];
+        for chunk in values.chunks(buf.len() / 4) {
+            for (b, v) in buf.chunks_exact_mut(4).zip(chunk) {
+                b.copy_from_slice(&v.to_le_bytes());
+            }
+            self.0.write(&buf[..4 * chunk.len()]);
+        }
+    }
+
+    pub fn finish(&self) -> u64 {
+        self.0.finish()
+    }
 }
 
 /// `out/x.smb` -> `out/.x.smb.ckpt`.

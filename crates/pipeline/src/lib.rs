@@ -197,9 +197,14 @@ fn run_job(
     let every = job.pipeline.checkpoint.every(grid.voxel_count());
     let identity = match every.is_some() || saved.is_some() {
         true => {
-            let mut first = vec![0f32; grid.slice_len()];
-            source.read_slice(0, &mut first)?;
-            let first = checkpoint::hash_slice(&first);
+            let first = match source.slice_rows(0, None)? {
+                Some(rows) => attributes::hash_rows(rows.as_ref(), &grid),
+                None => {
+                    let mut first = vec![0f32; grid.slice_len()];
+                    source.read_slice(0, &mut first)?;
+                    checkpoint::hash_slice(&first)
+                }
+            };
             Some(checkpoint::InputIdentity::of(
                 job,
                 input.clone(),
@@ -259,7 +264,7 @@ fn run_job(
         }
         _ => (sink::Sink::create(&job.output.path, &header)?, None),
     };
-    let mut reader = SliceReader::new(source, attribute_sources);
+    let mut reader = SliceReader::new(source, attribute_sources).rows_on_demand();
     if job.extract.skip_empty {
         reader = reader.skip_empty(job.extract.iso as f32);
     }
@@ -346,7 +351,7 @@ fn run_job(
 fn rate_for_faces(job: &JobConfig, faces: u64, cancel: &AtomicBool) -> Result<f64, RunError> {
     let started = Instant::now();
     let iso = job.extract.iso as f32;
-    let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new());
+    let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new()).rows_on_demand();
     if job.extract.skip_empty {
         reader = reader.skip_empty(iso);
     }
