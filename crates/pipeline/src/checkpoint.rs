@@ -335,9 +335,8 @@ impl Partial {
         // The lengths are filled in by `finish`.
         tmp.write_all(&head(0, 0))
             .map_err(|e| write_error(path, &e))?;
-        let (hasher, simplify) =
-            encode_hashed(tmp.as_file_mut(), XxHash64::with_seed(0), simplify)
-                .map_err(|e| write_error(path, &e))?;
+        let (hasher, simplify) = encode_hashed(tmp.as_file_mut(), XxHash64::with_seed(0), simplify)
+            .map_err(|e| write_error(path, &e))?;
         Ok(Self {
             path: path.to_path_buf(),
             tmp,

@@ -140,10 +140,7 @@ impl Step for ReadStep<'_> {
                 what: format!("slice {z} holds other values than when the checkpoint was saved"),
             }));
         }
-        let cut = self
-            .schedule
-            .due(z)
-            .then(|| Cut::new(z, upper.hash(&grid)));
+        let cut = self.schedule.due(z).then(|| Cut::new(z, upper.hash(&grid)));
         if let Some(lower) = self.prev.replace(upper.clone()) {
             let (reply, answer) = bounded(1);
             let job = SlabJob {
@@ -508,7 +505,10 @@ mod tests {
                 let got = replies(reader(true), &mut tiled);
                 assert_eq!(got.len(), want.len());
                 for (g, w) in got.iter().zip(&want) {
-                    assert!(g.batches == w.batches, "strips of {height} rows, skip {skip}");
+                    assert!(
+                        g.batches == w.batches,
+                        "strips of {height} rows, skip {skip}"
+                    );
                     assert_eq!(g.stats, w.stats);
                     assert_eq!(g.range, w.range);
                 }

@@ -278,7 +278,11 @@ mod tests {
         assert_eq!(b.entries, b.lists.iter().map(Vec::len).sum::<usize>());
         let mut popped = Vec::new();
         while let Some((key, ids)) = b.pop_below(u32::MAX) {
-            popped.extend(ids.into_iter().filter(|&id| is_filed(&s, id, key)).map(|id| (key, id)));
+            popped.extend(
+                ids.into_iter()
+                    .filter(|&id| is_filed(&s, id, key))
+                    .map(|id| (key, id)),
+            );
         }
         assert_eq!(popped, kept);
         assert_eq!(b.entries, 0);

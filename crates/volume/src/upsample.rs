@@ -320,13 +320,7 @@ impl VolumeSource for Upsampled {
         z: u64,
         iso: Option<f32>,
     ) -> Result<Option<Arc<dyn SliceRows>>, VolumeError> {
-        VolumeError::check_slice_request(
-            || self.describe(),
-            z,
-            self.grid.dims[2],
-            0,
-            0,
-        )?;
+        VolumeError::check_slice_request(|| self.describe(), z, self.grid.dims[2], 0, 0)?;
         Ok(Some(Arc::new(self.fine(z, iso)?)))
     }
 
