@@ -116,8 +116,14 @@ fn report(s: &RunSummary) {
         peak_resident_faces = s.peak_resident_faces,
         "job done"
     );
+    let pruned = s.prune.map_or(String::new(), |p| {
+        format!(
+            " ({} faces in {} components under {} faces pruned)",
+            p.faces_pruned, p.components_pruned, p.min_component_faces
+        )
+    });
     println!(
-        "{}: {} -> {} faces in {:.2} s, peak RSS {:.1} MiB",
+        "{}: {} -> {} faces{pruned} in {:.2} s, peak RSS {:.1} MiB",
         normalised(&s.output).display(),
         s.faces_extracted,
         s.faces_written,

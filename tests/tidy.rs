@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 /// Crates that must stay pure: no I/O, no threads, no async runtime.
-const ALGORITHM_CRATES: [&str; 4] = ["extract", "detect", "simplify", "meshcheck"];
+const ALGORITHM_CRATES: [&str; 5] = ["extract", "detect", "prune", "simplify", "meshcheck"];
 
 fn rust_files(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();

@@ -18,8 +18,10 @@
 //! re-read from the input on resume and checked against its saved hash instead of stored, so a
 //! checkpoint does not grow with the slice area). The extractors: their counters and the data
 //! range of slabs `0..z` (a slab depends on its two slices only). The detector: its front map. The
-//! simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap, waiting
-//! queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
+//! prune filter (`[simplify] min_component_faces`; format 2 added it): the small pieces still
+//! ahead and the open vertices it has passed on or dropped, so a resumed job skips the first
+//! pass. The simplifier: its whole resident band (vertices, quadrics, attributes, candidate heap,
+//! waiting queue, rank buckets, the guard's index with its ghost triangles, counters). The writer: its
 //! temporary files with their lengths and its bookkeeping (`smesh::SinkState`: SMB's partial
 //! block, GLB's pending normals). PLY and GLB need the final counts in a header at the top: their
 //! sinks already write the body to scratch files and assemble the file at the end, so a
@@ -54,9 +56,9 @@ use crate::config::JobConfig;
 use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
-/// Bumped whenever the layout of the file or of its sections changes (2: the simplifier's
-/// section streamed ahead of the rest).
-const FORMAT: u32 = 2;
+/// Bumped whenever the layout of the file or of its sections changes (2: the prune filter's
+/// part; 3: the simplifier's section streamed ahead of the rest).
+const FORMAT: u32 = 3;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
@@ -135,11 +137,14 @@ pub(crate) struct ReaderState {
 
 /// The checkpoint marker as it travels through the stages, each adding its state (the reader
 /// its slice and hash, the ordered intake of the extractors' slabs their counters and data
-/// range, the detector its encoded state, the simplifier the file it began with its state).
+/// range, the detector and the prune filter (when `min_component_faces` is set) their encoded
+/// states, the simplifier the file it began with its state).
 pub(crate) struct Cut {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
+    /// Empty when the job does not prune.
+    pub prune: Vec<u8>,
     pub simplify: Option<Partial>,
 }
 
@@ -154,6 +159,7 @@ impl Cut {
             },
             extract: Default::default(),
             detect: Vec::new(),
+            prune: Vec::new(),
             simplify: None,
         })
     }
@@ -165,6 +171,7 @@ pub(crate) struct Parts {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
+    pub prune: Vec<u8>,
     pub sink: isostream_smesh::SinkState,
 }
 
@@ -600,6 +607,7 @@ mod tests {
                 },
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
+                prune: vec![5, 6],
                 sink: sink_state(),
             },
             simplify: Section::default(),

@@ -139,6 +139,11 @@ pub struct SimplifyConfig {
     pub lambda: f64,
     /// `priority = "attribute-quadric"`: one weight per `[[attributes]]` entry (default 1 each).
     pub attribute_weights: Option<Vec<f64>>,
+    /// Drop every connected component of fewer full-resolution faces than this, before
+    /// simplifying (`isostream_prune`); 0 (the default) keeps every component. The one option
+    /// that changes the topology.
+    #[serde(default)]
+    pub min_component_faces: u64,
 }
 
 /// `[simplify] priority`.
@@ -188,6 +193,7 @@ impl Default for SimplifyConfig {
             priority: PriorityKind::default(),
             lambda: default_lambda(),
             attribute_weights: None,
+            min_component_faces: 0,
         }
     }
 }

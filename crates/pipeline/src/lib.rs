@@ -21,10 +21,12 @@ mod sink;
 mod source;
 mod stages;
 
+use std::num::NonZeroU64;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
+use isostream_prune::{Filter, SmallPieces};
 use isostream_simplify::{Policy, Simplifier, SimplifyConfig as SimplifierConfig};
 use isostream_smesh::Header;
 use serde::Serialize;
@@ -54,9 +56,12 @@ pub struct RunSummary {
     pub mode: Mode,
     pub output: PathBuf,
     pub faces_extracted: u64,
-    /// Mode `rate`: `[output] faces`, else `round(rate x faces_extracted)`.
+    /// The faces the simplifier received: `faces_extracted` less the faces pruned
+    /// (`[simplify] min_component_faces`).
+    pub faces_kept: u64,
+    /// Mode `rate`: `[output] faces`, else `round(rate x faces_kept)`.
     pub target_faces: Option<u64>,
-    /// Mode `rate`: the rate used (`[output] faces` over the extracted faces when faces is set).
+    /// Mode `rate`: the rate used (`[output] faces` over `faces_kept` when faces is set).
     pub rate: Option<f64>,
     pub faces_written: u64,
     pub vertices_written: u64,
@@ -69,6 +74,10 @@ pub struct RunSummary {
     pub shape_error: f64,
     pub extract: isostream_extract::ExtractStats,
     pub detect: isostream_detect::DetectStats,
+    /// `[simplify] min_component_faces`: the components and faces dropped before simplifying
+    /// (`None` when every component is kept).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prune: Option<isostream_prune::PruneStats>,
     pub simplify: isostream_simplify::SimplifyStats,
     pub sink: SinkStats,
     /// The slab this run continued from (`--resume`), `None` when it started at the beginning.
@@ -181,11 +190,22 @@ fn run_job(
         job,
         index_limit::vertex_bound(job, grid.voxel_count(), rate),
     )?;
-    let rate = match job.output.faces {
-        Some(faces) => rate_for_faces(job, faces, cancel)?,
-        None => rate,
+    let prune = NonZeroU64::new(job.simplify.min_component_faces);
+    // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts.
+    let pass = match job.output.faces.is_some() || (prune.is_some() && saved.is_none()) {
+        true => Some(first_pass(job, prune, cancel)?),
+        false => None,
+    };
+    let rate = match (job.output.faces, &pass) {
+        // R applies to the faces kept: `faces` is what the simplifier is asked to write.
+        (Some(faces), Some(pass)) => (faces as f64 / pass.kept().max(1) as f64).min(1.0),
+        _ => rate,
     };
     let config = simplifier_config(job, grid, rate);
+    let mut filter = pass
+        .and_then(|p| p.small)
+        .filter(|_| saved.is_none())
+        .map(Filter::new);
     let mut simplifier = Simplifier::new(config.clone()).map_err(|e| {
         RunError::Config(ConfigError::Invalid {
             path: job_path.to_path_buf(),
@@ -240,6 +260,12 @@ fn run_job(
                         what: e.to_string(),
                     })?;
             let parts = saved.parts;
+            if prune.is_some() {
+                filter = Some(Filter::restore(checkpoint::decode(
+                    ckpt_path,
+                    &parts.prune,
+                )?));
+            }
             let detector = isostream_detect::Detector::restore(
                 grid.dims,
                 checkpoint::decode(ckpt_path, &parts.detect)?,
@@ -285,6 +311,7 @@ fn run_job(
         reader,
         input: input.clone(),
         iso: job.extract.iso as f32,
+        filter,
         simplifier,
         sink,
         capacity: job.pipeline.channel_capacity,
@@ -303,15 +330,31 @@ fn run_job(
     checkpoint::remove(ckpt_path)?;
 
     let sink_stats = outputs.sink;
+    let faces_kept = outputs.extract.triangles - outputs.prune.map_or(0, |p| p.faces_pruned);
     let target_faces = (job.simplify.mode == Mode::Rate).then(|| {
         job.output
             .faces
-            .unwrap_or_else(|| (rate * outputs.extract.triangles as f64).round() as u64)
+            .unwrap_or_else(|| (rate * faces_kept as f64).round() as u64)
     });
     let warnings: Vec<String> = target_faces
-        .and_then(|target| rate_missed(target, sink_stats.triangles, &outputs.simplify))
+        .and_then(|target| {
+            rate_missed(
+                target,
+                sink_stats.triangles,
+                &outputs.simplify,
+                outputs.prune.is_some(),
+            )
+        })
         .into_iter()
         .collect();
+    if let Some(p) = &outputs.prune {
+        info!(
+            min_component_faces = p.min_component_faces,
+            components = p.components_pruned,
+            faces = p.faces_pruned,
+            "small components pruned"
+        );
+    }
     for w in &warnings {
         warn!("{w}");
     }
@@ -323,6 +366,7 @@ fn run_job(
         mode: job.simplify.mode,
         output: job.output.path.clone(),
         faces_extracted: outputs.extract.triangles,
+        faces_kept,
         target_faces,
         rate: (job.simplify.mode == Mode::Rate).then_some(rate),
         faces_written: sink_stats.triangles,
@@ -334,6 +378,7 @@ fn run_job(
         shape_error: outputs.simplify.max_shape_error,
         extract: outputs.extract,
         detect: outputs.detect,
+        prune: outputs.prune,
         simplify: outputs.simplify,
         sink: sink_stats,
         resumed_at_slab,
@@ -346,16 +391,35 @@ fn run_job(
     Ok(summary)
 }
 
-/// `[output] faces`: the rate that gives that many faces, from the extracted face count, which a
-/// first extraction pass (parallel, empty space skipped, nothing kept) counts. At most 1.
-fn rate_for_faces(job: &JobConfig, faces: u64, cancel: &AtomicBool) -> Result<f64, RunError> {
+/// What the first pass found: the extracted faces and, when the job prunes, the small pieces.
+struct FirstPass {
+    extracted: u64,
+    small: Option<SmallPieces>,
+}
+
+impl FirstPass {
+    /// The faces the simplifier will receive.
+    fn kept(&self) -> u64 {
+        self.extracted - self.small.as_ref().map_or(0, |s| s.stats.faces_pruned)
+    }
+}
+
+/// The first pass, for `[output] faces` (the extracted face count sets the rate) and for
+/// `[simplify] min_component_faces` (the census of components, see `isostream_prune`): the
+/// volume is extracted (parallel, empty space skipped) and, to prune, detected; nothing is kept
+/// but the counts and the list of small pieces.
+fn first_pass(
+    job: &JobConfig,
+    prune: Option<NonZeroU64>,
+    cancel: &AtomicBool,
+) -> Result<FirstPass, RunError> {
     let started = Instant::now();
     let iso = job.extract.iso as f32;
     let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new()).rows_on_demand();
     if job.extract.skip_empty {
         reader = reader.skip_empty(iso);
     }
-    let counted = stages::Extraction {
+    let (counted, small) = stages::Extraction {
         reader,
         iso,
         batch_triangles: job.pipeline.batch_triangles,
@@ -366,16 +430,19 @@ fn rate_for_faces(job: &JobConfig, faces: u64, cancel: &AtomicBool) -> Result<f6
         carried: None,
         stats: Default::default(),
     }
-    .count(cancel)?;
-    let rate = (faces as f64 / counted.triangles.max(1) as f64).min(1.0);
+    .count(cancel, prune)?;
+    let pass = FirstPass {
+        extracted: counted.triangles,
+        small,
+    };
     info!(
-        faces,
-        extracted = counted.triangles,
-        rate,
+        extracted = pass.extracted,
+        kept = pass.kept(),
+        small_components = pass.small.as_ref().map(|s| s.stats.components_pruned),
         seconds = started.elapsed().as_secs_f64(),
-        "counting pass for output.faces"
+        "first pass (output.faces, simplify.min_component_faces)"
     );
-    Ok(rate)
+    Ok(pass)
 }
 
 /// The simplifier's whole configuration: policy, priority, budget, attributes, and the sweep
@@ -424,10 +491,20 @@ fn rate_missed(
     target: u64,
     written: u64,
     stats: &isostream_simplify::SimplifyStats,
+    pruning: bool,
 ) -> Option<String> {
     (written as f64 > 1.02 * target as f64).then(|| {
+        let hint = match pruning {
+            true => "; a larger [simplify] min_component_faces drops more small components",
+            false => {
+                "; [simplify] min_component_faces drops small components (it changes the topology)"
+            }
+        };
         format!(
-            "rate target missed: {written} faces written for a target of {target} (+{:.0} %);              the topology allows no fewer here: the remaining edges were refused by the link              condition ({} times: closed components stay at least tetrahedra, boundaries stay in              place), by flips ({}) and by the self-intersection guard ({})",
+            "rate target missed: {written} faces written for a target of {target} (+{:.0} %); \
+             the topology allows no fewer here: the remaining edges were refused by the link \
+             condition ({} times: closed components stay at least tetrahedra, boundaries stay in \
+             place), by flips ({}) and by the self-intersection guard ({}){hint}",
             100.0 * (written as f64 / target.max(1) as f64 - 1.0),
             stats.rejected_link,
             stats.rejected_flip,

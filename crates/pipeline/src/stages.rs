@@ -4,6 +4,7 @@
 //! what each stage does with one input and at its end.
 
 use std::convert::Infallible;
+use std::num::NonZeroU64;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -11,6 +12,7 @@ use std::time::Instant;
 use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
+use isostream_prune::{Census, Filter, PruneStats, SmallPieces};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
 use tracing::{debug, info};
 
@@ -42,6 +44,9 @@ pub struct StageSeconds {
     pub read: f64,
     pub extract: f64,
     pub detect: f64,
+    /// `None` when the job does not prune.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prune: Option<f64>,
     pub simplify: f64,
     pub write: f64,
 }
@@ -50,6 +55,8 @@ pub(crate) struct StageOutputs {
     pub seconds: StageSeconds,
     pub extract: ExtractStats,
     pub detect: DetectStats,
+    /// `None` when the job does not prune.
+    pub prune: Option<PruneStats>,
     pub simplify: SimplifyStats,
     pub sink: crate::sink::SinkStats,
 }
@@ -60,6 +67,9 @@ pub(crate) struct Stages<'a> {
     /// What the volume is, for the empty-surface error.
     pub input: String,
     pub iso: f32,
+    /// `[simplify] min_component_faces`: the stage between the detector and the simplifier
+    /// (restored already when resuming); `None`: no such stage.
+    pub filter: Option<Filter>,
     pub simplifier: Simplifier,
     pub sink: Sink,
     pub capacity: usize,
@@ -100,6 +110,7 @@ impl Stages<'_> {
             reader,
             input,
             iso,
+            filter,
             simplifier,
             sink,
             capacity,
@@ -126,6 +137,14 @@ impl Stages<'_> {
         };
         let threads = threads.max(1);
         let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
+        // With pruning, the detector sends to the filter, which sends on to the simplifier.
+        let (detect_tx, pruned) = match filter {
+            Some(filter) => {
+                let (tx, rx) = bounded::<Msg<MeshDelta>>(capacity);
+                (tx, Some((filter, rx, delta_tx)))
+            }
+            None => (delta_tx, None),
+        };
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
         let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
         let depth = Depths {
@@ -161,8 +180,11 @@ impl Stages<'_> {
                     ctl,
                     step,
                     Ordered::new(order_rx, extract_before, range),
-                    Outbox::new(ctl, delta_tx),
+                    Outbox::new(ctl, detect_tx),
                 )
+            });
+            let prune = pruned.map(|(filter, rx, tx)| {
+                s.spawn(move || run("prune", ctl, PruneStep(filter), rx, Outbox::new(ctl, tx)))
             });
             let plan = checkpoints.as_ref();
             let simplify = s.spawn(move || {
@@ -195,13 +217,15 @@ impl Stages<'_> {
             let read = join(read, "read");
             let extract = join_workers(workers);
             let detect = join(detect, "detect");
+            let prune = prune.map(|h| join(h, "prune")).transpose();
             let simplify = join(simplify, "simplify");
             let write = join(write, "write");
-            match (read, extract, detect, simplify, write) {
+            match (read, extract, detect, prune, simplify, write) {
                 (
                     Ok((read, ())),
                     Ok((extract_s, extract)),
                     Ok((detect_s, detect)),
+                    Ok(prune),
                     Ok((simplify_s, simplify)),
                     Ok((write_s, sink)),
                 ) => Ok(StageOutputs {
@@ -209,20 +233,23 @@ impl Stages<'_> {
                         read,
                         extract: extract_s,
                         detect: detect_s,
+                        prune: prune.map(|(s, _)| s),
                         simplify: simplify_s,
                         write: write_s,
                     },
                     extract,
                     detect,
+                    prune: prune.map(|(_, stats)| stats),
                     simplify,
                     sink,
                 }),
-                (read, extract, detect, simplify, write) => {
+                (read, extract, detect, prune, simplify, write) => {
                     Err(ctl.take_first().unwrap_or_else(|| {
                         first_failure([
                             read.err(),
                             extract.err(),
                             detect.err(),
+                            prune.err(),
                             simplify.err(),
                             write.err(),
                         ])
@@ -298,9 +325,16 @@ impl Extraction {
         (read, workers)
     }
 
-    /// Extracts the whole volume only to count its triangles (`[output] faces` needs the
-    /// extracted face count before simplifying starts).
-    pub fn count(self, cancel: &AtomicBool) -> Result<ExtractStats, RunError> {
+    /// The first pass: extracts the whole volume to count its triangles (`[output] faces` needs
+    /// the extracted face count before simplifying starts) and, with `prune`, detects it and
+    /// takes the census of its components (`[simplify] min_component_faces`). Nothing is kept
+    /// but the counters and the list of small pieces.
+    pub fn count(
+        self,
+        cancel: &AtomicBool,
+        prune: Option<NonZeroU64>,
+    ) -> Result<(ExtractStats, Option<SmallPieces>), RunError> {
+        let grid = self.reader.grid();
         let ctl = Control::new(cancel);
         let ctl = &ctl;
         let (order_tx, order_rx) = bounded(self.threads.max(1));
@@ -309,33 +343,48 @@ impl Extraction {
             let drain = run(
                 "count",
                 ctl,
-                Drain,
+                Count {
+                    census: prune.map(|n| (Detector::new(grid.dims), Census::new(n))),
+                },
                 Ordered::new(order_rx, ExtractStats::default(), DataRange::default()),
                 Outbox::none(ctl),
             );
             let read = join(read, "read");
             match (read, join_workers(workers), drain) {
-                (Ok(_), Ok((_, stats)), Ok(_)) => Ok(stats),
+                (Ok(_), Ok((_, stats)), Ok((_, small))) => Ok((stats, small)),
                 (read, extract, drain) => Err(ctl.take_first().unwrap_or_else(|| {
-                    first_failure([read.err(), extract.err(), drain.err(), None, None])
+                    first_failure([read.err(), extract.err(), drain.err(), None, None, None])
                 })),
             }
         })
     }
 }
 
-/// Drops what it gets (the counting pass only needs the extractors' counters).
-struct Drain;
+/// The first pass's last stage: the extractors' counters are all it needs, unless the job
+/// prunes: then the batches go through a detector and the census of components.
+struct Count {
+    census: Option<(Detector, Census)>,
+}
 
-impl Step for Drain {
+impl Step for Count {
     type In = CubeBatch;
     type Out = Infallible;
-    type Done = ();
-    fn batch(&mut self, _: CubeBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+    type Done = Option<SmallPieces>;
+    fn batch(&mut self, batch: CubeBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        if let Some((detector, census)) = &mut self.census {
+            let mut delta = MeshDelta::default();
+            detector.process(&batch, &mut delta);
+            census.add(&delta);
+        }
         Ok(())
     }
-    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
-        Ok(())
+    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<Option<SmallPieces>> {
+        Ok(self.census.map(|(mut detector, mut census)| {
+            let mut last = MeshDelta::default();
+            detector.finish(&mut last);
+            census.add(&last);
+            census.finish()
+        }))
     }
 }
 
@@ -354,7 +403,7 @@ fn join_workers(workers: Vec<Handle<'_, (f64, ExtractStats)>>) -> StageResult<(f
     total
 }
 
-fn first_failure(stops: [Option<Stop>; 5]) -> RunError {
+fn first_failure(stops: [Option<Stop>; 6]) -> RunError {
     stops
         .into_iter()
         .flatten()
@@ -425,6 +474,41 @@ impl Step for DetectStep {
         self.detector.finish(&mut last);
         out.send(last)?;
         Ok(self.detector.stats())
+    }
+}
+
+/// Deltas -> the same deltas without the components below `[simplify] min_component_faces`
+/// (see `isostream_prune`), one out per delta in, with the same front.
+struct PruneStep(Filter);
+
+impl Step for PruneStep {
+    type In = MeshDelta;
+    type Out = MeshDelta;
+    type Done = PruneStats;
+
+    fn batch(&mut self, delta: MeshDelta, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
+        out.send(self.0.process(delta))
+    }
+
+    fn cut(&mut self, mut cut: Box<Cut>, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
+        cut.prune = checkpoint::encode(&self.0.snapshot());
+        out.cut(cut)
+    }
+
+    /// The census's counts, which the faces dropped must match: both passes saw one stream.
+    fn end(self, _: &mut Outbox<'_, MeshDelta>) -> StageResult<PruneStats> {
+        let stats = self.0.stats();
+        if self.0.dropped_faces() != stats.faces_pruned {
+            return Err(Stop::Failed(RunError::Internal {
+                stage: "prune",
+                reason: format!(
+                    "the census counted {} faces in small components but {} were dropped",
+                    stats.faces_pruned,
+                    self.0.dropped_faces()
+                ),
+            }));
+        }
+        Ok(stats)
     }
 }
 
@@ -589,6 +673,7 @@ impl Step for WriteStep<'_, '_> {
             reader,
             extract,
             detect,
+            prune,
             simplify,
         } = *cut;
         let partial = simplify.ok_or_else(|| RunError::Internal {
@@ -603,6 +688,7 @@ impl Step for WriteStep<'_, '_> {
                 reader,
                 extract,
                 detect,
+                prune,
                 sink: self.sink.checkpoint()?,
             },
             simplify: Default::default(),

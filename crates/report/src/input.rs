@@ -23,6 +23,9 @@ pub struct Run {
     pub mode: String,
     pub output: PathBuf,
     pub faces_extracted: u64,
+    /// `[simplify] min_component_faces`: what was dropped (absent when nothing was pruned).
+    #[serde(default)]
+    pub prune: Option<Pruned>,
     pub target_faces: Option<u64>,
     pub faces_written: u64,
     pub vertices_written: u64,
@@ -35,6 +38,14 @@ pub struct Run {
     pub warnings: Vec<String>,
     /// Absent in summaries written before the series existed.
     pub series: Option<TimeSeries>,
+}
+
+/// The components dropped before simplifying, as far as the report is concerned.
+#[derive(Debug, Clone, Copy, Deserialize)]
+pub struct Pruned {
+    pub min_component_faces: u64,
+    pub components_pruned: u64,
+    pub faces_pruned: u64,
 }
 
 /// `(bin start, count)` pairs.

@@ -7,7 +7,7 @@ use crate::input::{Measure, Run};
 use crate::{ReportError, plots};
 
 /// Stages in pipeline order; any other stage a summary names follows, alphabetically.
-const STAGE_ORDER: [&str; 5] = ["read", "extract", "detect", "simplify", "write"];
+const STAGE_ORDER: [&str; 6] = ["read", "extract", "detect", "prune", "simplify", "write"];
 
 const STYLE: &str = "body{font:14px/1.4 system-ui,sans-serif;margin:2em;color:#222;max-width:800px}\
 h1{font-size:1.3em}table{border-collapse:collapse}td,th{text-align:left;padding:3px 10px;\
@@ -87,8 +87,12 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
         (
             "faces",
             format!(
-                "{} extracted -> {} written{} ({} vertices)",
+                "{} extracted{} -> {} written{} ({} vertices)",
                 run.faces_extracted,
+                run.prune.map_or(String::new(), |p| format!(
+                    ", {} in {} components under {} faces pruned",
+                    p.faces_pruned, p.components_pruned, p.min_component_faces
+                )),
                 run.faces_written,
                 run.target_faces
                     .map_or(String::new(), |t| format!(" (target {t})")),
@@ -258,6 +262,13 @@ mod tests {
         }
         assert!(page.contains("&lt;x&gt;.smb") && !page.contains("<x>"));
         assert!(page.contains("warning: rate target missed"));
+        assert!(!page.contains("pruned"));
+        let mut pruned = run_json(true);
+        pruned["prune"] = serde_json::json!({"min_component_faces": 100, "components_pruned": 7,
+            "faces_pruned": 90, "vertices_pruned": 50});
+        let pruned: Run = serde_json::from_value(pruned).unwrap();
+        let pruned_page = html(&pruned, None).unwrap();
+        assert!(pruned_page.contains("1000 extracted, 90 in 7 components under 100 faces pruned"));
         // Pipeline order first, other stages after.
         let at = |n: &str| page.find(&format!("\n{n}\n</text>")).unwrap();
         assert!(at("read") < at("simplify") && at("write") < at("upsample"));
