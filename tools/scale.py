@@ -15,7 +15,7 @@ missing), prints one JSON line, appends it to `--results`, and plots every resul
 
 `--count-only` measures the front half of a run (read, upsample, empty-space skipping, parallel
 extraction) at sizes where the simplifier would take too long: the run's first pass (the face
-count `[output] faces` needs) is timed from its log line, the peak RSS read from
+count `[output] faces` needs) is timed from its log line (`first pass ...`), the peak RSS read from
 /proc/PID/status (VmHWM) at that moment, and the run is then stopped (SIGTERM). Those results go
 to `--count-results` and are plotted as a second curve.
 
@@ -98,7 +98,9 @@ def count_only(binary: Path, volume: Path, iso: float, k: int, threads: int, kee
         if fields.get("message") == "job start":
             dims = fields["dims"]  # logged with Debug: "[2041, 2041, 2041]"
             dims = json.loads(dims) if isinstance(dims, str) else dims
-        if "counting pass" in fields.get("message", ""):
+        # The first pass's line ("first pass (output.faces, ...)"; "counting pass ..." before).
+        message = fields.get("message", "")
+        if message.startswith("first pass") or "counting pass" in message:
             status = Path(f"/proc/{child.pid}/status").read_text()
             hwm = next(int(l.split()[1]) for l in status.splitlines() if l.startswith("VmHWM"))
             found = {"fields": fields, "peak_rss_mib": hwm / 1024}

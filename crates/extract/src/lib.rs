@@ -81,4 +81,4 @@ pub mod table;
 pub use interp::is_inside;
 pub use key::EdgeKey;
 pub use reference::{IndexedSurface, extract_indexed};
-pub use slab::{Cube, CubeBatch, EdgeVertex, ExtractStats, Extractor};
+pub use slab::{Cube, CubeBatch, EdgeVertex, ExtractStats, Extractor, RowQuad, SlabRows};

@@ -164,7 +164,33 @@ pub struct Extractor {
 
 /// The four rows of voxels holding the corners of one row of cubes, indexed by `c >> 1` for
 /// corner `c`: (y, z), (y + 1, z), (y, z + 1), (y + 1, z + 1).
-type RowQuad<'a> = [&'a [f32]; 4];
+pub type RowQuad<'a> = [&'a [f32]; 4];
+
+/// A slab's voxels, row by row ([`Extractor::extract_slab_rows`]).
+pub trait SlabRows {
+    /// The rows of voxels of the row of cubes `y` ([`RowQuad`]: rows y and y + 1 of the lower
+    /// slice, then of the upper one), `grid.dims[0]` values each. Asked for in increasing y.
+    fn quad(&mut self, y: u64) -> RowQuad<'_>;
+}
+
+/// Two whole slices.
+struct WholeSlices<'a> {
+    lower: &'a [f32],
+    upper: &'a [f32],
+    nx: usize,
+}
+
+impl SlabRows for WholeSlices<'_> {
+    fn quad(&mut self, y: u64) -> RowQuad<'_> {
+        let (y0, y1) = (y as usize * self.nx, (y as usize + 1) * self.nx);
+        [
+            &self.lower[y0..y1],
+            &self.lower[y1..y1 + self.nx],
+            &self.upper[y0..y1],
+            &self.upper[y1..y1 + self.nx],
+        ]
+    }
+}
 
 impl Extractor {
     pub fn new(grid: Grid, iso: f32) -> Self {
@@ -220,38 +246,62 @@ impl Extractor {
         upper: &[f32],
         bounds: Option<&SlabBounds>,
         max_triangles: usize,
-        mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
+        emit: impl FnMut(CubeBatch) -> Result<(), E>,
     ) -> Result<(), E> {
-        let [nx, ny, nz] = self.grid.dims;
-        assert!(z + 1 < nz, "slab {z} outside a grid of {nz} slices");
         let n = self.grid.slice_len();
         assert!(
             lower.len() == n && upper.len() == n,
             "slices must hold {n} values"
         );
-        if z == 0 {
-            self.stats.non_finite_voxels += count_non_finite(lower);
-        }
-        self.stats.non_finite_voxels += count_non_finite(upper);
+        let mut rows = WholeSlices {
+            lower,
+            upper,
+            nx: self.grid.dims[0] as usize,
+        };
+        self.extract_slab_rows(z, &mut rows, bounds, max_triangles, emit)
+    }
+
+    /// [`Self::extract_slab_skipping`] with the slab's voxels asked for row by row (`rows`), in
+    /// increasing y: a source that computes rows on demand never holds its slices whole, and the
+    /// batches are the same as from whole slices (the batching depends on the rows' cubes only).
+    ///
+    /// # Panics
+    /// If z is not a slab of the grid or a row does not hold `grid.dims[0]` values.
+    pub fn extract_slab_rows<E>(
+        &mut self,
+        z: u64,
+        rows: &mut impl SlabRows,
+        bounds: Option<&SlabBounds>,
+        max_triangles: usize,
+        mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let [nx, ny, nz] = self.grid.dims;
+        assert!(z + 1 < nz, "slab {z} outside a grid of {nz} slices");
         self.stats.cubes += nx.saturating_sub(1) * ny.saturating_sub(1);
 
-        let rows = ny.saturating_sub(1);
-        let nx = nx as usize;
+        let cube_rows = ny.saturating_sub(1);
         let mut batch = CubeBatch::with_capacity(z, self.batch_sizes);
-        for y in 0..rows {
-            let (y0, y1) = (y as usize * nx, (y as usize + 1) * nx);
-            let quad = [
-                &lower[y0..y1],
-                &lower[y1..y1 + nx],
-                &upper[y0..y1],
-                &upper[y1..y1 + nx],
-            ];
+        for y in 0..cube_rows {
+            let quad = rows.quad(y);
+            assert!(
+                quad.iter().all(|r| r.len() == nx as usize),
+                "rows must hold {nx} values"
+            );
+            // Every voxel once: rows y + 1 here, row 0 with the first row of cubes; the lower
+            // slice only in slab 0 (every other slice is the upper slice of a slab).
+            let new_rows = if y == 0 { 0..2 } else { 1..2 };
+            for r in new_rows {
+                if z == 0 {
+                    self.stats.non_finite_voxels += count_non_finite(quad[r]);
+                }
+                self.stats.non_finite_voxels += count_non_finite(quad[2 + r]);
+            }
             match bounds {
                 None => self.extract_row([0, y, z], quad, &mut batch),
                 Some(b) => self.extract_row_blocks(b, [y, z], quad, &mut batch),
             }
             let full = !batch.cubes.is_empty() && batch.triangles.len() >= max_triangles;
-            if full && y + 1 < rows {
+            if full && y + 1 < cube_rows {
                 self.remember_sizes(&batch);
                 let next = CubeBatch::with_capacity(z, self.batch_sizes);
                 emit(std::mem::replace(&mut batch, next))?;

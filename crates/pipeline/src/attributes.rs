@@ -11,9 +11,12 @@
 use std::path::{Path, PathBuf};
 
 use isostream_simplify::Priority;
-use isostream_volume::{Dtype, Endian, Grid, OpenOptions, VolumeSource};
+use std::sync::Arc;
+
+use isostream_volume::{Dtype, Endian, Grid, OpenOptions, SliceRows, VolumeSource};
 use serde::{Deserialize, Serialize};
 
+use crate::checkpoint;
 use crate::config::{InputConfig, JobConfig, PriorityKind};
 use crate::error::{ConfigError, RunError};
 
@@ -222,11 +225,36 @@ pub(crate) fn open(
 }
 
 /// Slice `z` of the iso volume and of every attribute.
-#[derive(Debug, Clone)]
+#[derive(Clone)]
 pub struct Slices {
     pub z: u64,
+    /// Empty when `rows` gives the iso slice.
     pub iso: Vec<f32>,
     pub attrs: Vec<Vec<f32>>,
+    /// The iso slice as rows computed on demand ([`SliceReader::rows_on_demand`]): it never
+    /// exists whole, the extractor works on strips of it.
+    pub(crate) rows: Option<Arc<dyn SliceRows>>,
+}
+
+impl Slices {
+    /// Hash of the iso slice's values (`checkpoint::hash_slice`), row by row when it has rows.
+    pub(crate) fn hash(&self, grid: &Grid) -> u64 {
+        let Some(rows) = &self.rows else {
+            return checkpoint::hash_slice(&self.iso);
+        };
+        hash_rows(rows.as_ref(), grid)
+    }
+}
+
+/// `checkpoint::hash_slice` of a slice given as rows, one row in memory at a time.
+pub(crate) fn hash_rows(rows: &dyn SliceRows, grid: &Grid) -> u64 {
+    let mut row = vec![0f32; grid.dims[0] as usize];
+    let mut h = checkpoint::SliceHasher::default();
+    for y in 0..grid.dims[1] {
+        rows.fill_rows(y, &mut row);
+        h.add(&row);
+    }
+    h.finish()
 }
 
 /// Reads the iso volume and the attributes in z order, one iso slice ahead when a gradient is
@@ -242,6 +270,8 @@ pub struct SliceReader {
     /// Empty-space skipping at this iso value: iso slices are exact only near the surface
     /// (`VolumeSource::read_slice_near`).
     near: Option<f32>,
+    /// Iso slices as rows on demand when the volume gives them (`Slices::rows`).
+    rows: bool,
 }
 
 impl SliceReader {
@@ -255,7 +285,16 @@ impl SliceReader {
             prev: None,
             ahead: None,
             near: None,
+            rows: false,
         }
+    }
+
+    /// Gives iso slices as rows computed on demand (`Slices::rows`) when the volume can
+    /// (`VolumeSource::slice_rows`: an upsampled input) and no attribute needs whole slices:
+    /// the extraction then works on strips and a gigavoxel slice never exists whole.
+    pub(crate) fn rows_on_demand(mut self) -> Self {
+        self.rows = self.attributes.is_empty();
+        self
     }
 
     /// Reads iso slices exact only near the surface at `iso` (empty-space skipping). Ignored
@@ -331,6 +370,17 @@ impl SliceReader {
         if z >= nz {
             return Ok(None);
         }
+        if self.rows
+            && let Some(rows) = self.iso.slice_rows(z, self.near)?
+        {
+            self.next_z += 1;
+            return Ok(Some(Slices {
+                z,
+                iso: Vec::new(),
+                attrs: Vec::new(),
+                rows: Some(rows),
+            }));
+        }
         let cur = match self.ahead.take() {
             Some(s) => s,
             None => self.read_iso(z)?,
@@ -374,6 +424,11 @@ impl SliceReader {
         }
         self.ahead = next;
         self.next_z += 1;
-        Ok(Some(Slices { z, iso: cur, attrs }))
+        Ok(Some(Slices {
+            z,
+            iso: cur,
+            attrs,
+            rows: None,
+        }))
     }
 }

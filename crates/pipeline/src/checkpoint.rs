@@ -30,16 +30,25 @@
 //!
 //! **The file.** `.NAME.ckpt` next to the output: a magic line, the checkpoint format and the
 //! crate version (a checkpoint of another version is refused: the saved structures are the
-//! algorithm crates' own and change between versions), the body's length, the body (bincode
-//! 2.0.1 through its serde integration, fixed-width floats: every f64 comes back bit for bit),
-//! and an xxHash64 of the body. A truncated or corrupt file is refused with one line; nothing is
-//! decoded from a body whose hash does not match. It is written to a temporary name, fsynced,
-//! renamed and the folder fsynced, after the output's files were fsynced to the saved lengths.
+//! algorithm crates' own and change between versions), the lengths of its two sections, the
+//! simplifier's section, the rest (every other part, [`Checkpoint`]), and an xxHash64 of both
+//! sections. Both are bincode 2.0.1 through its serde integration, fixed-width floats: every f64
+//! comes back bit for bit. A truncated or corrupt file is refused with one line; nothing is
+//! decoded from a file whose hash does not match.
+//!
+//! **Memory.** The simplifier's state is the band itself (tens of MiB): it is encoded straight
+//! into the checkpoint's temporary file ([`Partial`], buffered and hashed on the way) by the
+//! simplifier's stage, and decoded straight from the file on resume, so no second copy of it is
+//! ever in memory. The writer's stage appends the rest once its files are flushed, fills in the
+//! lengths, fsyncs the file, renames it and fsyncs the folder.
 
 use std::fs::File;
-use std::io::{Read, Write};
+use std::hash::Hasher;
+use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
+
+use twox_hash::XxHash64;
 
 use serde::{Deserialize, Serialize, de::DeserializeOwned};
 
@@ -47,9 +56,10 @@ use crate::config::JobConfig;
 use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
-/// Bumped whenever the layout of the body changes (2: the prune stage's state; 3: the
-/// simplifier's pass-through band and a cascade's second simplifier).
-const FORMAT: u32 = 3;
+/// Bumped whenever the layout of the file or of its sections changes (2: the prune filter's
+/// part; 3: the simplifier's section streamed ahead of the rest; 4: the simplifier's
+/// pass-through band and a cascade's second simplifier).
+const FORMAT: u32 = 4;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
@@ -74,13 +84,40 @@ pub(crate) fn decode<T: DeserializeOwned>(path: &Path, bytes: &[u8]) -> Result<T
 }
 
 fn hash(bytes: &[u8]) -> u64 {
-    twox_hash::XxHash64::oneshot(0, bytes)
+    XxHash64::oneshot(0, bytes)
 }
 
-/// Hash of a slice's values (the carried slice's check on resume).
+/// Hash of a slice's values as little-endian bytes (the carried slice's check on resume).
 pub(crate) fn hash_slice(values: &[f32]) -> u64 {
-    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-    hash(&bytes)
+    let mut h = SliceHasher::default();
+    h.add(values);
+    h.finish()
+}
+
+/// [`hash_slice`] of values given in parts (a slice row by row), never copied: a slice of a
+/// gigavoxel volume is tens of MiB, and a copy of it as bytes would be as large.
+pub(crate) struct SliceHasher(XxHash64);
+
+impl Default for SliceHasher {
+    fn default() -> Self {
+        Self(XxHash64::with_seed(0))
+    }
+}
+
+impl SliceHasher {
+    pub fn add(&mut self, values: &[f32]) {
+        let mut buf = [0u8; 4096];
+        for chunk in values.chunks(buf.len() / 4) {
+            for (b, v) in buf.chunks_exact_mut(4).zip(chunk) {
+                b.copy_from_slice(&v.to_le_bytes());
+            }
+            self.0.write(&buf[..4 * chunk.len()]);
+        }
+    }
+
+    pub fn finish(&self) -> u64 {
+        self.0.finish()
+    }
 }
 
 /// `out/x.smb` -> `out/.x.smb.ckpt`.
@@ -101,16 +138,17 @@ pub(crate) struct ReaderState {
 
 /// The checkpoint marker as it travels through the stages, each adding its state (the reader
 /// its slice and hash, the ordered intake of the extractors' slabs their counters and data
-/// range, the detector, the prune filter (when `min_component_faces` is set) and the simplifier
-/// their encoded states).
+/// range, the detector and the prune filter (when `min_component_faces` is set) their encoded
+/// states, the simplifier the file it began with its state).
 pub(crate) struct Cut {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
     /// Empty when the job does not prune.
     pub prune: Vec<u8>,
-    pub simplify: Vec<u8>,
-    /// A cascade's second simplifier (empty without one).
+    pub simplify: Option<Partial>,
+    /// A cascade's second simplifier (empty without one), encoded in memory: unlike the first's,
+    /// its state is not streamed into the file yet.
     pub simplify_second: Vec<u8>,
 }
 
@@ -126,26 +164,25 @@ impl Cut {
             extract: Default::default(),
             detect: Vec::new(),
             prune: Vec::new(),
-            simplify: Vec::new(),
+            simplify: None,
             simplify_second: Vec::new(),
         })
     }
 }
 
-/// What the stages saved at one cut, each encoded by its own stage.
+/// What the stages saved at one cut besides the simplifier (see [`Partial`]).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct Parts {
     pub reader: ReaderState,
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
     pub prune: Vec<u8>,
-    pub simplify: Vec<u8>,
     /// A cascade's second simplifier (empty without one).
     pub simplify_second: Vec<u8>,
     pub sink: isostream_smesh::SinkState,
 }
 
-/// The whole checkpoint.
+/// The checkpoint: its second section, and where its first (the simplifier's) lies.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct Checkpoint {
     /// [`job_hash`] of the job that saved it.
@@ -153,6 +190,16 @@ pub(crate) struct Checkpoint {
     pub input: InputIdentity,
     pub slabs_total: u64,
     pub parts: Parts,
+    /// The simplifier's section in the file (filled in by [`read`]; decoded by [`decode_simplifier`]).
+    #[serde(skip)]
+    pub simplify: Section,
+}
+
+/// Where a section lies in the checkpoint file.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub(crate) struct Section {
+    pub offset: u64,
+    pub len: u64,
 }
 
 impl Checkpoint {
@@ -244,55 +291,153 @@ fn corrupt(path: &Path, reason: &str) -> RunError {
     }
 }
 
-/// Writes `ckpt` atomically (temporary name, fsync, rename, fsync of the folder).
-pub(crate) fn write(path: &Path, ckpt: &Checkpoint) -> Result<(), RunError> {
-    let fail = |reason: String| RunError::Checkpoint {
-        path: path.to_path_buf(),
-        reason: format!("cannot write the checkpoint: {reason}"),
-    };
-    let body = encode(ckpt);
+/// A checkpoint file being written: begun by the simplifier's stage with its state, finished by
+/// the writer's stage with the rest. Dropped unfinished (a failed or cancelled run), its
+/// temporary file is removed.
+pub(crate) struct Partial {
+    path: PathBuf,
+    tmp: tempfile::NamedTempFile,
+    hasher: XxHash64,
+    /// Length of the simplifier's section.
+    simplify: u64,
+}
+
+/// Writes through, hashing and counting what passes.
+struct Hashing<W> {
+    inner: W,
+    hasher: XxHash64,
+    len: u64,
+}
+
+impl<W: Write> Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hasher.write(&buf[..n]);
+        self.len += n as u64;
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Bytes before the sections: magic, format, version, the two sections' lengths.
+fn head(simplify: u64, rest: u64) -> Vec<u8> {
     let mut head = Vec::with_capacity(64);
     head.extend_from_slice(MAGIC);
     head.extend_from_slice(&FORMAT.to_le_bytes());
     head.push(VERSION.len() as u8);
     head.extend_from_slice(VERSION.as_bytes());
-    head.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    let dir = dir_of(path);
-    // `.NAME.ckpt.XXXXXX.tmp`: recognised as stale by `stale_temp_files`.
-    let prefix = format!(
-        "{}.",
-        path.file_name().unwrap_or_default().to_string_lossy()
-    );
-    let mut tmp = isostream_smesh::output_builder(&prefix)
-        .tempfile_in(dir)
-        .map_err(|e| fail(e.to_string()))?;
-    [&head[..], &body, &hash(&body).to_le_bytes()]
-        .iter()
-        .try_for_each(|part| tmp.write_all(part))
-        .map_err(|e| fail(e.to_string()))?;
-    tmp.as_file().sync_all().map_err(|e| fail(e.to_string()))?;
-    tmp.persist(path).map_err(|e| fail(e.to_string()))?;
-    #[cfg(unix)]
-    File::open(dir)
-        .and_then(|d| d.sync_all())
-        .map_err(|e| fail(e.to_string()))?;
-    Ok(())
+    head.extend_from_slice(&simplify.to_le_bytes());
+    head.extend_from_slice(&rest.to_le_bytes());
+    head
 }
 
-/// Reads and checks a checkpoint: magic, format, crate version, length, hash, then decodes.
-pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
-    let mut bytes = Vec::new();
-    File::open(path)
-        .and_then(|mut f| f.read_to_end(&mut bytes))
-        .map_err(|e| RunError::Checkpoint {
+impl Partial {
+    /// Begins the checkpoint `path` under a temporary name next to it, with the simplifier's
+    /// state `simplify` encoded straight into the file.
+    pub fn begin<T: Serialize + ?Sized>(path: &Path, simplify: &T) -> Result<Self, RunError> {
+        // `.NAME.ckpt.XXXXXX.tmp`: recognised as stale by `stale_temp_files`.
+        let prefix = format!(
+            "{}.",
+            path.file_name().unwrap_or_default().to_string_lossy()
+        );
+        let mut tmp = isostream_smesh::output_builder(&prefix)
+            .tempfile_in(dir_of(path))
+            .map_err(|e| write_error(path, &e))?;
+        // The lengths are filled in by `finish`.
+        tmp.write_all(&head(0, 0))
+            .map_err(|e| write_error(path, &e))?;
+        let (hasher, simplify) = encode_hashed(tmp.as_file_mut(), XxHash64::with_seed(0), simplify)
+            .map_err(|e| write_error(path, &e))?;
+        Ok(Self {
             path: path.to_path_buf(),
-            reason: format!("cannot read the checkpoint: {e}"),
-        })?;
+            tmp,
+            hasher,
+            simplify,
+        })
+    }
+
+    /// Bytes of the simplifier's section.
+    pub fn simplify_len(&self) -> u64 {
+        self.simplify
+    }
+
+    /// Appends the rest, the hash and the lengths, then makes the file the checkpoint atomically
+    /// (fsync, rename, fsync of the folder). Returns the file's length.
+    pub fn finish(self, ckpt: &Checkpoint) -> Result<u64, RunError> {
+        let Partial {
+            path,
+            mut tmp,
+            hasher,
+            simplify,
+        } = self;
+        let fail = |e: std::io::Error| write_error(&path, &e);
+        let (hasher, rest) = encode_hashed(tmp.as_file_mut(), hasher, ckpt).map_err(fail)?;
+        let file = tmp.as_file_mut();
+        file.write_all(&hasher.finish().to_le_bytes())
+            .map_err(fail)?;
+        file.seek(SeekFrom::Start(0)).map_err(fail)?;
+        let head = head(simplify, rest);
+        file.write_all(&head).map_err(fail)?;
+        file.sync_all().map_err(fail)?;
+        tmp.persist(&path).map_err(|e| fail(e.error))?;
+        #[cfg(unix)]
+        File::open(dir_of(&path))
+            .and_then(|d| d.sync_all())
+            .map_err(fail)?;
+        Ok(head.len() as u64 + simplify + rest + 8)
+    }
+}
+
+/// Encodes `value` at the end of `file`, buffered, through `hasher`; returns the hasher and the
+/// bytes written.
+fn encode_hashed<T: Serialize + ?Sized>(
+    file: &mut File,
+    hasher: XxHash64,
+    value: &T,
+) -> std::io::Result<(XxHash64, u64)> {
+    file.seek(SeekFrom::End(0))?;
+    let mut w = Hashing {
+        inner: BufWriter::with_capacity(1 << 16, file),
+        hasher,
+        len: 0,
+    };
+    bincode::serde::encode_into_std_write(value, &mut w, config())
+        .map_err(|e| std::io::Error::other(e.to_string()))?;
+    w.flush()?;
+    Ok((w.hasher, w.len))
+}
+
+fn write_error(path: &Path, e: &dyn std::fmt::Display) -> RunError {
+    RunError::Checkpoint {
+        path: path.to_path_buf(),
+        reason: format!("cannot write the checkpoint: {e}"),
+    }
+}
+
+/// Reads and checks a checkpoint: magic, format, crate version, lengths, hash (streamed over the
+/// file), then decodes the rest; the simplifier's section is decoded later, from the file
+/// ([`decode_simplifier`]).
+pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
+    let cannot = |e: std::io::Error| RunError::Checkpoint {
+        path: path.to_path_buf(),
+        reason: format!("cannot read the checkpoint: {e}"),
+    };
+    let mut file = File::open(path).map_err(cannot)?;
+    let size = file.metadata().map_err(cannot)?.len();
+    // The longest head: magic, format, a version of 255 bytes, two lengths.
+    let mut bytes = Vec::new();
+    (&mut file)
+        .take(16 + 4 + 1 + 255 + 16)
+        .read_to_end(&mut bytes)
+        .map_err(cannot)?;
     let refuse = |reason: String| RunError::Checkpoint {
         path: path.to_path_buf(),
         reason,
     };
-    let truncated = || refuse(format!("truncated checkpoint ({} bytes)", bytes.len()));
+    let truncated = || refuse(format!("truncated checkpoint ({size} bytes)"));
     let Some(rest) = bytes.strip_prefix(MAGIC) else {
         return Err(if MAGIC.starts_with(&bytes) {
             truncated()
@@ -311,20 +456,59 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
         )));
     }
     let rest = &rest[usize::from(n)..];
-    let (len, rest) = take::<8>(rest).ok_or_else(truncated)?;
-    let len = u64::from_le_bytes(len);
-    let body = usize::try_from(len)
-        .ok()
-        .and_then(|len| rest.get(..len))
-        .ok_or_else(truncated)?;
-    let (sum, tail) = take::<8>(&rest[body.len()..]).ok_or_else(truncated)?;
-    if !tail.is_empty() {
-        return Err(corrupt(path, "bytes after the end"));
+    let (simplify, rest) = take::<8>(rest).ok_or_else(truncated)?;
+    let (others, _) = take::<8>(rest).ok_or_else(truncated)?;
+    let (simplify, others) = (u64::from_le_bytes(simplify), u64::from_le_bytes(others));
+    let head = head(0, 0).len() as u64;
+    let end = head
+        .checked_add(simplify)
+        .and_then(|x| x.checked_add(others))
+        .ok_or_else(|| corrupt(path, "section lengths"))?;
+    match size.checked_sub(end) {
+        None | Some(0..8) => return Err(truncated()),
+        Some(8) => {}
+        Some(_) => return Err(corrupt(path, "bytes after the end")),
     }
-    if u64::from_le_bytes(sum) != hash(body) {
+    // The hash of both sections, streamed: the simplifier's may be tens of MiB.
+    file.seek(SeekFrom::Start(head)).map_err(cannot)?;
+    let mut sections = Hashing {
+        inner: std::io::sink(),
+        hasher: XxHash64::with_seed(0),
+        len: 0,
+    };
+    std::io::copy(&mut (&mut file).take(end - head), &mut sections).map_err(cannot)?;
+    let mut sum = [0u8; 8];
+    file.read_exact(&mut sum).map_err(cannot)?;
+    if sections.len != end - head || u64::from_le_bytes(sum) != sections.hasher.finish() {
         return Err(corrupt(path, "checksum mismatch"));
     }
-    decode(path, body)
+    let mut body = Vec::new();
+    file.seek(SeekFrom::Start(head + simplify))
+        .and_then(|_| (&mut file).take(others).read_to_end(&mut body))
+        .map_err(cannot)?;
+    let mut ckpt: Checkpoint = decode(path, &body)?;
+    ckpt.simplify = Section {
+        offset: head,
+        len: simplify,
+    };
+    Ok(ckpt)
+}
+
+/// Decodes the simplifier's section of a checkpoint [`read`] checked, straight from the file.
+pub(crate) fn decode_simplifier<T: DeserializeOwned>(
+    path: &Path,
+    ckpt: &Checkpoint,
+) -> Result<T, RunError> {
+    let Section { offset, len } = ckpt.simplify;
+    let mut file = File::open(path).map_err(|e| RunError::Checkpoint {
+        path: path.to_path_buf(),
+        reason: format!("cannot read the checkpoint: {e}"),
+    })?;
+    file.seek(SeekFrom::Start(offset))
+        .map_err(|e| corrupt(path, &e.to_string()))?;
+    let mut section = BufReader::with_capacity(1 << 16, file.take(len));
+    bincode::serde::decode_from_std_read(&mut section, config())
+        .map_err(|e| corrupt(path, &e.to_string()))
 }
 
 fn take<const N: usize>(bytes: &[u8]) -> Option<([u8; N], &[u8])> {
@@ -431,10 +615,10 @@ mod tests {
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
                 prune: vec![5, 6],
-                simplify: vec![4; 100],
                 simplify_second: vec![5; 10],
                 sink: sink_state(),
             },
+            simplify: Section::default(),
         }
     }
 
@@ -454,10 +638,15 @@ mod tests {
     fn a_checkpoint_round_trips_and_every_damage_is_one_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(".m.smb.ckpt");
-        write(&path, &sample()).unwrap();
+        let partial = Partial::begin(&path, &vec![4u8; 100]).unwrap();
+        assert_eq!(partial.simplify_len(), 108);
+        let len = partial.finish(&sample()).unwrap();
+        assert_eq!(std::fs::metadata(&path).unwrap().len(), len);
         let back = read(&path).unwrap();
         assert_eq!(back.percent(), 60.0);
-        assert_eq!(back.parts.simplify, vec![4; 100]);
+        assert_eq!(back.parts.detect, vec![1, 2, 3]);
+        let simplify: Vec<u8> = decode_simplifier(&path, &back).unwrap();
+        assert_eq!(simplify, vec![4; 100]);
         let good = std::fs::read(&path).unwrap();
         let damaged = |bytes: &[u8]| {
             std::fs::write(&path, bytes).unwrap();

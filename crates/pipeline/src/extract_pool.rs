@@ -15,11 +15,11 @@ use std::time::Instant;
 
 use crossbeam_channel::{Receiver, Sender, bounded};
 use isostream_extract::attributes::AttributeSlab;
-use isostream_extract::{CubeBatch, ExtractStats, Extractor};
-use isostream_volume::{Grid, SlabBounds};
+use isostream_extract::{CubeBatch, ExtractStats, Extractor, RowQuad, SlabRows};
+use isostream_volume::{Grid, SlabBounds, SliceRows};
 
 use crate::attributes::{SliceReader, Slices};
-use crate::checkpoint::{self, Cut};
+use crate::checkpoint::Cut;
 use crate::config::CheckpointEvery;
 use crate::error::RunError;
 use crate::flow::{Control, In, Inbox, Msg, Outbox, StageResult, Step, Stop, recv, send};
@@ -132,17 +132,15 @@ impl Step for ReadStep<'_> {
             stage: "read",
             reason: format!("slice {z} missing"),
         })?);
+        let grid = self.reader.grid();
         if let Some(expected) = self.carried.take()
-            && checkpoint::hash_slice(&upper.iso) != expected
+            && upper.hash(&grid) != expected
         {
             return Err(Stop::Failed(RunError::InputChanged {
                 what: format!("slice {z} holds other values than when the checkpoint was saved"),
             }));
         }
-        let cut = self
-            .schedule
-            .due(z)
-            .then(|| Cut::new(z, checkpoint::hash_slice(&upper.iso)));
+        let cut = self.schedule.due(z).then(|| Cut::new(z, upper.hash(&grid)));
         if let Some(lower) = self.prev.replace(upper.clone()) {
             let (reply, answer) = bounded(1);
             let job = SlabJob {
@@ -176,12 +174,25 @@ impl Step for ReadStep<'_> {
 /// next to its 256 cubes.
 const STORED_BLOCK: [u64; 2] = [16, 16];
 
-/// One worker: extracts whole slabs and answers each on its job's reply channel.
+/// Voxels per strip row buffer when slices come as rows (`Slices::rows`): a strip is
+/// `STRIP_VOXELS / nx` rows of cubes (at least [`MIN_STRIP_ROWS`]), so a worker holds two
+/// strips of about 1 MiB each whatever the slice area (64 rows of a 4081^2 slice).
+const STRIP_VOXELS: usize = 1 << 18;
+/// Rows of cubes per strip at least: each strip computes its first row again (the last row of
+/// the strip before), an overhead of one row per strip.
+const MIN_STRIP_ROWS: usize = 16;
+
+/// One worker: extracts whole slabs (from whole slices, or strip by strip from slices given as
+/// rows) and answers each on its job's reply channel.
 pub(crate) struct WorkStep {
     extractor: Extractor,
     batch_triangles: usize,
     /// Empty-space skipping (`[extract] skip_empty`).
     skip_empty: bool,
+    /// Rows of cubes per strip (slices given as rows).
+    strip_rows: usize,
+    /// The strips' buffers, reused from slab to slab.
+    strips: [Vec<f32>; 2],
 }
 
 impl WorkStep {
@@ -194,28 +205,25 @@ impl WorkStep {
         skip_empty: bool,
         stats: ExtractStats,
     ) -> Self {
+        let nx = grid.dims[0] as usize;
         Self {
             extractor: Extractor::resume(grid, iso, stats),
             batch_triangles,
             skip_empty,
+            strip_rows: (STRIP_VOXELS / nx).max(MIN_STRIP_ROWS),
+            strips: Default::default(),
         }
     }
-}
 
-impl Step for WorkStep {
-    type In = SlabJob;
-    type Out = Infallible;
-    type Done = ExtractStats;
-
-    fn batch(&mut self, job: SlabJob, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+    /// Extracts a slab from its two whole slices (and its attributes'); adds the slab's voxels
+    /// to `range`.
+    fn extract_slices(&mut self, job: &SlabJob, range: &mut DataRange) -> Vec<CubeBatch> {
         let (lo, up) = (&job.lower, &job.upper);
         // Slice 0 counts with slab 0, every other slice as the upper slice of its slab.
-        let mut range = DataRange::default();
         if job.z == 0 {
             range.add(&lo.iso);
         }
         range.add(&up.iso);
-        let before = self.extractor.stats();
         let attrs: Vec<AttributeSlab<'_>> = lo
             .attrs
             .iter()
@@ -246,6 +254,117 @@ impl Step for WorkStep {
                 Ok::<_, Infallible>(())
             },
         );
+        batches
+    }
+
+    /// Extracts a slab whose two slices come as rows, strip by strip: the same batches as from
+    /// the whole slices ([`Extractor::extract_slab_rows`]); adds the slab's voxels to `range`.
+    fn extract_strips(
+        &mut self,
+        job: &SlabJob,
+        lower: &dyn SliceRows,
+        upper: &dyn SliceRows,
+        range: &mut DataRange,
+    ) -> StageResult<Vec<CubeBatch>> {
+        let bounds = match (&job.bounds, self.skip_empty) {
+            (Some(b), true) => Some(b.as_ref()),
+            (None, true) => {
+                return Err(Stop::Failed(RunError::Internal {
+                    stage: "extract",
+                    reason: "a volume that gives rows on demand gave no slab bounds".into(),
+                }));
+            }
+            (_, false) => None,
+        };
+        let grid = self.extractor.grid();
+        let mut strips = Strips {
+            slices: [lower, upper],
+            buffers: std::mem::take(&mut self.strips),
+            nx: grid.dims[0] as usize,
+            ny: grid.dims[1] as usize,
+            height: self.strip_rows,
+            at: 0..0,
+            counted: 0,
+            // Slice 0 counts with slab 0, every other slice as the upper slice of its slab.
+            count_lower: job.z == 0,
+            range,
+        };
+        let mut batches = Vec::new();
+        let Ok(()) = self.extractor.extract_slab_rows(
+            job.z,
+            &mut strips,
+            bounds,
+            self.batch_triangles,
+            |b| {
+                batches.push(b);
+                Ok::<_, Infallible>(())
+            },
+        );
+        self.strips = strips.buffers;
+        Ok(batches)
+    }
+}
+
+/// A slab's two slices, given as rows, held a strip of rows at a time.
+struct Strips<'a> {
+    /// Lower and upper slice.
+    slices: [&'a dyn SliceRows; 2],
+    /// Rows `at` of each.
+    buffers: [Vec<f32>; 2],
+    nx: usize,
+    /// Rows per slice.
+    ny: usize,
+    /// Rows of cubes per strip.
+    height: usize,
+    at: std::ops::Range<usize>,
+    /// Rows before this one are in `range` already.
+    counted: usize,
+    count_lower: bool,
+    range: &'a mut DataRange,
+}
+
+impl SlabRows for Strips<'_> {
+    fn quad(&mut self, y: u64) -> RowQuad<'_> {
+        let y = y as usize;
+        if !(self.at.contains(&y) && self.at.contains(&(y + 1))) {
+            // The next strip starts at the row of cubes asked for (its lower row again).
+            self.at = y..(y + self.height + 1).min(self.ny);
+            let nx = self.nx;
+            for (slice, buf) in self.slices.iter().zip(&mut self.buffers) {
+                buf.resize(self.at.len() * nx, 0.0);
+                slice.fill_rows(y as u64, buf);
+            }
+            let new = self.counted.max(self.at.start) - self.at.start;
+            self.range.add(&self.buffers[1][new * nx..]);
+            if self.count_lower {
+                self.range.add(&self.buffers[0][new * nx..]);
+            }
+            self.counted = self.at.end;
+        }
+        let nx = self.nx;
+        let i = (y - self.at.start) * nx;
+        let [lo, up] = &self.buffers;
+        [
+            &lo[i..i + nx],
+            &lo[i + nx..i + 2 * nx],
+            &up[i..i + nx],
+            &up[i + nx..i + 2 * nx],
+        ]
+    }
+}
+
+impl Step for WorkStep {
+    type In = SlabJob;
+    type Out = Infallible;
+    type Done = ExtractStats;
+
+    fn batch(&mut self, job: SlabJob, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        let mut range = DataRange::default();
+        let before = self.extractor.stats();
+        let batches = match (&job.lower.rows, &job.upper.rows) {
+            (Some(l), Some(u)) => self.extract_strips(&job, l.as_ref(), u.as_ref(), &mut range)?,
+            _ => self.extract_slices(&job, &mut range),
+        };
         let slab = SlabBatches {
             batches,
             stats: self.extractor.stats() - before,
@@ -308,6 +427,90 @@ impl Inbox for Ordered {
                     cut.extract = self.stats;
                     cut.reader.range = self.range;
                     return Ok(Some(In::Cut(cut)));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::AtomicBool;
+
+    use isostream_volume::{MemoryVolume, Upsampled, VolumeSource};
+
+    use super::*;
+
+    /// Every slab's reply (batches, counters, data range) of a worker fed by `reader` as the
+    /// reader stage feeds it.
+    fn replies(mut reader: SliceReader, step: &mut WorkStep) -> Vec<SlabBatches> {
+        let cancel = AtomicBool::new(false);
+        let ctl = Control::new(&cancel);
+        let mut out = Outbox::none(&ctl);
+        let mut prev: Option<Arc<Slices>> = None;
+        let mut replies = Vec::new();
+        while let Some(upper) = reader.next_slices().unwrap() {
+            let upper = Arc::new(upper);
+            let z = upper.z;
+            if let Some(lower) = prev.replace(upper.clone()) {
+                let (reply, answer) = bounded(1);
+                let bounds = reader.slab_bounds(z - 1).unwrap();
+                let job = SlabJob {
+                    z: z - 1,
+                    lower,
+                    upper,
+                    bounds,
+                    reply,
+                };
+                let Ok(()) = step.batch(job, &mut out) else {
+                    panic!("slab {z} failed");
+                };
+                replies.push(answer.recv().unwrap());
+            }
+        }
+        replies
+    }
+
+    /// Strips of any height give the batches, counters and data range of whole slices (with
+    /// batches split inside slabs, across strip borders), with and without skipping.
+    #[test]
+    fn strips_extract_what_whole_slices_do() {
+        let grid = Grid::new([9, 11, 6], [1.0, 1.5, 2.0], [0.0; 3]).unwrap();
+        let data = (0..grid.voxel_count())
+            .map(|i| {
+                let [x, y, z] = [i % 9, (i / 9) % 11, i / 99].map(|c| c as f32);
+                (x * 0.9).sin() * 40.0 + (y * 0.7).cos() * 30.0 + z * 8.0
+            })
+            .collect();
+        let volume = MemoryVolume::new(grid, data).unwrap();
+        let iso = 20.0;
+        let source = || -> Box<dyn VolumeSource> {
+            Box::new(Upsampled::new(Box::new(volume.clone()), [3, 2, 2]).unwrap())
+        };
+        let fine = source().grid();
+        for skip in [false, true] {
+            let reader = |rows: bool| {
+                let mut r = SliceReader::new(source(), Vec::new());
+                if rows {
+                    r = r.rows_on_demand();
+                }
+                if skip { r.skip_empty(iso) } else { r }
+            };
+            let step = || WorkStep::new(fine, iso, 40, skip, ExtractStats::default());
+            let want = replies(reader(false), &mut step());
+            assert!(want.iter().map(|r| r.batches.len()).sum::<usize>() > 2 * want.len());
+            for height in [1, 2, 3, 7, 100] {
+                let mut tiled = step();
+                tiled.strip_rows = height;
+                let got = replies(reader(true), &mut tiled);
+                assert_eq!(got.len(), want.len());
+                for (g, w) in got.iter().zip(&want) {
+                    assert!(
+                        g.batches == w.batches,
+                        "strips of {height} rows, skip {skip}"
+                    );
+                    assert_eq!(g.stats, w.stats);
+                    assert_eq!(g.range, w.range);
                 }
             }
         }

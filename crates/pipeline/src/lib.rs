@@ -221,9 +221,14 @@ fn run_job(
     let every = job.pipeline.checkpoint.every(grid.voxel_count());
     let identity = match every.is_some() || saved.is_some() {
         true => {
-            let mut first = vec![0f32; grid.slice_len()];
-            source.read_slice(0, &mut first)?;
-            let first = checkpoint::hash_slice(&first);
+            let first = match source.slice_rows(0, None)? {
+                Some(rows) => attributes::hash_rows(rows.as_ref(), &grid),
+                None => {
+                    let mut first = vec![0f32; grid.slice_len()];
+                    source.read_slice(0, &mut first)?;
+                    checkpoint::hash_slice(&first)
+                }
+            };
             Some(checkpoint::InputIdentity::of(
                 job,
                 input.clone(),
@@ -252,20 +257,21 @@ fn run_job(
     let (sink, resume) = match (saved, &identity) {
         (Some(saved), Some(identity)) => {
             checkpoint::verify(ckpt_path, &saved, job, identity)?;
-            let parts = saved.parts;
-            let restore = |config: &SimplifierConfig, bytes: &[u8]| {
-                Simplifier::restore(config, checkpoint::decode(ckpt_path, bytes)?).map_err(|e| {
-                    RunError::ResumeMismatch {
-                        path: ckpt_path.to_path_buf(),
-                        what: e.to_string(),
-                    }
+            let restore = |config: &SimplifierConfig, saved: Simplifier| {
+                Simplifier::restore(config, saved).map_err(|e| RunError::ResumeMismatch {
+                    path: ckpt_path.to_path_buf(),
+                    what: e.to_string(),
                 })
             };
-            simplifier = restore(&config, &parts.simplify)?;
-            second = second_config
-                .as_ref()
-                .map(|c| restore(c, &parts.simplify_second))
-                .transpose()?;
+            simplifier = restore(&config, checkpoint::decode_simplifier(ckpt_path, &saved)?)?;
+            let parts = saved.parts;
+            second = match &second_config {
+                Some(c) => Some(restore(
+                    c,
+                    checkpoint::decode(ckpt_path, &parts.simplify_second)?,
+                )?),
+                None => None,
+            };
             if prune.is_some() {
                 filter = Some(Filter::restore(checkpoint::decode(
                     ckpt_path,
@@ -296,7 +302,7 @@ fn run_job(
         }
         _ => (sink::Sink::create(&job.output.path, &header)?, None),
     };
-    let mut reader = SliceReader::new(source, attribute_sources);
+    let mut reader = SliceReader::new(source, attribute_sources).rows_on_demand();
     if job.extract.skip_empty {
         reader = reader.skip_empty(job.extract.iso as f32);
     }
@@ -422,7 +428,7 @@ fn first_pass(
 ) -> Result<FirstPass, RunError> {
     let started = Instant::now();
     let iso = job.extract.iso as f32;
-    let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new());
+    let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new()).rows_on_demand();
     if job.extract.skip_empty {
         reader = reader.skip_empty(iso);
     }

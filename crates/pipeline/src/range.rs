@@ -1,7 +1,7 @@
 //! The values a run saw, for the error of an empty surface ("the data range is [0, 255]").
 
 /// Smallest and largest finite value, and how many voxels were NaN or infinite.
-#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct DataRange {
     min: f32,
     max: f32,

@@ -201,10 +201,12 @@ impl Stages<'_> {
             let prune = pruned.map(|(filter, rx, tx)| {
                 s.spawn(move || run("prune", ctl, PruneStep(filter), rx, Outbox::new(ctl, tx)))
             });
+            let plan = checkpoints.as_ref();
             let simplify = s.spawn(move || {
                 let slabs_total = grid.dims[2] - 1;
                 let step = SimplifyStep {
                     simplifier,
+                    checkpoint: plan.map(|p| p.path.as_path()),
                     front: None,
                     last_front: u32::try_from(first).unwrap_or(u32::MAX),
                     slabs_total,
@@ -231,7 +233,7 @@ impl Stages<'_> {
                     sink,
                     empty,
                     ctl,
-                    plan: checkpoints.as_ref(),
+                    plan,
                     slabs_total: grid.dims[2] - 1,
                 };
                 run("write", ctl, step, out_rx, Outbox::none(ctl))
@@ -559,6 +561,9 @@ impl Step for PruneStep {
 /// (`end_batch`) only when the next one arrives: the last one is closed by `finish` instead.
 struct SimplifyStep<'a> {
     simplifier: Simplifier,
+    /// Where checkpoints go (`None`: no checkpoints): a cut begins the file with the
+    /// simplifier's state (`checkpoint::Partial`).
+    checkpoint: Option<&'a std::path::Path>,
     /// The front of the delta added last, whose batch is still open.
     front: Option<u32>,
     last_front: u32,
@@ -667,13 +672,16 @@ impl Step for SimplifyStep<'_> {
             self.simplifier.end_batch(front, &mut out);
             self.emit(out, front, tx)?;
         }
-        let t = Instant::now();
-        cut.simplify = checkpoint::encode(&self.simplifier);
-        debug!(
-            bytes = cut.simplify.len(),
-            seconds = t.elapsed().as_secs_f64(),
-            "simplifier state encoded for a checkpoint"
-        );
+        if let Some(path) = self.checkpoint {
+            let t = Instant::now();
+            let partial = checkpoint::Partial::begin(path, &self.simplifier)?;
+            debug!(
+                bytes = partial.simplify_len(),
+                seconds = t.elapsed().as_secs_f64(),
+                "simplifier state written for a checkpoint"
+            );
+            cut.simplify = Some(partial);
+        }
         tx.cut(cut)
     }
 
@@ -790,6 +798,10 @@ impl Step for WriteStep<'_, '_> {
             simplify,
             simplify_second,
         } = *cut;
+        let partial = simplify.ok_or_else(|| RunError::Internal {
+            stage: "write",
+            reason: "a checkpoint marker passed the simplifier without its state".into(),
+        })?;
         let ckpt = Checkpoint {
             job: plan.job,
             input: plan.input.clone(),
@@ -799,16 +811,16 @@ impl Step for WriteStep<'_, '_> {
                 extract,
                 detect,
                 prune,
-                simplify,
                 simplify_second,
                 sink: self.sink.checkpoint()?,
             },
+            simplify: Default::default(),
         };
-        checkpoint::write(&plan.path, &ckpt)?;
+        let bytes = partial.finish(&ckpt)?;
         info!(
             slab = ckpt.slabs_done(),
             of = ckpt.slabs_total,
-            bytes = ckpt.parts.simplify.len() + ckpt.parts.detect.len(),
+            bytes,
             seconds = t.elapsed().as_secs_f64(),
             "checkpoint saved"
         );

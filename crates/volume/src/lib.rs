@@ -67,5 +67,5 @@ pub use open::open_path;
 pub use options::OpenOptions;
 pub use procedural::{Procedural, Shape};
 pub use raw::{RawSpec, RawVolume};
-pub use source::VolumeSource;
-pub use upsample::Upsampled;
+pub use source::{SliceRows, VolumeSource};
+pub use upsample::{FineSlice, Upsampled};

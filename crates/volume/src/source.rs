@@ -38,6 +38,25 @@ pub trait VolumeSource: Send {
     fn read_slice_near(&mut self, z: u64, _iso: f32, out: &mut [f32]) -> Result<(), VolumeError> {
         self.read_slice(z, out)
     }
+    /// Slice z as rows computed on demand, when the source can give them without computing the
+    /// whole slice (a virtual source): `read_slice_near(z, iso)` (or `read_slice(z)` for `None`)
+    /// row by row. `None` (the default) for sources that can only give whole slices.
+    fn slice_rows(
+        &mut self,
+        _z: u64,
+        _iso: Option<f32>,
+    ) -> Result<Option<Arc<dyn SliceRows>>, VolumeError> {
+        Ok(None)
+    }
+}
+
+/// One slice whose rows are computed on demand ([`VolumeSource::slice_rows`]): the extractor
+/// can work on strips of rows of a gigavoxel slice without the slice existing whole. Shared
+/// between threads (slabs are extracted in parallel).
+pub trait SliceRows: Send + Sync {
+    /// Fills `out` (whole rows of `grid.dims[0]` values, x fastest) with rows `y0..` of the
+    /// slice, the values `read_slice_near` (or `read_slice`) gives there.
+    fn fill_rows(&self, y0: u64, out: &mut [f32]);
 }
 
 /// Lets pipelines hold `Box<dyn VolumeSource>` wherever a source is expected.
@@ -62,6 +81,13 @@ impl VolumeSource for Box<dyn VolumeSource> {
     }
     fn read_slice_near(&mut self, z: u64, iso: f32, out: &mut [f32]) -> Result<(), VolumeError> {
         (**self).read_slice_near(z, iso, out)
+    }
+    fn slice_rows(
+        &mut self,
+        z: u64,
+        iso: Option<f32>,
+    ) -> Result<Option<Arc<dyn SliceRows>>, VolumeError> {
+        (**self).slice_rows(z, iso)
     }
 }
 

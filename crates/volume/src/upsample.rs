@@ -21,7 +21,7 @@ use std::sync::Arc;
 
 use crate::bounds::{SlabBounds, segment_bounds};
 use crate::source::check_request;
-use crate::{Grid, VolumeError, VolumeSource};
+use crate::{Grid, SliceRows, VolumeError, VolumeSource};
 
 /// A source seen at `factor` times its resolution.
 pub struct Upsampled {
@@ -32,14 +32,12 @@ pub struct Upsampled {
     /// Index of the source slab loaded (`lo` = its lower slice, `hi` = the upper one, absent
     /// on the last source slice).
     z0: Option<u64>,
-    lo: Vec<f32>,
-    hi: Vec<f32>,
+    /// Shared with the [`FineSlice`]s handed out (a new load replaces them, never edits them).
+    lo: Arc<Vec<f32>>,
+    hi: Arc<Vec<f32>>,
     /// Bounds of source slab `z0` and `z0 - 1` (None where that slab does not exist).
     bounds: Option<Arc<SlabBounds>>,
     prev_bounds: Option<Arc<SlabBounds>>,
-    /// Scratch: the source slice interpolated to the fine slice's z, and one row in y.
-    mix: Vec<f64>,
-    row: Vec<f64>,
 }
 
 /// `a + (b - a) t`, exactly `a` at `t = 0`.
@@ -82,12 +80,10 @@ impl Upsampled {
             source,
             grid,
             z0: None,
-            lo: Vec::new(),
-            hi: Vec::new(),
+            lo: Arc::default(),
+            hi: Arc::default(),
             bounds: None,
             prev_bounds: None,
-            mix: Vec::new(),
-            row: Vec::new(),
         })
     }
 
@@ -102,8 +98,9 @@ impl Upsampled {
             std::mem::swap(&mut self.lo, &mut self.hi);
             self.prev_bounds = self.bounds.take();
         } else {
-            self.lo.resize(n, 0.0);
-            self.inner.read_slice(sz, &mut self.lo)?;
+            let mut lo = vec![0.0; n];
+            self.inner.read_slice(sz, &mut lo)?;
+            self.lo = Arc::new(lo);
             self.prev_bounds = None;
             if sz > 0 {
                 // Out of order (a re-read): the previous slab's bounds from its slices.
@@ -114,11 +111,12 @@ impl Upsampled {
         }
         self.bounds = None;
         if sz + 1 < nz {
-            self.hi.resize(n, 0.0);
-            self.inner.read_slice(sz + 1, &mut self.hi)?;
+            let mut hi = vec![0.0; n];
+            self.inner.read_slice(sz + 1, &mut hi)?;
+            self.hi = Arc::new(hi);
             self.bounds = Some(Arc::new(self.cell_bounds(&self.lo, &self.hi)));
         } else {
-            self.hi.clear();
+            self.hi = Arc::default();
         }
         self.z0 = Some(sz);
         Ok(())
@@ -149,48 +147,93 @@ impl Upsampled {
         b
     }
 
-    /// Fills fine slice `z`: exactly where `needed(cell x, cell row y)` holds (every cell when
-    /// `iso` is None), elsewhere with the lower bound of an adjacent cell.
-    fn fill(&mut self, z: u64, iso: Option<f32>, out: &mut [f32]) -> Result<(), VolumeError> {
-        check_request(self, z, out)?;
-        let [kx, ky, kz] = self.factor;
+    /// Fine slice `z` as rows computed on demand ([`FineSlice`]): exact where
+    /// `needed(cell x, cell row y)` holds (every cell when `iso` is None), elsewhere the lower
+    /// bound of an adjacent cell.
+    fn fine(&mut self, z: u64, iso: Option<f32>) -> Result<FineSlice, VolumeError> {
+        let kz = self.factor[2];
         let (sz, rz) = (z / kz, z % kz);
         self.load(sz)?;
-        let [snx, sny] = [self.source.dims[0] as usize, self.source.dims[1] as usize];
         // The source slabs this fine slice belongs to: below (rz = 0) and its own.
-        let slabs: Vec<Arc<SlabBounds>> = [
-            if rz == 0 {
-                self.prev_bounds.clone()
-            } else {
-                None
-            },
-            self.bounds.clone(),
-        ]
-        .into_iter()
-        .flatten()
-        .collect();
+        let slabs = match iso {
+            None => Vec::new(),
+            Some(_) => [
+                if rz == 0 {
+                    self.prev_bounds.clone()
+                } else {
+                    None
+                },
+                self.bounds.clone(),
+            ]
+            .into_iter()
+            .flatten()
+            .collect(),
+        };
+        Ok(FineSlice {
+            source: [self.source.dims[0] as usize, self.source.dims[1] as usize],
+            factor: [self.factor[0], self.factor[1]],
+            nx: self.grid.dims[0] as usize,
+            tz: rz as f64 / kz as f64,
+            lo: self.lo.clone(),
+            // The exact source slice when rz = 0.
+            hi: (rz != 0).then(|| self.hi.clone()),
+            slabs,
+            iso,
+        })
+    }
 
-        // The source slice interpolated to this z (the exact source slice when rz = 0).
-        let tz = rz as f64 / kz as f64;
-        self.mix.clear();
-        if rz == 0 {
-            self.mix.extend(self.lo.iter().map(|&v| f64::from(v)));
-        } else {
-            self.mix.extend(
-                self.lo
-                    .iter()
-                    .zip(&self.hi)
-                    .map(|(&a, &b)| lerp(f64::from(a), f64::from(b), tz)),
-            );
-        }
+    fn fill(&mut self, z: u64, iso: Option<f32>, out: &mut [f32]) -> Result<(), VolumeError> {
+        check_request(self, z, out)?;
+        self.fine(z, iso)?.fill_rows(0, out);
+        Ok(())
+    }
+}
+
+/// One fine slice of an [`Upsampled`] source, computed row by row on demand from its source
+/// slices (shared, never copied) and value bounds: what lets the extractor work on strips of
+/// rows of a gigavoxel slice without the slice ever existing whole.
+pub struct FineSlice {
+    /// Source dims along x and y.
+    source: [usize; 2],
+    factor: [u64; 2],
+    /// Fine voxels per row.
+    nx: usize,
+    /// The slice's position between the two source slices.
+    tz: f64,
+    lo: Arc<Vec<f32>>,
+    /// The upper source slice; `None` when the fine slice is the lower source slice itself.
+    hi: Option<Arc<Vec<f32>>>,
+    /// The source slabs the slice belongs to (empty when every voxel is exact).
+    slabs: Vec<Arc<SlabBounds>>,
+    iso: Option<f32>,
+}
+
+impl FineSlice {
+    /// Source row `iy` interpolated to this slice's z, in `f64`.
+    fn mixed(&self, iy: usize) -> impl Iterator<Item = f64> + '_ {
+        let snx = self.source[0];
+        let lo = &self.lo[iy * snx..(iy + 1) * snx];
+        let hi = self.hi.as_ref().map(|hi| &hi[iy * snx..(iy + 1) * snx]);
+        lo.iter().enumerate().map(move |(x, &a)| match hi {
+            None => f64::from(a),
+            Some(hi) => lerp(f64::from(a), f64::from(hi[x]), self.tz),
+        })
+    }
+}
+
+impl SliceRows for FineSlice {
+    fn fill_rows(&self, y0: u64, out: &mut [f32]) {
+        let [kx, ky] = self.factor;
+        let [snx, sny] = self.source;
         let fx: Vec<f64> = (0..kx).map(|r| r as f64 / kx as f64).collect();
-        let nx = self.grid.dims[0] as usize;
+        let nx = self.nx;
         let cells_x = snx - 1;
         let mut need = vec![true; cells_x];
         let mut fill = vec![0.0f32; cells_x];
+        let mut row: Vec<f64> = Vec::with_capacity(snx);
         let mut rows_done = None;
-        for (y, out_row) in out.chunks_exact_mut(nx).enumerate() {
-            let (iy, ry) = (y as u64 / ky, y as u64 % ky);
+        for (y, out_row) in (y0..).zip(out.chunks_exact_mut(nx)) {
+            let (iy, ry) = (y / ky, y % ky);
             let iy = iy as usize;
             // The cell rows this fine row belongs to: below (ry = 0) and its own.
             let rows = [
@@ -198,11 +241,11 @@ impl Upsampled {
                 (iy < sny - 1).then_some(iy),
             ];
             // `need` and `fill` depend only on those rows: computed once per change.
-            if let Some(iso) = iso.filter(|_| rows_done != Some(rows)) {
+            if let Some(iso) = self.iso.filter(|_| rows_done != Some(rows)) {
                 rows_done = Some(rows);
                 for (cx, (n, f)) in need.iter_mut().zip(fill.iter_mut()).enumerate() {
                     *n = false;
-                    for s in &slabs {
+                    for s in &self.slabs {
                         for cy in rows.into_iter().flatten() {
                             *n |= s.may_cross(cx, cy, iso);
                             *f = s.low(cx, cy);
@@ -213,14 +256,15 @@ impl Upsampled {
             // This row interpolated in y, at source resolution (only when a cell needs it).
             let ty = ry as f64 / ky as f64;
             if need.iter().any(|&n| n) {
-                let a = &self.mix[iy * snx..(iy + 1) * snx];
-                self.row.clear();
+                row.clear();
                 if ry == 0 {
-                    self.row.extend_from_slice(a);
+                    row.extend(self.mixed(iy));
                 } else {
-                    let b = &self.mix[(iy + 1) * snx..(iy + 2) * snx];
-                    self.row
-                        .extend(a.iter().zip(b).map(|(&a, &b)| lerp(a, b, ty)));
+                    row.extend(
+                        self.mixed(iy)
+                            .zip(self.mixed(iy + 1))
+                            .map(|(a, b)| lerp(a, b, ty)),
+                    );
                 }
             }
             let k = kx as usize;
@@ -228,7 +272,7 @@ impl Upsampled {
             for cx in 0..cells_x {
                 let start = cx * k;
                 if need[cx] {
-                    let (a, b) = (self.row[cx], self.row[cx + 1]);
+                    let (a, b) = (row[cx], row[cx + 1]);
                     for (r, t) in fx.iter().enumerate() {
                         out_row[start + r] = lerp(a, b, *t) as f32;
                     }
@@ -241,7 +285,6 @@ impl Upsampled {
                 exact_left = need[cx];
             }
         }
-        Ok(())
     }
 }
 
@@ -270,6 +313,15 @@ impl VolumeSource for Upsampled {
         }
         self.load(sz)?;
         Ok(self.bounds.clone())
+    }
+
+    fn slice_rows(
+        &mut self,
+        z: u64,
+        iso: Option<f32>,
+    ) -> Result<Option<Arc<dyn SliceRows>>, VolumeError> {
+        VolumeError::check_slice_request(|| self.describe(), z, self.grid.dims[2], 0, 0)?;
+        Ok(Some(Arc::new(self.fine(z, iso)?)))
     }
 
     fn dtype(&self) -> Option<crate::Dtype> {
@@ -363,6 +415,37 @@ mod tests {
             assert_eq!(up.grid().spacing, [0, 1, 2].map(|i| 2.0 / k[i] as f64));
             let got = read_all(&mut up, None);
             assert!(got == want, "{dims:?} x {k:?}");
+        }
+    }
+
+    /// `slice_rows` in strips of any height gives the values `read_slice(_near)` gives, in any
+    /// order of the strips and while the source has moved on to other slices.
+    #[test]
+    fn rows_on_demand_equal_whole_slices() {
+        let dims = [5, 6, 4];
+        let k = [3, 2, 3];
+        let src = random(dims, 5);
+        for iso in [None, Some(128.0)] {
+            let mut up = Upsampled::new(Box::new(src.clone()), k).unwrap();
+            let g = up.grid();
+            let nx = g.dims[0] as usize;
+            let want = read_all(&mut up, iso);
+            let mut up = Upsampled::new(Box::new(src.clone()), k).unwrap();
+            let slices: Vec<_> = (0..g.dims[2])
+                .map(|z| up.slice_rows(z, iso).unwrap().unwrap())
+                .collect();
+            for height in [1, 2, 5, g.dims[1] as usize] {
+                for (z, rows) in slices.iter().enumerate().rev() {
+                    let at = z * g.slice_len();
+                    for y0 in (0..g.dims[1] as usize).step_by(height).rev() {
+                        let n = height.min(g.dims[1] as usize - y0);
+                        let mut out = vec![0.0; n * nx];
+                        rows.fill_rows(y0 as u64, &mut out);
+                        let from = at + y0 * nx;
+                        assert!(out == want[from..from + n * nx], "z {z} y {y0} x {height}");
+                    }
+                }
+            }
         }
     }
 
