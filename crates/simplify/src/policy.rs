@@ -268,23 +268,22 @@ mod tests {
         assert_eq!(r.final_target(FaceCounts { emitted: 50, ..c }), 50);
     }
 
+    fn counts(generated: u64, unmodifiable: usize, emitted: u64, resident: usize) -> FaceCounts {
+        FaceCounts {
+            generated,
+            unmodifiable,
+            emitted,
+            resident,
+        }
+    }
+
     #[test]
     fn initial_phase_ends_once_the_standard_target_catches_up() {
         let mut r = rate(0.1, 10, 0.5);
-        let early = FaceCounts {
-            generated: 1000,
-            unmodifiable: 100,
-            emitted: 0,
-            resident: 1000,
-        };
+        let early = counts(1000, 100, 0, 1000);
         // initial: 900 * 0.5 + 100 = 550 > standard 190
         assert_eq!(r.resident_target(early), 550);
-        let later = FaceCounts {
-            generated: 10_000,
-            unmodifiable: 100,
-            emitted: 0,
-            resident: 1000,
-        };
+        let later = counts(10_000, 100, 0, 1000);
         // initial 550 < standard 1090: the phase ends ...
         assert_eq!(r.resident_target(later), 1090);
         // ... and does not come back.
@@ -295,12 +294,7 @@ mod tests {
     fn a_second_stage_aims_at_the_rate_of_the_extracted_faces() {
         let mut r = rate(0.1, 10, 0.5);
         r.set_source_ratio(0.5);
-        let c = FaceCounts {
-            generated: 1000,
-            unmodifiable: 100,
-            emitted: 0,
-            resident: 1000,
-        };
+        let c = counts(1000, 100, 0, 1000);
         // initial phase: (1000 - 100) * 0.5 + 100 = 550 > standard (1000 - 100) * (0.1 / 0.5) + 100
         assert_eq!(r.resident_target(c), 550);
         let c = FaceCounts { emitted: 1, ..c };
