@@ -8,8 +8,10 @@
 //! `f64` (`lerp(a, b, t) = a + (b - a) t`, and exactly `a` at `t = 0`, so a non-finite corner
 //! only touches its own cells), rounded to `f32`.
 //!
-//! Memory: two source slices (`z0` and `z0 + 1`), their z-interpolated mix and one row, plus the
-//! value bounds of the two source slabs around the current slice (for empty-space skipping).
+//! Memory: two source slices (`z0` and `z0 + 1`) and the value bounds of the two source slabs
+//! around the current slice (for empty-space skipping), shared (`Arc`) with the [`FineSlice`]s
+//! handed out by [`VolumeSource::slice_rows`], which compute fine rows on demand (one source row
+//! of scratch each): a fine slice never needs to exist whole.
 //!
 //! Empty-space skipping: every fine value of a source cell lies between the cell's smallest and
 //! largest corner (a convex combination; the rounding of `a + (b - a) t` with `0 <= t < 1` never
