@@ -20,7 +20,7 @@ use crate::attributes::SliceReader;
 use crate::checkpoint::{self, Checkpoint, Cut, InputIdentity, Parts, ReaderState};
 use crate::config::CheckpointEvery;
 use crate::error::RunError;
-use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabBatches, WorkStep};
+use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabReply, WorkStep};
 use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
 use crate::range::DataRange;
 use crate::sink::Sink;
@@ -146,7 +146,7 @@ impl Stages<'_> {
             None => (delta_tx, None),
         };
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
-        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
+        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabReply>>>(threads);
         let depth = Depths {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
@@ -289,7 +289,7 @@ impl Extraction {
     fn spawn<'s, 'e: 's>(
         self,
         s: &'s std::thread::Scope<'s, 'e>,
-        order: Sender<Msg<Receiver<SlabBatches>>>,
+        order: Sender<Msg<Receiver<SlabReply>>>,
         ctl: &'e Control<'e>,
     ) -> ExtractionHandles<'s> {
         let Extraction {
@@ -317,7 +317,7 @@ impl Extraction {
                 // The counters before `first` go to the first worker.
                 let stats = std::mem::take(&mut stats);
                 s.spawn(move || {
-                    let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, stats);
+                    let step = WorkStep::new(ctl, grid, iso, batch_triangles, skip_empty, stats);
                     run("extract", ctl, step, jobs, Outbox::none(ctl))
                 })
             })
@@ -433,7 +433,7 @@ fn join<T>(
 
 /// Queue depths for the progress observer.
 struct Depths {
-    slabs: Receiver<Msg<Receiver<SlabBatches>>>,
+    slabs: Receiver<Msg<Receiver<SlabReply>>>,
     deltas: Receiver<Msg<MeshDelta>>,
     out: Receiver<Msg<OutBatch>>,
 }
