@@ -2,12 +2,16 @@
 //! neighbouring slabs) to a pool of worker threads, each with its own [`Extractor`], and the
 //! detector takes the slabs' batches back strictly in slab order.
 //!
-//! Ordering and the memory bound come from one device: for each slab the reader makes a
-//! one-slot reply channel, gives its sender to the workers with the job and passes its receiver
-//! down the bounded `order` channel. The detector reads `order` in slab order and waits on each
-//! reply in turn, so it sees exactly the stream one extractor would give (slabs are independent,
-//! see [`Extractor::extract_slab`]), and the reader blocks once `order` is full: at most
-//! `order`'s capacity + 2 slabs are extracted or waiting, whatever the number of workers.
+//! Ordering and the memory bound come from one device: for each slab the reader makes a reply
+//! channel of [`REPLY_BATCHES`] batches, gives its sender to the workers with the job and passes
+//! its receiver down the bounded `order` channel. The detector reads `order` in slab order and
+//! drains each reply in turn, so it sees exactly the stream one extractor would give (slabs are
+//! independent, see [`Extractor::extract_slab`]), and the reader blocks once `order` is full: at
+//! most `order`'s capacity + 2 slabs are extracted or waiting, whatever the number of workers,
+//! each holding at most [`REPLY_BATCHES`] batches (a worker ahead waits for the detector rather
+//! than holding its whole slab's surface, which grows with the slice). The worker of the
+//! earliest slab the detector waits for never waits on anyone else (jobs are taken in order),
+//! so the pool cannot deadlock.
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -25,14 +29,21 @@ use crate::error::RunError;
 use crate::flow::{Control, In, Inbox, Msg, Outbox, StageResult, Step, Stop, recv, send};
 use crate::range::DataRange;
 
-/// One slab's batches, in the order its extractor emitted them, with what the slab added to
-/// the counters and the data range: they are summed in slab order (`Ordered`), so that a
-/// checkpoint between two slabs knows them exactly, whichever worker ran ahead.
-pub(crate) struct SlabBatches {
-    batches: Vec<CubeBatch>,
-    stats: ExtractStats,
-    range: DataRange,
+/// What a slab's reply channel carries: its batches in the order its extractor emitted them,
+/// then what the slab added to the counters and the data range: they are summed in slab order
+/// (`Ordered`), so that a checkpoint between two slabs knows them exactly, whichever worker ran
+/// ahead.
+pub(crate) enum SlabReply {
+    Batch(CubeBatch),
+    Done {
+        stats: ExtractStats,
+        range: DataRange,
+    },
 }
+
+/// Batches a slab's reply channel holds: a worker running ahead of the detector waits once its
+/// slab has this many waiting.
+const REPLY_BATCHES: usize = 4;
 
 /// One slab to extract and where to answer.
 pub(crate) struct SlabJob {
@@ -41,7 +52,7 @@ pub(crate) struct SlabJob {
     upper: Arc<Slices>,
     /// The slab's value bounds when the volume knows them (an upsampled input).
     bounds: Option<Arc<SlabBounds>>,
-    reply: Sender<SlabBatches>,
+    reply: Sender<SlabReply>,
 }
 
 /// The reader: slices in z order, each slab handed to the workers (`jobs`) and its reply's
@@ -124,7 +135,7 @@ impl Schedule {
 
 impl Step for ReadStep<'_> {
     type In = u64;
-    type Out = Receiver<SlabBatches>;
+    type Out = Receiver<SlabReply>;
     type Done = ();
 
     fn batch(&mut self, z: u64, out: &mut Outbox<'_, Self::Out>) -> StageResult<()> {
@@ -142,7 +153,7 @@ impl Step for ReadStep<'_> {
         }
         let cut = self.schedule.due(z).then(|| Cut::new(z, upper.hash(&grid)));
         if let Some(lower) = self.prev.replace(upper.clone()) {
-            let (reply, answer) = bounded(1);
+            let (reply, answer) = bounded(REPLY_BATCHES);
             let job = SlabJob {
                 z: z - 1,
                 lower,
@@ -184,7 +195,8 @@ const MIN_STRIP_ROWS: usize = 16;
 
 /// One worker: extracts whole slabs (from whole slices, or strip by strip from slices given as
 /// rows) and answers each on its job's reply channel.
-pub(crate) struct WorkStep {
+pub(crate) struct WorkStep<'c> {
+    ctl: &'c Control<'c>,
     extractor: Extractor,
     batch_triangles: usize,
     /// Empty-space skipping (`[extract] skip_empty`).
@@ -195,10 +207,11 @@ pub(crate) struct WorkStep {
     strips: [Vec<f32>; 2],
 }
 
-impl WorkStep {
+impl<'c> WorkStep<'c> {
     /// `stats`: the counters to start from (a resumed run's first worker carries those of the
     /// slabs done before the checkpoint, so that the workers' counters add up to the job's).
     pub fn new(
+        ctl: &'c Control<'c>,
         grid: Grid,
         iso: f32,
         batch_triangles: usize,
@@ -207,6 +220,7 @@ impl WorkStep {
     ) -> Self {
         let nx = grid.dims[0] as usize;
         Self {
+            ctl,
             extractor: Extractor::resume(grid, iso, stats),
             batch_triangles,
             skip_empty,
@@ -217,7 +231,7 @@ impl WorkStep {
 
     /// Extracts a slab from its two whole slices (and its attributes'); adds the slab's voxels
     /// to `range`.
-    fn extract_slices(&mut self, job: &SlabJob, range: &mut DataRange) -> Vec<CubeBatch> {
+    fn extract_slices(&mut self, job: &SlabJob, range: &mut DataRange) -> StageResult<()> {
         let (lo, up) = (&job.lower, &job.upper);
         // Slice 0 counts with slab 0, every other slice as the upper slice of its slab.
         if job.z == 0 {
@@ -241,20 +255,16 @@ impl WorkStep {
                 ))
             })
         });
-        let mut batches = Vec::new();
-        let Ok(()) = self.extractor.extract_slab_with_attributes(
+        let ctl = self.ctl;
+        self.extractor.extract_slab_with_attributes(
             job.z,
             &lo.iso,
             &up.iso,
             &attrs,
             bounds.as_deref(),
             self.batch_triangles,
-            |b| {
-                batches.push(b);
-                Ok::<_, Infallible>(())
-            },
-        );
-        batches
+            |b| send(ctl, &job.reply, SlabReply::Batch(b)),
+        )
     }
 
     /// Extracts a slab whose two slices come as rows, strip by strip: the same batches as from
@@ -265,7 +275,7 @@ impl WorkStep {
         lower: &dyn SliceRows,
         upper: &dyn SliceRows,
         range: &mut DataRange,
-    ) -> StageResult<Vec<CubeBatch>> {
+    ) -> StageResult<()> {
         let bounds = match (&job.bounds, self.skip_empty) {
             (Some(b), true) => Some(b.as_ref()),
             (None, true) => {
@@ -289,19 +299,16 @@ impl WorkStep {
             count_lower: job.z == 0,
             range,
         };
-        let mut batches = Vec::new();
-        let Ok(()) = self.extractor.extract_slab_rows(
+        let ctl = self.ctl;
+        let done = self.extractor.extract_slab_rows(
             job.z,
             &mut strips,
             bounds,
             self.batch_triangles,
-            |b| {
-                batches.push(b);
-                Ok::<_, Infallible>(())
-            },
+            |b| send(ctl, &job.reply, SlabReply::Batch(b)),
         );
         self.strips = strips.buffers;
-        Ok(batches)
+        done
     }
 }
 
@@ -353,7 +360,7 @@ impl SlabRows for Strips<'_> {
     }
 }
 
-impl Step for WorkStep {
+impl Step for WorkStep<'_> {
     type In = SlabJob;
     type Out = Infallible;
     type Done = ExtractStats;
@@ -361,18 +368,16 @@ impl Step for WorkStep {
     fn batch(&mut self, job: SlabJob, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
         let mut range = DataRange::default();
         let before = self.extractor.stats();
-        let batches = match (&job.lower.rows, &job.upper.rows) {
+        match (&job.lower.rows, &job.upper.rows) {
             (Some(l), Some(u)) => self.extract_strips(&job, l.as_ref(), u.as_ref(), &mut range)?,
-            _ => self.extract_slices(&job, &mut range),
-        };
-        let slab = SlabBatches {
-            batches,
+            _ => self.extract_slices(&job, &mut range)?,
+        }
+        let done = SlabReply::Done {
             stats: self.extractor.stats() - before,
             range,
         };
-        // A one-slot channel that only this job fills: never blocks. A hang-up means the
-        // detector stopped.
-        job.reply.send(slab).map_err(|_| Stop::Disconnected)
+        // A hang-up means the detector stopped.
+        send(self.ctl, &job.reply, done)
     }
 
     fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<ExtractStats> {
@@ -383,8 +388,9 @@ impl Step for WorkStep {
 /// The detector's input: the slabs' batches in slab order, each slab waited for in turn. Sums
 /// the slabs' counters and data ranges in that order, for the run and for checkpoints.
 pub(crate) struct Ordered {
-    order: Receiver<Msg<Receiver<SlabBatches>>>,
-    current: std::vec::IntoIter<CubeBatch>,
+    order: Receiver<Msg<Receiver<SlabReply>>>,
+    /// The reply of the slab being taken.
+    current: Option<Receiver<SlabReply>>,
     stats: ExtractStats,
     range: DataRange,
 }
@@ -392,13 +398,13 @@ pub(crate) struct Ordered {
 impl Ordered {
     /// `stats` and `range`: those of the slabs before the first (a resumed run's).
     pub fn new(
-        order: Receiver<Msg<Receiver<SlabBatches>>>,
+        order: Receiver<Msg<Receiver<SlabReply>>>,
         stats: ExtractStats,
         range: DataRange,
     ) -> Self {
         Self {
             order,
-            current: Vec::new().into_iter(),
+            current: None,
             stats,
             range,
         }
@@ -410,18 +416,21 @@ impl Inbox for Ordered {
 
     fn next(&mut self, ctl: &Control<'_>) -> StageResult<Option<In<CubeBatch>>> {
         loop {
-            if let Some(b) = self.current.next() {
-                return Ok(Some(In::Item(b)));
+            if let Some(answer) = &self.current {
+                match recv(ctl, answer)? {
+                    SlabReply::Batch(b) => return Ok(Some(In::Item(b))),
+                    SlabReply::Done { stats, range } => {
+                        self.stats += stats;
+                        self.range.merge(&range);
+                        ctl.add_range(&range);
+                        self.current = None;
+                    }
+                }
+                continue;
             }
             match self.order.next(ctl)? {
                 None => return Ok(None),
-                Some(In::Item(answer)) => {
-                    let slab = recv(ctl, &answer)?;
-                    self.stats += slab.stats;
-                    self.range.merge(&slab.range);
-                    ctl.add_range(&slab.range);
-                    self.current = slab.batches.into_iter();
-                }
+                Some(In::Item(answer)) => self.current = Some(answer),
                 // Every slab before the cut has been handed out: their sums are the cut's.
                 Some(In::Cut(mut cut)) => {
                     cut.extract = self.stats;
@@ -441,19 +450,25 @@ mod tests {
 
     use super::*;
 
+    /// One slab's reply, gathered.
+    struct Slab {
+        batches: Vec<CubeBatch>,
+        stats: ExtractStats,
+        range: DataRange,
+    }
+
     /// Every slab's reply (batches, counters, data range) of a worker fed by `reader` as the
     /// reader stage feeds it.
-    fn replies(mut reader: SliceReader, step: &mut WorkStep) -> Vec<SlabBatches> {
-        let cancel = AtomicBool::new(false);
-        let ctl = Control::new(&cancel);
-        let mut out = Outbox::none(&ctl);
+    fn replies(mut reader: SliceReader, step: &mut WorkStep<'_>, ctl: &Control<'_>) -> Vec<Slab> {
+        let mut out = Outbox::none(ctl);
         let mut prev: Option<Arc<Slices>> = None;
         let mut replies = Vec::new();
         while let Some(upper) = reader.next_slices().unwrap() {
             let upper = Arc::new(upper);
             let z = upper.z;
             if let Some(lower) = prev.replace(upper.clone()) {
-                let (reply, answer) = bounded(1);
+                // Unbounded: the worker runs on this thread, ahead of the reading below.
+                let (reply, answer) = crossbeam_channel::unbounded();
                 let bounds = reader.slab_bounds(z - 1).unwrap();
                 let job = SlabJob {
                     z: z - 1,
@@ -465,7 +480,20 @@ mod tests {
                 let Ok(()) = step.batch(job, &mut out) else {
                     panic!("slab {z} failed");
                 };
-                replies.push(answer.recv().unwrap());
+                let mut batches = Vec::new();
+                loop {
+                    match answer.try_recv().unwrap() {
+                        SlabReply::Batch(b) => batches.push(b),
+                        SlabReply::Done { stats, range } => {
+                            replies.push(Slab {
+                                batches,
+                                stats,
+                                range,
+                            });
+                            break;
+                        }
+                    }
+                }
             }
         }
         replies
@@ -488,6 +516,8 @@ mod tests {
             Box::new(Upsampled::new(Box::new(volume.clone()), [3, 2, 2]).unwrap())
         };
         let fine = source().grid();
+        let cancel = AtomicBool::new(false);
+        let ctl = Control::new(&cancel);
         for skip in [false, true] {
             let reader = |rows: bool| {
                 let mut r = SliceReader::new(source(), Vec::new());
@@ -496,13 +526,13 @@ mod tests {
                 }
                 if skip { r.skip_empty(iso) } else { r }
             };
-            let step = || WorkStep::new(fine, iso, 40, skip, ExtractStats::default());
-            let want = replies(reader(false), &mut step());
+            let step = || WorkStep::new(&ctl, fine, iso, 40, skip, ExtractStats::default());
+            let want = replies(reader(false), &mut step(), &ctl);
             assert!(want.iter().map(|r| r.batches.len()).sum::<usize>() > 2 * want.len());
             for height in [1, 2, 3, 7, 100] {
                 let mut tiled = step();
                 tiled.strip_rows = height;
-                let got = replies(reader(true), &mut tiled);
+                let got = replies(reader(true), &mut tiled, &ctl);
                 assert_eq!(got.len(), want.len());
                 for (g, w) in got.iter().zip(&want) {
                     assert!(

@@ -20,7 +20,7 @@ use crate::attributes::SliceReader;
 use crate::checkpoint::{self, Checkpoint, Cut, InputIdentity, Parts, ReaderState};
 use crate::config::CheckpointEvery;
 use crate::error::RunError;
-use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabBatches, WorkStep};
+use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabReply, WorkStep};
 use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
 use crate::range::DataRange;
 use crate::sink::Sink;
@@ -159,7 +159,7 @@ impl Stages<'_> {
             }
             None => (out_tx, None),
         };
-        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabBatches>>>(threads);
+        let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabReply>>>(threads);
         let depth = Depths {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
@@ -325,7 +325,7 @@ impl Extraction {
     fn spawn<'s, 'e: 's>(
         self,
         s: &'s std::thread::Scope<'s, 'e>,
-        order: Sender<Msg<Receiver<SlabBatches>>>,
+        order: Sender<Msg<Receiver<SlabReply>>>,
         ctl: &'e Control<'e>,
     ) -> ExtractionHandles<'s> {
         let Extraction {
@@ -353,7 +353,7 @@ impl Extraction {
                 // The counters before `first` go to the first worker.
                 let stats = std::mem::take(&mut stats);
                 s.spawn(move || {
-                    let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, stats);
+                    let step = WorkStep::new(ctl, grid, iso, batch_triangles, skip_empty, stats);
                     run("extract", ctl, step, jobs, Outbox::none(ctl))
                 })
             })
@@ -469,7 +469,7 @@ fn join<T>(
 
 /// Queue depths for the progress observer.
 struct Depths {
-    slabs: Receiver<Msg<Receiver<SlabBatches>>>,
+    slabs: Receiver<Msg<Receiver<SlabReply>>>,
     deltas: Receiver<Msg<MeshDelta>>,
     out: Receiver<Msg<OutBatch>>,
     /// A cascade's second stage: what it wrote and holds, so that progress reports the run's
