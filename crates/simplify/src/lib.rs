@@ -18,6 +18,8 @@
 //! * `retire`: retirement behind the front or for the memory budget, and emission;
 //! * `passthrough`: policy `none` when streaming: triangles leave as soon as their vertices are
 //!   complete, without any of the contraction machinery.
+//! * `cascade`: what two simplifiers in series exchange (vertex states, the first stage's rear)
+//!   and why the pair is as safe as one.
 //!
 //! Decisions (the why is at each item's definition):
 //! * **Surface boundary**: boundary vertices never move. An interior vertex may merge into a
