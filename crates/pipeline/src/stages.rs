@@ -1,6 +1,7 @@
 //! The stages of a run and their wiring: read -> extract (a pool of workers, see
 //! `extract_pool.rs`) -> detect -> simplify (one simplifier, or a cascade's two stages, each on
-//! its own thread) -> write, each on its own thread(s), joined by bounded channels of [`Msg`]. How a stage is driven, timed and stopped is in `flow.rs`; this file says
+//! its own thread) -> write, each on its own thread(s), joined by bounded channels of [`Msg`].
+//! How a stage is driven, timed and stopped is in `flow.rs`; this file says
 //! what each stage does with one input and at its end.
 
 use std::convert::Infallible;
