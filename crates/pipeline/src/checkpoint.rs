@@ -57,8 +57,9 @@ use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// Bumped whenever the layout of the file or of its sections changes (2: the prune filter's
-/// part; 3: the simplifier's section streamed ahead of the rest).
-const FORMAT: u32 = 3;
+/// part; 3: the simplifier's section streamed ahead of the rest; 4: the simplifier's
+/// pass-through band and a cascade's second simplifier).
+const FORMAT: u32 = 4;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
@@ -146,6 +147,9 @@ pub(crate) struct Cut {
     /// Empty when the job does not prune.
     pub prune: Vec<u8>,
     pub simplify: Option<Partial>,
+    /// A cascade's second simplifier (empty without one), encoded in memory: unlike the first's,
+    /// its state is not streamed into the file yet.
+    pub simplify_second: Vec<u8>,
 }
 
 impl Cut {
@@ -161,6 +165,7 @@ impl Cut {
             detect: Vec::new(),
             prune: Vec::new(),
             simplify: None,
+            simplify_second: Vec::new(),
         })
     }
 }
@@ -172,6 +177,8 @@ pub(crate) struct Parts {
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
     pub prune: Vec<u8>,
+    /// A cascade's second simplifier (empty without one).
+    pub simplify_second: Vec<u8>,
     pub sink: isostream_smesh::SinkState,
 }
 
@@ -608,6 +615,7 @@ mod tests {
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
                 prune: vec![5, 6],
+                simplify_second: vec![5; 10],
                 sink: sink_state(),
             },
             simplify: Section::default(),

@@ -237,6 +237,11 @@ pub struct PipelineConfig {
     /// Threads extracting slabs in parallel (default: one per core). The output does not
     /// depend on it: slabs reach the detector in order.
     pub threads: Option<usize>,
+    /// Simplifiers in series, each on its own thread (a cascade, see
+    /// `isostream_simplify::Cascade`): 2 uses two cores for one job (mode `rate` with the
+    /// geometric priority only), 1 (the default) is a single simplifier. Part of the job: the
+    /// output depends on it, never on the machine.
+    pub simplify_stages: Option<u8>,
 }
 
 impl PipelineConfig {
@@ -308,6 +313,7 @@ impl Default for PipelineConfig {
             batch_triangles: default_batch_triangles(),
             checkpoint: CheckpointConfig::default(),
             threads: None,
+            simplify_stages: None,
         }
     }
 }
@@ -616,6 +622,18 @@ impl JobConfig {
                 "0".into(),
             ));
         }
+        match p.simplify_stages {
+            None | Some(1) => {}
+            Some(2) if self.cascade_possible() => {}
+            Some(2) => {
+                return Err(bad(
+                    "pipeline.simplify_stages",
+                    "1 unless mode = \"rate\" with the geometric priority (the only setting two stages support)",
+                    "2".into(),
+                ));
+            }
+            Some(n) => return Err(bad("pipeline.simplify_stages", "1 or 2", n.to_string())),
+        }
         let every = self.log.progress_seconds;
         if !(0.0..=1e9).contains(&every) {
             return Err(bad(
@@ -645,6 +663,17 @@ impl JobConfig {
     }
 
     /// The simplifier's resident-face budget derived from `pipeline.memory_budget_mib`.
+    /// Whether the simplification runs as a cascade of two stages (`[pipeline]
+    /// simplify_stages = 2`). Not the default yet: under the default memory budget the pair
+    /// holds more than one simplifier and loses accuracy at low rates (docs/performance.md).
+    pub fn cascade(&self) -> bool {
+        self.pipeline.simplify_stages == Some(2)
+    }
+
+    fn cascade_possible(&self) -> bool {
+        self.simplify.mode == Mode::Rate && self.simplify.priority == PriorityKind::Geometric
+    }
+
     pub fn max_resident_faces(&self) -> usize {
         // The budget less the fixed part is the simplifier's surface (at least a quarter of it).
         let mib = self
@@ -835,6 +864,23 @@ mod tests {
             .to_string();
         assert!(err.contains("mode"), "{err}");
         assert_eq!(with("faces = 10", "").unwrap().output.faces, Some(10));
+    }
+
+    #[test]
+    fn simplify_stages_are_one_or_two_and_two_only_where_supported() {
+        assert!(!parse(MINIMAL).unwrap().cascade(), "one stage by default");
+        let two = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 2\n");
+        assert!(parse(&two).unwrap().cascade());
+        let three = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 3\n");
+        let err = parse(&three).unwrap_err().to_string();
+        assert!(
+            err.contains("pipeline.simplify_stages") && err.contains("1 or 2"),
+            "{err}"
+        );
+        let none = format!("{MINIMAL}\n[simplify]\nmode = \"none\"\n");
+        let two = format!("{none}\n[pipeline]\nsimplify_stages = 2\n");
+        let err = parse(&two).unwrap_err().to_string();
+        assert!(err.contains("mode = \"rate\""), "{err}");
     }
 
     #[test]

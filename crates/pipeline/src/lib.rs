@@ -27,7 +27,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use isostream_prune::{Filter, SmallPieces};
-use isostream_simplify::{Policy, Simplifier, SimplifyConfig as SimplifierConfig};
+use isostream_simplify::{Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig};
 use isostream_smesh::Header;
 use serde::Serialize;
 use tracing::{info, warn};
@@ -201,19 +201,23 @@ fn run_job(
         (Some(faces), Some(pass)) => (faces as f64 / pass.kept().max(1) as f64).min(1.0),
         _ => rate,
     };
-    let config = simplifier_config(job, grid, rate);
+    let (config, second_config) = simplifier_configs(job, grid, rate);
     let mut filter = pass
         .and_then(|p| p.small)
         .filter(|_| saved.is_none())
         .map(Filter::new);
-    let mut simplifier = Simplifier::new(config.clone()).map_err(|e| {
-        RunError::Config(ConfigError::Invalid {
-            path: job_path.to_path_buf(),
-            key: "simplify".into(),
-            expected: "a valid simplification setting".into(),
-            got: e.to_string(),
+    let new_simplifier = |config: &SimplifierConfig| {
+        Simplifier::new(config.clone()).map_err(|e| {
+            RunError::Config(ConfigError::Invalid {
+                path: job_path.to_path_buf(),
+                key: "simplify".into(),
+                expected: "a valid simplification setting".into(),
+                got: e.to_string(),
+            })
         })
-    })?;
+    };
+    let mut simplifier = new_simplifier(&config)?;
+    let mut second = second_config.as_ref().map(new_simplifier).transpose()?;
     let every = job.pipeline.checkpoint.every(grid.voxel_count());
     let identity = match every.is_some() || saved.is_some() {
         true => {
@@ -253,13 +257,21 @@ fn run_job(
     let (sink, resume) = match (saved, &identity) {
         (Some(saved), Some(identity)) => {
             checkpoint::verify(ckpt_path, &saved, job, identity)?;
-            simplifier =
-                Simplifier::restore(&config, checkpoint::decode_simplifier(ckpt_path, &saved)?)
-                    .map_err(|e| RunError::ResumeMismatch {
-                        path: ckpt_path.to_path_buf(),
-                        what: e.to_string(),
-                    })?;
+            let restore = |config: &SimplifierConfig, saved: Simplifier| {
+                Simplifier::restore(config, saved).map_err(|e| RunError::ResumeMismatch {
+                    path: ckpt_path.to_path_buf(),
+                    what: e.to_string(),
+                })
+            };
+            simplifier = restore(&config, checkpoint::decode_simplifier(ckpt_path, &saved)?)?;
             let parts = saved.parts;
+            second = match &second_config {
+                Some(c) => Some(restore(
+                    c,
+                    checkpoint::decode(ckpt_path, &parts.simplify_second)?,
+                )?),
+                None => None,
+            };
             if prune.is_some() {
                 filter = Some(Filter::restore(checkpoint::decode(
                     ckpt_path,
@@ -313,6 +325,7 @@ fn run_job(
         iso: job.extract.iso as f32,
         filter,
         simplifier,
+        second,
         sink,
         capacity: job.pipeline.channel_capacity,
         batch_triangles: job.pipeline.batch_triangles,
@@ -445,6 +458,60 @@ fn first_pass(
     Ok(pass)
 }
 
+/// Slabs the first stage of a cascade keeps a vertex editable behind its front: its output is
+/// not final, so a short band is enough, and the band is what it adds to the memory.
+const FIRST_STAGE_LAG: u32 = 3;
+
+/// The rate a cascade's first stage decimates to, for a job at `rate`. The second stage's
+/// contractions cost more (larger triangles, more candidates refused) and it also takes in its
+/// input again, so the first takes more than half of the contractions: at R = 0.2 the stages
+/// then execute 3.1 and 3.0 G instructions on the engine crop (callgrind per thread; halfway,
+/// 0.6, gave 3.0 and 3.7 G; one simplifier, 5.2 G; docs/performance.md).
+fn intermediate_rate(rate: f64) -> f64 {
+    rate.max(0.47 + 0.53 * rate)
+}
+
+/// The simplifiers of the job: one, or a cascade's two (`[pipeline] simplify_stages`, see
+/// `isostream_simplify::Cascade`): the first to [`intermediate_rate`], retiring
+/// [`FIRST_STAGE_LAG`] slabs behind its front within a quarter of the face budget, the second to
+/// the job's rate with the rest of the budget.
+fn simplifier_configs(
+    job: &JobConfig,
+    grid: isostream_volume::Grid,
+    rate: f64,
+) -> (SimplifierConfig, Option<SimplifierConfig>) {
+    let single = simplifier_config(job, grid, rate);
+    let Policy::Rate {
+        batch,
+        initial_rate,
+        ..
+    } = single.policy
+    else {
+        return (single, None);
+    };
+    if !job.cascade() {
+        return (single, None);
+    }
+    let budget = single.max_resident_faces;
+    let first = SimplifierConfig {
+        policy: Policy::Rate {
+            rate: intermediate_rate(rate),
+            batch,
+            initial_rate,
+        },
+        retire_lag: FIRST_STAGE_LAG,
+        max_resident_faces: (budget / 4).max(1),
+        cascade: Cascade::First,
+        ..single.clone()
+    };
+    let second = SimplifierConfig {
+        max_resident_faces: (budget - budget / 4).max(1),
+        cascade: Cascade::Second,
+        ..single
+    };
+    (first, Some(second))
+}
+
 /// The simplifier's whole configuration: policy, priority, budget, attributes, and the sweep
 /// along z (marching cubes' slabs), in-core for `classical`.
 fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -> SimplifierConfig {
@@ -479,6 +546,7 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -
         retire_lag: s.retire_lag,
         max_resident_faces: job.max_resident_faces(),
         attributes: job.attributes.len(),
+        cascade: Cascade::Single,
     }
 }
 

@@ -1,12 +1,12 @@
 //! The stages of a run and their wiring: read -> extract (a pool of workers, see
-//! `extract_pool.rs`) -> detect -> simplify -> write, each on its own thread(s), joined by bounded
-//! channels of [`Msg`]. How a stage is driven, timed and stopped is in `flow.rs`; this file says
+//! `extract_pool.rs`) -> detect -> simplify (one simplifier, or a cascade's two stages, each on
+//! its own thread) -> write, each on its own thread(s), joined by bounded channels of [`Msg`]. How a stage is driven, timed and stopped is in `flow.rs`; this file says
 //! what each stage does with one input and at its end.
 
 use std::convert::Infallible;
 use std::num::NonZeroU64;
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
@@ -48,6 +48,8 @@ pub struct StageSeconds {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prune: Option<f64>,
     pub simplify: f64,
+    /// The second simplifier of a cascade (`[pipeline] simplify_stages = 2`), 0 without one.
+    pub simplify_second: f64,
     pub write: f64,
 }
 
@@ -71,6 +73,8 @@ pub(crate) struct Stages<'a> {
     /// (restored already when resuming); `None`: no such stage.
     pub filter: Option<Filter>,
     pub simplifier: Simplifier,
+    /// The second stage of a cascade: `simplifier` is then its first.
+    pub second: Option<Simplifier>,
     pub sink: Sink,
     pub capacity: usize,
     pub batch_triangles: usize,
@@ -112,6 +116,7 @@ impl Stages<'_> {
             iso,
             filter,
             simplifier,
+            second,
             sink,
             capacity,
             batch_triangles,
@@ -146,12 +151,22 @@ impl Stages<'_> {
             None => (delta_tx, None),
         };
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
+        // With a cascade the first simplifier's batches go to the second, whose go to the writer.
+        let (first_tx, second) = match second {
+            Some(simplifier) => {
+                let (mid_tx, mid_rx) = bounded::<Msg<OutBatch>>(capacity);
+                (mid_tx, Some((simplifier, mid_rx, out_tx)))
+            }
+            None => (out_tx, None),
+        };
         let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabReply>>>(threads);
         let depth = Depths {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
             out: out_rx.clone(),
+            second: second.is_some().then(SecondCounts::default),
         };
+        let depth = &depth;
         let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
         let ctl = Control::new(cancel);
         let ctl = &ctl;
@@ -196,10 +211,22 @@ impl Stages<'_> {
                     last_front: u32::try_from(first).unwrap_or(u32::MAX),
                     slabs_total,
                     log_every: (slabs_total / 20).max(1),
-                    depth: &depth,
+                    depth,
                     observer,
                 };
-                run("simplify", ctl, step, delta_rx, Outbox::new(ctl, out_tx))
+                run("simplify", ctl, step, delta_rx, Outbox::new(ctl, first_tx))
+            });
+            let simplify_second = second.map(|(simplifier, rx, tx)| {
+                s.spawn(move || {
+                    let step = SecondStep {
+                        simplifier,
+                        faces_in: 0,
+                        slabs_total: grid.dims[2] - 1,
+                        depth,
+                        observer,
+                    };
+                    run("simplify2", ctl, step, rx, Outbox::new(ctl, tx))
+                })
             });
             let write = s.spawn(move || {
                 let step = WriteStep {
@@ -219,6 +246,14 @@ impl Stages<'_> {
             let detect = join(detect, "detect");
             let prune = prune.map(|h| join(h, "prune")).transpose();
             let simplify = join(simplify, "simplify");
+            let simplify_second = simplify_second.map(|h| join(h, "simplify2"));
+            let simplify = match (simplify, simplify_second) {
+                (Ok((s1, first)), Some(Ok((s2, second)))) => {
+                    Ok(((s1, s2), SimplifyStats::of_cascade(&first, &second)))
+                }
+                (_, Some(Err(e))) | (Err(e), _) => Err(e),
+                (Ok((s1, first)), None) => Ok(((s1, 0.0), first)),
+            };
             let write = join(write, "write");
             match (read, extract, detect, prune, simplify, write) {
                 (
@@ -234,7 +269,8 @@ impl Stages<'_> {
                         extract: extract_s,
                         detect: detect_s,
                         prune: prune.map(|(s, _)| s),
-                        simplify: simplify_s,
+                        simplify: simplify_s.0,
+                        simplify_second: simplify_s.1,
                         write: write_s,
                     },
                     extract,
@@ -436,6 +472,15 @@ struct Depths {
     slabs: Receiver<Msg<Receiver<SlabReply>>>,
     deltas: Receiver<Msg<MeshDelta>>,
     out: Receiver<Msg<OutBatch>>,
+    /// A cascade's second stage: what it wrote and holds, so that progress reports the run's
+    /// output, not the intermediate surface.
+    second: Option<SecondCounts>,
+}
+
+#[derive(Default)]
+struct SecondCounts {
+    faces_out: AtomicU64,
+    resident: AtomicU64,
 }
 
 /// Cube batches -> indexed deltas. The delta of the last batch is held back until the end is
@@ -539,19 +584,31 @@ impl SimplifyStep<'_> {
         if let Some(faces) = self.simplifier.in_core_overflow() {
             return Err(Stop::Failed(RunError::ClassicalOverBudget { faces }));
         }
-        if !out.elements.is_empty() {
+        // A cascade's first stage sends every batch: its handoff moves the second stage's front.
+        if !out.elements.is_empty() || out.handoff.is_some() {
             tx.send(out)?;
         }
         let last = u64::from(front) == self.slabs_total;
+        // A cascade's second stage reports the end, with the run's totals.
+        if last && self.depth.second.is_some() {
+            return Ok(());
+        }
         if front > self.last_front || last {
             self.last_front = front;
             let st = self.simplifier.stats();
+            let (faces_out, resident) = match &self.depth.second {
+                Some(c) => (
+                    c.faces_out.load(Ordering::Relaxed),
+                    c.resident.load(Ordering::Relaxed) + st.faces_resident as u64,
+                ),
+                None => (st.faces_out, st.faces_resident as u64),
+            };
             let progress = Progress {
                 slabs_done: u64::from(front),
                 slabs_total: self.slabs_total,
                 faces_in: st.faces_in,
-                faces_out: st.faces_out,
-                resident_faces: st.faces_resident as u64,
+                faces_out,
+                resident_faces: resident,
                 queued: [
                     self.depth.slabs.len(),
                     self.depth.deltas.len(),
@@ -637,6 +694,70 @@ impl Step for SimplifyStep<'_> {
     }
 }
 
+/// A cascade's second stage: the first stage's batches -> simplified batches.
+struct SecondStep<'a> {
+    simplifier: Simplifier,
+    /// Faces extracted so far, from the first stage's hand-offs.
+    faces_in: u64,
+    slabs_total: u64,
+    depth: &'a Depths,
+    observer: &'a (dyn Fn(&Progress) + Sync),
+}
+
+impl Step for SecondStep<'_> {
+    type In = OutBatch;
+    type Out = OutBatch;
+    type Done = SimplifyStats;
+
+    fn batch(&mut self, batch: OutBatch, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        let rear = self.simplifier.ingest(&batch);
+        self.faces_in = batch.handoff.map_or(self.faces_in, |h| h.faces_in);
+        let mut out = OutBatch::default();
+        self.simplifier.end_batch(rear, &mut out);
+        if let Some(c) = &self.depth.second {
+            let st = self.simplifier.stats();
+            c.faces_out.store(st.faces_out, Ordering::Relaxed);
+            c.resident
+                .store(st.faces_resident as u64, Ordering::Relaxed);
+        }
+        if !out.elements.is_empty() {
+            tx.send(out)?;
+        }
+        Ok(())
+    }
+
+    /// Each batch is closed as it comes, so the state is between two batches here, after
+    /// everything the first stage sent before the cut.
+    fn cut(&mut self, mut cut: Box<Cut>, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
+        cut.simplify_second = checkpoint::encode(&self.simplifier);
+        tx.cut(cut)
+    }
+
+    /// The run's last progress event comes from here (the first stage leaves it): only now are
+    /// the written faces the run's totals.
+    fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
+        let mut out = OutBatch::default();
+        self.simplifier.finish(&mut out);
+        if !out.elements.is_empty() {
+            tx.send(out)?;
+        }
+        let st = self.simplifier.stats();
+        (self.observer)(&Progress {
+            slabs_done: self.slabs_total,
+            slabs_total: self.slabs_total,
+            faces_in: self.faces_in,
+            faces_out: st.faces_out,
+            resident_faces: st.faces_resident as u64,
+            queued: [
+                self.depth.slabs.len(),
+                self.depth.deltas.len(),
+                self.depth.out.len(),
+            ],
+        });
+        Ok(st)
+    }
+}
+
 /// What the writer needs to refuse an empty surface.
 #[derive(Clone, Copy)]
 struct EmptyCheck<'a> {
@@ -675,6 +796,7 @@ impl Step for WriteStep<'_, '_> {
             detect,
             prune,
             simplify,
+            simplify_second,
         } = *cut;
         let partial = simplify.ok_or_else(|| RunError::Internal {
             stage: "write",
@@ -689,6 +811,7 @@ impl Step for WriteStep<'_, '_> {
                 extract,
                 detect,
                 prune,
+                simplify_second,
                 sink: self.sink.checkpoint()?,
             },
             simplify: Default::default(),

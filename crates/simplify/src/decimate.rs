@@ -44,6 +44,10 @@ impl Simplifier {
                 self.stats.rejected_other += 1;
                 continue;
             };
+            if self.below_rear(eval.pos) {
+                self.stats.rejected_other += 1;
+                continue;
+            }
             if eval.cost > c.cost {
                 self.candidates.push(Candidate {
                     cost: eval.cost,
@@ -51,13 +55,16 @@ impl Simplifier {
                 });
                 continue;
             }
-            if !topology::link_ok(&self.store, c.a, c.b) {
+            // The front first: it is the cheapest test, and what waits for the front is tested
+            // again when it comes back (a cascade's second stage, whose front is the first
+            // stage's rear, delays one candidate in two).
+            if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
+                self.stats.delayed_front += 1;
+                self.candidates.delay(c, reach);
+            } else if !topology::link_ok(&self.store, c.a, c.b) {
                 self.stats.rejected_link += 1;
             } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
                 self.stats.rejected_flip += 1;
-            } else if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
-                self.stats.delayed_front += 1;
-                self.candidates.delay(c, reach);
             } else if eval.cost != COINCIDENT
                 // Merging coincident vertices moves nothing: any crossing of the new fan existed.
                 && self
@@ -85,6 +92,16 @@ impl Simplifier {
             }
         }
         (far > self.front).then_some(far)
+    }
+
+    /// A cascade's first stage never places a vertex below the rear it announced (`cascade`):
+    /// the second stage edits the surface up to that plane.
+    fn below_rear(&self, pos: DVec3) -> bool {
+        self.config.cascade == crate::Cascade::First
+            && self
+                .config
+                .sweep
+                .is_some_and(|w| w.rank_of(pos) < f64::from(self.rear))
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).

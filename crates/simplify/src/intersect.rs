@@ -237,14 +237,16 @@ impl TriIndex {
                 if tri.contains(a) && tri.contains(b) {
                     continue;
                 }
-                let v = tri.v.map(|x| if x == a || x == b { keep } else { x });
-                let p = v.map(|x| {
-                    if x == keep {
-                        pos
-                    } else {
-                        store.vertex(x).map_or(DVec3::ZERO, |y| y.pos)
-                    }
-                });
+                // Rotated so that the new vertex comes first (a rotation keeps the orientation
+                // and every edge's direction, so the predicates see the same segments).
+                let i = tri.v.iter().position(|&x| x == a || x == b).unwrap_or(0);
+                let v = [tri.v[i], tri.v[(i + 1) % 3], tri.v[(i + 2) % 3]];
+                let v = [keep, v[1], v[2]];
+                let p = [
+                    pos,
+                    store.vertex(v[1]).map_or(DVec3::ZERO, |y| y.pos),
+                    store.vertex(v[2]).map_or(DVec3::ZERO, |y| y.pos),
+                ];
                 let bx = Aabb::of(&p.map(|x| x.as_vec3()));
                 union = union.union(&bx);
                 fan.push((Tri64::new(v, p), bx));
@@ -258,10 +260,14 @@ impl TriIndex {
         // neighbours too, but proving them costs more than the pair tests they save.)
         let fan_spokes: SmallVec<[Spoke; 24]> = fan
             .iter()
-            .filter_map(|(t, _)| spoke_of(&t.v, &t.p, keep))
+            .map(|(t, _)| Spoke {
+                s: t.v[1],
+                e: t.v[2],
+                ps: t.p[1],
+                pe: t.p[2],
+            })
             .collect();
-        // (Every fan triangle has the new vertex; the length check keeps the proof whole anyway.)
-        if fan_spokes.len() != fan.len() || !star::embedded(pos, &fan_spokes) {
+        if !star::embedded(pos, &fan_spokes) {
             for (i, (t, _)) in fan.iter().enumerate() {
                 if fan[..i].iter().any(|(u, _)| cross(t, u)) {
                     return true;
@@ -275,8 +281,10 @@ impl TriIndex {
             }
             let rec = &self.recs[r as usize];
             let other = Tri64::new(rec.v, rec.p.map(|x| x.as_dvec3()));
+            // Every fan triangle starts at the new vertex: its side of `other` once per record.
+            let apex = other.side(pos);
             fan.iter()
-                .any(|(t, fb)| fb.overlaps(rb) && cross(t, &other))
+                .any(|(t, fb)| fb.overlaps(rb) && crosses_fan(t, apex, &other))
         };
         for level in 0..LEVELS {
             let count = self.levels.get(level).map_or(0, Vec::len);
@@ -518,18 +526,6 @@ impl TriIndex {
     }
 }
 
-/// Triangle `v` at `p` seen from its corner `apex`, if it has that corner.
-fn spoke_of(v: &[u64; 3], p: &[DVec3; 3], apex: u64) -> Option<Spoke> {
-    let i = v.iter().position(|&x| x == apex)?;
-    let (j, k) = ((i + 1) % 3, (i + 2) % 3);
-    Some(Spoke {
-        s: v[j],
-        e: v[k],
-        ps: p[j],
-        pe: p[k],
-    })
-}
-
 /// A triangle as the exact test reads it: ids (for shared corners), corners, the normal
 /// `(p1 - p0) x (p2 - p0)` and its squared length, computed once per triangle rather than once
 /// per pair.
@@ -587,9 +583,12 @@ fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
 /// dismisses segments clearly on one side (see [`Tri64::side`]).
 fn segment_crosses(p: DVec3, q: DVec3, t: &Tri64) -> bool {
     let sp = t.side(p);
-    if sp != 0 && sp == t.side(q) {
-        return false;
-    }
+    (sp == 0 || sp != t.side(q)) && segment_crosses_exact(p, q, t)
+}
+
+/// The referee's predicate for segment `pq` and triangle `t`, once the plane test could not
+/// dismiss the segment.
+fn segment_crosses_exact(p: DVec3, q: DVec3, t: &Tri64) -> bool {
     let [a, b, c] = t.p;
     let (o1, o2) = (orient(a, b, c, p), orient(a, b, c, q));
     if !((o1 > 0.0 && o2 < 0.0) || (o1 < 0.0 && o2 > 0.0)) {
@@ -597,6 +596,31 @@ fn segment_crosses(p: DVec3, q: DVec3, t: &Tri64) -> bool {
     }
     let s = [orient(p, q, a, b), orient(p, q, b, c), orient(p, q, c, a)];
     s.iter().all(|&x| x > 0.0) || s.iter().all(|&x| x < 0.0)
+}
+
+/// [`cross`] for a fan triangle `t` (the new vertex first) and another triangle `u`, with the
+/// new vertex's side of `u`'s plane (`apex`) computed once for all fan triangles. The pairs that
+/// matter are the fan against its neighbours, which share one ring vertex with it: the segment
+/// opposite that vertex in `t` starts or ends at the new vertex, so one of its two plane tests
+/// is already known. Same answers as `cross` (same segments, same directions).
+fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
+    if u.v.contains(&t.v[0]) {
+        return cross(t, u);
+    }
+    let shared = |x: u64| u.v.iter().position(|&y| y == x);
+    // The segment from corner `i` to corner `j` of `t`, one of them the new vertex (side `apex`).
+    let apex_segment = |i: usize, j: usize| {
+        let other = if i == 0 { j } else { i };
+        let so = u.side(t.p[other]);
+        (so == 0 || so != apex) && segment_crosses_exact(t.p[i], t.p[j], u)
+    };
+    let opposite = |j: usize| segment_crosses(u.p[(j + 1) % 3], u.p[(j + 2) % 3], t);
+    match (shared(t.v[1]), shared(t.v[2])) {
+        (Some(_), Some(_)) => false,
+        (Some(j), None) => apex_segment(2, 0) || opposite(j),
+        (None, Some(j)) => apex_segment(0, 1) || opposite(j),
+        (None, None) => cross(t, u),
+    }
 }
 
 /// Whether two triangles cross (see the module documentation for common vertices).

@@ -15,7 +15,9 @@
 //! * `decimate`: the one contraction loop;
 //! * `intersect`: spatial hash of the resident triangles; rejects contractions whose new fan
 //!   would cross another sheet (thin structures, touching surfaces);
-//! * `retire`: retirement behind the front or for the memory budget, and emission.
+//! * `retire`: retirement behind the front or for the memory budget, and emission;
+//! * `passthrough`: policy `none` when streaming: triangles leave as soon as their vertices are
+//!   complete, without any of the contraction machinery.
 //!
 //! Decisions (the why is at each item's definition):
 //! * **Surface boundary**: boundary vertices never move. An interior vertex may merge into a
@@ -50,7 +52,7 @@
 //!   where the link condition forbids the merge.
 //! * **Retirement** only takes modifiable vertices (one that may still gain triangles could not
 //!   be finalized); one due earlier retires as soon as it becomes modifiable.
-//! * **Bounded band** (lag retirement: modes `error` and `none`): the rank span of every
+//! * **Bounded band** (lag retirement: mode `error`, and `none` in core): the rank span of every
 //!   preimage is at most `2 retire_lag + 2` slabs, so no vertex rides along with the front; stale
 //!   heap entries are compacted away. Rate mode needs no span bound: the budget retires the oldest
 //!   buckets whatever rides ahead, and a rider keeps only its own fan.
@@ -65,10 +67,12 @@
 
 mod attribute_quadric;
 mod candidates;
+mod cascade;
 mod cost;
 mod data_dependent;
 mod decimate;
 mod intersect;
+mod passthrough;
 mod policy;
 mod priority;
 mod quadric;
@@ -79,6 +83,7 @@ mod topology;
 use glam::DVec3;
 use serde::Serialize;
 
+pub use cascade::{Cascade, Handoff, VertexState};
 pub use policy::Policy;
 pub use priority::Priority;
 
@@ -97,7 +102,7 @@ pub struct SimplifyConfig {
     pub policy: Policy,
     /// Edge order and attribute merging, in every policy.
     pub priority: Priority,
-    /// Modes `error` and `none`: retire vertices whose highest preimage rank is below
+    /// Mode `error` (and `none` in core): retire vertices whose highest preimage rank is below
     /// front - retire_lag (slabs). Rate mode retires by `max_resident_faces` only.
     pub retire_lag: u32,
     /// When more faces than this are resident, decimate (rate) and retire the oldest vertices
@@ -112,6 +117,9 @@ pub struct SimplifyConfig {
     /// simplifies it at once with the same policy, then emits it. Nothing bounds memory then: the
     /// caller checks [`Simplifier::in_core_overflow`].
     pub in_core: bool,
+    /// Alone or a stage of a cascade (see [`Cascade`]).
+    #[serde(default)]
+    pub cascade: Cascade,
 }
 
 impl SimplifyConfig {
@@ -126,6 +134,7 @@ impl SimplifyConfig {
             attributes: 0,
             sweep: None,
             in_core: false,
+            cascade: Cascade::Single,
         }
     }
 }
@@ -162,6 +171,8 @@ pub enum SimplifyError {
     InvalidSweep,
     #[error("the saved simplifier state was made with another configuration")]
     ConfigChanged,
+    #[error("a cascade stage needs the rate policy, the geometric priority and a sweep, streaming")]
+    InvalidCascade,
 }
 
 /// Counters for the run summary and the tests.
@@ -204,11 +215,45 @@ pub struct SimplifyStats {
     pub lag_violations: u64,
 }
 
+impl SimplifyStats {
+    /// The counters of a cascade's two stages as one run's: faces and vertices in of the first,
+    /// out of the second; work and refusals added up; resident and peak faces added (both stages
+    /// hold their bands at the same time, so the sum bounds the peak); the largest cost and
+    /// shape error of either.
+    pub fn of_cascade(first: &Self, second: &Self) -> Self {
+        Self {
+            faces_in: first.faces_in,
+            vertices_in: first.vertices_in,
+            faces_out: second.faces_out,
+            vertices_out: second.vertices_out,
+            faces_resident: first.faces_resident + second.faces_resident,
+            peak_resident_faces: first.peak_resident_faces + second.peak_resident_faces,
+            vertices_resident: first.vertices_resident + second.vertices_resident,
+            faces_unmodifiable: first.faces_unmodifiable + second.faces_unmodifiable,
+            contractions: first.contractions + second.contractions,
+            rejected_link: first.rejected_link + second.rejected_link,
+            rejected_flip: first.rejected_flip + second.rejected_flip,
+            rejected_intersection: first.rejected_intersection + second.rejected_intersection,
+            delayed_front: first.delayed_front + second.delayed_front,
+            rejected_other: first.rejected_other + second.rejected_other,
+            forced_retirements: first.forced_retirements + second.forced_retirements,
+            max_cost: first.max_cost.max(second.max_cost),
+            max_shape_error: first.max_shape_error.max(second.max_shape_error),
+            candidates: first.candidates + second.candidates,
+            lag_violations: first.lag_violations + second.lag_violations,
+        }
+    }
+}
+
 #[derive(Debug, Default, Clone, PartialEq)]
 pub struct OutBatch {
     pub elements: Vec<OutElement>,
     /// attribute values, `attributes` per Vertex element, in order
     pub attrs: Vec<f32>,
+    /// First stage of a cascade: the state of each Vertex element, in order.
+    pub states: Vec<VertexState>,
+    /// First stage of a cascade: its rear and counts after the batch.
+    pub handoff: Option<Handoff>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -237,12 +282,17 @@ pub struct Simplifier {
     isect: intersect::TriIndex,
     candidates: Candidates,
     buckets: RankBuckets,
+    /// Policy `none` outside in-core mode: the band without contractions (`passthrough`);
+    /// the fields above then stay empty.
+    pass: Option<passthrough::PassThrough>,
     /// Vertices behind the front that could not retire because they were not modifiable yet.
     deferred: Vec<u64>,
     /// Modifiable by the detector's word but beyond the front, by rank (`set_modifiable`).
     beyond_front: std::collections::BinaryHeap<std::cmp::Reverse<(u32, u64)>>,
     /// Rank of the front, `+inf` after `finish`.
     front: f64,
+    /// First stage of a cascade: the rear announced last (no vertex is placed below it).
+    rear: u32,
     next_out: u64,
     stats: SimplifyStats,
 }
@@ -265,8 +315,20 @@ impl Simplifier {
         {
             return Err(SimplifyError::InvalidSweep);
         }
+        if config.cascade != Cascade::Single
+            && !(matches!(config.policy, Policy::Rate { .. })
+                && config.priority == Priority::Geometric
+                && config.sweep.is_some()
+                && !config.in_core)
+        {
+            return Err(SimplifyError::InvalidCascade);
+        }
+        let objective = config.policy.objective();
+        let pass = (objective.is_none() && !config.in_core)
+            .then(|| passthrough::PassThrough::new(config.attributes));
         Ok(Self {
-            objective: config.policy.objective(),
+            objective,
+            pass,
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
             rank_spacing: config.sweep.map_or(1.0, |w| w.spacing),
@@ -278,6 +340,7 @@ impl Simplifier {
             deferred: Vec::new(),
             beyond_front: std::collections::BinaryHeap::new(),
             front: 0.0,
+            rear: 0,
             next_out: 0,
             stats: SimplifyStats::default(),
         })
@@ -316,11 +379,15 @@ impl Simplifier {
             *v = *a;
         }
         let pos = cost::output_precision(pos);
+        self.stats.vertices_in += 1;
+        if let Some(pass) = &mut self.pass {
+            pass.add_vertex(id, pos, &values);
+            return;
+        }
         let slot = self
             .store
             .insert_vertex(id, Vertex::new(pos, rank, &values));
         self.buckets.push(rank, slot, &mut self.store);
-        self.stats.vertices_in += 1;
     }
 
     /// A new triangle (CCW seen from outside). Adds its area-weighted plane quadric to its
@@ -334,6 +401,12 @@ impl Simplifier {
             ids[0] != ids[1] && ids[1] != ids[2] && ids[0] != ids[2],
             "triangle {ids:?} repeats a vertex"
         );
+        if let Some(pass) = &mut self.pass {
+            pass.add_triangle(ids);
+            self.stats.faces_in += 1;
+            self.note_resident();
+            return;
+        }
         let v = ids.map(|id| {
             self.store
                 .slot_of(id)
@@ -348,10 +421,12 @@ impl Simplifier {
         // Without an objective (policy `none`) nothing is ever contracted: no quadric, no
         // obstacle for the guard (half of a pass-through run's time went into them).
         let contracting = self.objective.is_some();
+        // A cascade's second stage receives its vertices' quadrics with them.
+        let quadrics = contracting && self.config.cascade != Cascade::Second;
         let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
         let cross = (p[1] - p[0]).cross(p[2] - p[0]);
         let len = cross.length();
-        if contracting && len > 0.0 {
+        if quadrics && len > 0.0 {
             let n = cross / len;
             let area = 0.5 * len;
             let q = Quadric::plane(n, -n.dot(p[0]), area);
@@ -381,6 +456,10 @@ impl Simplifier {
     /// what can be contracted now. (A target counting them made passes near a dense slab contract
     /// edges a million times costlier than the in-core run ever does, and ruined low rates.)
     pub fn set_modifiable(&mut self, id: u64) {
+        if let Some(pass) = &mut self.pass {
+            pass.set_modifiable(id);
+            return;
+        }
         let Some(slot) = self.store.slot_of(id) else {
             return;
         };
@@ -441,6 +520,10 @@ impl Simplifier {
     /// After each batch: decimate as the policy says, retire what is behind the front, append
     /// finished output.
     pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
+        if let Some(pass) = &mut self.pass {
+            pass.flush(out, &mut self.stats);
+            return;
+        }
         self.front = f64::from(front);
         self.release_reached();
         if self.config.in_core {
@@ -469,10 +552,101 @@ impl Simplifier {
         }
         self.retire_for_memory(out);
         self.compact_candidates();
+        self.hand_off(out, false);
+    }
+
+    /// First stage of a cascade: announces the rear (see `cascade`) with the batch. The rear
+    /// only rises: every vertex held lies at or above the last one announced, and so does every
+    /// vertex still to come (new ones start at the front's slab, contractions below the rear are
+    /// refused).
+    fn hand_off(&mut self, out: &mut OutBatch, end: bool) {
+        if self.config.cascade != Cascade::First {
+            return;
+        }
+        if end {
+            self.rear = u32::MAX;
+        } else if let Some(sweep) = &self.config.sweep {
+            let store = &self.store;
+            let held = cascade::rear_of(
+                sweep,
+                store.ids().filter_map(|id| store.vertex(id).map(|v| v.pos)),
+            );
+            let next = (self.front as u32).saturating_sub(1);
+            self.rear = self.rear.max(held.map_or(next, |h| h.min(next)));
+        }
+        let rate = match self.config.policy {
+            Policy::Rate { rate, .. } => rate,
+            _ => 1.0,
+        };
+        out.handoff = Some(Handoff {
+            rear: self.rear,
+            rate,
+            faces_in: self.stats.faces_in,
+            faces_out: self.stats.faces_out,
+            faces_resident: self.store.resident() as u64,
+        });
+    }
+
+    /// Second stage of a cascade: takes one batch of the first stage's output (vertices with
+    /// their states, triangles, and the end of each vertex as its modifiable notice) and
+    /// returns the front to close it with (the first stage's rear).
+    ///
+    /// # Panics
+    /// If this simplifier is not a second stage, or the batch is not a first stage's.
+    pub fn ingest(&mut self, batch: &OutBatch) -> u32 {
+        assert_eq!(
+            self.config.cascade,
+            Cascade::Second,
+            "ingest is for a second stage"
+        );
+        let handoff = batch
+            .handoff
+            .expect("a first stage's batch carries its handoff");
+        let stride = self.config.attributes;
+        let mut states = batch.states.iter();
+        let mut attrs = batch.attrs.chunks(stride.max(1));
+        for e in &batch.elements {
+            match *e {
+                OutElement::Vertex { pos } => {
+                    // The first stage numbers its output 0, 1, 2, ...: those numbers are the ids.
+                    let id = self.stats.vertices_in;
+                    let state = *states.next().expect("a state per vertex");
+                    let values = if stride == 0 {
+                        &[][..]
+                    } else {
+                        attrs.next().unwrap_or(&[])
+                    };
+                    self.add_vertex(id, pos, state.rank_max, values);
+                    if let Some(slot) = self.store.slot_of(id)
+                        && let Some(v) = self.store.vertex_mut(slot)
+                    {
+                        v.quadric = state.quadric;
+                        v.area = state.area;
+                        v.rank_min = state.rank_min;
+                    }
+                }
+                OutElement::Triangle { v, last_use } => {
+                    self.add_triangle(v);
+                    for (id, last) in v.into_iter().zip(last_use) {
+                        if last {
+                            self.set_modifiable(id);
+                        }
+                    }
+                }
+            }
+        }
+        if let Schedule::Rate(rate) = &mut self.schedule {
+            rate.set_source_ratio(handoff.ratio());
+        }
+        handoff.rear
     }
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.
     pub fn finish(&mut self, out: &mut OutBatch) {
+        if let Some(pass) = &mut self.pass {
+            pass.finish(out, &mut self.stats);
+            return;
+        }
         self.front = f64::INFINITY;
         self.release_reached();
         self.store.forget_all_ids();
@@ -495,9 +669,18 @@ impl Simplifier {
             }
         }
         self.retire_all(out);
+        self.hand_off(out, true);
     }
 
     pub fn stats(&self) -> SimplifyStats {
+        if let Some(pass) = &self.pass {
+            return SimplifyStats {
+                faces_resident: pass.resident_faces(),
+                faces_unmodifiable: pass.unmodifiable_faces(),
+                vertices_resident: pass.resident_vertices(),
+                ..self.stats.clone()
+            };
+        }
         SimplifyStats {
             faces_resident: self.store.resident(),
             vertices_resident: self.store.live_vertices(),
@@ -507,9 +690,10 @@ impl Simplifier {
     }
 
     /// Whether vertices retire `retire_lag` slabs behind the front (every policy but rate, which
-    /// retires by the memory budget only).
+    /// retires by the memory budget only, unless it is a cascade's first stage, whose output is
+    /// not final).
     pub(crate) fn lag_retirement(&self) -> bool {
-        !matches!(self.schedule, Schedule::Rate(_))
+        !matches!(self.schedule, Schedule::Rate(_)) || self.config.cascade == Cascade::First
     }
 
     fn face_counts(&self) -> FaceCounts {
@@ -522,7 +706,11 @@ impl Simplifier {
     }
 
     fn note_resident(&mut self) {
-        self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(self.store.resident());
+        let resident = self.pass.as_ref().map_or(
+            self.store.resident(),
+            passthrough::PassThrough::resident_faces,
+        );
+        self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(resident);
     }
 }
 

@@ -80,6 +80,7 @@ impl Policy {
                 initial_rate,
                 initial_phase: rate < initial_rate,
                 faces_at_last: 0,
+                source_ratio: 1.0,
             }),
             Policy::Error { .. } => Schedule::Threshold,
         }
@@ -121,9 +122,22 @@ pub(crate) struct RateSchedule {
     initial_rate: f64,
     initial_phase: bool,
     faces_at_last: u64,
+    /// Input faces per extracted face: 1, except in the second stage of a cascade, whose input
+    /// is the first stage's output (`cascade`).
+    source_ratio: f64,
 }
 
 impl RateSchedule {
+    /// The second stage of a cascade: its input is `ratio` of the extracted faces.
+    pub(crate) fn set_source_ratio(&mut self, ratio: f64) {
+        self.source_ratio = ratio;
+    }
+
+    /// The rate applied to this simplifier's own input faces.
+    fn input_rate(&self) -> f64 {
+        (self.rate / self.source_ratio).min(1.0)
+    }
+
     /// Whether at least `batch` faces arrived since the last decimation (then remembers this one).
     pub(crate) fn due(&mut self, generated: u64) -> bool {
         let due = generated - self.faces_at_last >= self.batch;
@@ -146,7 +160,8 @@ impl RateSchedule {
     /// subtracts it) can still steer the overall rate to `R`.
     pub(crate) fn resident_target(&mut self, c: FaceCounts) -> usize {
         let fu = c.unmodifiable as f64;
-        let standard = ((c.generated as f64 - fu) * self.rate + fu - c.emitted as f64).max(0.0);
+        let standard =
+            ((c.generated as f64 - fu) * self.input_rate() + fu - c.emitted as f64).max(0.0);
         if self.initial_phase {
             let initial = (c.resident as f64 - fu) * self.initial_rate + fu;
             if c.emitted == 0 && initial > standard {
@@ -159,7 +174,7 @@ impl RateSchedule {
 
     /// At the end every face is modifiable: `F_g R` overall, minus what was emitted already.
     pub(crate) fn final_target(&self, c: FaceCounts) -> usize {
-        (c.generated as f64 * self.rate - c.emitted as f64)
+        (c.generated as f64 * self.input_rate() - c.emitted as f64)
             .max(0.0)
             .ceil() as usize
     }
@@ -253,27 +268,41 @@ mod tests {
         assert_eq!(r.final_target(FaceCounts { emitted: 50, ..c }), 50);
     }
 
+    fn counts(generated: u64, unmodifiable: usize, emitted: u64, resident: usize) -> FaceCounts {
+        FaceCounts {
+            generated,
+            unmodifiable,
+            emitted,
+            resident,
+        }
+    }
+
     #[test]
     fn initial_phase_ends_once_the_standard_target_catches_up() {
         let mut r = rate(0.1, 10, 0.5);
-        let early = FaceCounts {
-            generated: 1000,
-            unmodifiable: 100,
-            emitted: 0,
-            resident: 1000,
-        };
+        let early = counts(1000, 100, 0, 1000);
         // initial: 900 * 0.5 + 100 = 550 > standard 190
         assert_eq!(r.resident_target(early), 550);
-        let later = FaceCounts {
-            generated: 10_000,
-            unmodifiable: 100,
-            emitted: 0,
-            resident: 1000,
-        };
+        let later = counts(10_000, 100, 0, 1000);
         // initial 550 < standard 1090: the phase ends ...
         assert_eq!(r.resident_target(later), 1090);
         // ... and does not come back.
         assert_eq!(r.resident_target(early), 190);
+    }
+
+    #[test]
+    fn a_second_stage_aims_at_the_rate_of_the_extracted_faces() {
+        let mut r = rate(0.1, 10, 0.5);
+        r.set_source_ratio(0.5);
+        let c = counts(1000, 100, 0, 1000);
+        // initial phase: (1000 - 100) * 0.5 + 100 = 550 > standard (1000 - 100) * (0.1 / 0.5) + 100
+        assert_eq!(r.resident_target(c), 550);
+        let c = FaceCounts { emitted: 1, ..c };
+        assert_eq!(r.resident_target(c), 279);
+        let c = FaceCounts { emitted: 0, ..c };
+        assert_eq!(r.final_target(c), 200);
+        r.set_source_ratio(0.05);
+        assert_eq!(r.final_target(c), 1000, "never above the input");
     }
 
     #[test]

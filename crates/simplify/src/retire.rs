@@ -202,6 +202,14 @@ impl Simplifier {
                     x.out = Some(o);
                     out.elements.push(OutElement::Vertex { pos: x.pos });
                     out.attrs.extend_from_slice(&x.attrs);
+                    if self.config.cascade == crate::Cascade::First {
+                        out.states.push(crate::VertexState {
+                            quadric: x.quadric,
+                            area: x.area,
+                            rank_min: x.rank_min,
+                            rank_max: x.rank_max,
+                        });
+                    }
                     self.stats.vertices_out += 1;
                     o
                 }

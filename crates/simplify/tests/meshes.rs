@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{Policy, SimplifyConfig, SimplifyStats};
+use isostream_simplify::{Cascade, Policy, SimplifyConfig, SimplifyStats};
 
 /// Output faces within 10% of `rate * input`.
 fn assert_rate_met(input: &Mesh, run: &Run, rate: f64) {
@@ -431,5 +431,30 @@ fn thin_shells_do_not_self_intersect() {
         let crossing = isostream_meshcheck::self_intersections(&pos, &run.mesh.tris);
         assert_eq!(crossing, 0, "rate {rate}: {:?}", run.stats);
         assert!(run.stats.rejected_intersection > 0, "{:?}", run.stats);
+    }
+}
+
+/// The two stages of a cascade (first to `(1 + R) / 2`, second to `R`) on the thin shell: each
+/// stage edits its side of the first stage's rear, so the pair never crosses itself either, the
+/// topology is kept and the rate is met.
+#[test]
+fn a_cascade_keeps_thin_shells_apart_and_meets_the_rate() {
+    let c = DVec3::splat(10.0);
+    let input = marching_tetrahedra([20, 20, 20], 0.36, |p| ((p - c).length() - 7.3).powi(2));
+    for (rate, lag) in [(0.1, 2), (0.03, 3)] {
+        let first = SimplifyConfig {
+            cascade: Cascade::First,
+            ..config(common::rate((1.0 + rate) / 2.0, 500), lag)
+        };
+        let second = SimplifyConfig {
+            cascade: Cascade::Second,
+            ..config(common::rate(rate, 500), lag)
+        };
+        let run = run_cascade(&input, first, second, &Sweep::default());
+        assert_same_topology(&input, &run);
+        let pos: Vec<[f64; 3]> = run.mesh.pos.iter().map(|p| p.to_array()).collect();
+        let crossing = isostream_meshcheck::self_intersections(&pos, &run.mesh.tris);
+        assert_eq!(crossing, 0, "rate {rate}: {:?}", run.stats);
+        assert_rate_met(&input, &run, rate);
     }
 }

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{Policy, SimplifyConfig};
+use isostream_simplify::{Cascade, Policy, SimplifyConfig};
 use proptest::prelude::*;
 
 fn mesh() -> impl Strategy<Value = Mesh> {
@@ -102,6 +102,44 @@ proptest! {
                 prop_assert_eq!(run.stats.lag_violations, 0);
             }
             Policy::Rate { .. } => {}
+        }
+    }
+
+    /// The two stages of a cascade, whatever the rates, batches, lags, budgets and sweep
+    /// orders: a valid streaming output with the input's topology and no crossing (each stage
+    /// edits its own side of the first stage's rear).
+    #[test]
+    fn a_cascade_is_valid_and_keeps_topology(
+        input in mesh(),
+        rate in 0.02..=1.0f64,
+        first_rate in 0.0..=1.0f64,
+        batch in 1u64..3000,
+        retire_lag in 0u32..6,
+        budget in prop_oneof![Just(usize::MAX), 50usize..3000],
+        sweep in sweep(),
+    ) {
+        let first = SimplifyConfig {
+            retire_lag,
+            max_resident_faces: budget,
+            attributes: 1,
+            cascade: Cascade::First,
+            ..SimplifyConfig::new(common::rate(rate + first_rate * (1.0 - rate), batch))
+        };
+        let second = SimplifyConfig {
+            max_resident_faces: budget,
+            cascade: Cascade::Second,
+            ..first.clone()
+        };
+        let second = SimplifyConfig { policy: common::rate(rate, batch), ..second };
+        let run = run_cascade(&input, first, second, &sweep);
+        assert_same_topology(&input, &run);
+        prop_assert_eq!(run.check().duplicate_triangles, 0);
+        prop_assert_eq!(run.stats.faces_in as usize, input.tris.len());
+        prop_assert_eq!(run.stats.faces_out as usize, run.mesh.tris.len());
+        let before: Vec<[f64; 3]> = input.pos.iter().map(|p| p.to_array()).collect();
+        if isostream_meshcheck::self_intersections(&before, &input.tris) == 0 {
+            let pos: Vec<[f64; 3]> = run.mesh.pos.iter().map(|p| p.to_array()).collect();
+            prop_assert_eq!(isostream_meshcheck::self_intersections(&pos, &run.mesh.tris), 0);
         }
     }
 

@@ -265,7 +265,32 @@ pub fn run(mesh: &Mesh, config: SimplifyConfig, sweep: &Sweep) -> Run {
 /// The harness sets `config.sweep` to its slabs.
 pub fn feed(
     mesh: &Mesh,
+    config: SimplifyConfig,
+    sweep: &Sweep,
+    attr: impl Fn(DVec3) -> Vec<f32>,
+) -> Run {
+    feed_stages(mesh, config, None, sweep, attr)
+}
+
+/// As [`run`], through a cascade: `first` (a first stage) feeds `second` (a second stage)
+/// batch by batch, as the pipeline's two simplify threads do. The statistics are the second
+/// stage's, with the faces and vertices in of the first.
+pub fn run_cascade(
+    mesh: &Mesh,
+    first: SimplifyConfig,
+    second: SimplifyConfig,
+    sweep: &Sweep,
+) -> Run {
+    let attributes = first.attributes;
+    feed_stages(mesh, first, Some(second), sweep, |p| {
+        [p.z as f32].into_iter().take(attributes).collect()
+    })
+}
+
+fn feed_stages(
+    mesh: &Mesh,
     mut config: SimplifyConfig,
+    second: Option<SimplifyConfig>,
     sweep: &Sweep,
     attr: impl Fn(DVec3) -> Vec<f32>,
 ) -> Run {
@@ -305,6 +330,13 @@ pub fn feed(
         direction,
         origin: min + sweep.slab,
         spacing: sweep.slab,
+    });
+    let mut second = second.map(|c| {
+        Simplifier::new(SimplifyConfig {
+            sweep: config.sweep,
+            ..c
+        })
+        .expect("valid second stage")
     });
     let mut s = Simplifier::new(config).expect("valid config");
     let max_rank = rank.iter().copied().max().unwrap_or(0);
@@ -346,12 +378,24 @@ pub fn feed(
             for v in done {
                 s.set_modifiable(v);
             }
-            s.end_batch(k as u32, &mut out);
+            let mut batch = OutBatch::default();
+            s.end_batch(k as u32, &mut batch);
+            pass_on(batch, second.as_mut(), false, &mut out);
             trace.push(s.stats());
         }
     }
-    s.finish(&mut out);
-    let stats = s.stats();
+    let mut batch = OutBatch::default();
+    s.finish(&mut batch);
+    pass_on(batch, second.as_mut(), true, &mut out);
+    let stats = match &second {
+        Some(t) => SimplifyStats {
+            faces_in: s.stats().faces_in,
+            vertices_in: s.stats().vertices_in,
+            ..t.stats()
+        },
+        None => s.stats(),
+    };
+    assert_eq!(s.stats().faces_resident, 0, "everything emitted");
     assert_eq!(stats.faces_resident, 0, "everything emitted");
     let (mesh, attrs) = collect(&out, attributes);
     Run {
@@ -360,6 +404,25 @@ pub fn feed(
         stats,
         out,
         trace,
+    }
+}
+
+/// A batch of the (first) simplifier: appended to the output, or taken by the second stage,
+/// whose own output is appended.
+fn pass_on(batch: OutBatch, second: Option<&mut Simplifier>, end: bool, out: &mut OutBatch) {
+    match second {
+        Some(t) => {
+            let rear = t.ingest(&batch);
+            if end {
+                t.finish(out);
+            } else {
+                t.end_batch(rear, out);
+            }
+        }
+        None => {
+            out.elements.extend(batch.elements);
+            out.attrs.extend(batch.attrs);
+        }
     }
 }
 
