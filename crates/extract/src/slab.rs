@@ -9,7 +9,7 @@
 //! position is computed only in the cubes that use it (a vertex shared by several cubes is
 //! computed once per cube; the detector deduplicates by [`EdgeKey`]).
 //!
-//! `cargo run --release -p isostream-extract --example throughput` measures it.
+//! `cargo run --release -p isostream-extract --example extract_throughput` measures it.
 
 use glam::DVec3;
 use isostream_volume::{Grid, SlabBounds};

@@ -1,5 +1,5 @@
 //! Measures the streaming extractor's speed on procedural fields (no I/O, no detector):
-//! `cargo run --release -p isostream-extract --example throughput [n] [sphere|gyroid]`.
+//! `cargo run --release -p isostream-extract --example extract_throughput [n] [sphere|gyroid]`.
 //!
 //! Two fields bracket the real cases: a sphere (few active cubes, the empty-cube skip
 //! dominates) and a gyroid (dense surface, vertex placement dominates).

@@ -1,5 +1,5 @@
 //! Writes a grid surface of about N triangles as a compact stream in every format, validates or
-//! reloads it, and prints the rates: `cargo run --release -p isostream-smesh --example throughput -- 2000000`.
+//! reloads it, and prints the rates: `cargo run --release -p isostream-smesh --example smesh_throughput -- 2000000`.
 
 use std::path::Path;
 use std::time::Instant;
