@@ -144,22 +144,10 @@ impl Stages<'_> {
         let threads = threads.max(1);
         let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
         // With pruning, the detector sends to the filter, which sends on to the simplifier.
-        let (detect_tx, pruned) = match filter {
-            Some(filter) => {
-                let (tx, rx) = bounded::<Msg<MeshDelta>>(capacity);
-                (tx, Some((filter, rx, delta_tx)))
-            }
-            None => (delta_tx, None),
-        };
+        let (detect_tx, pruned) = insert_stage(filter, delta_tx, capacity);
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
         // With a cascade the first simplifier's batches go to the second, whose go to the writer.
-        let (first_tx, second) = match second {
-            Some(simplifier) => {
-                let (mid_tx, mid_rx) = bounded::<Msg<OutBatch>>(capacity);
-                (mid_tx, Some((simplifier, mid_rx, out_tx)))
-            }
-            None => (out_tx, None),
-        };
+        let (first_tx, second) = insert_stage(second, out_tx, capacity);
         let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabReply>>>(threads);
         let depth = Depths {
             slabs: order_rx.clone(),
@@ -468,6 +456,27 @@ fn join<T>(
     })
 }
 
+/// An optional stage put in front of `downstream`: the sender its producer then writes to, and
+/// the stage with its own input and `downstream` as its output.
+type Inserted<S, T> = (
+    Sender<Msg<T>>,
+    Option<(S, Receiver<Msg<T>>, Sender<Msg<T>>)>,
+);
+
+fn insert_stage<S, T>(
+    stage: Option<S>,
+    downstream: Sender<Msg<T>>,
+    capacity: usize,
+) -> Inserted<S, T> {
+    match stage {
+        Some(stage) => {
+            let (tx, rx) = bounded(capacity);
+            (tx, Some((stage, rx, downstream)))
+        }
+        None => (downstream, None),
+    }
+}
+
 /// Queue depths for the progress observer.
 struct Depths {
     slabs: Receiver<Msg<Receiver<SlabReply>>>,
@@ -476,6 +485,12 @@ struct Depths {
     /// A cascade's second stage: what it wrote and holds, so that progress reports the run's
     /// output, not the intermediate surface.
     second: Option<SecondCounts>,
+}
+
+impl Depths {
+    fn queued(&self) -> [usize; 3] {
+        [self.slabs.len(), self.deltas.len(), self.out.len()]
+    }
 }
 
 #[derive(Default)]
@@ -610,11 +625,7 @@ impl SimplifyStep<'_> {
                 faces_in: st.faces_in,
                 faces_out,
                 resident_faces: resident,
-                queued: [
-                    self.depth.slabs.len(),
-                    self.depth.deltas.len(),
-                    self.depth.out.len(),
-                ],
+                queued: self.depth.queued(),
             };
             (self.observer)(&progress);
             // Every 5 %, with the queue depths, for debugging; users get the monitor's timed
@@ -749,11 +760,7 @@ impl Step for SecondStep<'_> {
             faces_in: self.faces_in,
             faces_out: st.faces_out,
             resident_faces: st.faces_resident as u64,
-            queued: [
-                self.depth.slabs.len(),
-                self.depth.deltas.len(),
-                self.depth.out.len(),
-            ],
+            queued: self.depth.queued(),
         });
         Ok(st)
     }
