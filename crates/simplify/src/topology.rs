@@ -19,6 +19,11 @@ const MIN_NORMAL_COS: f64 = 0.1;
 /// A triangle is degenerate when `|cross|` is below this fraction of the largest `|cross|` in the
 /// fans of `a` and `b`.
 const DEGENERATE_FRACTION: f64 = 1e-6;
+/// A triangle is collinear (zero area to any viewer: `isostream measure` and the referee in
+/// `isostream-meshcheck` count `|cross| <= 1e-12 longest^2`) when `|cross|` is at most this
+/// fraction of its longest edge squared; a little above the referee's bound so that what passes
+/// here passes there.
+const COLLINEAR_FRACTION: f64 = 1e-10;
 /// A boundary vertex lies on a straight boundary when the sine of its turning angle is below this.
 const STRAIGHT_SINE: f64 = 1e-6;
 
@@ -211,7 +216,11 @@ pub(crate) fn patch(store: &Store, a: u64, b: u64) -> SmallVec<[TriId; 32]> {
 /// No surviving triangle of the fans of `a` and `b` may turn its normal by more than about 84
 /// degrees or become degenerate when `a` and `b` move to `pos`. Triangles that were degenerate
 /// already (coincident marching-cubes vertices) may stay so, but if they gain area they must face
-/// the way the whole fan faces.
+/// the way the whole fan faces; and a small one (`|cross|` within `DEGENERATE_FRACTION` of the
+/// fan's largest) may not become [`collinear`] unless it was: a sliver with an edge of two `f32`
+/// steps (marching-cubes vertices either side of a corner valued almost exactly iso, on the
+/// volume box where the boundary rule keeps both) counts as small, and moving its third corner
+/// onto the line of that edge wrote a zero-area triangle (bonsai upsampled 4x, R = 0.0006).
 pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
     let tris = patch(store, a, b);
     let cross = |p: [DVec3; 3]| (p[1] - p[0]).cross(p[2] - p[0]);
@@ -248,13 +257,24 @@ pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
         let n_new = cross(new);
         let l_new = n_new.length();
         if l_new <= tiny {
-            return l_old <= tiny;
+            return l_old <= tiny && (collinear(old, l_old) || !collinear(new, l_new));
         }
         if l_old <= tiny {
             return n_new.dot(reference) > 0.0;
         }
         n_old.dot(n_new) > MIN_NORMAL_COS * l_old * l_new
     })
+}
+
+/// `|cross|` (`l`) at most [`COLLINEAR_FRACTION`] of the longest edge squared: a sliver whose
+/// corners are in a line, which the fan-relative `tiny` of [`geometry_ok`] cannot tell from a
+/// small triangle. Coincident corners count as collinear.
+fn collinear(p: [DVec3; 3], l: f64) -> bool {
+    let longest = (p[1] - p[0])
+        .length_squared()
+        .max((p[2] - p[0]).length_squared())
+        .max((p[2] - p[1]).length_squared());
+    l <= COLLINEAR_FRACTION * longest
 }
 
 /// Test support: marks every vertex modifiable, with its boundary flag, as `set_modifiable`
@@ -394,5 +414,30 @@ mod tests {
         assert!(!geometry_ok(&s, 4, 5, DVec3::new(1.0, 1.0, 50.0)));
         // Onto vertex 1: triangle 0-1-4 (which survives contracting 4-3) becomes degenerate.
         assert!(!geometry_ok(&s, 4, 3, DVec3::new(1.0, 0.0, 0.0)));
+    }
+
+    /// The zero-area triangle of bonsai upsampled 4x (`docs/scale.md`): two marching-cubes
+    /// vertices two `f32` steps either side of a corner valued almost iso (A, B: an edge of
+    /// 4e-5 voxel, both kept by the boundary rule), and a third corner (C) on the line of that
+    /// edge. Triangle A-B-X is small next to its fan, so the fan-relative test alone let X move
+    /// onto C, which wrote A-B-C with corners exactly in a line.
+    #[test]
+    fn small_slivers_may_not_become_collinear() {
+        let step = 2.0 * 2f64.powi(-16); // two f32 steps at 128..256
+        let s = store(
+            &[
+                [213.0 - step, 0.0, 139.0], // 0: A
+                [213.0, 0.0, 139.0 - step], // 1: B
+                [214.0 - step, 0.0, 138.0], // 2: C
+                [212.5, 0.3, 137.5],        // 3: X
+                [220.0, 0.0, 125.0],
+                [205.0, 0.0, 125.0],
+            ],
+            &[[0, 1, 3], [1, 2, 3], [3, 2, 4], [3, 4, 5]],
+        );
+        let c = s.vertex(2).unwrap().pos;
+        assert!(!geometry_ok(&s, 3, 2, c), "A-B-X onto the line of A-B");
+        // Off that line the sliver stays a small, non-collinear triangle: still allowed.
+        assert!(geometry_ok(&s, 3, 2, c + DVec3::new(0.0, 0.5, 0.0)));
     }
 }
