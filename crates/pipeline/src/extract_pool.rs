@@ -3,12 +3,13 @@
 //! detector takes the slabs' batches back strictly in slab order.
 //!
 //! Ordering and the memory bound come from one device: for each slab the reader makes a reply
-//! channel of [`REPLY_BATCHES`] batches, gives its sender to the workers with the job and passes
+//! channel of a few batches ([`RUN_REPLY_BATCHES`], [`COUNT_REPLY_BATCHES`]), gives its sender
+//! to the workers with the job and passes
 //! its receiver down the bounded `order` channel. The detector reads `order` in slab order and
 //! drains each reply in turn, so it sees exactly the stream one extractor would give (slabs are
 //! independent, see [`Extractor::extract_slab`]), and the reader blocks once `order` is full: at
 //! most `order`'s capacity + 2 slabs are extracted or waiting, whatever the number of workers,
-//! each holding at most [`REPLY_BATCHES`] batches (a worker ahead waits for the detector rather
+//! each holding at most that many batches (a worker ahead waits for the detector rather
 //! than holding its whole slab's surface, which grows with the slice). The worker of the
 //! earliest slab the detector waits for never waits on anyone else (jobs are taken in order),
 //! so the pool cannot deadlock.
@@ -41,9 +42,16 @@ pub(crate) enum SlabReply {
     },
 }
 
-/// Batches a slab's reply channel holds: a worker running ahead of the detector waits once its
-/// slab has this many waiting.
-const REPLY_BATCHES: usize = 4;
+/// Batches a slab's reply channel holds in a whole run: a worker running ahead of the detector
+/// waits once its slab has this many waiting. The simplifier is the run's slowest stage, so
+/// every reply channel is full and room ahead only holds memory: with 4, the batches in flight
+/// grew with the slab's surface (1 per slab at 256^3, 4 from 1021^3 on: about 0.7 MB each, 16 in
+/// all), which kept the whole run's peak RSS from being flat across upsampled sizes
+/// (docs/scale.md). One per slab is what a 256^3 slab needs anyway.
+pub(crate) const RUN_REPLY_BATCHES: usize = 1;
+/// The same for the first pass of `[output] faces`, which only counts: extraction is its slowest
+/// stage, and a worker ahead needs room to keep busy while the one behind finishes its slab.
+pub(crate) const COUNT_REPLY_BATCHES: usize = 4;
 
 /// One slab to extract and where to answer.
 pub(crate) struct SlabJob {
@@ -67,10 +75,12 @@ pub(crate) struct ReadStep<'c> {
     schedule: Schedule,
     /// Resuming: the hash the first slice read (the checkpoint's carried slice) must have.
     carried: Option<u64>,
+    /// Capacity of each slab's reply channel.
+    reply_batches: usize,
 }
 
 impl<'c> ReadStep<'c> {
-    /// `reader` is at the first slice to read; `carried`: see the field.
+    /// `reader` is at the first slice to read; `carried` and `reply_batches`: see the fields.
     pub fn new(
         reader: SliceReader,
         jobs: Sender<Msg<SlabJob>>,
@@ -78,6 +88,7 @@ impl<'c> ReadStep<'c> {
         ctl: &'c Control<'c>,
         schedule: Schedule,
         carried: Option<u64>,
+        reply_batches: usize,
     ) -> Self {
         Self {
             reader,
@@ -87,6 +98,7 @@ impl<'c> ReadStep<'c> {
             prev: None,
             schedule,
             carried,
+            reply_batches,
         }
     }
 }
@@ -153,7 +165,7 @@ impl Step for ReadStep<'_> {
         }
         let cut = self.schedule.due(z).then(|| Cut::new(z, upper.hash(&grid)));
         if let Some(lower) = self.prev.replace(upper.clone()) {
-            let (reply, answer) = bounded(REPLY_BATCHES);
+            let (reply, answer) = bounded(self.reply_batches);
             let job = SlabJob {
                 z: z - 1,
                 lower,

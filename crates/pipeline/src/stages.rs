@@ -21,7 +21,9 @@ use crate::attributes::SliceReader;
 use crate::checkpoint::{self, Checkpoint, Cut, InputIdentity, Parts, ReaderState};
 use crate::config::CheckpointEvery;
 use crate::error::RunError;
-use crate::extract_pool::{Ordered, ReadStep, Schedule, SlabReply, WorkStep};
+use crate::extract_pool::{
+    COUNT_REPLY_BATCHES, Ordered, RUN_REPLY_BATCHES, ReadStep, Schedule, SlabReply, WorkStep,
+};
 use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
 use crate::range::DataRange;
 use crate::sink::Sink;
@@ -173,7 +175,7 @@ impl Stages<'_> {
             stats: extract_before,
         };
         std::thread::scope(|s| {
-            let (read, workers) = extraction.spawn(s, order_tx, ctl);
+            let (read, workers) = extraction.spawn(s, order_tx, ctl, RUN_REPLY_BATCHES);
             let detect = s.spawn(move || {
                 let step = DetectStep {
                     detector,
@@ -310,12 +312,14 @@ type Handle<'s, T> = std::thread::ScopedJoinHandle<'s, StageResult<T>>;
 type ExtractionHandles<'s> = (Handle<'s, (f64, ())>, Vec<Handle<'s, (f64, ExtractStats)>>);
 
 impl Extraction {
-    /// Spawns the reader and the workers; the slabs' batches come back in order on `order`.
+    /// Spawns the reader and the workers; the slabs' batches come back in order on `order`, at
+    /// most `reply_batches` waiting per slab.
     fn spawn<'s, 'e: 's>(
         self,
         s: &'s std::thread::Scope<'s, 'e>,
         order: Sender<Msg<Receiver<SlabReply>>>,
         ctl: &'e Control<'e>,
+        reply_batches: usize,
     ) -> ExtractionHandles<'s> {
         let Extraction {
             reader,
@@ -332,7 +336,15 @@ impl Extraction {
         let threads = threads.max(1);
         let (job_tx, job_rx) = unbounded();
         let read = s.spawn(move || {
-            let step = ReadStep::new(reader, job_tx, threads, ctl, schedule, carried);
+            let step = ReadStep::new(
+                reader,
+                job_tx,
+                threads,
+                ctl,
+                schedule,
+                carried,
+                reply_batches,
+            );
             let slices = first..grid.dims[2];
             run("read", ctl, step, slices, Outbox::new(ctl, order))
         });
@@ -364,7 +376,7 @@ impl Extraction {
         let ctl = &ctl;
         let (order_tx, order_rx) = bounded(self.threads.max(1));
         std::thread::scope(|s| {
-            let (read, workers) = self.spawn(s, order_tx, ctl);
+            let (read, workers) = self.spawn(s, order_tx, ctl, COUNT_REPLY_BATCHES);
             let drain = run(
                 "count",
                 ctl,
