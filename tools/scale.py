@@ -36,8 +36,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def job_text(volume: Path, iso: float, k: int, faces: int, output: Path, threads: int) -> str:
+def job_text(volume: Path, iso: float, k: int, faces: int, output: Path, threads: int,
+             budget_mib: int = 0) -> str:
     threads_line = f"threads = {threads}\n" if threads else ""
+    threads_line += f"memory_budget_mib = {budget_mib}\n" if budget_mib else ""
     return (
         f'[input]\npath = "{volume}"\nupsample = [{k}, {k}, {k}]\n\n'
         f"[extract]\niso = {iso}\n\n"
@@ -47,11 +49,12 @@ def job_text(volume: Path, iso: float, k: int, faces: int, output: Path, threads
     )
 
 
-def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads: int, keep: Path):
+def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads: int, keep: Path,
+            budget_mib: int):
     keep.mkdir(parents=True, exist_ok=True)
     output = keep / f"{volume.stem}_x{k}.smb"
     job = keep / f"{volume.stem}_x{k}.toml"
-    job.write_text(job_text(volume, iso, k, faces, output, threads))
+    job.write_text(job_text(volume, iso, k, faces, output, threads, budget_mib))
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     started = time.monotonic()
     subprocess.run([str(binary), "run", str(job)], check=True, stderr=subprocess.DEVNULL)
@@ -65,6 +68,8 @@ def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads:
         "dims": summary["dims"],
         "gvoxels": gvox,
         "faces_target": faces,
+        "memory_budget_mib": budget_mib or None,
+        "peak_resident_faces": summary.get("peak_resident_faces"),
         "faces_extracted": summary["faces_extracted"],
         "faces_written": summary["faces_written"],
         "rate": summary.get("rate"),
@@ -164,6 +169,8 @@ def main() -> int:
     p.add_argument("--factors", default="1,2,4,8", help="comma-separated upsampling factors")
     p.add_argument("--faces", type=int, default=10000)
     p.add_argument("--threads", type=int, default=0, help="[pipeline] threads (0: all cores)")
+    p.add_argument("--budget-mib", type=int, default=0,
+                   help="[pipeline] memory_budget_mib of the whole runs (0: the default)")
     p.add_argument("--binary", type=Path, default=ROOT / "target/release/isostream")
     p.add_argument("--keep", type=Path, default=Path(tempfile.gettempdir()) / "isostream-scale")
     p.add_argument("--results", type=Path, default=ROOT / "docs/scale.jsonl")
@@ -175,7 +182,7 @@ def main() -> int:
         if a.count_only:
             r, to = count_only(a.binary, a.volume, a.iso, k, a.threads, a.keep), a.count_results
         else:
-            r, to = run_one(a.binary, a.volume, a.iso, k, a.faces, a.threads, a.keep), a.results
+            r, to = run_one(a.binary, a.volume, a.iso, k, a.faces, a.threads, a.keep, a.budget_mib), a.results
         print(json.dumps(r), flush=True)
         with to.open("a") as f:
             f.write(json.dumps(r) + "\n")
