@@ -207,8 +207,7 @@ const MIN_STRIP_ROWS: usize = 16;
 
 /// One worker: extracts whole slabs (from whole slices, or strip by strip from slices given as
 /// rows) and answers each on its job's reply channel.
-pub(crate) struct WorkStep<'c> {
-    ctl: &'c Control<'c>,
+pub(crate) struct WorkStep {
     extractor: Extractor,
     batch_triangles: usize,
     /// Empty-space skipping (`[extract] skip_empty`).
@@ -219,11 +218,10 @@ pub(crate) struct WorkStep<'c> {
     strips: [Vec<f32>; 2],
 }
 
-impl<'c> WorkStep<'c> {
+impl WorkStep {
     /// `stats`: the counters to start from (a resumed run's first worker carries those of the
     /// slabs done before the checkpoint, so that the workers' counters add up to the job's).
     pub fn new(
-        ctl: &'c Control<'c>,
         grid: Grid,
         iso: f32,
         batch_triangles: usize,
@@ -232,7 +230,6 @@ impl<'c> WorkStep<'c> {
     ) -> Self {
         let nx = grid.dims[0] as usize;
         Self {
-            ctl,
             extractor: Extractor::resume(grid, iso, stats),
             batch_triangles,
             skip_empty,
@@ -243,7 +240,12 @@ impl<'c> WorkStep<'c> {
 
     /// Extracts a slab from its two whole slices (and its attributes'); adds the slab's voxels
     /// to `range`.
-    fn extract_slices(&mut self, job: &SlabJob, range: &mut DataRange) -> StageResult<()> {
+    fn extract_slices(
+        &mut self,
+        job: &SlabJob,
+        range: &mut DataRange,
+        out: &mut Outbox<'_, Infallible>,
+    ) -> StageResult<()> {
         let (lo, up) = (&job.lower, &job.upper);
         // Slice 0 counts with slab 0, every other slice as the upper slice of its slab.
         if job.z == 0 {
@@ -267,7 +269,6 @@ impl<'c> WorkStep<'c> {
                 ))
             })
         });
-        let ctl = self.ctl;
         self.extractor.extract_slab_with_attributes(
             job.z,
             &lo.iso,
@@ -275,7 +276,7 @@ impl<'c> WorkStep<'c> {
             &attrs,
             bounds.as_deref(),
             self.batch_triangles,
-            |b| send(ctl, &job.reply, SlabReply::Batch(b)),
+            |b| out.send_on(&job.reply, SlabReply::Batch(b)),
         )
     }
 
@@ -287,6 +288,7 @@ impl<'c> WorkStep<'c> {
         lower: &dyn SliceRows,
         upper: &dyn SliceRows,
         range: &mut DataRange,
+        out: &mut Outbox<'_, Infallible>,
     ) -> StageResult<()> {
         let bounds = match (&job.bounds, self.skip_empty) {
             (Some(b), true) => Some(b.as_ref()),
@@ -311,13 +313,12 @@ impl<'c> WorkStep<'c> {
             count_lower: job.z == 0,
             range,
         };
-        let ctl = self.ctl;
         let done = self.extractor.extract_slab_rows(
             job.z,
             &mut strips,
             bounds,
             self.batch_triangles,
-            |b| send(ctl, &job.reply, SlabReply::Batch(b)),
+            |b| out.send_on(&job.reply, SlabReply::Batch(b)),
         );
         self.strips = strips.buffers;
         done
@@ -372,24 +373,26 @@ impl SlabRows for Strips<'_> {
     }
 }
 
-impl Step for WorkStep<'_> {
+impl Step for WorkStep {
     type In = SlabJob;
     type Out = Infallible;
     type Done = ExtractStats;
 
-    fn batch(&mut self, job: SlabJob, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+    fn batch(&mut self, job: SlabJob, out: &mut Outbox<'_, Infallible>) -> StageResult<()> {
         let mut range = DataRange::default();
         let before = self.extractor.stats();
         match (&job.lower.rows, &job.upper.rows) {
-            (Some(l), Some(u)) => self.extract_strips(&job, l.as_ref(), u.as_ref(), &mut range)?,
-            _ => self.extract_slices(&job, &mut range)?,
+            (Some(l), Some(u)) => {
+                self.extract_strips(&job, l.as_ref(), u.as_ref(), &mut range, out)?;
+            }
+            _ => self.extract_slices(&job, &mut range, out)?,
         }
         let done = SlabReply::Done {
             stats: self.extractor.stats() - before,
             range,
         };
         // A hang-up means the detector stopped.
-        send(self.ctl, &job.reply, done)
+        out.send_on(&job.reply, done)
     }
 
     fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<ExtractStats> {
@@ -471,7 +474,7 @@ mod tests {
 
     /// Every slab's reply (batches, counters, data range) of a worker fed by `reader` as the
     /// reader stage feeds it.
-    fn replies(mut reader: SliceReader, step: &mut WorkStep<'_>, ctl: &Control<'_>) -> Vec<Slab> {
+    fn replies(mut reader: SliceReader, step: &mut WorkStep, ctl: &Control<'_>) -> Vec<Slab> {
         let mut out = Outbox::none(ctl);
         let mut prev: Option<Arc<Slices>> = None;
         let mut replies = Vec::new();
@@ -538,7 +541,7 @@ mod tests {
                 }
                 if skip { r.skip_empty(iso) } else { r }
             };
-            let step = || WorkStep::new(&ctl, fine, iso, 40, skip, ExtractStats::default());
+            let step = || WorkStep::new(fine, iso, 40, skip, ExtractStats::default());
             let want = replies(reader(false), &mut step(), &ctl);
             assert!(want.iter().map(|r| r.batches.len()).sum::<usize>() > 2 * want.len());
             for height in [1, 2, 3, 7, 100] {

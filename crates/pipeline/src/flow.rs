@@ -235,15 +235,31 @@ impl<'c, T> Outbox<'c, T> {
         self.put(Msg::Cut(cut))
     }
 
-    fn put(&mut self, msg: Msg<T>) -> StageResult<()> {
-        let Some(tx) = &self.tx else {
-            return Ok(());
-        };
-        let t = Instant::now();
-        let sent = send(self.ctl, tx, msg);
-        self.blocked += t.elapsed();
-        sent
+    /// Sends on a channel of the stage's own (an extraction worker answers on each job's reply
+    /// channel), timed like the output: time blocked there is not busy time either.
+    pub fn send_on<U>(&mut self, tx: &Sender<U>, value: U) -> StageResult<()> {
+        timed_send(self.ctl, &mut self.blocked, tx, value)
     }
+
+    fn put(&mut self, msg: Msg<T>) -> StageResult<()> {
+        match &self.tx {
+            Some(tx) => timed_send(self.ctl, &mut self.blocked, tx, msg),
+            None => Ok(()),
+        }
+    }
+}
+
+/// [`send`], adding the time it took to `blocked`.
+fn timed_send<U>(
+    ctl: &Control<'_>,
+    blocked: &mut Duration,
+    tx: &Sender<U>,
+    value: U,
+) -> StageResult<()> {
+    let t = Instant::now();
+    let sent = send(ctl, tx, value);
+    *blocked += t.elapsed();
+    sent
 }
 
 /// One stage's work: what to do with each input, and once after the last.

@@ -354,7 +354,7 @@ impl Extraction {
                 // The counters before `first` go to the first worker.
                 let stats = std::mem::take(&mut stats);
                 s.spawn(move || {
-                    let step = WorkStep::new(ctl, grid, iso, batch_triangles, skip_empty, stats);
+                    let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, stats);
                     run("extract", ctl, step, jobs, Outbox::none(ctl))
                 })
             })
