@@ -10,6 +10,10 @@ missing), prints one JSON line, appends it to `--results`, and plots every resul
 
     python3 tools/scale.py --factors 1,2,4 --faces 10000          # bonsai 256^3 .. 1021^3
     python3 tools/scale.py --factors 8 --faces 10000              # adds 2041^3 to the results
+    python3 tools/scale.py --factors 1,2 --budget-mib 40          # [pipeline] memory_budget_mib
+
+The plot draws one whole-run curve per memory budget (a size run again replaces its earlier
+result on the curve).
 
     python3 tools/scale.py --factors 8,16 --count-only            # the front half alone
 
@@ -132,24 +136,30 @@ def plot(results: list, counts: list, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    results = sorted(results, key=lambda r: r["gvoxels"])
     counts = sorted(counts, key=lambda r: r["gvoxels"])
-    g = [r["gvoxels"] for r in results]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     if counts:
         cg = [r["gvoxels"] for r in counts]
         a.plot(cg, [r["peak_rss_mib"] for r in counts], "s--", label="first pass only (read, upsample, skip, extract)")
         b.plot(cg, [r["count_seconds"] / r["gvoxels"] for r in counts], "s--", label="first pass only")
-    a.plot(g, [r["peak_rss_mib"] for r in results], "o-", label="whole run")
+    # One curve per memory budget; a size run again replaces its earlier result.
+    curves = {}
+    for r in results:
+        curves.setdefault(r.get("memory_budget_mib"), {})[r["factor"]] = r
+    for budget, by_factor in sorted(curves.items(), key=lambda c: c[0] or 0):
+        runs = sorted(by_factor.values(), key=lambda r: r["gvoxels"])
+        label = f"whole run, budget {budget} MiB" if budget else "whole run, default budget"
+        rg = [r["gvoxels"] for r in runs]
+        a.plot(rg, [r["peak_rss_mib"] for r in runs], "o-", label=label)
+        b.plot(rg, [r["seconds_per_gvoxel"] for r in runs], "o-", label=f"{label} (both passes)")
+        for r in runs:
+            a.annotate("x".join(str(d) for d in r["dims"]), (r["gvoxels"], r["peak_rss_mib"]),
+                       fontsize=7, textcoords="offset points", xytext=(4, 4))
     a.set_xscale("log")
     a.set_ylim(bottom=0)
     a.set_xlabel("Gvoxels (upsampled)")
     a.set_ylabel("peak RSS (MiB)")
     a.set_title("peak RSS")
-    for r in results:
-        a.annotate("x".join(str(d) for d in r["dims"]), (r["gvoxels"], r["peak_rss_mib"]),
-                   fontsize=7, textcoords="offset points", xytext=(4, 4))
-    b.plot(g, [r["seconds_per_gvoxel"] for r in results], "o-", label="whole run (both passes)")
     b.set_yscale("log")
     a.legend(fontsize=7)
     b.legend(fontsize=7)
