@@ -79,6 +79,10 @@ pub struct RunSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prune: Option<isostream_prune::PruneStats>,
     pub simplify: isostream_simplify::SimplifyStats,
+    /// `[pipeline] simplify_stages = 2`: the first and the second stage's counters (`simplify`
+    /// adds them up), to see which stage decimated, delayed or retired what.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub simplify_stages: Option<[isostream_simplify::SimplifyStats; 2]>,
     pub sink: SinkStats,
     /// The slab this run continued from (`--resume`), `None` when it started at the beginning.
     /// Counters cover the whole job; times cover this run only.
@@ -393,6 +397,7 @@ fn run_job(
         detect: outputs.detect,
         prune: outputs.prune,
         simplify: outputs.simplify,
+        simplify_stages: outputs.simplify_stages,
         sink: sink_stats,
         resumed_at_slab,
         warnings,
