@@ -4,6 +4,7 @@
     cargo build --release
     python3 tools/quality_grid.py rates  --volumes engine,bonsai,aneurism,mni152,stent --rates 0.05,0.01,0.001
     python3 tools/quality_grid.py fig7   --volumes engine --rates 0.1,0.01 --batches 2000,5000,10000,20000,50000,200000
+    python3 tools/quality_grid.py validity --volumes all --rates 0.2,0.05,0.01
 
 `rates`: for each volume and rate, one run with the defaults (a user who only writes `rate`) and one
 in core (`batch` larger than the surface and a memory budget that holds it: the whole surface
@@ -12,6 +13,10 @@ Hausdorff distance to the full-resolution surface in % of the bounding-box diago
 directions). Prints a markdown table with the ratios streaming / in-core and the face-target miss.
 `fig7`: RMS and seconds against B at fixed rates, with the in-core line; writes a PNG plot when
 matplotlib is importable (`--plot docs/fig7.png`).
+`validity`: the guarantees, checked on the output of a default run for each volume and rate: edge- and
+vertex-manifold, oriented, no zero-area triangle, Euler characteristic and component count equal to
+the full-resolution surface's (a `mode = "none"` run), crossing triangles counted by the referee
+(`crates/meshcheck`, its `self_intersections` example), the face-target miss and peak RSS.
 Needs only the release binary (`--bin`, default target/release/isostream) and ../shared/data.
 """
 import argparse
@@ -29,30 +34,54 @@ VOLUMES = {
     "aneurism": ('path = "{d}/aneurism/aneurism.vti"', 110.0),
     "mni152": ('path = "{d}/mni152/mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz"', 89.0),
     "stent": ('path = "{d}/stent/stent_128x128x256_int16.raw"\ndims = [128, 128, 256]\ndtype = "i16"', 180.0),
+    "tooth": ('path = "{d}/tooth/tooth.nrrd"', 128.0),
+    "hydrogen": ('path = "{d}/hydrogen/hydrogen.vti"', 0.17),
+    "headsq": ('path = "{d}/headsq/quarter.nhdr"', 1150.0),
+    "ironprot": ('path = "{d}/ironprot/ironProt.vtk"', 86.0),
+    "mean_head": ('path = "{d}/mean_head/mean_reg2mean.nii.gz"', 137.0),
+    "cthead": ('path = "{d}/cthead_8bit/cthead_8bit_256x256x99_uint8.raw"\ndims = [256, 256, 99]\ndtype = "u8"\n'
+               'spacing = [1.0, 1.0, 2.0]', 52.0),
+    "silicium": ('path = "{d}/silicium/silicium_98x34x34_uint8.raw"\ndims = [98, 34, 34]\ndtype = "u8"', 69.0),
 }
 
 
 def run(binary, work, volume, rate, simplify_extra="", pipeline_extra=""):
+    """One job at `rate` (`None`: `mode = "none"`, the full-resolution surface), measured."""
     inp, iso = VOLUMES[volume]
     tag = f"{volume}_{rate}_{abs(hash(simplify_extra + pipeline_extra)) % 10**8}"
     job, out = work / f"{tag}.toml", work / f"{tag}.smb"
+    mode = 'mode = "none"' if rate is None else f'mode = "rate"\nrate = {rate}'
     job.write_text(
-        f"[input]\n{inp.format(d=DATA)}\n[extract]\niso = {iso}\n[simplify]\nmode = \"rate\"\nrate = {rate}\n"
+        f"[input]\n{inp.format(d=DATA)}\n[extract]\niso = {iso}\n[simplify]\n{mode}\n"
         f"{simplify_extra}\n[output]\npath = \"{out}\"\n[pipeline]\n{pipeline_extra}\n[log]\nlevel = \"warn\"\n")
     t = time.time()
     subprocess.run([binary, "run", str(job)], check=True, capture_output=True)
     seconds = time.time() - t
     summary = json.loads((work / f"{tag}.smb.run.json").read_text())
-    m = subprocess.run([binary, "measure", "--volume", str(job), str(out), "--json"], check=True,
+    distances = [] if rate is None else ["--volume", str(job)]
+    m = subprocess.run([binary, "measure", *distances, str(out), "--json"], check=True,
                        capture_output=True, text=True)
     d = json.loads(m.stdout)
     q = d["quality"]
     return dict(volume=volume, rate=rate, faces_in=summary["faces_extracted"], faces=summary["faces_written"],
-                target=round(summary["faces_extracted"] * rate), seconds=seconds,
+                target=round(summary["faces_extracted"] * (rate or 1)), seconds=seconds,
                 rss_mib=(summary.get("peak_rss_bytes") or 0) / 2**20,
-                rms=d["distances"]["rms_pct"], haus=d["distances"]["hausdorff_pct"],
+                rms=(d["distances"] or {}).get("rms_pct"), haus=(d["distances"] or {}).get("hausdorff_pct"),
                 valid=q["edge_manifold"] and q["vertex_manifold"] and q["oriented"],
-                warnings=summary.get("warnings", []))
+                quality=q, out=out, warnings=summary.get("warnings", []))
+
+
+def crossings(binary, out):
+    """Crossing triangles of an SMB output, by the referee (`self_intersections` example)."""
+    ply = out.with_suffix(".ply")
+    subprocess.run([binary, "convert", str(out), str(ply)], check=True, capture_output=True)
+    referee = Path(binary).parent / "examples" / "self_intersections"
+    if not referee.exists():
+        subprocess.run(["cargo", "build", "--release", "-p", "isostream-meshcheck", "--example",
+                        "self_intersections"], check=True, cwd=ROOT, capture_output=True)
+    r = subprocess.run([str(referee), str(ply)], check=True, capture_output=True, text=True)
+    ply.unlink()
+    return int(r.stdout.rsplit(",", 1)[1].split()[0])
 
 
 IN_CORE = ("batch = 1000000000", "memory_budget_mib = 16384")
@@ -70,6 +99,27 @@ def rates(args, work):
             print(f"| {v} | {r} | {s['target']} | {s['faces']} / {c['faces']} | {s['rms']:.4f} / {c['rms']:.4f} ({s['rms'] / c['rms']:.2f}) "
                   f"| {s['haus']:.3f} / {c['haus']:.3f} ({s['haus'] / c['haus']:.2f}) | {s['seconds']:.1f} / {c['seconds']:.1f} "
                   f"| {s['rss_mib']:.0f} / {c['rss_mib']:.0f} |", flush=True)
+    return rows
+
+
+def validity(args, work):
+    rows = []
+    print("| volume | R | faces (target) | edge/vertex-manifold, oriented | zero-area | Euler out / full (components) | crossing triangles | peak RSS MiB | s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for v in args.volumes.split(","):
+        full = run(args.bin, work, v, None)["quality"]
+        for r in [float(x) for x in args.rates.split(",")]:
+            s = run(args.bin, work, v, r)
+            q = s["quality"]
+            s["crossings"] = crossings(args.bin, s["out"])
+            s["euler_kept"] = (q["euler"], q["components"]) == (full["euler"], full["components"])
+            rows.append(s)
+            miss = 100 * (s["faces"] - s["target"]) / s["target"]
+            floor = " (topology floor)" if any("topology" in w for w in s["warnings"]) else ""
+            print(f"| {v} | {r} | {s['faces']} ({s['target']}, {miss:+.1f} %{floor}) | {'yes' if s['valid'] else 'NO'} "
+                  f"| {q['zero_area_triangles']} | {q['euler']} / {full['euler']} ({q['components']} / {full['components']})"
+                  f"{'' if s['euler_kept'] else ' CHANGED'} | {s['crossings']} | {s['rss_mib']:.0f} | {s['seconds']:.1f} |",
+                  flush=True)
     return rows
 
 
@@ -111,20 +161,23 @@ def fig7(args, work):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["rates", "fig7"])
+    p.add_argument("what", choices=["rates", "fig7", "validity"])
     p.add_argument("--bin", default=str(ROOT / "target" / "release" / "isostream"))
-    p.add_argument("--volumes", default="engine,bonsai,aneurism,mni152,stent")
+    p.add_argument("--volumes", default="engine,bonsai,aneurism,mni152,stent",
+                   help=f"comma list of {','.join(VOLUMES)}, or all")
     p.add_argument("--rates", default="0.05,0.01,0.001")
     p.add_argument("--batches", default="2000,5000,10000,20000,50000,200000")
     p.add_argument("--work", default="/tmp/isostream-quality")
     p.add_argument("--json", help="write the raw rows here")
     p.add_argument("--plot", help="fig7: write a PNG here")
     args = p.parse_args()
+    if args.volumes == "all":
+        args.volumes = ",".join(VOLUMES)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    rows = rates(args, work) if args.what == "rates" else fig7(args, work)
+    rows = {"rates": rates, "fig7": fig7, "validity": validity}[args.what](args, work)
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
 
 
 if __name__ == "__main__":
