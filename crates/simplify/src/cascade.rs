@@ -28,10 +28,11 @@
 //! distance; gated by the star, 0.95x, and 11 candidates wait instead of 159 k).
 //!
 //! Rate: the first stage runs Hou and Chen's schedule at the intermediate rate and retires by a
-//! lag behind its front (its output is not final, so the reasons the single simplifier keeps
-//! its simplified surface resident do not apply). The second stage aims at `R` of the
-//! *extracted* faces: its input is `r1` of them, where `r1` is the first stage's running ratio
-//! (exact at the end), so its schedule runs at `R / r1` of its own input.
+//! lag behind its front or by its (small) share of the memory budget (its output is not final,
+//! so the reasons the single simplifier keeps its simplified surface resident do not apply). The
+//! second stage aims at `R` of the *extracted* faces: its input is `r1` of them, where `r1` is
+//! the first stage's rate while it runs and its exact ratio once it has finished
+//! ([`Handoff::ratio`]), so its schedule runs at `R / r1` of its own input.
 
 use glam::DVec3;
 
