@@ -79,6 +79,10 @@ pub struct RunSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prune: Option<isostream_prune::PruneStats>,
     pub simplify: isostream_simplify::SimplifyStats,
+    /// `[pipeline] simplify_stages = 2`: the first and the second stage's counters (`simplify`
+    /// adds them up), to see which stage decimated, delayed or retired what.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub simplify_stages: Option<[isostream_simplify::SimplifyStats; 2]>,
     pub sink: SinkStats,
     /// The slab this run continued from (`--resume`), `None` when it started at the beginning.
     /// Counters cover the whole job; times cover this run only.
@@ -393,6 +397,7 @@ fn run_job(
         detect: outputs.detect,
         prune: outputs.prune,
         simplify: outputs.simplify,
+        simplify_stages: outputs.simplify_stages,
         sink: sink_stats,
         resumed_at_slab,
         warnings,
@@ -471,10 +476,17 @@ fn intermediate_rate(rate: f64) -> f64 {
     rate.max(0.47 + 0.53 * rate)
 }
 
+/// The first stage's share of a cascade's face budget: it holds the extraction's unfinished
+/// band and a few slabs behind it, while the second holds the simplified surface and what the
+/// first wrote above its rear. With a quarter the second stage's budget forced out 23 k faces
+/// on bonsai at R = 0.05 (one simplifier: 8 k), 1.17x its RMS distance; with a sixth 0.96x,
+/// and no worse elsewhere (docs/performance.md).
+const FIRST_STAGE_SHARE: usize = 6;
+
 /// The simplifiers of the job: one, or a cascade's two (`[pipeline] simplify_stages`, see
 /// `isostream_simplify::Cascade`): the first to [`intermediate_rate`], retiring
-/// [`FIRST_STAGE_LAG`] slabs behind its front within a quarter of the face budget, the second to
-/// the job's rate with the rest of the budget.
+/// [`FIRST_STAGE_LAG`] slabs behind its front within `1 / FIRST_STAGE_SHARE` of the face
+/// budget, the second to the job's rate with the rest of the budget.
 fn simplifier_configs(
     job: &JobConfig,
     grid: isostream_volume::Grid,
@@ -500,12 +512,12 @@ fn simplifier_configs(
             initial_rate,
         },
         retire_lag: FIRST_STAGE_LAG,
-        max_resident_faces: (budget / 4).max(1),
+        max_resident_faces: (budget / FIRST_STAGE_SHARE).max(1),
         cascade: Cascade::First,
         ..single.clone()
     };
     let second = SimplifierConfig {
-        max_resident_faces: (budget - budget / 4).max(1),
+        max_resident_faces: (budget - budget / FIRST_STAGE_SHARE).max(1),
         cascade: Cascade::Second,
         ..single
     };

@@ -61,6 +61,8 @@ pub(crate) struct StageOutputs {
     /// `None` when the job does not prune.
     pub prune: Option<PruneStats>,
     pub simplify: SimplifyStats,
+    /// A cascade's two stages, each on its own (`simplify` adds them up); `None` without one.
+    pub simplify_stages: Option<[SimplifyStats; 2]>,
     pub sink: crate::sink::SinkStats,
 }
 
@@ -237,11 +239,13 @@ impl Stages<'_> {
             let simplify = join(simplify, "simplify");
             let simplify_second = simplify_second.map(|h| join(h, "simplify2"));
             let simplify = match (simplify, simplify_second) {
-                (Ok((s1, first)), Some(Ok((s2, second)))) => {
-                    Ok(((s1, s2), SimplifyStats::of_cascade(&first, &second)))
-                }
+                (Ok((s1, first)), Some(Ok((s2, second)))) => Ok((
+                    (s1, s2),
+                    SimplifyStats::of_cascade(&first, &second),
+                    Some([first, second]),
+                )),
                 (_, Some(Err(e))) | (Err(e), _) => Err(e),
-                (Ok((s1, first)), None) => Ok(((s1, 0.0), first)),
+                (Ok((s1, first)), None) => Ok(((s1, 0.0), first, None)),
             };
             let write = join(write, "write");
             match (read, extract, detect, prune, simplify, write) {
@@ -250,7 +254,7 @@ impl Stages<'_> {
                     Ok((extract_s, extract)),
                     Ok((detect_s, detect)),
                     Ok(prune),
-                    Ok((simplify_s, simplify)),
+                    Ok((simplify_s, simplify, simplify_stages)),
                     Ok((write_s, sink)),
                 ) => Ok(StageOutputs {
                     seconds: StageSeconds {
@@ -266,6 +270,7 @@ impl Stages<'_> {
                     detect,
                     prune: prune.map(|(_, stats)| stats),
                     simplify,
+                    simplify_stages,
                     sink,
                 }),
                 (read, extract, detect, prune, simplify, write) => {

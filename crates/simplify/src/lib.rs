@@ -49,6 +49,9 @@
 //!   when the front reaches it (`set_modifiable`). Counting its faces as modifiable made the rate
 //!   target ask for contractions that could only wait for the front; near a dense slab a pass then
 //!   took edges costing a million times the in-core maximum (shape error 16 voxels on engine).
+//!   A cascade's second stage gates by the highest corner of the vertex's star instead (see
+//!   `cascade`): it holds slabs of input beyond its front, so a vertex's own ranks say nothing
+//!   of whether it can contract.
 //! * **Coincident vertices** (marching cubes at value == iso): their edges sort before all
 //!   others and are contracted even past the rate target, so zero-area triangles only survive
 //!   where the link condition forbids the merge.
@@ -472,12 +475,36 @@ impl Simplifier {
         if v.modifiable {
             return;
         }
-        if self.config.sweep.is_some() && f64::from(v.rank_max) > self.front {
-            self.beyond_front
-                .push(std::cmp::Reverse((v.rank_max, slot)));
-            return;
+        if let Some(sweep) = &self.config.sweep {
+            let reach = match self.config.cascade {
+                Cascade::Second => self.star_reach(sweep, slot),
+                _ => v.rank_max,
+            };
+            if f64::from(reach) > self.front {
+                self.beyond_front.push(std::cmp::Reverse((reach, slot)));
+                return;
+            }
         }
         self.make_modifiable(slot);
+    }
+
+    /// A cascade's second stage: the rank its front (the first stage's rear) must reach before
+    /// any contraction at `slot` can be made, the ceiling of the highest corner of its star.
+    /// Its preimage's highest rank (what gates a first or single stage, whose front is the
+    /// extraction front and where nothing lies far beyond it) is no measure here: the second
+    /// stage holds up to a dozen slabs of the first stage's output beyond its front, and a
+    /// vertex let in with a star reaching into them could not contract, yet its faces counted as
+    /// modifiable, so the rate target squeezed the others to make up for them.
+    fn star_reach(&self, sweep: &Sweep, slot: u64) -> u32 {
+        let store = &self.store;
+        let far = store
+            .vertex(slot)
+            .map_or(&[][..], |v| &v.tris[..])
+            .iter()
+            .flat_map(|&t| store.corners(store.tri(t)))
+            .map(|p| sweep.rank_of(p))
+            .fold(0.0, f64::max);
+        far.ceil().clamp(0.0, f64::from(u32::MAX)) as u32
     }
 
     /// The vertices held by [`Simplifier::set_modifiable`] that the front has reached.
@@ -848,6 +875,74 @@ mod tests {
         assert_eq!(s.in_core_overflow(), Some(2));
         s.finish(&mut out);
         assert_eq!(s.stats().faces_out, 2);
+    }
+
+    /// A second stage lets a vertex move only once its front (the first stage's rear) has
+    /// passed its whole star: a vertex below the rear whose triangle reaches far beyond it could
+    /// not contract, so its face must count as unmodifiable for the rate target.
+    #[test]
+    fn a_second_stage_gates_vertices_by_their_star() {
+        let mut s = Simplifier::new(SimplifyConfig {
+            cascade: Cascade::Second,
+            sweep: Some(Sweep {
+                direction: DVec3::Z,
+                origin: 0.0,
+                spacing: 1.0,
+            }),
+            ..SimplifyConfig::new(Policy::Rate {
+                rate: 0.5,
+                batch: 1,
+                initial_rate: 0.5,
+            })
+        })
+        .unwrap();
+        let state = VertexState {
+            quadric: Quadric::default(),
+            area: 0.0,
+            rank_min: 0,
+            rank_max: 0,
+        };
+        let handoff = |rear| Handoff {
+            rear,
+            rate: 0.5,
+            faces_in: 2,
+            faces_out: 1,
+            faces_resident: 1,
+        };
+        let batch = OutBatch {
+            elements: vec![
+                OutElement::Vertex {
+                    pos: DVec3::new(0.0, 0.0, 0.5),
+                },
+                OutElement::Vertex {
+                    pos: DVec3::new(1.0, 0.0, 0.5),
+                },
+                OutElement::Vertex {
+                    pos: DVec3::new(0.0, 1.0, 3.5),
+                },
+                OutElement::Triangle {
+                    v: [0, 1, 2],
+                    last_use: [true; 3],
+                },
+            ],
+            states: vec![state; 3],
+            handoff: Some(handoff(1)),
+            ..OutBatch::default()
+        };
+        let mut out = OutBatch::default();
+        let rear = s.ingest(&batch);
+        s.end_batch(rear, &mut out);
+        assert_eq!(
+            s.stats().faces_unmodifiable,
+            1,
+            "the star reaches rank 3.5, past the rear 1"
+        );
+        let rear = s.ingest(&OutBatch {
+            handoff: Some(handoff(4)),
+            ..OutBatch::default()
+        });
+        s.end_batch(rear, &mut out);
+        assert_eq!(s.stats().faces_unmodifiable, 0);
     }
 
     #[test]
