@@ -57,7 +57,8 @@ impl Simplifier {
             }
             // The front first: it is the cheapest test, and what waits for the front is tested
             // again when it comes back (a cascade's second stage, whose front is the first
-            // stage's rear, delays one candidate in two).
+            // stage's rear, delayed one candidate in two before it gated vertices by their whole
+            // star; it still delays more than one stage does).
             if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
                 self.stats.delayed_front += 1;
                 self.candidates.delay(c, reach);

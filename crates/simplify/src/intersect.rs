@@ -7,10 +7,10 @@
 //!
 //! Decisions:
 //! * **Levels**: level `L` has cells of `cell * 2^L`; a triangle is filed at the lowest level
-//!   whose cell is at least its bounding box's largest extent, so it lies in at most 2 x 2 x 2
-//!   cells whatever its size. Simplification at low rates makes triangles tens of voxels wide;
-//!   with one cell size they were filed in thousands of cells each and filing, unfiling and
-//!   querying grew with their size (86 % of a 2 M-face run at R = 0.01).
+//!   whose cell is at least `LEVEL_ROOM` times its bounding box's largest extent, so it lies in
+//!   at most 2 x 2 x 2 cells whatever its size. Simplification at low rates makes triangles tens
+//!   of voxels wide; with one cell size they were filed in thousands of cells each and filing,
+//!   unfiling and querying grew with their size (86 % of a 2 M-face run at R = 0.01).
 //! * **Cell size**: `CELL_EDGES` times the mean edge length of the first `SAMPLE` triangles
 //!   (marching-cubes edges are about 0.6 grid spacings, so level-0 cells are about two voxels).
 //!   Until it is fixed, triangles wait unfiled and the first query files them.
@@ -42,6 +42,13 @@ mod star;
 
 use star::Spoke;
 
+/// A triangle's level has cells at least this many times its extent. With 1 a decimated
+/// triangle (extent between half a cell and a cell) met about five cells on average, and its
+/// entries made the index the part of memory that grew at low rates: with 2, peak RSS at R = 0.05
+/// fell from 66 to 51 MiB on engine and from 74 to 60 MiB on bonsai (R = 0.01 on engine: 54 to
+/// 41 MiB) for 0.5 % more instructions and the same output; 4 saved 4-7 MiB more for 4 % more
+/// instructions.
+const LEVEL_ROOM: f64 = 2.0;
 /// Cell edge in mean triangle edge lengths.
 const CELL_EDGES: f64 = 6.0;
 /// Triangles averaged for the cell size.
@@ -423,13 +430,13 @@ impl TriIndex {
         [c(k.x), c(k.y), c(k.z)]
     }
 
-    /// The lowest level whose cell is at least the box's largest extent (so the box meets at
-    /// most two cells per axis there).
+    /// The lowest level whose cell is at least [`LEVEL_ROOM`] times the box's largest extent
+    /// (so the box meets at most two cells per axis there, and usually one).
     fn level_of(&self, bx: &Aabb) -> usize {
         let mut level = 0;
         let mut size = self.cell;
         let extent = bx.extent();
-        while level + 1 < LEVELS && extent > size {
+        while level + 1 < LEVELS && LEVEL_ROOM * extent > size {
             size *= 2.0;
             level += 1;
         }
