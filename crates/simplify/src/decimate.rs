@@ -84,14 +84,26 @@ impl Simplifier {
     /// new fan's corners (the fan lies in their convex hull; see [`crate::Sweep`]).
     fn beyond_front(&self, a: u64, b: u64, pos: DVec3) -> Option<f64> {
         let sweep = self.config.sweep?;
-        let mut far = sweep.rank_of(pos);
+        // The highest corner, then its rank (monotonic in the height): `a` and `b` once, and
+        // their neighbours, rather than every corner of every triangle of both fans.
+        let mut top = sweep.height(pos);
         for x in [a, b] {
-            for &t in self.store.vertex(x).map_or(&[][..], |v| &v.tris[..]) {
-                for p in self.store.corners(self.store.tri(t)) {
-                    far = far.max(sweep.rank_of(p));
+            let Some(vx) = self.store.vertex(x) else {
+                continue;
+            };
+            top = top.max(sweep.height(vx.pos));
+            for &t in &vx.tris {
+                for y in self.store.tri(t).v {
+                    if y != a
+                        && y != b
+                        && let Some(vy) = self.store.vertex(y)
+                    {
+                        top = top.max(sweep.height(vy.pos));
+                    }
                 }
             }
         }
+        let far = sweep.rank_at(top);
         (far > self.front).then_some(far)
     }
 

@@ -162,7 +162,17 @@ pub struct Sweep {
 impl Sweep {
     /// The (fractional) rank of the plane through `p`.
     pub(crate) fn rank_of(&self, p: DVec3) -> f64 {
-        (p.dot(self.direction) - self.origin) / self.spacing
+        self.rank_at(self.height(p))
+    }
+
+    /// How far along the sweep `p` lies (the rank is monotonic in it).
+    pub(crate) fn height(&self, p: DVec3) -> f64 {
+        p.dot(self.direction)
+    }
+
+    /// The rank at height `h`.
+    pub(crate) fn rank_at(&self, h: f64) -> f64 {
+        (h - self.origin) / self.spacing
     }
 }
 
