@@ -387,6 +387,14 @@ fn check_log_filter(level: &str) -> Result<(), String> {
 /// low rates) made the budget bind at R = 0.01 on engine, whose dense last slabs briefly hold
 /// 42 k faces, and cost a third of its accuracy (docs/performance.md).
 const BYTES_PER_RESIDENT_FACE: u64 = 1150;
+/// Largest slab, in cubes per face of the memory budget, that gets two simplifier stages by
+/// default. The first stage keeps a band of a few slabs within a sixth of the budget; past
+/// about this size its band no longer fits and it writes its faces uncontracted, and the second
+/// stage then holds the backlog: bonsai upsampled 2x (261 k cubes per slab, 43 k budget faces)
+/// came out with 88.7 k faces for a target of 10 k (one stage: 38 k) in 75 MiB, while bonsai,
+/// engine and cthead (65 k cubes per slab) are valid and within 64 MiB at every rate measured
+/// (docs/performance.md, "Fifth session").
+const CASCADE_CUBES_PER_FACE: u64 = 2;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
 const FIXED_MIB: u64 = 16;
@@ -663,15 +671,20 @@ impl JobConfig {
     }
 
     /// The simplifier's resident-face budget derived from `pipeline.memory_budget_mib`.
-    /// Whether the simplification runs as a cascade of two stages: `[pipeline] simplify_stages`,
-    /// by default wherever a cascade is possible. It is faster (two cores: engine at R = 0.2 in
-    /// 0.58x the wall time), at least as accurate (0.89-0.98x one stage's RMS distance) and as
-    /// valid, and fits the default budget since the guard's cells shrank (docs/performance.md,
-    /// "Fifth session").
-    pub fn cascade(&self) -> bool {
+    /// Whether the simplification of a volume of `dims` voxels runs as a cascade of two stages:
+    /// `[pipeline] simplify_stages`, by default wherever a cascade is possible and a slab has at
+    /// most [`CASCADE_CUBES_PER_FACE`] cubes per face of the budget. There it is faster (two
+    /// cores: 0.56-0.75x the wall time of one stage), at least as accurate (0.89-0.98x one
+    /// stage's RMS distance), as valid, and within the default budget since the guard's cells
+    /// shrank (docs/performance.md, "Fifth session").
+    pub fn cascade(&self, dims: [u64; 3]) -> bool {
         match self.pipeline.simplify_stages {
             Some(n) => n == 2,
-            None => self.cascade_possible(),
+            None => {
+                let slab_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
+                self.cascade_possible()
+                    && slab_cubes <= CASCADE_CUBES_PER_FACE * self.max_resident_faces() as u64
+            }
         }
     }
 
@@ -873,14 +886,17 @@ mod tests {
 
     #[test]
     fn simplify_stages_are_one_or_two_and_two_only_where_supported() {
+        let small = [256, 256, 256];
+        let job = parse(MINIMAL).unwrap();
+        assert!(job.cascade(small), "two stages by default in mode rate");
         assert!(
-            parse(MINIMAL).unwrap().cascade(),
-            "two stages by default in mode rate"
+            !job.cascade([1024, 1024, 64]),
+            "one stage by default on slabs too large for the first stage's band"
         );
         let one = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n");
-        assert!(!parse(&one).unwrap().cascade());
+        assert!(!parse(&one).unwrap().cascade(small));
         let two = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 2\n");
-        assert!(parse(&two).unwrap().cascade());
+        assert!(parse(&two).unwrap().cascade([1024, 1024, 64]), "asked for");
         let three = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 3\n");
         let err = parse(&three).unwrap_err().to_string();
         assert!(
@@ -889,7 +905,7 @@ mod tests {
         );
         let none = format!("{MINIMAL}\n[simplify]\nmode = \"none\"\n");
         assert!(
-            !parse(&none).unwrap().cascade(),
+            !parse(&none).unwrap().cascade(small),
             "one stage where two are not possible"
         );
         let two = format!("{none}\n[pipeline]\nsimplify_stages = 2\n");

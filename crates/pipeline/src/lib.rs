@@ -501,7 +501,7 @@ fn simplifier_configs(
     else {
         return (single, None);
     };
-    if !job.cascade() {
+    if !job.cascade(grid.dims) {
         return (single, None);
     }
     let budget = single.max_resident_faces;
