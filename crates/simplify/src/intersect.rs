@@ -569,6 +569,8 @@ impl TriIndex {
                         if list.is_empty() {
                             self.cells.remove(&key);
                         } else if list.capacity() >= 4 * list.len().max(4) {
+                            // A cell that once held many records (a dense slab, triangles before
+                            // they grew) would keep their room for good.
                             list.shrink_to(2 * list.len());
                         }
                     }
