@@ -307,7 +307,8 @@ impl TriIndex {
         }
         let seen = &self.seen;
         let hits = |r: u32, rb: &Aabb| {
-            if !rb.overlaps(&union) || seen[r as usize] == generation {
+            // The old patch's records (about a third of those met, all overlapping) first.
+            if seen[r as usize] == generation || !rb.overlaps(&union) {
                 return false;
             }
             let rec = &self.recs[r as usize];
