@@ -670,7 +670,6 @@ impl JobConfig {
         Ok(())
     }
 
-    /// The simplifier's resident-face budget derived from `pipeline.memory_budget_mib`.
     /// Whether the simplification of a volume of `dims` voxels runs as a cascade of two stages:
     /// `[pipeline] simplify_stages`, by default wherever a cascade is possible and a slab has at
     /// most [`CASCADE_CUBES_PER_FACE`] cubes per face of the budget. There it is faster (two
@@ -692,6 +691,7 @@ impl JobConfig {
         self.simplify.mode == Mode::Rate && self.simplify.priority == PriorityKind::Geometric
     }
 
+    /// The simplifier's resident-face budget derived from `pipeline.memory_budget_mib`.
     pub fn max_resident_faces(&self) -> usize {
         // The budget less the fixed part is the simplifier's surface (at least a quarter of it).
         let mib = self
