@@ -10,7 +10,10 @@
 #![deny(unsafe_code)]
 
 mod intersect;
-pub use intersect::{segment_crosses_triangle, self_intersections, triangles_intersect};
+pub use intersect::{
+    ORIENT_ERROR, certify, orient, segment_crosses_triangle, self_intersections,
+    triangles_intersect,
+};
 
 use std::collections::HashMap;
 

@@ -23,7 +23,7 @@
 //!   contraction just ahead of the retirement front could otherwise cross them. The oldest ghosts
 //!   are dropped once they outnumber a quarter of the resident triangles (emission follows the
 //!   sweep, so the oldest are the farthest behind): memory stays proportional to the band.
-//! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict `f64` orientation signs:
+//! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict exact orientation signs:
 //!   triangles with no common vertex cross when an edge of one crosses the other; with one common
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
 //!   `topology::geometry_ok`'s). The new fan is also checked against itself (its triangles share
@@ -593,75 +593,103 @@ fn first_bits(first: Cell, c: Cell) -> u8 {
 }
 
 /// A triangle as the exact test reads it: ids (for shared corners), corners, the normal
-/// `(p1 - p0) x (p2 - p0)` and its squared length, computed once per triangle rather than once
-/// per pair.
+/// `(p1 - p0) x (p2 - p0)` and the rounding bound of its plane tests, computed once per
+/// triangle rather than once per pair.
 #[derive(Debug, Clone, Copy)]
 struct Tri64 {
     v: [u64; 3],
     p: [DVec3; 3],
     n: DVec3,
-    nn: f64,
+    /// `ORIENT_ERROR |p1 - p0|_1 |p2 - p0|_1`: times `|x - p0|_1`, it bounds the rounding error
+    /// of `n . (x - p0)` (see [`isostream_meshcheck::orient`]).
+    err: f64,
 }
-
-/// Relative margin of the plane pre-tests: far above `f64` rounding, so a point called clear of
-/// a plane is on that side for the exact predicates too.
-const PLANE_MARGIN_SQ: f64 = 1e-18;
 
 impl Tri64 {
     fn new(v: [u64; 3], p: [DVec3; 3]) -> Self {
-        let n = (p[1] - p[0]).cross(p[2] - p[0]);
+        let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
         Self {
             v,
             p,
-            n,
-            nn: n.length_squared(),
+            n: e1.cross(e2),
+            err: isostream_meshcheck::ORIENT_ERROR * norm1(e1) * norm1(e2),
         }
     }
 
-    /// Which side of this triangle's plane `x` lies on, with a margin of `1e-9 |n| |x - p0|`:
-    /// `1` above, `-1` below, `0` too close to tell (the exact predicates decide then).
-    /// Compared squared: no square root on the hot path.
+    /// Which side of this triangle's plane `x` lies on, exactly: `1` above, `-1` below, `0` on
+    /// it: the sign of `orient(p0, p1, p2, x)`, the referee's `o1`/`o2`. The stored normal
+    /// decides unless the point is within rounding of the plane; then the exact predicate does.
+    #[inline(always)]
     fn side(&self, x: DVec3) -> i8 {
         let d = x - self.p[0];
         let s = d.dot(self.n);
-        if s * s > PLANE_MARGIN_SQ * self.nn * d.length_squared() {
-            if s > 0.0 { 1 } else { -1 }
+        let bound = self.err * norm1(d);
+        if s > bound {
+            1
+        } else if -s > bound {
+            -1
         } else {
-            0
+            self.side_exact(x)
         }
     }
 
-    /// Whether all of `q` lie strictly on one side of this triangle's plane, with a margin far
-    /// above rounding: then no crossing is possible. Near the plane the exact test decides, with
-    /// the same orientation predicates as the referee (`isostream_meshcheck`).
+    /// [`Tri64::side`] within rounding of the plane (rare: touching configurations).
+    #[cold]
+    #[inline(never)]
+    fn side_exact(&self, x: DVec3) -> i8 {
+        sign(orient(self.p[0], self.p[1], self.p[2], x))
+    }
+
+    /// Whether all of `q` lie strictly on one side of this triangle's plane: then no crossing
+    /// is possible.
     fn clear_of(&self, q: &[DVec3; 3]) -> bool {
         let s = self.side(q[0]);
         s != 0 && s == self.side(q[1]) && s == self.side(q[2])
     }
 }
 
-/// `(b - a) . ((c - a) x (d - a))`.
-fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
-    (b - a).dot((c - a).cross(d - a))
+fn norm1(x: DVec3) -> f64 {
+    x.abs().element_sum()
 }
 
-/// Segment `pq` strictly crosses triangle `t`: the referee's predicate, after a plane test that
-/// dismisses segments clearly on one side (see [`Tri64::side`]).
+fn sign(x: f64) -> i8 {
+    i8::from(x > 0.0) - i8::from(x < 0.0)
+}
+
+/// The sign of `(b - a) . ((c - a) x (d - a))`, exactly: the referee's predicate
+/// ([`isostream_meshcheck::orient`]), so that the guard and the referee agree on every
+/// configuration, touching ones included (coincident vertices with distinct ids: the `f64`
+/// determinant's rounding once let the referee count such a pair as crossing).
+fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
+    isostream_meshcheck::orient(a.to_array(), b.to_array(), c.to_array(), d.to_array())
+}
+
+/// Segment `pq` strictly crosses triangle `t`: the referee's predicate.
 fn segment_crosses(p: DVec3, q: DVec3, t: &Tri64) -> bool {
     let sp = t.side(p);
-    (sp == 0 || sp != t.side(q)) && segment_crosses_exact(p, q, t)
+    sp != 0 && t.side(q) == -sp && crosses_planar(p, q, t)
 }
 
-/// The referee's predicate for segment `pq` and triangle `t`, once the plane test could not
-/// dismiss the segment.
-fn segment_crosses_exact(p: DVec3, q: DVec3, t: &Tri64) -> bool {
-    let [a, b, c] = t.p;
-    let (o1, o2) = (orient(a, b, c, p), orient(a, b, c, q));
-    if !((o1 > 0.0 && o2 < 0.0) || (o1 < 0.0 && o2 > 0.0)) {
-        return false;
-    }
-    let s = [orient(p, q, a, b), orient(p, q, b, c), orient(p, q, c, a)];
-    s.iter().all(|&x| x > 0.0) || s.iter().all(|&x| x < 0.0)
+/// The rest of the referee's predicate once `p` and `q` are known to lie strictly on opposite
+/// sides of `t`'s plane: the line `pq` passes strictly inside the three edge planes, that is
+/// `orient(p, q, a, b)`, `orient(p, q, b, c)` and `orient(p, q, c, a)` have one strict sign.
+/// With `d = q - p` and `w_x = x - p`, `orient(p, q, x, y) = (d x w_x) . w_y`: three cross
+/// products serve the three signs, and the second sign often settles it.
+fn crosses_planar(p: DVec3, q: DVec3, t: &Tri64) -> bool {
+    let d = q - p;
+    let w = t.p.map(|x| x - p);
+    let nd = norm1(d);
+    let sign_of = |i: usize, j: usize| {
+        let det = d.cross(w[i]).dot(w[j]);
+        let norms = nd * norm1(w[i]) * norm1(w[j]);
+        sign(isostream_meshcheck::certify(
+            det,
+            norms,
+            [p, q, t.p[i], t.p[j]].map(|x| x.to_array()),
+        ))
+    };
+    let s0 = sign_of(0, 1);
+    s0 != 0 && sign_of(1, 2) == s0 && sign_of(2, 0) == s0
 }
 
 /// [`cross`] for a fan triangle `t` (the new vertex first) and another triangle `u`, with the
@@ -677,8 +705,7 @@ fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
     // The segment from corner `i` to corner `j` of `t`, one of them the new vertex (side `apex`).
     let apex_segment = |i: usize, j: usize| {
         let other = if i == 0 { j } else { i };
-        let so = u.side(t.p[other]);
-        (so == 0 || so != apex) && segment_crosses_exact(t.p[i], t.p[j], u)
+        apex != 0 && u.side(t.p[other]) == -apex && crosses_planar(t.p[i], t.p[j], u)
     };
     let opposite = |j: usize| segment_crosses(u.p[(j + 1) % 3], u.p[(j + 2) % 3], t);
     match (shared(t.v[1]), shared(t.v[2])) {
@@ -835,6 +862,39 @@ mod tests {
             }
             let (qa, qb) = (clip(&ix.scaled(level, &a), c), clip(&ix.scaled(level, &b), c));
             prop_assert!(quantized_meet(&qa, &qb));
+        }
+    }
+
+    proptest! {
+        /// The guard's tests (`cross`, and `crosses_fan` with the apex's side computed once)
+        /// give the referee's answer on every pair, touching ones included: corners on a coarse
+        /// grid of inexact `f64` steps make coincident corners, coplanar quadruples and rounding
+        /// in the determinants common.
+        #[test]
+        fn the_guard_agrees_with_the_referee(
+            grid in prop::collection::vec((0u8..4, 0u8..4, 0u8..4), 6),
+            shared in 0usize..3,
+        ) {
+            let p: Vec<DVec3> = grid
+                .iter()
+                .map(|&(x, y, z)| DVec3::new(f64::from(x), f64::from(y), f64::from(z)) * 0.1)
+                .collect();
+            // No shared index, or one: then the second triangle's first corner is the first's.
+            let (ia, ib) = match shared {
+                0 => ([0, 1, 2], [3, 4, 5]),
+                _ => ([0, 1, 2], [0, 4, 5]),
+            };
+            let at = |i: [u32; 3]| i.map(|k| p[k as usize]);
+            let referee = isostream_meshcheck::triangles_intersect(
+                ia,
+                at(ia).map(|x| x.to_array()),
+                ib,
+                at(ib).map(|x| x.to_array()),
+            );
+            let ta = Tri64::new(ia.map(u64::from), at(ia));
+            let tb = Tri64::new(ib.map(u64::from), at(ib));
+            prop_assert_eq!(cross(&ta, &tb), referee);
+            prop_assert_eq!(crosses_fan(&ta, tb.side(ta.p[0]), &tb), referee);
         }
     }
 
