@@ -5,6 +5,8 @@
 //! report included, and a service configuration `serve` refuses), 130 for Ctrl-C, SIGTERM or
 //! SIGHUP, 1 otherwise.
 
+#![deny(unsafe_code)]
+
 mod cli;
 mod logging;
 mod measure_cmd;
@@ -16,7 +18,26 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
+/// Keeps glibc from serving regrown large vectors out of its never-returned heap. glibc raises
+/// its mmap threshold each time a large mmapped block is freed, so the simplifier's vectors,
+/// regrown all run long, ended up in the main heap, and peak RSS crept up by 10 MiB at a
+/// constant resident surface (engine at R = 0.2 in two stages: 68 MiB; with the threshold fixed
+/// at 128 KiB, 58 MiB). mimalloc, tried instead, held 170 MiB.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[allow(unsafe_code)]
+fn fixed_mmap_threshold() {
+    // SAFETY: `mallopt` only sets an allocator tunable; it is called first thing in `main`,
+    // before any other thread exists.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn fixed_mmap_threshold() {}
+
 fn main() -> ExitCode {
+    fixed_mmap_threshold();
     let cli = cli::Cli::parse();
     match cli.command.execute() {
         Ok(()) => ExitCode::SUCCESS,

@@ -65,9 +65,13 @@ proptest! {
         let (bigger, faces_b, _) = rms(&vol, &simplify(4 * batch), "");
         prop_assert!(within_noise(bigger, base), "batch {batch}: {base}, 4x: {bigger}");
         prop_assert!(faces_b.abs_diff(faces) * 50 <= faces.max(50), "{faces} vs {faces_b}");
+        // Unset (the default): decimation waits for the memory budget, the most room of all.
+        let (unset, faces_u, _) = rms(&vol, &format!("mode = \"rate\"\nrate = {rate}"), "");
+        prop_assert!(within_noise(unset, base), "batch {batch}: {base}, unset: {unset}");
+        prop_assert!(faces_u.abs_diff(faces) * 50 <= faces.max(50), "{faces} vs {faces_u}");
     }
 
-    /// The smallest budget (16 MiB: about 4,000 resident faces) binds on these surfaces (about
+    /// The smallest budget (16 MiB: about 6,000 resident faces) binds on these surfaces (about
     /// 10,000 output faces); the default does not.
     #[test]
     fn a_larger_memory_budget_never_raises_the_rms(

@@ -247,7 +247,12 @@ mod tests {
         let p = [9.0, 9.0, 12.0];
         let c = [9.823773384094238, 8.801894187927246, 11.685136795043945];
         let d = [9.000000953674316, 9.299999237060547, 11.300000190734863];
-        assert!(!triangles_intersect([0, 1, 2], [a, b, p], [3, 4, 5], [c, p, d]));
+        assert!(!triangles_intersect(
+            [0, 1, 2],
+            [a, b, p],
+            [3, 4, 5],
+            [c, p, d]
+        ));
         assert_eq!(orient(c, p, d, p), 0.0, "a corner is on its own plane");
         // Its corner moved through the other triangle's centroid, the pair crosses.
         let g: [f64; 3] = std::array::from_fn(|k| (c[k] + p[k] + d[k]) / 3.0);

@@ -59,8 +59,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// Bumped whenever the layout of the file or of its sections changes (2: the prune filter's
 /// part; 3: the simplifier's section streamed ahead of the rest; 4: the simplifier's
 /// pass-through band and a cascade's second simplifier; 5: the guard index's quantized cell
-/// entries).
-const FORMAT: u32 = 5;
+/// entries; 6: the second simplifier's view of the first's resident faces, for the shared
+/// budget).
+const FORMAT: u32 = 6;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -112,9 +112,11 @@ pub struct SimplifyConfig {
     pub mode: Mode,
     /// R: output faces / input faces, in (0, 1] (default 0.2; exclusive with `[output] faces`).
     pub rate: Option<f64>,
-    /// B: faces extracted between two decimations.
-    #[serde(default = "default_batch")]
-    pub batch: u64,
+    /// B: faces extracted between two decimations (Hou and Chen's schedule). Unset (the
+    /// default): the last simplifier decimates only when the memory budget is full, and at the
+    /// end, so that every contraction is chosen among as much of the surface as memory holds
+    /// (a cascade's first stage decimates every [`FIRST_STAGE_BATCH`] faces).
+    pub batch: Option<u64>,
     /// R_i: decimation rate of the initial phase, used while R < R_i.
     #[serde(default = "default_initial_rate")]
     pub initial_rate: f64,
@@ -162,9 +164,9 @@ fn default_lambda() -> f64 {
 
 /// R when neither `rate` nor `[output] faces` is given.
 const DEFAULT_RATE: f64 = 0.2;
-fn default_batch() -> u64 {
-    10_000
-}
+/// B of a cascade's first stage when `batch` is unset: its output is intermediate, and it
+/// must pass its faces on steadily for the second stage to work alongside.
+pub(crate) const FIRST_STAGE_BATCH: u64 = 10_000;
 fn default_initial_rate() -> f64 {
     0.5
 }
@@ -184,7 +186,7 @@ impl Default for SimplifyConfig {
         Self {
             mode: Mode::default(),
             rate: None,
-            batch: default_batch(),
+            batch: None,
             initial_rate: default_initial_rate(),
             retire_lag: default_retire_lag(),
             error: None,
@@ -380,21 +382,23 @@ fn check_log_filter(level: &str) -> Result<(), String> {
 }
 
 /// Bytes of simplifier state per resident face: the face, half a vertex with its quadric, heap
-/// entries and the intersection index's record and cells. Measured: about 800 (bonsai, R = 0.2)
-/// to 1100 (engine, R = 0.05) bytes per peak resident face over the fixed part, and the peak
-/// passes the budget by up to a detector batch before a pass brings it back. 1150 keeps default
-/// jobs at R = 0.2 on every volume in `../shared/data` under 64 MiB; 1300 (safer for memory at
-/// low rates) made the budget bind at R = 0.01 on engine, whose dense last slabs briefly hold
-/// 42 k faces, and cost a third of its accuracy (docs/performance.md).
-const BYTES_PER_RESIDENT_FACE: u64 = 1150;
+/// entries and the intersection index's record and cells, counted over both stages of a
+/// cascade (which share the budget). Measured after the allocator fix (`src/main.rs`): peak RSS
+/// 55-61 MiB at the default 64 MiB on engine and bonsai at R = 0.2, 0.05 and 0.01, whose
+/// first stages hold up to 35 k faces of unfinished band beyond their share. 1150 (before the
+/// fix, when glibc's heap crept by 10 MiB over a run) held 43 k faces: bonsai at R = 0.05
+/// (55 k faces out) then had to write part of its surface before the end, 1.17x the in-core
+/// RMS distance; 600 held 84 k faces and reached 65 MiB (docs/performance.md, "Sixth session").
+const BYTES_PER_RESIDENT_FACE: u64 = 700;
 /// Largest slab, in cubes per face of the memory budget, that gets two simplifier stages by
-/// default. The first stage keeps a band of a few slabs within a sixth of the budget; past
-/// about this size its band no longer fits and it writes its faces uncontracted, and the second
-/// stage then holds the backlog: bonsai upsampled 2x (261 k cubes per slab, 43 k budget faces)
-/// came out with 88.7 k faces for a target of 10 k (one stage: 38 k) in 75 MiB, while bonsai,
-/// engine and cthead (65 k cubes per slab) are valid and within 64 MiB at every rate measured
-/// (docs/performance.md, "Fifth session").
-const CASCADE_CUBES_PER_FACE: u64 = 2;
+/// default (about 294^2 voxels at the default budget). The first stage keeps a band of a few
+/// slabs within its share of the budget; past about this size its band no longer fits and it
+/// writes its faces uncontracted, and the second stage then holds the backlog: bonsai
+/// upsampled 2x (261 k cubes per slab, 43 k budget faces) came out with 88.7 k faces for a
+/// target of 10 k (one stage: 38 k) in 75 MiB, while bonsai, engine and cthead (65 k cubes per
+/// slab) are valid and within 64 MiB at every rate measured (docs/performance.md, "Fifth
+/// session"; the bound was 2 cubes per face of 1150 bytes, the same slab size).
+const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
 const FIXED_MIB: u64 = 16;
@@ -571,7 +575,7 @@ impl JobConfig {
                 s.isotropy.to_string(),
             ));
         }
-        if s.batch == 0 {
+        if s.batch == Some(0) {
             return Err(bad("simplify.batch", "at least 1 face", "0".into()));
         }
         let p = &self.pipeline;
@@ -682,7 +686,8 @@ impl JobConfig {
             None => {
                 let slab_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
                 self.cascade_possible()
-                    && slab_cubes <= CASCADE_CUBES_PER_FACE * self.max_resident_faces() as u64
+                    && slab_cubes as f64
+                        <= CASCADE_CUBES_PER_FACE * self.max_resident_faces() as f64
             }
         }
     }

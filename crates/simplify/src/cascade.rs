@@ -70,7 +70,8 @@ pub struct Handoff {
     pub rear: u32,
     /// The first stage's rate (what it aims at).
     pub rate: f64,
-    /// The first stage's counts so far: faces extracted, written to the second stage, resident.
+    /// The first stage's counts so far: faces extracted, written to the second stage, resident
+    /// (its resident faces count against the second stage's budget, which both share).
     pub faces_in: u64,
     pub faces_out: u64,
     pub faces_resident: u64,

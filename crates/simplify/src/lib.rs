@@ -100,6 +100,10 @@ use quadric::Quadric;
 use retire::RankBuckets;
 use store::{Store, Tri, Vertex};
 
+/// A cascade's second stage keeps at least `1 / SECOND_STAGE_FLOOR` of the shared budget
+/// however much the first holds (see [`Simplifier::budget`]).
+const SECOND_STAGE_FLOOR: usize = 3;
+
 /// Everything a [`Simplifier`] needs, given at once to [`Simplifier::new`], which validates it:
 /// there is no setter that must come "before the first vertex".
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -111,7 +115,8 @@ pub struct SimplifyConfig {
     /// front - retire_lag (slabs). Rate mode retires by `max_resident_faces` only.
     pub retire_lag: u32,
     /// When more faces than this are resident, decimate (rate) and retire the oldest vertices
-    /// (memory budget).
+    /// (memory budget). A cascade's second stage is given the budget of both stages: the
+    /// faces the first reports resident ([`Handoff::faces_resident`]) count against it.
     pub max_resident_faces: usize,
     /// Number of f32 attributes per vertex.
     pub attributes: usize,
@@ -308,6 +313,8 @@ pub struct Simplifier {
     front: f64,
     /// First stage of a cascade: the rear announced last (no vertex is placed below it).
     rear: u32,
+    /// Second stage of a cascade: the faces the first stage held at its last hand-off.
+    first_resident: usize,
     next_out: u64,
     stats: SimplifyStats,
 }
@@ -356,6 +363,7 @@ impl Simplifier {
             beyond_front: std::collections::BinaryHeap::new(),
             front: 0.0,
             rear: 0,
+            first_resident: 0,
             next_out: 0,
             stats: SimplifyStats::default(),
         })
@@ -570,12 +578,12 @@ impl Simplifier {
         }
         self.candidates.activate(self.front);
         let counts = self.face_counts();
+        let budget = self.budget();
         let until = match &mut self.schedule {
             Schedule::Off => None,
             // Over the memory budget, a pass runs before anything is retired for it, so that what
             // leaves has been decimated (a huge `batch` otherwise emitted raw faces).
-            Schedule::Rate(rate) => (rate.due(counts.generated)
-                || counts.resident > self.config.max_resident_faces)
+            Schedule::Rate(rate) => (rate.due(counts.generated) || counts.resident > budget)
                 .then(|| Until::Resident(rate.resident_target(counts))),
             Schedule::Threshold => Some(Until::Exhausted),
         };
@@ -677,7 +685,24 @@ impl Simplifier {
         if let Schedule::Rate(rate) = &mut self.schedule {
             rate.set_source_ratio(handoff.ratio());
         }
+        self.first_resident = usize::try_from(handoff.faces_resident).unwrap_or(usize::MAX);
         handoff.rear
+    }
+
+    /// The resident faces this simplifier may hold before it decimates and retires for memory.
+    /// A cascade's second stage has what the first does not hold of the budget of both
+    /// (`max_resident_faces`), and at least [`SECOND_STAGE_FLOOR`] of it: the first stage's
+    /// unfinished band is as large as the extraction's slabs make it (engine: 35 k of a 43 k-face
+    /// budget), and a fixed split either starved the second stage on dense slabs or left room
+    /// unused on sparse ones (bonsai's first stage peaks at 13 k faces).
+    pub(crate) fn budget(&self) -> usize {
+        let total = self.config.max_resident_faces;
+        match self.config.cascade {
+            Cascade::Second => total
+                .saturating_sub(self.first_resident)
+                .max(total / SECOND_STAGE_FLOOR),
+            _ => total,
+        }
     }
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.
@@ -953,6 +978,48 @@ mod tests {
         });
         s.end_batch(rear, &mut out);
         assert_eq!(s.stats().faces_unmodifiable, 0);
+    }
+
+    /// A second stage's budget is the shared one less what the first stage reported resident,
+    /// and never below a third of it.
+    #[test]
+    fn a_second_stage_budget_is_what_the_first_leaves() {
+        let mut s = Simplifier::new(SimplifyConfig {
+            cascade: Cascade::Second,
+            max_resident_faces: 900,
+            sweep: Some(Sweep {
+                direction: DVec3::Z,
+                origin: 0.0,
+                spacing: 1.0,
+            }),
+            ..SimplifyConfig::new(Policy::Rate {
+                rate: 0.5,
+                batch: 1,
+                initial_rate: 0.5,
+            })
+        })
+        .unwrap();
+        assert_eq!(s.budget(), 900, "nothing reported yet");
+        let handoff = |faces_resident| OutBatch {
+            handoff: Some(Handoff {
+                rear: 0,
+                rate: 0.5,
+                faces_in: 0,
+                faces_out: 0,
+                faces_resident,
+            }),
+            ..OutBatch::default()
+        };
+        s.ingest(&handoff(200));
+        assert_eq!(s.budget(), 700);
+        s.ingest(&handoff(800));
+        assert_eq!(s.budget(), 300, "the floor");
+        let single = Simplifier::new(SimplifyConfig {
+            max_resident_faces: 900,
+            ..SimplifyConfig::new(Policy::None)
+        })
+        .unwrap();
+        assert_eq!(single.budget(), 900);
     }
 
     #[test]

@@ -12,8 +12,10 @@ use crate::cost::Objective;
 pub enum Policy {
     /// Pass-through: no contraction (still retires and emits in streaming order).
     None,
-    /// Hou & Chen: target F_t = (F_g - F_u) * rate + F_u after every `batch` extracted faces;
-    /// initial phase with `initial_rate` while rate < initial_rate.
+    /// Hou & Chen: target F_t = (F_g - F_u) * rate + F_u after every `batch` extracted faces
+    /// (and whenever the resident faces pass the memory budget: with `batch = u64::MAX` only
+    /// then, and at the end, which chooses every contraction among as much of the surface as
+    /// the budget holds); initial phase with `initial_rate` while rate < initial_rate.
     Rate {
         rate: f64,
         batch: u64,

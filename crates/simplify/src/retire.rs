@@ -114,7 +114,7 @@ impl Simplifier {
     /// Over the memory budget: retires the oldest vertices until resident faces are at most 90%
     /// of it (or nothing is left to retire).
     pub(crate) fn retire_for_memory(&mut self, out: &mut OutBatch) {
-        let budget = self.config.max_resident_faces;
+        let budget = self.budget();
         if self.store.resident() <= budget {
             return;
         }
