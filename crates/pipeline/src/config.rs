@@ -381,15 +381,20 @@ fn check_log_filter(level: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Bytes of simplifier state per resident face: the face, half a vertex with its quadric, heap
-/// entries and the intersection index's record and cells, counted over both stages of a
-/// cascade (which share the budget). Measured after the allocator fix (`src/main.rs`): peak RSS
-/// 55-61 MiB at the default 64 MiB on engine and bonsai at R = 0.2, 0.05 and 0.01, whose
-/// first stages hold up to 35 k faces of unfinished band beyond their share. 1150 (before the
-/// fix, when glibc's heap crept by 10 MiB over a run) held 43 k faces: bonsai at R = 0.05
-/// (55 k faces out) then had to write part of its surface before the end, 1.17x the in-core
-/// RMS distance; 600 held 84 k faces and reached 65 MiB (docs/performance.md, "Sixth session").
-const BYTES_PER_RESIDENT_FACE: u64 = 700;
+/// Bytes of simplifier state per resident face of a cascade: the face, half a vertex with its
+/// quadric, heap entries and the intersection index's record and cells, counted over both stages
+/// (which share the budget). Measured after the allocator fix (`src/main.rs`): peak RSS 55-61
+/// MiB at the default 64 MiB on engine and bonsai at R = 0.2, 0.05 and 0.01, whose first stages
+/// hold up to 35 k faces of unfinished band beyond their share. 1150 (before the fix, when
+/// glibc's heap crept by 10 MiB over a run) held 43 k faces: bonsai at R = 0.05 (55 k faces out)
+/// then had to write part of its surface before the end, 1.17x the in-core RMS distance; 600
+/// held 84 k faces and reached 65 MiB (docs/performance.md, "Sixth session").
+const BYTES_PER_FACE_CASCADE: u64 = 700;
+/// The same for one simplifier alone, which runs by default on larger slices only: there the
+/// sweep front and the slices, outside the face count, grow with the slice, and 700 bytes took
+/// bonsai upsampled to 511^3 (one stage, `[output] faces = 10000`) to 66.7 MiB; 1150 held it at
+/// 60.4 MiB before the allocator fix (docs/scale.md).
+const BYTES_PER_FACE_ALONE: u64 = 1150;
 /// Largest slab, in cubes per face of the memory budget, that gets two simplifier stages by
 /// default (about 294^2 voxels at the default budget). The first stage keeps a band of a few
 /// slabs within its share of the budget; past about this size its band no longer fits and it
@@ -687,7 +692,7 @@ impl JobConfig {
                 let slab_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
                 self.cascade_possible()
                     && slab_cubes as f64
-                        <= CASCADE_CUBES_PER_FACE * self.max_resident_faces() as f64
+                        <= CASCADE_CUBES_PER_FACE * self.faces_held(BYTES_PER_FACE_CASCADE) as f64
             }
         }
     }
@@ -696,15 +701,25 @@ impl JobConfig {
         self.simplify.mode == Mode::Rate && self.simplify.priority == PriorityKind::Geometric
     }
 
-    /// The simplifier's resident-face budget derived from `pipeline.memory_budget_mib`.
-    pub fn max_resident_faces(&self) -> usize {
-        // The budget less the fixed part is the simplifier's surface (at least a quarter of it).
+    /// The simplifiers' resident-face budget on a volume of `dims` voxels, derived from
+    /// `pipeline.memory_budget_mib` (shared by the two stages of a cascade).
+    pub fn max_resident_faces(&self, dims: [u64; 3]) -> usize {
+        self.faces_held(if self.cascade(dims) {
+            BYTES_PER_FACE_CASCADE
+        } else {
+            BYTES_PER_FACE_ALONE
+        })
+    }
+
+    /// Faces the budget holds at `bytes` per face: the budget less the fixed part (at least a
+    /// quarter of it).
+    fn faces_held(&self, bytes: u64) -> usize {
         let mib = self
             .pipeline
             .memory_budget_mib
             .saturating_sub(FIXED_MIB)
             .max(self.pipeline.memory_budget_mib / 4);
-        (mib * 1024 * 1024 / BYTES_PER_RESIDENT_FACE) as usize
+        (mib * 1024 * 1024 / bytes) as usize
     }
 }
 

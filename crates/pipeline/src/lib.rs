@@ -562,7 +562,7 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -
             },
         },
         retire_lag: s.retire_lag,
-        max_resident_faces: job.max_resident_faces(),
+        max_resident_faces: job.max_resident_faces(grid.dims),
         attributes: job.attributes.len(),
         cascade: Cascade::Single,
     }
