@@ -915,10 +915,11 @@ mod tests {
     /// A second stage lets a vertex move only once its front (the first stage's rear) has
     /// passed its whole star: a vertex below the rear whose triangle reaches far beyond it could
     /// not contract, so its face must count as unmodifiable for the rate target.
-    #[test]
-    fn a_second_stage_gates_vertices_by_their_star() {
-        let mut s = Simplifier::new(SimplifyConfig {
+    /// A cascade's second stage at rate 0.5, sweeping along z, with a budget of `faces`.
+    fn second_stage(faces: usize) -> Simplifier {
+        Simplifier::new(SimplifyConfig {
             cascade: Cascade::Second,
+            max_resident_faces: faces,
             sweep: Some(Sweep {
                 direction: DVec3::Z,
                 origin: 0.0,
@@ -930,7 +931,12 @@ mod tests {
                 initial_rate: 0.5,
             })
         })
-        .unwrap();
+        .unwrap()
+    }
+
+    #[test]
+    fn a_second_stage_gates_vertices_by_their_star() {
+        let mut s = second_stage(usize::MAX);
         let state = VertexState {
             quadric: Quadric::default(),
             area: 0.0,
@@ -984,21 +990,7 @@ mod tests {
     /// and never below a third of it.
     #[test]
     fn a_second_stage_budget_is_what_the_first_leaves() {
-        let mut s = Simplifier::new(SimplifyConfig {
-            cascade: Cascade::Second,
-            max_resident_faces: 900,
-            sweep: Some(Sweep {
-                direction: DVec3::Z,
-                origin: 0.0,
-                spacing: 1.0,
-            }),
-            ..SimplifyConfig::new(Policy::Rate {
-                rate: 0.5,
-                batch: 1,
-                initial_rate: 0.5,
-            })
-        })
-        .unwrap();
+        let mut s = second_stage(900);
         assert_eq!(s.budget(), 900, "nothing reported yet");
         let handoff = |faces_resident| OutBatch {
             handoff: Some(Handoff {
