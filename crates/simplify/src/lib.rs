@@ -691,9 +691,9 @@ impl Simplifier {
 
     /// The resident faces this simplifier may hold before it decimates and retires for memory.
     /// A cascade's second stage has what the first does not hold of the budget of both
-    /// (`max_resident_faces`), and at least [`SECOND_STAGE_FLOOR`] of it: the first stage's
-    /// unfinished band is as large as the extraction's slabs make it (engine: 35 k of a 43 k-face
-    /// budget), and a fixed split either starved the second stage on dense slabs or left room
+    /// (`max_resident_faces`) at its last hand-off, and at least `1 / SECOND_STAGE_FLOOR` of it:
+    /// the first stage's unfinished band is as large as the extraction's slabs make it (engine:
+    /// 35 k faces), and a fixed split either starved the second stage on dense slabs or left room
     /// unused on sparse ones (bonsai's first stage peaks at 13 k faces).
     pub(crate) fn budget(&self) -> usize {
         let total = self.config.max_resident_faces;
@@ -912,9 +912,6 @@ mod tests {
         assert_eq!(s.stats().faces_out, 2);
     }
 
-    /// A second stage lets a vertex move only once its front (the first stage's rear) has
-    /// passed its whole star: a vertex below the rear whose triangle reaches far beyond it could
-    /// not contract, so its face must count as unmodifiable for the rate target.
     /// A cascade's second stage at rate 0.5, sweeping along z, with a budget of `faces`.
     fn second_stage(faces: usize) -> Simplifier {
         Simplifier::new(SimplifyConfig {
@@ -934,6 +931,9 @@ mod tests {
         .unwrap()
     }
 
+    /// A second stage lets a vertex move only once its front (the first stage's rear) has
+    /// passed its whole star: a vertex below the rear whose triangle reaches far beyond it could
+    /// not contract, so its face must count as unmodifiable for the rate target.
     #[test]
     fn a_second_stage_gates_vertices_by_their_star() {
         let mut s = second_stage(usize::MAX);
