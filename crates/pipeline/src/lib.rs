@@ -496,12 +496,7 @@ fn simplifier_configs(
     rate: f64,
 ) -> (SimplifierConfig, Option<SimplifierConfig>) {
     let single = simplifier_config(job, grid, rate);
-    let Policy::Rate {
-        batch,
-        initial_rate,
-        ..
-    } = single.policy
-    else {
+    let Policy::Rate { initial_rate, .. } = single.policy else {
         return (single, None);
     };
     if !job.cascade(grid.dims) {
@@ -511,10 +506,7 @@ fn simplifier_configs(
     let first = SimplifierConfig {
         policy: Policy::Rate {
             rate: intermediate_rate(rate),
-            batch: job
-                .simplify
-                .batch
-                .map_or(config::FIRST_STAGE_BATCH, |_| batch),
+            batch: job.simplify.batch.unwrap_or(config::FIRST_STAGE_BATCH),
             initial_rate,
         },
         retire_lag: FIRST_STAGE_LAG,

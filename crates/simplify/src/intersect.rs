@@ -679,9 +679,10 @@ fn crosses_planar(p: DVec3, q: DVec3, t: &Tri64) -> bool {
     let d = q - p;
     let w = t.p.map(|x| x - p);
     let nd = norm1(d);
+    let nw = w.map(norm1);
     let sign_of = |i: usize, j: usize| {
         let det = d.cross(w[i]).dot(w[j]);
-        let norms = nd * norm1(w[i]) * norm1(w[j]);
+        let norms = nd * nw[i] * nw[j];
         sign(isostream_meshcheck::certify(
             det,
             norms,
