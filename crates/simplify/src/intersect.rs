@@ -695,26 +695,41 @@ fn crosses_planar(p: DVec3, q: DVec3, t: &Tri64) -> bool {
 
 /// [`cross`] for a fan triangle `t` (the new vertex first) and another triangle `u`, with the
 /// new vertex's side of `u`'s plane (`apex`) computed once for all fan triangles. The pairs that
-/// matter are the fan against its neighbours, which share one ring vertex with it: the segment
-/// opposite that vertex in `t` starts or ends at the new vertex, so one of its two plane tests
-/// is already known. Same answers as `cross` (same segments, same directions).
+/// matter are the fan against its neighbours, which share one ring vertex with it: one of the
+/// far corners of `t` is then the new vertex, whose side is already known. Same answers as
+/// `cross` (same segments, same directions).
 fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
     if u.v.contains(&t.v[0]) {
         return cross(t, u);
     }
     let shared = |x: u64| u.v.iter().position(|&y| y == x);
-    // The segment from corner `i` to corner `j` of `t`, one of them the new vertex (side `apex`).
-    let apex_segment = |i: usize, j: usize| {
-        let other = if i == 0 { j } else { i };
-        apex != 0 && u.side(t.p[other]) == -apex && crosses_planar(t.p[i], t.p[j], u)
-    };
-    let opposite = |j: usize| segment_crosses(u.p[(j + 1) % 3], u.p[(j + 2) % 3], t);
     match (shared(t.v[1]), shared(t.v[2])) {
         (Some(_), Some(_)) => false,
-        (Some(j), None) => apex_segment(2, 0) || opposite(j),
-        (None, Some(j)) => apex_segment(0, 1) || opposite(j),
+        (Some(j), None) => cross_at_corner(t, 1, [u.side(t.p[2]), apex], u, j),
+        (None, Some(j)) => cross_at_corner(t, 2, [apex, u.side(t.p[1])], u, j),
         (None, None) => cross(t, u),
     }
+}
+
+/// Two triangles sharing one corner, `ta`'s `i` and `tb`'s `j`, cross iff the edge opposite it
+/// in one strictly crosses the other (the referee's rule). `sides` holds `tb`'s side of `ta`'s
+/// far corners `i + 1` and `i + 2`. When either triangle's far corners lie strictly on one side
+/// of the other's plane, the two meet at the shared corner only and neither edge can cross: both
+/// such certificates (four plane tests) come before any edge test, which most neighbour pairs
+/// then never reach.
+fn cross_at_corner(ta: &Tri64, i: usize, sides: [i8; 2], tb: &Tri64, j: usize) -> bool {
+    let one_side = |s: [i8; 2]| s[0] != 0 && s[0] == s[1];
+    let straddle = |s: [i8; 2]| s[0] != 0 && s[1] == -s[0];
+    if one_side(sides) {
+        return false;
+    }
+    let (q1, q2) = (tb.p[(j + 1) % 3], tb.p[(j + 2) % 3]);
+    let back = [ta.side(q1), ta.side(q2)];
+    if one_side(back) {
+        return false;
+    }
+    (straddle(sides) && crosses_planar(ta.p[(i + 1) % 3], ta.p[(i + 2) % 3], tb))
+        || (straddle(back) && crosses_planar(q1, q2, ta))
 }
 
 /// Whether two triangles cross (see the module documentation for common vertices).
@@ -741,8 +756,8 @@ fn cross(ta: &Tri64, tb: &Tri64) -> bool {
                 || (0..3).any(|i| segment_crosses(b[i], b[(i + 1) % 3], ta))
         }
         (1, Some((i, j))) => {
-            segment_crosses(a[(i + 1) % 3], a[(i + 2) % 3], tb)
-                || segment_crosses(b[(j + 1) % 3], b[(j + 2) % 3], ta)
+            let sides = [tb.side(a[(i + 1) % 3]), tb.side(a[(i + 2) % 3])];
+            cross_at_corner(ta, i, sides, tb, j)
         }
         _ => false,
     }
