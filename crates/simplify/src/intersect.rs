@@ -14,9 +14,12 @@
 //! * **Cell size**: `CELL_EDGES` times the mean edge length of the first `SAMPLE` triangles
 //!   (marching-cubes edges are about 0.6 grid spacings, so level-0 cells are about two voxels).
 //!   Until it is fixed, triangles wait unfiled and the first query files them.
-//! * **Records** hold ids and `f32` corners (positions are `f32`-exact from the simplifier on, see
-//!   `cost::output_precision`), and their boxes live in a separate array: a query reads 24 bytes
-//!   per record it meets and touches the corners only of those whose box overlaps the fan.
+//! * **Records** hold `f32` corners (positions are `f32`-exact from the simplifier on, see
+//!   `cost::output_precision`), the query mark and ids in one cache line: a query meets records
+//!   in the order of the cells, which is random in memory, and with the box, the mark and the
+//!   corners in three arrays each record it met cost three cache misses (the largest part of the
+//!   guard's time by `perf`, though not by instruction counts). The box is recomputed from the
+//!   corners when needed.
 //! * **Large queries**: a query box spanning more cells of a level than that level has records
 //!   scans the level's record list instead of its cells.
 //! * **Emitted triangles** stay as obstacles ("ghosts") after they leave the store, since a
@@ -66,10 +69,28 @@ const UNFILED: u8 = u8::MAX;
 
 type Cell = [i32; 3];
 
+/// A record: 64 bytes, one cache line (see the module documentation).
 #[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+#[repr(C, align(64))]
 struct Rec {
-    v: [u64; 3],
     p: [Vec3; 3],
+    /// The query generation that excluded it (the old patch, see `would_intersect`).
+    seen: u32,
+    v: [u64; 3],
+}
+
+impl Rec {
+    fn new(v: [u64; 3], p: [DVec3; 3]) -> Self {
+        Self {
+            p: p.map(|x| x.as_vec3()),
+            seen: 0,
+            v,
+        }
+    }
+
+    fn aabb(&self) -> Aabb {
+        Aabb::of(&self.p)
+    }
 }
 
 /// An axis-aligned box in `f32` (exact for `f32` corners).
@@ -164,7 +185,6 @@ pub(crate) struct TriIndex {
     cell: f64,
     cells: FxHashMap<(u8, Cell), Vec<Entry>>,
     recs: Vec<Rec>,
-    boxes: Vec<Aabb>,
     filed: Vec<Filed>,
     /// The records filed at each level.
     levels: Vec<Vec<u32>>,
@@ -173,8 +193,6 @@ pub(crate) struct TriIndex {
     of_tri: Vec<u32>,
     ghosts: VecDeque<u32>,
     live: usize,
-    /// Per record: the query generation that excluded it (the old patch, see `would_intersect`).
-    seen: Vec<u32>,
     generation: u32,
 }
 
@@ -220,10 +238,9 @@ impl TriIndex {
         if r == NONE {
             return;
         }
-        let p = p.map(|x| x.as_vec3());
-        self.recs[r as usize] = Rec { v, p };
-        let bx = Aabb::of(&p);
-        self.boxes[r as usize] = bx;
+        let rec = Rec::new(v, p);
+        let bx = rec.aabb();
+        self.recs[r as usize] = rec;
         if self.refile_in_place(r, bx) {
             return;
         }
@@ -259,10 +276,11 @@ impl TriIndex {
                 if let Some(&r) = self.of_tri.get(t as usize)
                     && r != NONE
                 {
-                    if self.seen[r as usize] == generation {
+                    let rec = &mut self.recs[r as usize];
+                    if rec.seen == generation {
                         continue; // on edge ab: in both fans
                     }
-                    self.seen[r as usize] = generation;
+                    rec.seen = generation;
                 }
                 let tri = store.tri(t);
                 if tri.contains(a) && tri.contains(b) {
@@ -305,18 +323,21 @@ impl TriIndex {
                 }
             }
         }
-        let seen = &self.seen;
-        let hits = |r: u32, rb: &Aabb| {
+        let hits = |r: u32| {
+            let rec = &self.recs[r as usize];
             // The old patch's records (about a third of those met, all overlapping) first.
-            if seen[r as usize] == generation || !rb.overlaps(&union) {
+            if rec.seen == generation {
                 return false;
             }
-            let rec = &self.recs[r as usize];
+            let rb = rec.aabb();
+            if !rb.overlaps(&union) {
+                return false;
+            }
             let other = Tri64::new(rec.v, rec.p.map(|x| x.as_dvec3()));
             // Every fan triangle starts at the new vertex: its side of `other` once per record.
             let apex = other.side(pos);
             fan.iter()
-                .any(|(t, fb)| fb.overlaps(rb) && crosses_fan(t, apex, &other))
+                .any(|(t, fb)| fb.overlaps(&rb) && crosses_fan(t, apex, &other))
         };
         for level in 0..LEVELS {
             let count = self.levels.get(level).map_or(0, Vec::len);
@@ -333,7 +354,7 @@ impl TriIndex {
             if cells as usize > count {
                 if self.levels[level]
                     .iter()
-                    .any(|&r| hits(r, &self.boxes[r as usize]))
+                    .any(|&r| hits(r))
                 {
                     return true;
                 }
@@ -358,7 +379,7 @@ impl TriIndex {
                         for e in list {
                             if e.first & need == need
                                 && quantized_meet(&e.q, &q)
-                                && hits(e.r, &self.boxes[e.r as usize])
+                                && hits(e.r)
                             {
                                 return true;
                             }
@@ -370,14 +391,15 @@ impl TriIndex {
         false
     }
 
-    /// A fresh query generation; `seen` covers every record.
+    /// A fresh query generation.
     fn next_generation(&mut self) {
         self.generation = self.generation.wrapping_add(1);
         if self.generation == 0 {
-            self.seen.fill(0);
+            for rec in &mut self.recs {
+                rec.seen = 0;
+            }
             self.generation = 1;
         }
-        self.seen.resize(self.recs.len(), 0);
     }
 
     fn take(&mut self, t: TriId) -> Option<u32> {
@@ -391,19 +413,15 @@ impl TriIndex {
     }
 
     fn new_rec(&mut self, v: [u64; 3], p: [DVec3; 3]) -> u32 {
-        let p = p.map(|x| x.as_vec3());
-        let rec = Rec { v, p };
-        let bx = Aabb::of(&p);
+        let rec = Rec::new(v, p);
         let r = match self.free.pop() {
             Some(r) => {
                 self.recs[r as usize] = rec;
-                self.boxes[r as usize] = bx;
                 self.filed[r as usize] = NOT_FILED;
                 r
             }
             None => {
                 self.recs.push(rec);
-                self.boxes.push(bx);
                 self.filed.push(NOT_FILED);
                 u32::try_from(self.recs.len() - 1).expect("fewer than 2^32 indexed triangles")
             }
@@ -488,7 +506,7 @@ impl TriIndex {
     }
 
     fn file(&mut self, r: u32) {
-        let bx = self.boxes[r as usize];
+        let bx = self.recs[r as usize].aabb();
         let level = self.level_of(&bx);
         let (lo, hi) = (
             self.key(level, bx.lo.as_dvec3()),
