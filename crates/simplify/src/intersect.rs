@@ -657,13 +657,6 @@ impl Tri64 {
     fn side_exact(&self, x: DVec3) -> i8 {
         sign(orient(self.p[0], self.p[1], self.p[2], x))
     }
-
-    /// Whether all of `q` lie strictly on one side of this triangle's plane: then no crossing
-    /// is possible.
-    fn clear_of(&self, q: &[DVec3; 3]) -> bool {
-        let s = self.side(q[0]);
-        s != 0 && s == self.side(q[1]) && s == self.side(q[2])
-    }
 }
 
 fn norm1(x: DVec3) -> f64 {
@@ -680,12 +673,6 @@ fn sign(x: f64) -> i8 {
 /// determinant's rounding once let the referee count such a pair as crossing).
 fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
     isostream_meshcheck::orient(a.to_array(), b.to_array(), c.to_array(), d.to_array())
-}
-
-/// Segment `pq` strictly crosses triangle `t`: the referee's predicate.
-fn segment_crosses(p: DVec3, q: DVec3, t: &Tri64) -> bool {
-    let sp = t.side(p);
-    sp != 0 && t.side(q) == -sp && crosses_planar(p, q, t)
 }
 
 /// The rest of the referee's predicate once `p` and `q` are known to lie strictly on opposite
@@ -725,8 +712,29 @@ fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
         (Some(_), Some(_)) => false,
         (Some(j), None) => cross_at_corner(t, 1, [u.side(t.p[2]), apex], u, j),
         (None, Some(j)) => cross_at_corner(t, 2, [apex, u.side(t.p[1])], u, j),
-        (None, None) => cross(t, u),
+        (None, None) => cross_apart(t, [apex, u.side(t.p[1]), u.side(t.p[2])], u),
     }
+}
+
+/// Two triangles with no common corner, `sides` holding `tb`'s side of each corner of `ta`:
+/// they cross iff an edge of one strictly crosses the other. A triangle strictly on one side of
+/// the other's plane cannot meet it, so the six plane tests come first and most pairs stop
+/// there; the edge tests then reuse them.
+fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
+    let one_side = |s: [i8; 3]| s[0] != 0 && s[0] == s[1] && s[0] == s[2];
+    if one_side(sides) {
+        return false;
+    }
+    let back = tb.p.map(|x| ta.side(x));
+    if one_side(back) {
+        return false;
+    }
+    // Edge `i` of `p` (from corner `i` to the next), its corners' sides `s` of `other`.
+    let edge = |s: [i8; 3], p: &[DVec3; 3], other: &Tri64, i: usize| {
+        let j = (i + 1) % 3;
+        s[i] != 0 && s[j] == -s[i] && crosses_planar(p[i], p[j], other)
+    };
+    (0..3).any(|i| edge(sides, &ta.p, tb, i)) || (0..3).any(|i| edge(back, &tb.p, ta, i))
 }
 
 /// Two triangles sharing one corner, `ta`'s `i` and `tb`'s `j`, cross iff the edge opposite it
@@ -762,17 +770,9 @@ fn cross(ta: &Tri64, tb: &Tri64) -> bool {
             }
         }
     }
-    let (a, b) = (&ta.p, &tb.p);
+    let a = &ta.p;
     match (count, shared) {
-        (0, _) => {
-            // A triangle strictly on one side of the other's plane cannot meet it: two plane
-            // tests dismiss most pairs before any edge is tested.
-            if tb.clear_of(a) || ta.clear_of(b) {
-                return false;
-            }
-            (0..3).any(|i| segment_crosses(a[i], a[(i + 1) % 3], tb))
-                || (0..3).any(|i| segment_crosses(b[i], b[(i + 1) % 3], ta))
-        }
+        (0, _) => cross_apart(ta, a.map(|x| tb.side(x)), tb),
         (1, Some((i, j))) => {
             let sides = [tb.side(a[(i + 1) % 3]), tb.side(a[(i + 2) % 3])];
             cross_at_corner(ta, i, sides, tb, j)
