@@ -363,6 +363,7 @@ fn run_job(
             )
         })
         .into_iter()
+        .chain(front_stretched(job, grid.dims, &outputs.simplify))
         .collect();
     if let Some(p) = &outputs.prune {
         info!(
@@ -587,6 +588,32 @@ fn rate_missed(
             stats.rejected_link,
             stats.rejected_flip,
             stats.rejected_intersection,
+        )
+    })
+}
+
+/// The sweep front took more than half of the memory budget, which then stretched to hold it
+/// (`isostream_simplify::Simplifier`'s budget): say so, with the budget that would have held it.
+fn front_stretched(
+    job: &JobConfig,
+    dims: [u64; 3],
+    stats: &isostream_simplify::SimplifyStats,
+) -> Option<String> {
+    let stretch = stats.front_stretch_faces;
+    (stretch > 0).then(|| {
+        let mib = job.pipeline.memory_budget_mib;
+        let faces = job.max_resident_faces(dims);
+        let need = (mib as f64 * (faces + stretch) as f64 / faces.max(1) as f64).ceil();
+        let rss = peak_rss_bytes().map_or(String::new(), |b| {
+            format!(" (peak RSS {:.1} MiB)", b as f64 / (1024.0 * 1024.0))
+        });
+        format!(
+            "the sweep front held up to {} faces, more than half of the {faces} that \
+             [pipeline] memory_budget_mib = {mib} holds for this volume: the budget stretched by \
+             up to {stretch} faces so that the surface behind the front could still be \
+             simplified{rss}, since memory follows the front and these slices are large; \
+             memory_budget_mib = {need} or more holds the front without stretching",
+            stats.peak_front_faces,
         )
     })
 }

@@ -352,10 +352,7 @@ impl TriIndex {
                 .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
                 .product();
             if cells as usize > count {
-                if self.levels[level]
-                    .iter()
-                    .any(|&r| hits(r))
-                {
+                if self.levels[level].iter().any(|&r| hits(r)) {
                     return true;
                 }
                 continue;
@@ -377,10 +374,7 @@ impl TriIndex {
                         let need = !first_bits(clo, c) & 0b111;
                         let q = clip(&scaled, c);
                         for e in list {
-                            if e.first & need == need
-                                && quantized_meet(&e.q, &q)
-                                && hits(e.r)
-                            {
+                            if e.first & need == need && quantized_meet(&e.q, &q) && hits(e.r) {
                                 return true;
                             }
                         }

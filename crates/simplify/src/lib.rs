@@ -104,6 +104,10 @@ use store::{Store, Tri, Vertex};
 /// however much the first holds (see [`Simplifier::budget`]).
 const SECOND_STAGE_FLOOR: usize = 3;
 
+/// Whatever the sweep front holds, `1 / FRONT_ROOM_SHARE` of the face budget stays for the
+/// surface behind it (see [`Simplifier::budget`]).
+const FRONT_ROOM_SHARE: usize = 2;
+
 /// Everything a [`Simplifier`] needs, given at once to [`Simplifier::new`], which validates it:
 /// there is no setter that must come "before the first vertex".
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -223,6 +227,11 @@ pub struct SimplifyStats {
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
     pub forced_retirements: u64,
+    /// Most faces the budget was stretched by to hold the sweep front with room behind it
+    /// (0 when the front never took more than half of it; see `Simplifier::budget`).
+    pub front_stretch_faces: usize,
+    /// Most faces the sweep front held at the end of a batch (`faces_unmodifiable`).
+    pub peak_front_faces: usize,
     /// Highest cost of a performed contraction (objective units; merging coincident vertices
     /// counts as -1).
     pub max_cost: f64,
@@ -257,6 +266,8 @@ impl SimplifyStats {
             delayed_front: first.delayed_front + second.delayed_front,
             rejected_other: first.rejected_other + second.rejected_other,
             forced_retirements: first.forced_retirements + second.forced_retirements,
+            front_stretch_faces: first.front_stretch_faces.max(second.front_stretch_faces),
+            peak_front_faces: first.peak_front_faces + second.peak_front_faces,
             max_cost: first.max_cost.max(second.max_cost),
             max_shape_error: first.max_shape_error.max(second.max_shape_error),
             candidates: first.candidates + second.candidates,
@@ -579,6 +590,8 @@ impl Simplifier {
         self.candidates.activate(self.front);
         let counts = self.face_counts();
         let budget = self.budget();
+        self.stats.peak_front_faces = self.stats.peak_front_faces.max(counts.unmodifiable);
+        self.stats.front_stretch_faces = self.stats.front_stretch_faces.max(budget - self.share());
         let until = match &mut self.schedule {
             Schedule::Off => None,
             // Over the memory budget, a pass runs before anything is retired for it, so that what
@@ -695,7 +708,26 @@ impl Simplifier {
     /// the first stage's unfinished band is as large as the extraction's slabs make it (engine:
     /// 35 k faces), and a fixed split either starved the second stage on dense slabs or left room
     /// unused on sparse ones (bonsai's first stage peaks at 13 k faces).
+    ///
+    /// The sweep front's faces (not modifiable yet) cannot leave, so where they take more than
+    /// half of it the budget stretches to hold them and still `1 / FRONT_ROOM_SHARE` of it
+    /// behind them: on slices large against the budget (bonsai upsampled to 2041^3, about 33 k
+    /// faces a slab against 43.7 k) the front alone filled it, every face that became
+    /// modifiable was retired before it could be contracted, and the job wrote 9 of its first 22
+    /// M faces unsimplified. Memory then follows the front, as the mission says (`[pipeline]
+    /// memory_budget_mib` bounds the rest; the run summary says by how much it stretched). A
+    /// cascade's first stage holds its share plus its band by design (its band is counted in
+    /// the second stage's share), so it does not stretch.
     pub(crate) fn budget(&self) -> usize {
+        let share = self.share();
+        match self.config.cascade {
+            Cascade::First => share,
+            _ => share.max(self.stats.faces_unmodifiable + share / FRONT_ROOM_SHARE),
+        }
+    }
+
+    /// This simplifier's part of the job's face budget (see [`Simplifier::budget`]).
+    fn share(&self) -> usize {
         let total = self.config.max_resident_faces;
         match self.config.cascade {
             Cascade::Second => total
@@ -1012,6 +1044,40 @@ mod tests {
         })
         .unwrap();
         assert_eq!(single.budget(), 900);
+    }
+
+    /// Faces of the sweep front cannot leave: where they take more than half of the budget it
+    /// stretches to hold them with half of it behind them, and the run summary says by how much.
+    #[test]
+    fn the_sweep_front_stretches_the_budget() {
+        let mut s = Simplifier::new(SimplifyConfig {
+            max_resident_faces: 10,
+            ..config(Policy::Rate {
+                rate: 0.5,
+                batch: 1,
+                initial_rate: 0.5,
+            })
+        })
+        .unwrap();
+        // A fan of `n` triangles around vertex 0, nothing modifiable yet.
+        let fan = |s: &mut Simplifier, n: u64| {
+            s.add_vertex(0, DVec3::ZERO, 0, &[]);
+            for i in 1..=n {
+                let a = std::f64::consts::TAU * i as f64 / n as f64;
+                s.add_vertex(i, DVec3::new(a.cos(), a.sin(), 0.0), 0, &[]);
+            }
+            for i in 1..=n {
+                s.add_triangle([0, i, i % n + 1]);
+            }
+        };
+        fan(&mut s, 5);
+        assert_eq!(s.budget(), 10, "5 front faces are half of it");
+        let mut s2 = Simplifier::new(s.config.clone()).unwrap();
+        fan(&mut s2, 12);
+        assert_eq!(s2.budget(), 12 + 5);
+        s2.end_batch(0, &mut OutBatch::default());
+        assert_eq!(s2.stats().front_stretch_faces, 7);
+        assert_eq!(s2.stats().peak_front_faces, 12);
     }
 
     #[test]
