@@ -31,6 +31,10 @@ pub(crate) struct RankBuckets {
 /// [`COMPACT_MIN`]): the compaction's cost, linear in the entries, is paid once per that many
 /// pushes, and the buckets stay within this multiple of the resident vertices.
 const COMPACT_SHARE: usize = 2;
+/// Slabs behind the front that retirement for memory leaves resident (see
+/// [`Simplifier::retire_for_memory`]): the front's own slab is not modifiable yet, and the one
+/// behind it mostly waits for the front (its fans reach it).
+const BAND_SLABS: u32 = 2;
 const COMPACT_MIN: usize = 4096;
 
 impl RankBuckets {
@@ -112,7 +116,10 @@ impl Simplifier {
     }
 
     /// Over the memory budget: retires the oldest vertices until resident faces are at most 90%
-    /// of it (or nothing is left to retire).
+    /// of it (or nothing is left to retire). The last [`BAND_SLABS`] slabs behind the front stay
+    /// (but in a cascade's first stage, which hands them on): their contractions mostly wait
+    /// for the front to pass, and retiring them wrote them undecimated; the budget is then
+    /// exceeded by what they hold, which the run summary reports (`front_stretch_faces`).
     pub(crate) fn retire_for_memory(&mut self, out: &mut OutBatch) {
         let budget = self.budget();
         if self.store.resident() <= budget {
@@ -122,8 +129,12 @@ impl Simplifier {
             self.try_retire(id, out);
         }
         let goal = budget - budget / 10;
+        let limit = match self.config.cascade {
+            crate::Cascade::First => u32::MAX,
+            _ => (self.front.min(f64::from(u32::MAX)) as u32).saturating_sub(BAND_SLABS),
+        };
         while self.store.resident() > goal {
-            let Some((key, ids)) = self.buckets.pop_below(u32::MAX) else {
+            let Some((key, ids)) = self.buckets.pop_below(limit) else {
                 break;
             };
             let mut ids = ids.into_iter();
@@ -139,6 +150,10 @@ impl Simplifier {
             if !rest.is_empty() {
                 self.buckets.restore(key, rest);
             }
+        }
+        if self.config.cascade != crate::Cascade::First {
+            let over = self.store.resident().saturating_sub(self.share());
+            self.stats.front_stretch_faces = self.stats.front_stretch_faces.max(over);
         }
     }
 
