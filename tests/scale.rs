@@ -97,15 +97,10 @@ proptest! {
 /// The run summary counts skipped and active cubes; an upsampled sphere skips most of them.
 #[test]
 fn the_summary_counts_skipped_cubes() {
-    let dir = tempfile::tempdir().unwrap();
-    let job = dir.path().join("job.toml");
-    std::fs::write(
-        &job,
+    let s = run_valid(
         "[input]\nshape = \"sphere\"\nsize = [24, 24, 24]\nupsample = [4, 4, 4]\n\n\
          [extract]\niso = 0.0\n\n[simplify]\nmode = \"none\"\n\n[output]\npath = \"out.smb\"\n",
-    )
-    .unwrap();
-    let s = run_job(&job);
+    );
     assert_eq!(s.dims, [93, 93, 93]);
     assert_eq!(s.extract.cubes, 92 * 92 * 92);
     assert!(s.extract.active_cubes > 0);
@@ -116,23 +111,24 @@ fn the_summary_counts_skipped_cubes() {
     );
 }
 
-/// Runs a procedural shape with `[simplify]` and `[output]` extras; returns the summary.
-fn run_shape(shape: &str, n: u64, simplify: &str, output: &str) -> isostream_pipeline::RunSummary {
+/// Runs the job `text` (writing `out.smb`) in a fresh directory, checks that the output is a
+/// valid manifold, and returns the summary.
+fn run_valid(text: &str) -> isostream_pipeline::RunSummary {
     let dir = tempfile::tempdir().unwrap();
     let job = dir.path().join("job.toml");
-    std::fs::write(
-        &job,
-        format!(
-            "[input]\nshape = \"{shape}\"\nsize = [{n}, {n}, {n}]\n\n[extract]\niso = 0.0\n\n\
-             [simplify]\n{simplify}\n\n[output]\npath = \"out.smb\"\n{output}\n"
-        ),
-    )
-    .unwrap();
+    std::fs::write(&job, text).unwrap();
     let summary = run_job(&job);
-    let mesh = common::Mesh::read(&dir.path().join("out.smb"));
-    let report = mesh.check();
+    let report = common::Mesh::read(&dir.path().join("out.smb")).check();
     assert!(report.is_valid_manifold(), "{report:?}");
     summary
+}
+
+/// Runs a procedural shape with `[simplify]` and `[output]` extras; returns the summary.
+fn run_shape(shape: &str, n: u64, simplify: &str, output: &str) -> isostream_pipeline::RunSummary {
+    run_valid(&format!(
+        "[input]\nshape = \"{shape}\"\nsize = [{n}, {n}, {n}]\n\n[extract]\niso = 0.0\n\n\
+         [simplify]\n{simplify}\n\n[output]\npath = \"out.smb\"\n{output}\n"
+    ))
 }
 
 /// Extreme rates meet their target within 5 %: R = 1e-4 given as a face target, and as a rate.
@@ -169,21 +165,11 @@ fn extreme_rates_meet_their_target() {
 #[test]
 fn a_front_larger_than_the_budget_still_gets_simplified() {
     let run = |mib: u64| {
-        let dir = tempfile::tempdir().unwrap();
-        let job = dir.path().join("job.toml");
-        std::fs::write(
-            &job,
-            format!(
-                "[input]\nshape = \"gyroid\"\nsize = [128, 128, 24]\n\n[extract]\niso = 0.0\n\n\
-                 [simplify]\nmode = \"rate\"\nrate = 0.02\n\n[output]\npath = \"out.smb\"\n\n\
-                 [pipeline]\nmemory_budget_mib = {mib}\n"
-            ),
-        )
-        .unwrap();
-        let summary = run_job(&job);
-        let report = common::Mesh::read(&dir.path().join("out.smb")).check();
-        assert!(report.is_valid_manifold(), "{mib} MiB: {report:?}");
-        summary
+        run_valid(&format!(
+            "[input]\nshape = \"gyroid\"\nsize = [128, 128, 24]\n\n[extract]\niso = 0.0\n\n\
+             [simplify]\nmode = \"rate\"\nrate = 0.02\n\n[output]\npath = \"out.smb\"\n\n\
+             [pipeline]\nmemory_budget_mib = {mib}\n"
+        ))
     };
     let (tight, roomy) = (run(16), run(512));
     assert!(
@@ -218,18 +204,11 @@ fn a_front_larger_than_the_budget_still_gets_simplified() {
 /// budget stretched for the front alone, 3,534). Now the target is met.
 #[test]
 fn a_slab_larger_than_the_budget_is_not_written_raw() {
-    let dir = tempfile::tempdir().unwrap();
-    let job = dir.path().join("job.toml");
-    std::fs::write(
-        &job,
+    let s = run_valid(
         "[input]\nshape = \"sphere\"\nsize = [40, 40, 40]\nupsample = [8, 8, 1]\n\n\
          [extract]\niso = 0.0\n\n[simplify]\nmode = \"rate\"\n\n\
          [output]\npath = \"out.smb\"\nfaces = 500\n\n[pipeline]\nmemory_budget_mib = 16\n",
-    )
-    .unwrap();
-    let s = run_job(&job);
-    let report = common::Mesh::read(&dir.path().join("out.smb")).check();
-    assert!(report.is_valid_manifold(), "{report:?}");
+    );
     assert!(
         s.faces_written.abs_diff(500) <= 25,
         "{} faces for 500",
