@@ -591,7 +591,7 @@ impl Simplifier {
         let counts = self.face_counts();
         let budget = self.budget();
         self.stats.peak_front_faces = self.stats.peak_front_faces.max(counts.unmodifiable);
-        self.stats.front_stretch_faces = self.stats.front_stretch_faces.max(budget - self.share());
+        self.note_stretch(budget);
         let until = match &mut self.schedule {
             Schedule::Off => None,
             // Over the memory budget, a pass runs before anything is retired for it, so that what
@@ -720,10 +720,25 @@ impl Simplifier {
     /// the second stage's share), so it does not stretch.
     pub(crate) fn budget(&self) -> usize {
         let share = self.share();
-        match self.config.cascade {
-            Cascade::First => share,
-            _ => share.max(self.stats.faces_unmodifiable + share / FRONT_ROOM_SHARE),
+        if self.holds_its_front() {
+            share.max(self.stats.faces_unmodifiable + share / FRONT_ROOM_SHARE)
+        } else {
+            share
         }
+    }
+
+    /// Whether the sweep front's faces stay resident beyond the budget (see
+    /// [`Simplifier::budget`] and `retire_for_memory`): all but a cascade's first stage, which
+    /// hands its band on to the second.
+    fn holds_its_front(&self) -> bool {
+        self.config.cascade != Cascade::First
+    }
+
+    /// Records `resident` faces held against this simplifier's share (the run summary's
+    /// `front_stretch_faces`).
+    fn note_stretch(&mut self, resident: usize) {
+        let over = resident.saturating_sub(self.share());
+        self.stats.front_stretch_faces = self.stats.front_stretch_faces.max(over);
     }
 
     /// This simplifier's part of the job's face budget (see [`Simplifier::budget`]).

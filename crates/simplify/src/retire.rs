@@ -129,9 +129,10 @@ impl Simplifier {
             self.try_retire(id, out);
         }
         let goal = budget - budget / 10;
-        let limit = match self.config.cascade {
-            crate::Cascade::First => u32::MAX,
-            _ => (self.front.min(f64::from(u32::MAX)) as u32).saturating_sub(BAND_SLABS),
+        let limit = if self.holds_its_front() {
+            (self.front.min(f64::from(u32::MAX)) as u32).saturating_sub(BAND_SLABS)
+        } else {
+            u32::MAX
         };
         while self.store.resident() > goal {
             let Some((key, ids)) = self.buckets.pop_below(limit) else {
@@ -151,9 +152,8 @@ impl Simplifier {
                 self.buckets.restore(key, rest);
             }
         }
-        if self.config.cascade != crate::Cascade::First {
-            let over = self.store.resident().saturating_sub(self.share());
-            self.stats.front_stretch_faces = self.stats.front_stretch_faces.max(over);
+        if self.holds_its_front() {
+            self.note_stretch(self.store.resident());
         }
     }
 
