@@ -15,11 +15,11 @@
 //!   (marching-cubes edges are about 0.6 grid spacings, so level-0 cells are about two voxels).
 //!   Until it is fixed, triangles wait unfiled and the first query files them.
 //! * **Records** hold `f32` corners (positions are `f32`-exact from the simplifier on, see
-//!   `cost::output_precision`), the query mark and ids in one cache line: a query meets records
-//!   in the order of the cells, which is random in memory, and with the box, the mark and the
-//!   corners in three arrays each record it met cost three cache misses (the largest part of the
-//!   guard's time by `perf`, though not by instruction counts). The box is recomputed from the
-//!   corners when needed.
+//!   `cost::output_precision`) and ids in one cache line: a query meets records in the order of
+//!   the cells, which is random in memory, and with the box, a query mark and the corners in
+//!   three arrays each record it met cost three cache misses (the largest part of the guard's
+//!   time by `perf`, though not by instruction counts). The box is recomputed from the corners
+//!   when needed, and the old patch is told by its ids, not by a mark written before the scan.
 //! * **Large queries**: a query box spanning more cells of a level than that level has records
 //!   scans the level's record list instead of its cells.
 //! * **Emitted triangles** stay as obstacles ("ghosts") after they leave the store, since a
@@ -74,8 +74,6 @@ type Cell = [i32; 3];
 #[repr(C, align(64))]
 struct Rec {
     p: [Vec3; 3],
-    /// The query generation that excluded it (the old patch, see `would_intersect`).
-    seen: u32,
     v: [u64; 3],
 }
 
@@ -83,7 +81,6 @@ impl Rec {
     fn new(v: [u64; 3], p: [DVec3; 3]) -> Self {
         Self {
             p: p.map(|x| x.as_vec3()),
-            seen: 0,
             v,
         }
     }
@@ -193,7 +190,6 @@ pub(crate) struct TriIndex {
     of_tri: Vec<u32>,
     ghosts: VecDeque<u32>,
     live: usize,
-    generation: u32,
 }
 
 impl TriIndex {
@@ -265,26 +261,14 @@ impl TriIndex {
         if self.cell == 0.0 {
             self.fix_cell();
         }
-        self.next_generation();
-        let generation = self.generation;
         let mut fan: SmallVec<[(Tri64, Aabb); 24]> = SmallVec::new();
         let mut union = Aabb::EMPTY;
         for x in [a, b] {
             let Some(vx) = store.vertex(x) else { continue };
             for &t in &vx.tris {
-                // The old patch is replaced: its records are no obstacles (marked as met).
-                if let Some(&r) = self.of_tri.get(t as usize)
-                    && r != NONE
-                {
-                    let rec = &mut self.recs[r as usize];
-                    if rec.seen == generation {
-                        continue; // on edge ab: in both fans
-                    }
-                    rec.seen = generation;
-                }
                 let tri = store.tri(t);
                 if tri.contains(a) && tri.contains(b) {
-                    continue;
+                    continue; // removed, and in both fans
                 }
                 // Rotated so that the new vertex comes first (a rotation keeps the orientation
                 // and every edge's direction, so the predicates see the same segments).
@@ -325,8 +309,11 @@ impl TriIndex {
         }
         let hits = |r: u32| {
             let rec = &self.recs[r as usize];
-            // The old patch's records (about a third of those met, all overlapping) first.
-            if rec.seen == generation {
+            // The old patch is replaced: its records (about a third of those met, all
+            // overlapping) are no obstacles. A record holds its triangle's current ids, and an
+            // emitted triangle's vertices are all retired, so the ids say which these are
+            // (marking them before the scan cost a cache miss each).
+            if rec.v.contains(&a) || rec.v.contains(&b) {
                 return false;
             }
             let rb = rec.aabb();
@@ -383,17 +370,6 @@ impl TriIndex {
             }
         }
         false
-    }
-
-    /// A fresh query generation.
-    fn next_generation(&mut self) {
-        self.generation = self.generation.wrapping_add(1);
-        if self.generation == 0 {
-            for rec in &mut self.recs {
-                rec.seen = 0;
-            }
-            self.generation = 1;
-        }
     }
 
     fn take(&mut self, t: TriId) -> Option<u32> {
