@@ -508,6 +508,9 @@ fn simplifier_configs(
         return (single, None);
     };
     if !job.cascade(grid.dims) {
+        if let Some(hint) = job.one_stage_hint(grid.dims) {
+            info!("{hint}");
+        }
         return (single, None);
     }
     let budget = single.max_resident_faces;
