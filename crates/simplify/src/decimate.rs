@@ -263,6 +263,7 @@ impl Simplifier {
         self.stats.max_cost = self.stats.max_cost.max(eval.cost);
         self.stats.max_shape_error = self.stats.max_shape_error.max(eval.shape_error);
         if let Some(k) = self.store.vertex(keep) {
+            self.isect.warm(&k.tris);
             for &t in &k.tris {
                 let tri = self.store.tri(t);
                 self.isect.update(t, tri.v, self.store.corners(tri));
