@@ -10,6 +10,10 @@ use crate::cost::{COINCIDENT, Eval};
 use crate::store::{Store, Vertex};
 use crate::topology;
 
+/// How far below its preimage's lowest rank a cascade's first stage may place a vertex (see
+/// `Simplifier::outside_first_stage_room`): a slab, so most quadric optima pass.
+const PREIMAGE_SLACK: f64 = 1.0;
+
 /// Where a decimation run stops (besides running out of candidates).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) enum Until {
@@ -44,7 +48,7 @@ impl Simplifier {
                 self.stats.rejected_other += 1;
                 continue;
             };
-            if self.below_rear(eval.pos) {
+            if self.outside_first_stage_room(c.a, c.b, eval.pos) {
                 self.stats.rejected_other += 1;
                 continue;
             }
@@ -108,13 +112,27 @@ impl Simplifier {
     }
 
     /// A cascade's first stage never places a vertex below the rear it announced (`cascade`):
-    /// the second stage edits the surface up to that plane.
-    fn below_rear(&self, pos: DVec3) -> bool {
-        self.config.cascade == crate::Cascade::First
-            && self
-                .config
-                .sweep
-                .is_some_and(|w| w.rank_of(pos) < f64::from(self.rear))
+    /// the second stage edits the surface up to that plane. Nor more than [`PREIMAGE_SLACK`]
+    /// ranks below the lowest rank of the new vertex's preimage: the rear is the lowest vertex
+    /// the first stage holds, retired ones included (they stay until their last triangle is
+    /// written), and quadric optima far outside their preimage (10 slabs below it, on bonsai
+    /// upsampled to 511^3) kept it 15 to 20 slabs behind the front, where the second stage held
+    /// everything above it as its front.
+    fn outside_first_stage_room(&self, a: u64, b: u64, pos: DVec3) -> bool {
+        if self.config.cascade != crate::Cascade::First {
+            return false;
+        }
+        let Some(sweep) = self.config.sweep else {
+            return false;
+        };
+        let rank = sweep.rank_of(pos);
+        let preimage = [a, b]
+            .iter()
+            .filter_map(|&x| self.store.vertex(x))
+            .map(|v| v.rank_min)
+            .min();
+        rank < f64::from(self.rear)
+            || preimage.is_some_and(|low| rank < f64::from(low) - PREIMAGE_SLACK)
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
@@ -190,8 +208,9 @@ impl Simplifier {
     /// A vertex that kept absorbing neighbours ahead of it would ride along with the front (its
     /// highest rank never falls behind), never retire, and keep ever more retired neighbours
     /// resident: on a straight tube along the sweep, contractions along the axis cost nothing.
-    /// Bounding the rank span of every preimage to `2 * retire_lag + 2` slabs bounds the life of
-    /// every vertex, and so the resident band, independently of the surface. Coincident vertices
+    /// Bounding the rank span of every preimage to `2 * retire_lag + 2` slabs (`retire_lag + 1`
+    /// in a cascade's first stage) bounds the life of every vertex, and so the resident band,
+    /// independently of the surface. Coincident vertices
     /// are exempt: merging them moves nothing, and leaving them would leave zero-area triangles.
     /// Retirement by the memory budget alone (rate) needs no such bound: the oldest buckets leave
     /// first whatever rides ahead, and a rider's fan is all it keeps.
@@ -199,7 +218,12 @@ impl Simplifier {
         if !self.lag_retirement() {
             return true;
         }
-        let max_span = self.config.retire_lag.saturating_mul(2).saturating_add(2);
+        let max_span = match self.config.cascade {
+            // Its output is not final, and the span is what its rear trails by (see
+            // `outside_first_stage_room`).
+            crate::Cascade::First => self.config.retire_lag.saturating_add(1),
+            _ => self.config.retire_lag.saturating_mul(2).saturating_add(2),
+        };
         match (self.store.vertex(a), self.store.vertex(b)) {
             (Some(va), Some(vb)) => va.pos == vb.pos || va.merged_span(vb) <= max_span,
             _ => false,
@@ -282,4 +306,52 @@ fn is_current(store: &Store, c: &Candidate) -> bool {
                 .vertex(id)
                 .is_some_and(|v| v.is_free() && v.stamp == stamp)
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::DVec3;
+
+    use crate::{Cascade, Policy, Simplifier, SimplifyConfig, Sweep};
+
+    /// A simplifier at rate 0.5 sweeping along z (rank = z), holding an edge from rank 5 to 6.
+    fn edge(cascade: Cascade) -> (Simplifier, u64, u64) {
+        let mut s = Simplifier::new(SimplifyConfig {
+            cascade,
+            sweep: Some(Sweep {
+                direction: DVec3::Z,
+                origin: 0.0,
+                spacing: 1.0,
+            }),
+            ..SimplifyConfig::new(Policy::Rate {
+                rate: 0.5,
+                batch: 1,
+                initial_rate: 0.5,
+            })
+        })
+        .unwrap();
+        s.add_vertex(0, DVec3::new(0.0, 0.0, 5.5), 5, &[]);
+        s.add_vertex(1, DVec3::new(1.0, 0.0, 6.5), 6, &[]);
+        let slot = |id| s.store.slot_of(id).unwrap();
+        let (a, b) = (slot(0), slot(1));
+        (s, a, b)
+    }
+
+    /// The first stage's rear trails its front by how far below their preimages it places
+    /// vertices, so it keeps them within a slab of it; other stages place them freely.
+    #[test]
+    fn a_first_stage_places_no_vertex_far_below_its_preimage() {
+        let (first, a, b) = edge(Cascade::First);
+        let at = |z| DVec3::new(0.5, 0.0, z);
+        assert!(
+            !first.outside_first_stage_room(a, b, at(4.5)),
+            "a slab below"
+        );
+        assert!(
+            first.outside_first_stage_room(a, b, at(3.5)),
+            "two slabs below"
+        );
+        let (single, a, b) = edge(Cascade::Single);
+        assert!(!single.outside_first_stage_room(a, b, at(3.5)));
+    }
 }

@@ -390,7 +390,9 @@ impl TriIndex {
                 }
             }
         }
-        let first_words = met.iter().fold(0, |acc, &r| acc ^ self.recs[r as usize].v[0]);
+        let first_words = met
+            .iter()
+            .fold(0, |acc, &r| acc ^ self.recs[r as usize].v[0]);
         std::hint::black_box(first_words);
         met.iter().any(|&r| hits(r))
     }

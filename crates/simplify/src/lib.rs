@@ -521,7 +521,7 @@ impl Simplifier {
     /// any contraction at `slot` can be made, the ceiling of the highest corner of its star.
     /// Its preimage's highest rank (what gates a first or single stage, whose front is the
     /// extraction front and where nothing lies far beyond it) is no measure here: the second
-    /// stage holds up to a dozen slabs of the first stage's output beyond its front, and a
+    /// stage holds about ten slabs of the first stage's output beyond its front, and a
     /// vertex let in with a star reaching into them could not contract, yet its faces counted as
     /// modifiable, so the rate target squeezed the others to make up for them.
     fn star_reach(&self, sweep: &Sweep, slot: u64) -> u32 {
