@@ -704,14 +704,14 @@ impl JobConfig {
     /// When the default left a job that could run two simplifier stages on one because its
     /// slabs are large for the budget: a line saying how to use both cores. Two stages at such
     /// sizes cost memory (the second holds the first's output above its rear) and save time
-    /// (bonsai upsampled to 1021^3: 215 s at 256 MiB against 536 s at 64 MiB, docs/scale.md).
+    /// (bonsai upsampled to 1021^3: 183 s at 256 MiB against 478 s at 64 MiB, docs/scale.md).
     pub fn one_stage_hint(&self, dims: [u64; 3]) -> Option<String> {
         (self.pipeline.simplify_stages.is_none() && self.cascade_possible() && !self.cascade(dims))
             .then(|| {
                 format!(
                     "one simplifier stage: slices of {} x {} voxels are large for two within \
                      [pipeline] memory_budget_mib = {}; simplify_stages = 2 with a larger budget \
-                     uses both cores (bonsai at 1021^3: 2.5x faster with 256 MiB, at 298 MiB)",
+                     uses both cores (bonsai at 1021^3: 2.6x faster with 256 MiB, at 294 MiB)",
                     dims[0], dims[1], self.pipeline.memory_budget_mib
                 )
             })
