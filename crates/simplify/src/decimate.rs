@@ -210,8 +210,8 @@ impl Simplifier {
     /// resident: on a straight tube along the sweep, contractions along the axis cost nothing.
     /// Bounding the rank span of every preimage to `2 * retire_lag + 2` slabs (`retire_lag + 1`
     /// in a cascade's first stage) bounds the life of every vertex, and so the resident band,
-    /// independently of the surface. Coincident vertices
-    /// are exempt: merging them moves nothing, and leaving them would leave zero-area triangles.
+    /// independently of the surface. Coincident vertices are exempt: merging them moves nothing,
+    /// and leaving them would leave zero-area triangles.
     /// Retirement by the memory budget alone (rate) needs no such bound: the oldest buckets leave
     /// first whatever rides ahead, and a rider's fan is all it keeps.
     fn span_ok(&self, a: u64, b: u64) -> bool {
