@@ -61,7 +61,7 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// pass-through band and a cascade's second simplifier; 5: the guard index's quantized cell
 /// entries; 6: the second simplifier's view of the first's resident faces, for the shared
 /// budget; 7: the guard's records with their query mark, without boxes; 8: without the mark).
-const FORMAT: u32 = 8;
+const FORMAT: u32 = 9;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -7,7 +7,7 @@ use glam::DVec3;
 use crate::Simplifier;
 use crate::candidates::Candidate;
 use crate::cost::{COINCIDENT, Eval};
-use crate::store::{Store, Vertex};
+use crate::store::Store;
 use crate::topology;
 
 /// How far below its preimage's lowest rank a cascade's first stage may place a vertex (see
@@ -166,11 +166,11 @@ impl Simplifier {
         let Some(objective) = self.objective else {
             return;
         };
-        if !self.store.vertex(v).is_some_and(Vertex::is_free) {
+        if !self.store.is_free(v) {
             return;
         }
         for &(n, _) in ring {
-            if !take(n) || !self.store.vertex(n).is_some_and(Vertex::is_free) {
+            if !take(n) || !self.store.is_free(n) {
                 continue;
             }
             let (a, b) = (v.min(n), v.max(n));
@@ -180,7 +180,7 @@ impl Simplifier {
             let Some(eval) = self.evaluate(objective, a, b) else {
                 continue;
             };
-            let stamps = [a, b].map(|x| self.store.vertex(x).map_or(0, |x| x.stamp));
+            let stamps = [a, b].map(|x| self.store.stamp(x));
             let c = Candidate {
                 cost: eval.cost,
                 a,
@@ -275,11 +275,11 @@ impl Simplifier {
         k.quadric += g.quadric;
         k.area += g.area;
         k.boundary |= g.boundary;
-        k.stamp = k.stamp.wrapping_add(1);
         let rank_moved = g.rank_max > k.rank_max;
         k.rank_max = k.rank_max.max(g.rank_max);
         k.rank_min = k.rank_min.min(g.rank_min);
         let rank = k.rank_max;
+        self.store.bump_stamp(keep);
         if rank_moved {
             self.buckets.push(rank, keep, &mut self.store);
         }
@@ -299,13 +299,7 @@ impl Simplifier {
 
 /// Both endpoints unchanged since the candidate was evaluated, and still free to move.
 fn is_current(store: &Store, c: &Candidate) -> bool {
-    [(c.a, c.stamps[0]), (c.b, c.stamps[1])]
-        .iter()
-        .all(|&(id, stamp)| {
-            store
-                .vertex(id)
-                .is_some_and(|v| v.is_free() && v.stamp == stamp)
-        })
+    store.is_current(c.a, c.stamps[0]) && store.is_current(c.b, c.stamps[1])
 }
 
 #[cfg(test)]

@@ -63,7 +63,8 @@
 //!   buckets whatever rides ahead, and a rider keeps only its own fan.
 //! * **Handles**: vertices live in slots with generations (`store`): memory follows the live
 //!   vertices, and a handle kept in the heap, a rank bucket or the intersection index never names
-//!   the vertex that reuses its slot.
+//!   the vertex that reuses its slot. The flags and stamp that say whether a queued candidate is
+//!   still current sit beside the generation, so that test reads no vertex.
 //!
 //! Architecture invariants: no I/O, no threads; only modifiable, unretired vertices move; every
 //! contraction passes the link condition and the geometry checks; memory is bounded by the
@@ -223,7 +224,8 @@ pub struct SimplifyStats {
     /// Contractions postponed because their new fan reached past the front (see
     /// [`Sweep`]).
     pub delayed_front: u64,
-    /// Candidates refused on re-evaluation (boundary rule, threshold).
+    /// Candidates refused on re-evaluation (boundary rule, threshold; in a cascade's first
+    /// stage, a placement below its rear or more than a slab below the preimage).
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
     pub forced_retirements: u64,
@@ -448,8 +450,8 @@ impl Simplifier {
         });
         let mut unmodifiable = 0;
         for slot in v {
-            if let Some(x) = self.store.vertex(slot) {
-                unmodifiable += u8::from(!x.modifiable);
+            if self.store.vertex(slot).is_some() {
+                unmodifiable += u8::from(!self.store.is_modifiable(slot));
             }
         }
         // Without an objective (policy `none`) nothing is ever contracted: no quadric, no
@@ -501,7 +503,7 @@ impl Simplifier {
         let Some(v) = self.store.vertex(slot) else {
             return;
         };
-        if v.modifiable {
+        if self.store.is_modifiable(slot) {
             return;
         }
         if let Some(sweep) = &self.config.sweep {
@@ -548,7 +550,7 @@ impl Simplifier {
     }
 
     fn make_modifiable(&mut self, id: u64) {
-        if self.store.vertex(id).is_none_or(|v| v.modifiable) {
+        if self.store.vertex(id).is_none() || self.store.is_modifiable(id) {
             return;
         }
         // One ring for the boundary test and the new candidates: nothing changes it between
@@ -559,10 +561,10 @@ impl Simplifier {
             topology::Ring::new()
         };
         let boundary = topology::is_boundary(&ring);
+        self.store.set_modifiable(id);
         let Some(v) = self.store.vertex_mut(id) else {
             return;
         };
-        v.modifiable = true;
         v.boundary = boundary;
         let tris = v.tris.clone();
         for t in tris {

@@ -93,9 +93,7 @@ impl RankBuckets {
 
 /// A bucket entry is current when the vertex lives, is unretired and still filed there.
 fn is_filed(store: &Store, id: u64, key: u32) -> bool {
-    store
-        .vertex(id)
-        .is_some_and(|v| !v.retired && v.bucket == key)
+    store.vertex(id).is_some_and(|v| v.bucket == key) && !store.is_retired(id)
 }
 
 impl Simplifier {
@@ -169,18 +167,18 @@ impl Simplifier {
 
     /// Retires `id` if it is modifiable, else defers it. Returns whether it retired.
     fn try_retire(&mut self, id: u64, out: &mut OutBatch) -> bool {
-        let Some(v) = self.store.vertex_mut(id) else {
+        let Some(v) = self.store.vertex(id) else {
             return false;
         };
-        if v.retired {
+        if self.store.is_retired(id) {
             return false;
         }
-        if !v.modifiable {
+        if !self.store.is_modifiable(id) {
             self.deferred.push(id);
             return false;
         }
-        v.retired = true;
         let tris = v.tris.clone();
+        self.store.retire(id);
         if tris.is_empty() {
             self.store.remove_vertex(id);
         }
@@ -190,7 +188,7 @@ impl Simplifier {
                 .tri(t)
                 .v
                 .iter()
-                .all(|&x| self.store.vertex(x).is_some_and(|x| x.retired));
+                .all(|&x| self.store.is_retired(x));
             if done {
                 self.emit(t, out);
             }

@@ -307,8 +307,8 @@ pub(crate) fn complete(store: &mut Store) {
     let ids: Vec<u64> = store.ids().collect();
     for id in ids {
         let boundary = on_boundary(store, id);
+        store.set_modifiable(id);
         if let Some(v) = store.vertex_mut(id) {
-            v.modifiable = true;
             v.boundary = boundary;
         }
     }
