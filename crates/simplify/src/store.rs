@@ -371,6 +371,27 @@ mod tests {
         assert_eq!(s.live_vertices(), 3);
     }
 
+    /// The flags and stamp follow the vertex through its life, a stale stamp or a dead handle is
+    /// never current, and a reused slot starts unmodifiable with stamp 0.
+    #[test]
+    fn slot_state_follows_the_vertex() {
+        let mut s = Store::default();
+        let v = s.insert_vertex(1, Vertex::new(DVec3::ZERO, 0, &[]));
+        assert!(!s.is_free(v) && !s.is_modifiable(v) && !s.is_retired(v));
+        s.set_modifiable(v);
+        assert!(s.is_free(v) && s.is_current(v, 0));
+        s.bump_stamp(v);
+        assert_eq!(s.stamp(v), 1);
+        assert!(!s.is_current(v, 0) && s.is_current(v, 1));
+        s.retire(v);
+        assert!(s.is_retired(v) && s.is_modifiable(v) && !s.is_free(v) && !s.is_current(v, 1));
+        s.remove_vertex(v);
+        assert!(!s.is_retired(v) && !s.is_current(v, 1), "a dead handle");
+        let w = s.insert_vertex(2, Vertex::new(DVec3::ZERO, 0, &[]));
+        assert_eq!(w & 0xffff_ffff, v & 0xffff_ffff, "the slot is reused");
+        assert!(!s.is_modifiable(w) && !s.is_retired(w) && s.stamp(w) == 0);
+    }
+
     #[test]
     #[should_panic(expected = "added twice")]
     fn ids_are_unique() {
