@@ -31,7 +31,9 @@ What is measured (every number is the median of --runs runs, default 3):
    edges, zero-area triangles, Euler characteristic and components; numpy edge counting for the
    number of non-manifold edges (edges with 3+ triangles); self-intersecting triangles by casting
    every edge as a ray into an Open3D RaycastingScene (`self_intersections`; Open3D's own
-   `get_self_intersecting_triangles` is quadratic, 109 s for 60k faces, and counts neighbours).
+   `get_self_intersecting_triangles` is quadratic, 109 s for 60k faces, and counts neighbours),
+   which also counts pairs that only touch; and crossing triangles by our exact referee
+   (`crates/meshcheck`'s `self_intersections` example, the same count for every tool).
 2. Memory scaling: procedural sphere at 128^3 .. 512^3, mode rate 0.1 and mode none: peak RSS from
    the OS and faces in/out per size.
 3. Per-stage busy seconds from `<out>.run.json` for engine and bonsai (median over the runs of 1).
@@ -51,6 +53,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from quality_grid import referee_count
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = (ROOT / ".." / "shared" / "data").resolve()
@@ -353,6 +357,7 @@ def measure_topology(binary, mesh, work, selfx_max):
         "boundary_edges": q["boundary_edges"], "non_manifold_edges": nonmanifold,
         "zero_area": q["zero_area_triangles"], "euler": q["euler"], "components": q["components"],
         "anisotropy": q["anisotropy"], "self_intersecting": None, "selfx_seconds": None,
+        "crossing_exact": referee_count(binary, ply),
     }
     assert boundary == q["boundary_edges"], (boundary, q["boundary_edges"])
     if selfx_max and len(f) <= selfx_max:
@@ -471,8 +476,8 @@ def tables(results, scaling, runs):
         out.append("### Output validity\n")
         out.append("| volume | tool | faces | edge-manifold | non-manifold edges | vertex-manifold "
                    "| oriented | boundary edges | zero-area | Euler | components | "
-                   "self-intersecting tris |")
-        out.append("|---|---|---:|---|---:|---|---|---:|---:|---:|---:|---:|")
+                   "self-intersecting tris (ray cast) | crossing tris (referee) |")
+        out.append("|---|---|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|")
         for name, e in results.items():
             for tool, t in e["tools"].items():
                 q = t["topology"]
@@ -480,7 +485,8 @@ def tables(results, scaling, runs):
                 out.append(f"| {name} | {tool} | {q['faces']} | {yes(q['edge_manifold'])} | "
                            f"{q['non_manifold_edges']} | {yes(q['vertex_manifold'])} | "
                            f"{yes(q['oriented'])} | {q['boundary_edges']} | {q['zero_area']} | "
-                           f"{q['euler']} | {q['components']} | {sx} |")
+                           f"{q['euler']} | {q['components']} | {sx} | "
+                           f"{q['crossing_exact']} |")
         stage_rows = [(n, e) for n, e in results.items() if n in ("engine", "bonsai")]
         if stage_rows:
             out.append(f"\n### isostream stage busy seconds (median of {runs} runs)\n")

@@ -71,17 +71,25 @@ def run(binary, work, volume, rate, simplify_extra="", pipeline_extra=""):
                 quality=q, out=out, warnings=summary.get("warnings", []))
 
 
-def crossings(binary, out):
-    """Crossing triangles of an SMB output, by the referee (`self_intersections` example)."""
-    ply = out.with_suffix(".ply")
-    subprocess.run([binary, "convert", str(out), str(ply)], check=True, capture_output=True)
+def referee_count(binary, ply):
+    """Crossing triangles of a PLY mesh by the referee (the `self_intersections` example of
+    `crates/meshcheck`, next to `binary`; built when missing): exact orientation signs, triangles
+    that only touch do not count."""
     referee = Path(binary).parent / "examples" / "self_intersections"
     if not referee.exists():
         subprocess.run(["cargo", "build", "--release", "-p", "isostream-meshcheck", "--example",
                         "self_intersections"], check=True, cwd=ROOT, capture_output=True)
     r = subprocess.run([str(referee), str(ply)], check=True, capture_output=True, text=True)
-    ply.unlink()
     return int(r.stdout.rsplit(",", 1)[1].split()[0])
+
+
+def crossings(binary, out):
+    """Crossing triangles of an SMB output, by the referee."""
+    ply = out.with_suffix(".ply")
+    subprocess.run([binary, "convert", str(out), str(ply)], check=True, capture_output=True)
+    count = referee_count(binary, ply)
+    ply.unlink()
+    return count
 
 
 # One simplifier with the whole surface resident, decimated at the end (a cascade's first stage
