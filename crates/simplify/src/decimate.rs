@@ -306,24 +306,11 @@ fn is_current(store: &Store, c: &Candidate) -> bool {
 mod tests {
     use glam::DVec3;
 
-    use crate::{Cascade, Policy, Simplifier, SimplifyConfig, Sweep};
+    use crate::{Cascade, Simplifier};
 
     /// A simplifier at rate 0.5 sweeping along z (rank = z), holding an edge from rank 5 to 6.
     fn edge(cascade: Cascade) -> (Simplifier, u64, u64) {
-        let mut s = Simplifier::new(SimplifyConfig {
-            cascade,
-            sweep: Some(Sweep {
-                direction: DVec3::Z,
-                origin: 0.0,
-                spacing: 1.0,
-            }),
-            ..SimplifyConfig::new(Policy::Rate {
-                rate: 0.5,
-                batch: 1,
-                initial_rate: 0.5,
-            })
-        })
-        .unwrap();
+        let mut s = crate::tests::swept(cascade, usize::MAX);
         s.add_vertex(0, DVec3::new(0.0, 0.0, 5.5), 5, &[]);
         s.add_vertex(1, DVec3::new(1.0, 0.0, 6.5), 6, &[]);
         let slot = |id| s.store.slot_of(id).unwrap();

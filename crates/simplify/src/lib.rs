@@ -963,8 +963,14 @@ mod tests {
 
     /// A cascade's second stage at rate 0.5, sweeping along z, with a budget of `faces`.
     fn second_stage(faces: usize) -> Simplifier {
+        swept(Cascade::Second, faces)
+    }
+
+    /// A simplifier in place `cascade` at rate 0.5, sweeping along z (rank = z), with a budget
+    /// of `faces`.
+    pub(crate) fn swept(cascade: Cascade, faces: usize) -> Simplifier {
         Simplifier::new(SimplifyConfig {
-            cascade: Cascade::Second,
+            cascade,
             max_resident_faces: faces,
             sweep: Some(Sweep {
                 direction: DVec3::Z,
