@@ -146,6 +146,18 @@ pub struct SimplifyConfig {
     /// that changes the topology.
     #[serde(default)]
     pub min_component_faces: u64,
+    /// What may happen to the cut where the volume's box meets the surface: simplified within
+    /// the box face (`planar`, the default except with the attribute quadric, which has no
+    /// boundary cost) or kept exactly (`exact`: pieces simplified apart still meet).
+    pub boundary: Option<BoundaryKind>,
+}
+
+/// `[simplify] boundary`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BoundaryKind {
+    Planar,
+    Exact,
 }
 
 /// `[simplify] priority`.
@@ -179,6 +191,14 @@ impl SimplifyConfig {
     pub fn rate(&self) -> f64 {
         self.rate.unwrap_or(DEFAULT_RATE)
     }
+
+    /// `boundary`, or its default: planar unless the priority has no boundary cost.
+    pub fn boundary(&self) -> BoundaryKind {
+        self.boundary.unwrap_or(match self.priority {
+            PriorityKind::AttributeQuadric => BoundaryKind::Exact,
+            _ => BoundaryKind::Planar,
+        })
+    }
 }
 
 impl Default for SimplifyConfig {
@@ -196,6 +216,7 @@ impl Default for SimplifyConfig {
             lambda: default_lambda(),
             attribute_weights: None,
             min_component_faces: 0,
+            boundary: None,
         }
     }
 }
@@ -582,6 +603,15 @@ impl JobConfig {
         }
         if s.batch == Some(0) {
             return Err(bad("simplify.batch", "at least 1 face", "0".into()));
+        }
+        if s.boundary == Some(BoundaryKind::Planar)
+            && s.priority == PriorityKind::AttributeQuadric
+        {
+            return Err(bad(
+                "simplify.boundary",
+                "\"exact\" with priority = \"attribute-quadric\" (its quadric has no boundary cost; remove the key)",
+                "\"planar\"".into(),
+            ));
         }
         let p = &self.pipeline;
         if p.channel_capacity == 0 {

@@ -27,7 +27,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use isostream_prune::{Filter, SmallPieces};
-use isostream_simplify::{Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig};
+use isostream_simplify::{Boundary, Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig};
 use isostream_smesh::Header;
 use serde::Serialize;
 use tracing::{info, warn};
@@ -568,6 +568,18 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -
         max_resident_faces: job.max_resident_faces(grid.dims),
         attributes: job.attributes.len(),
         cascade: Cascade::Single,
+        boundary: match s.boundary() {
+            config::BoundaryKind::Exact => Boundary::Exact,
+            // Where the extractor puts vertices on the box's faces (`Grid::position`), rounded
+            // like every position the simplifier holds.
+            config::BoundaryKind::Planar => {
+                let far = grid.dims.map(|n| n.saturating_sub(1) as f64);
+                Boundary::Planar {
+                    lo: grid.position(0.0, 0.0, 0.0).as_vec3().as_dvec3(),
+                    hi: grid.position(far[0], far[1], far[2]).as_vec3().as_dvec3(),
+                }
+            }
+        },
     }
 }
 

@@ -191,7 +191,8 @@ fn solve(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
 /// `None` when the boundary rule admits no site.
 pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(DVec3, f64, f64)> {
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
-    let sites = topology::sites(store, a, b)?;
+    // The attribute quadric has no boundary term: its boundary stays exact (`Simplifier::new`).
+    let sites = topology::sites(store, a, b, &topology::Boundary::Exact)?;
     let n = 3 + weights.len();
     let q = match (&va.attr_quadric, &vb.attr_quadric) {
         (Some(x), Some(y)) => x.sum(y),

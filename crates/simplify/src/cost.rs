@@ -9,7 +9,7 @@ use glam::DVec3;
 
 use crate::quadric::Quadric;
 use crate::store::Store;
-use crate::topology::{self, Sites};
+use crate::topology::{self, Boundary, Sites};
 
 /// An optimal placement farther than this many edge lengths from the edge midpoint is treated
 /// like an ill-conditioned one: nearly flat neighbourhoods put the exact minimum far away.
@@ -89,16 +89,17 @@ pub(crate) fn place(
 }
 
 impl Objective {
-    /// `None` when the edge is no candidate: no admissible site, or above the error threshold.
+    /// `None` when the edge is no candidate: no admissible site under the boundary `rule`, or
+    /// above the error threshold.
     pub(crate) fn evaluate(
         &self,
         store: &Store,
-        a: u64,
-        b: u64,
+        (a, b): (u64, u64),
+        rule: &Boundary,
         rank_spacing: f64,
     ) -> Option<Eval> {
         let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
-        let sites = topology::sites(store, a, b)?;
+        let sites = topology::sites(store, a, b, rule)?;
         let h = va.quadric + vb.quadric;
         let w = va.area + vb.area;
         let m = self.metric(store, a, b, h, w);
@@ -238,8 +239,8 @@ mod tests {
         };
         let mut compared = 0;
         for (a, b) in interior_edges(&s) {
-            let gh = Objective::Quadric.evaluate(&s, a, b, 1.0).unwrap();
-            let e = plain.evaluate(&s, a, b, 1.0).unwrap();
+            let gh = Objective::Quadric.evaluate(&s, (a, b), &Boundary::Exact, 1.0).unwrap();
+            let e = plain.evaluate(&s, (a, b), &Boundary::Exact, 1.0).unwrap();
             assert_eq!(e.pos, gh.pos, "edge {a}-{b}");
             assert_eq!(e.cost, e.shape_error);
             let w = s.vertex(a).unwrap().area + s.vertex(b).unwrap().area;
@@ -255,7 +256,7 @@ mod tests {
         let (a, b) = (14, 15);
         let eps = |alpha| {
             Objective::Shape { e0: 1.0, alpha }
-                .evaluate(&s, a, b, 1.0)
+                .evaluate(&s, (a, b), &Boundary::Exact, 1.0)
                 .unwrap()
         };
         let centroid: DVec3 = {
@@ -285,8 +286,8 @@ mod tests {
             e0: 1e-12,
             alpha: 0.0,
         };
-        assert!(tight.evaluate(&s, a, b, 1.0).is_none());
-        let e = Objective::Quadric.evaluate(&s, a, b, 2.0).unwrap();
+        assert!(tight.evaluate(&s, (a, b), &Boundary::Exact, 1.0).is_none());
+        let e = Objective::Quadric.evaluate(&s, (a, b), &Boundary::Exact, 2.0).unwrap();
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
         let len = (s.vertex(a).unwrap().pos - s.vertex(b).unwrap().pos).length();
         assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);
