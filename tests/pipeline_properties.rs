@@ -64,6 +64,7 @@ proptest! {
         prop_assert_eq!(mesh.self_intersections(), 0);
         prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
         prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
+        prop_assert_eq!(mesh.boundary_off_the_box(vol.dims), 0);
     }
 
     /// mode = "rate" on smooth blob fields: as above, plus no zero-area triangles and the face
@@ -88,6 +89,7 @@ proptest! {
         prop_assert_eq!(mesh.self_intersections(), 0);
         prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
         prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
+        prop_assert_eq!(mesh.boundary_off_the_box(vol.dims), 0);
         // Small surfaces cannot always reach the rate: each closed component keeps its topology
         // and at least 4 triangles, and contractions that would fold or cross a sheet are
         // refused. Faces retired during the initial phase keep its rate (Hou and Chen 4.3), so

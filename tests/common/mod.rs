@@ -64,6 +64,30 @@ impl Mesh {
         isostream_meshcheck::check(&self.positions, &self.triangles)
     }
 
+    /// Vertices on boundary edges (edges of one triangle) that lie on no face of the box of
+    /// a volume of `dims` voxels (origin 0, spacing 1): an iso-surface's boundary is its cut by
+    /// the box, and simplification may shorten the cut but never move it off the box.
+    pub fn boundary_off_the_box(&self, dims: [u64; 3]) -> usize {
+        let mut uses = std::collections::HashMap::new();
+        for t in &self.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                *uses.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+            }
+        }
+        let mut ends: Vec<u32> = uses
+            .into_iter()
+            .filter(|&(_, n)| n == 1)
+            .flat_map(|((a, b), _)| [a, b])
+            .collect();
+        ends.sort_unstable();
+        ends.dedup();
+        let on_face = |p: [f64; 3]| (0..3).any(|i| p[i] == 0.0 || p[i] == (dims[i] - 1) as f64);
+        ends.iter()
+            .filter(|&&v| !on_face(self.positions[v as usize]))
+            .count()
+    }
+
     /// Triangles crossing another triangle of the mesh (the referee's count).
     pub fn self_intersections(&self) -> usize {
         isostream_meshcheck::self_intersections(&self.positions, &self.triangles)

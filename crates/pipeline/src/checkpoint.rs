@@ -60,8 +60,10 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// part; 3: the simplifier's section streamed ahead of the rest; 4: the simplifier's
 /// pass-through band and a cascade's second simplifier; 5: the guard index's quantized cell
 /// entries; 6: the second simplifier's view of the first's resident faces, for the shared
-/// budget; 7: the guard's records with their query mark, without boxes; 8: without the mark).
-const FORMAT: u32 = 9;
+/// budget; 7: the guard's records with their query mark, without boxes; 8: without the mark;
+/// 9: vertex flags beside the slot generations; 10: the boundary rule in the simplifier's
+/// configuration).
+const FORMAT: u32 = 10;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

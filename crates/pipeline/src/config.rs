@@ -604,8 +604,7 @@ impl JobConfig {
         if s.batch == Some(0) {
             return Err(bad("simplify.batch", "at least 1 face", "0".into()));
         }
-        if s.boundary == Some(BoundaryKind::Planar)
-            && s.priority == PriorityKind::AttributeQuadric
+        if s.boundary == Some(BoundaryKind::Planar) && s.priority == PriorityKind::AttributeQuadric
         {
             return Err(bad(
                 "simplify.boundary",
@@ -846,6 +845,32 @@ mod tests {
             err.contains("output.path") && err.contains("/proc"),
             "{err}"
         );
+    }
+
+    /// Planar by default, exact where the priority has no boundary cost, which refuses planar.
+    #[test]
+    fn the_boundary_rule_defaults_by_priority() {
+        assert_eq!(
+            parse(MINIMAL).unwrap().simplify.boundary(),
+            BoundaryKind::Planar
+        );
+        let exact = format!("{MINIMAL}\n[simplify]\nboundary = \"exact\"\n");
+        assert_eq!(
+            parse(&exact).unwrap().simplify.boundary(),
+            BoundaryKind::Exact
+        );
+        let attributes = "\n[[attributes]]\nname = \"g\"\nderive = \"gradient_magnitude\"\n";
+        let aq =
+            format!("{MINIMAL}\n[simplify]\npriority = \"attribute-quadric\"\n{{}}{attributes}");
+        let job = parse(&aq.replace("{}", "")).unwrap();
+        assert_eq!(job.simplify.boundary(), BoundaryKind::Exact);
+        let err = parse(&aq.replace("{}", "boundary = \"planar\"\n"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("simplify.boundary"), "{err}");
+        let bad = format!("{MINIMAL}\n[simplify]\nboundary = \"round\"\n");
+        let err = parse(&bad).unwrap_err().to_string();
+        assert!(err.contains("job.toml") && err.contains("planar"), "{err}");
     }
 
     #[test]

@@ -27,7 +27,9 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use isostream_prune::{Filter, SmallPieces};
-use isostream_simplify::{Boundary, Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig};
+use isostream_simplify::{
+    Boundary, Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig,
+};
 use isostream_smesh::Header;
 use serde::Serialize;
 use tracing::{info, warn};
@@ -585,8 +587,8 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -
 
 /// The rate target missed by more than 2 %: say by how much and why. Every contraction keeps the
 /// topology (the link condition keeps each closed component at least a tetrahedron, and boundary
-/// vertices stay where they are), so a surface of many small components or a long boundary (a
-/// volume cut by its box) cannot go below a floor; the final pass stops there, having tried
+/// vertices stay on the box's faces: all of them with `boundary = "exact"`), so a surface of many
+/// small components or a long boundary (a volume cut by its box) cannot go below a floor; the final pass stops there, having tried
 /// every edge it still holds again. What the last simplifier retired for the memory budget
 /// (`forced`: vertices) left before it could be taken that far: then the budget, not only the
 /// topology, kept the count up (bonsai upsampled to 1021^3, `faces = 10000`, two stages: 87,307
@@ -618,7 +620,8 @@ fn rate_missed(
         format!(
             "rate target missed: {written} faces written for a target of {target} (+{:.0} %); \
              {cause}: the remaining edges were refused by the link condition ({} times: closed \
-             components stay at least tetrahedra, boundaries stay in place), by flips ({}) and \
+             components stay at least tetrahedra, the box's cut stays on its faces), by flips \
+             ({}) and \
              by the self-intersection guard ({}){hint}",
             100.0 * (written as f64 / target.max(1) as f64 - 1.0),
             stats.rejected_link,

@@ -239,7 +239,9 @@ mod tests {
         };
         let mut compared = 0;
         for (a, b) in interior_edges(&s) {
-            let gh = Objective::Quadric.evaluate(&s, (a, b), &Boundary::Exact, 1.0).unwrap();
+            let gh = Objective::Quadric
+                .evaluate(&s, (a, b), &Boundary::Exact, 1.0)
+                .unwrap();
             let e = plain.evaluate(&s, (a, b), &Boundary::Exact, 1.0).unwrap();
             assert_eq!(e.pos, gh.pos, "edge {a}-{b}");
             assert_eq!(e.cost, e.shape_error);
@@ -287,7 +289,9 @@ mod tests {
             alpha: 0.0,
         };
         assert!(tight.evaluate(&s, (a, b), &Boundary::Exact, 1.0).is_none());
-        let e = Objective::Quadric.evaluate(&s, (a, b), &Boundary::Exact, 2.0).unwrap();
+        let e = Objective::Quadric
+            .evaluate(&s, (a, b), &Boundary::Exact, 2.0)
+            .unwrap();
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
         let len = (s.vertex(a).unwrap().pos - s.vertex(b).unwrap().pos).length();
         assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);

@@ -97,8 +97,8 @@ use serde::Serialize;
 
 pub use cascade::{Cascade, Handoff, VertexState};
 pub use policy::Policy;
-pub use topology::Boundary;
 pub use priority::Priority;
+pub use topology::Boundary;
 
 use candidates::Candidates;
 use cost::Objective;

@@ -70,8 +70,12 @@ impl Simplifier {
 
     /// Cost and placement of `ab -> c`: the objective's, re-ranked or re-placed by the priority.
     pub(crate) fn evaluate(&self, objective: Objective, a: u64, b: u64) -> Option<Eval> {
-        let mut eval =
-            objective.evaluate(&self.store, (a, b), &self.config.boundary, self.rank_spacing)?;
+        let mut eval = objective.evaluate(
+            &self.store,
+            (a, b),
+            &self.config.boundary,
+            self.rank_spacing,
+        )?;
         if eval.cost == COINCIDENT {
             return Some(eval);
         }

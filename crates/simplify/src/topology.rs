@@ -445,14 +445,62 @@ mod tests {
         let s = grid();
         let p = |i: u64| s.vertex(i).unwrap().pos;
         assert!(link_ok(&s, 4, 0), "interior vertex to corner");
-        assert_eq!(sites(&s, 4, 0, &Boundary::Exact), Some(Sites::Fixed([Some(p(0)), None])));
-        assert_eq!(sites(&s, 4, 5, &Boundary::Exact), Some(Sites::Fixed([Some(p(5)), None])));
+        assert_eq!(
+            sites(&s, 4, 0, &Boundary::Exact),
+            Some(Sites::Fixed([Some(p(0)), None]))
+        );
+        assert_eq!(
+            sites(&s, 4, 5, &Boundary::Exact),
+            Some(Sites::Fixed([Some(p(5)), None]))
+        );
         // 1 lies on the straight bottom side 0-2 and may merge into corner 0; the corner turns
         // and may not merge into anything.
         assert!(link_ok(&s, 0, 1));
-        assert_eq!(sites(&s, 0, 1, &Boundary::Exact), Some(Sites::Fixed([Some(p(0)), None])));
-        assert_eq!(sites(&s, 0, 3, &Boundary::Exact), Some(Sites::Fixed([Some(p(0)), None])));
-        assert_eq!(sites(&s, 1, 2, &Boundary::Exact), Some(Sites::Fixed([None, Some(p(2))])));
+        assert_eq!(
+            sites(&s, 0, 1, &Boundary::Exact),
+            Some(Sites::Fixed([Some(p(0)), None]))
+        );
+        assert_eq!(
+            sites(&s, 0, 3, &Boundary::Exact),
+            Some(Sites::Fixed([Some(p(0)), None]))
+        );
+        assert_eq!(
+            sites(&s, 1, 2, &Boundary::Exact),
+            Some(Sites::Fixed([None, Some(p(2))]))
+        );
+    }
+
+    /// The grid with its bottom side (y = 0) bent at vertex 1: a curved cut on the box face
+    /// y = 0 of the box [0, 2] x [0, 2] x [-1, 1].
+    #[test]
+    fn a_planar_boundary_simplifies_the_cut_within_a_box_face() {
+        let mut s = grid();
+        s.vertex_mut(1).unwrap().pos.z = 0.3;
+        let p = |i: u64| s.vertex(i).unwrap().pos;
+        let planar = Boundary::Planar {
+            lo: DVec3::new(0.0, 0.0, -1.0),
+            hi: DVec3::new(2.0, 2.0, 1.0),
+        };
+        // Exact: 1 is not on a straight piece, and the corners turn.
+        assert_eq!(sites(&s, 0, 1, &Boundary::Exact), None);
+        assert_eq!(sites(&s, 1, 2, &Boundary::Exact), None);
+        // Planar: 1 lies on the face y = 0 with both boundary neighbours, and goes into either;
+        // corner 0's boundary neighbours (1 on y = 0, 3 on x = 0) share no face with it.
+        assert_eq!(
+            sites(&s, 0, 1, &planar),
+            Some(Sites::Fixed([Some(p(0)), None]))
+        );
+        assert_eq!(
+            sites(&s, 1, 2, &planar),
+            Some(Sites::Fixed([None, Some(p(2))]))
+        );
+        assert_eq!(sites(&s, 0, 3, &planar), sites(&s, 0, 3, &Boundary::Exact));
+        // Off the box's faces (a box larger than the grid), nothing changes.
+        let far = Boundary::Planar {
+            lo: DVec3::splat(-5.0),
+            hi: DVec3::splat(5.0),
+        };
+        assert_eq!(sites(&s, 0, 1, &far), None);
     }
 
     #[test]

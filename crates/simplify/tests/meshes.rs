@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{Cascade, Policy, SimplifyConfig, SimplifyStats};
+use isostream_simplify::{Boundary, Cascade, Policy, SimplifyConfig, SimplifyStats};
 
 /// Output faces within 10% of `rate * input`.
 fn assert_rate_met(input: &Mesh, run: &Run, rate: f64) {
@@ -78,6 +78,54 @@ fn rate_on_open_surfaces_keeps_the_boundary() {
     // A flat square loses its interior and the straight sides' inner vertices freely.
     let run = run(&flat, config(rate(0.05, 400), 2), &Sweep::default());
     assert_rate_met(&flat, &run, 0.05);
+}
+
+/// With a planar boundary the cut of an open surface (here the sides of a bumpy height field,
+/// on the faces x = 0, x = 24, z = 0, z = 24 of its box) is simplified within those faces: a
+/// rate whose face count lies below the exact rule's floor (every vertex of the curved sides)
+/// is met, every boundary vertex left is an input boundary vertex on a box face, the four
+/// corners (where the cut turns between faces) stay, and the topology is unchanged.
+#[test]
+fn a_planar_boundary_is_simplified_within_the_box_faces() {
+    let h = |u: f64, v: f64| 2.0 * (6.0 * u).sin() * (5.0 * v).cos();
+    let bumpy = height_field(48, 48, 24.0, h);
+    let planar = Boundary::Planar {
+        lo: DVec3::new(0.0, -2.0, 0.0),
+        hi: DVec3::new(24.0, 2.0, 24.0),
+    };
+    let rate_low = 0.02;
+    let exact = run(&bumpy, config(rate(rate_low, 400), 2), &Sweep::default());
+    assert!(
+        exact.mesh.tris.len() as f64 > 1.5 * rate_low * bumpy.tris.len() as f64,
+        "the exact rule's floor: {} faces",
+        exact.mesh.tris.len()
+    );
+    let cfg = SimplifyConfig {
+        boundary: planar,
+        ..config(rate(rate_low, 400), 2)
+    };
+    let got = run(&bumpy, cfg, &Sweep::default());
+    assert_same_topology(&bumpy, &got);
+    assert_rate_met(&bumpy, &got, rate_low);
+    // As written: positions are rounded to `f32`.
+    let key = |p: &DVec3| p.as_vec3().to_array().map(f32::to_bits);
+    let on_input: std::collections::HashSet<[u32; 3]> = boundary(&bumpy).iter().map(key).collect();
+    let out = boundary(&got.mesh);
+    assert!(out.len() < boundary(&bumpy).len() / 4, "{} left", out.len());
+    for p in &out {
+        assert!(
+            on_input.contains(&key(p)),
+            "{p} is no input boundary vertex"
+        );
+        assert!(
+            [p.x, p.z].iter().any(|&c| c == 0.0 || c == 24.0),
+            "{p} is off the box faces"
+        );
+    }
+    for corner in [[0.0, 0.0], [24.0, 0.0], [0.0, 24.0], [24.0, 24.0]] {
+        let p = DVec3::new(corner[0], h(corner[0] / 24.0, corner[1] / 24.0), corner[1]);
+        assert!(out.iter().any(|q| key(q) == key(&p)), "corner {p} moved");
+    }
 }
 
 /// Positions of the vertices on boundary edges.
