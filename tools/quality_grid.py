@@ -5,6 +5,7 @@
     python3 tools/quality_grid.py rates  --volumes engine,bonsai,aneurism,mni152,stent --rates 0.05,0.01,0.001
     python3 tools/quality_grid.py fig7   --volumes engine --rates 0.1,0.01 --batches 2000,5000,10000,20000,50000,200000
     python3 tools/quality_grid.py validity --volumes all --rates 0.2,0.05,0.01
+    python3 tools/quality_grid.py boundary --volumes engine,bonsai,aneurism,mni152,stent --rates 0.2,0.01
 
 `rates`: for each volume and rate, one run with the defaults (a user who only writes `rate`) and one
 in core (one simplifier stage, `batch` larger than the surface and a memory budget that holds it:
@@ -17,6 +18,9 @@ matplotlib is importable (`--plot docs/fig7.png`).
 vertex-manifold, oriented, no zero-area triangle, Euler characteristic and component count equal to
 the full-resolution surface's (a `mode = "none"` run), crossing triangles counted by the referee
 (`crates/meshcheck`, its `self_intersections` example), the face-target miss and peak RSS.
+`boundary`: `[simplify] boundary = "exact"` against the default `"planar"` (default runs, RMS and
+Hausdorff from `isostream measure --volume`, boundary edges of the output); where planar writes
+fewer faces (exact's floor), one more planar run at exact's face count compares them at one size.
 Needs only the release binary (`--bin`, default target/release/isostream) and ../shared/data.
 """
 import argparse
@@ -169,9 +173,28 @@ def fig7(args, work):
     return rows
 
 
+def boundary(args, work):
+    rows = []
+    print("| volume | R | faces exact / planar | RMS % exact / planar | Hausdorff % exact / planar | boundary edges exact / planar | at exact's face count: planar RMS % / Hausdorff % |")
+    print("|---|---|---|---|---|---|---|")
+    for v in args.volumes.split(","):
+        for r in [float(x) for x in args.rates.split(",")]:
+            e = run(args.bin, work, v, r, 'boundary = "exact"')
+            p = run(args.bin, work, v, r)
+            same = None
+            if e["faces"] > 1.02 * p["faces"]:
+                same = run(args.bin, work, v, e["faces"] / p["faces_in"])
+            rows.append(dict(exact=e, planar=p, planar_at_exact_faces=same))
+            at = "" if same is None else f"{same['rms']:.4f} / {same['haus']:.3f} ({same['faces']} faces)"
+            print(f"| {v} | {r} | {e['faces']} / {p['faces']} | {e['rms']:.4f} / {p['rms']:.4f} ({p['rms'] / e['rms']:.2f}) "
+                  f"| {e['haus']:.3f} / {p['haus']:.3f} ({p['haus'] / e['haus']:.2f}) "
+                  f"| {e['quality']['boundary_edges']} / {p['quality']['boundary_edges']} | {at} |", flush=True)
+    return rows
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["rates", "fig7", "validity"])
+    p.add_argument("what", choices=["rates", "fig7", "validity", "boundary"])
     p.add_argument("--bin", default=str(ROOT / "target" / "release" / "isostream"))
     p.add_argument("--volumes", default="engine,bonsai,aneurism,mni152,stent",
                    help=f"comma list of {','.join(VOLUMES)}, or all")
@@ -185,7 +208,7 @@ def main():
         args.volumes = ",".join(VOLUMES)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    rows = {"rates": rates, "fig7": fig7, "validity": validity}[args.what](args, work)
+    rows = {"rates": rates, "fig7": fig7, "validity": validity, "boundary": boundary}[args.what](args, work)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
 
