@@ -588,12 +588,12 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -
 /// The rate target missed by more than 2 %: say by how much and why. Every contraction keeps the
 /// topology (the link condition keeps each closed component at least a tetrahedron, and boundary
 /// vertices stay on the box's faces: all of them with `boundary = "exact"`), so a surface of many
-/// small components or a long boundary (a volume cut by its box) cannot go below a floor; the final pass stops there, having tried
-/// every edge it still holds again. What the last simplifier retired for the memory budget
-/// (`forced`: vertices) left before it could be taken that far: then the budget, not only the
-/// topology, kept the count up (bonsai upsampled to 1021^3, `faces = 10000`, two stages: 87,307
-/// faces at 128 MiB with 37 k vertices retired early, 49,813 at 256 MiB with none), and the
-/// warning says so.
+/// small components or a long boundary (a volume cut by its box) cannot go below a floor; the
+/// final pass stops there, having tried every edge it still holds again. What the last
+/// simplifier retired for the memory budget (`forced`: vertices) left before it could be taken
+/// that far: then the budget, not only the topology, kept the count up (bonsai upsampled to
+/// 1021^3, `faces = 10000`, two stages: 87,307 faces at 128 MiB with 37 k vertices retired
+/// early, 49,813 at 256 MiB with none), and the warning says so.
 fn rate_missed(
     target: u64,
     written: u64,
@@ -621,8 +621,7 @@ fn rate_missed(
             "rate target missed: {written} faces written for a target of {target} (+{:.0} %); \
              {cause}: the remaining edges were refused by the link condition ({} times: closed \
              components stay at least tetrahedra, the box's cut stays on its faces), by flips \
-             ({}) and \
-             by the self-intersection guard ({}){hint}",
+             ({}) and by the self-intersection guard ({}){hint}",
             100.0 * (written as f64 / target.max(1) as f64 - 1.0),
             stats.rejected_link,
             stats.rejected_flip,

@@ -26,11 +26,12 @@
 //!   boundary vertices never move off it. An interior vertex may merge into a boundary vertex's
 //!   position; two boundary vertices only along a boundary edge, into one endpoint. With
 //!   [`Boundary::Exact`] the removed one must sit on a straight piece of boundary, so the
-//!   polyline keeps its exact shape (shards to be stitched need that); with
-//!   [`Boundary::Planar`] (the default) it may also sit on a curve lying in one axis-aligned
-//!   plane with its neighbours (a face of the box), costed by boundary quadrics, so the cut is
-//!   simplified within the box face. Exact boundaries were the floor of every open surface at
-//!   low rates: bonsai asked for 10,000 faces kept 26,897 (its cut alone has 11 k edges).
+//!   polyline keeps its exact shape (shards to be stitched need that; the default of
+//!   [`SimplifyConfig::new`], which knows no box); with [`Boundary::Planar`] (the pipeline's
+//!   default, given the grid's box) it may also lie on a curve, on one face of the box with both
+//!   its boundary neighbours, costed by boundary quadrics, so the cut is simplified within the
+//!   box's faces. Exact boundaries were the floor of every open surface at low rates: bonsai
+//!   asked for 10,000 faces wrote 26,871 (its cut alone has 11 k edges).
 //!   Closed surfaces are not restricted (`topology::sites`).
 //! * **Tiny components**: the full link condition (vertices, edges and the boundary vertex `ω`)
 //!   never lets a closed component drop below a tetrahedron (4 triangles) nor an open one lose

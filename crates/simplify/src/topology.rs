@@ -237,7 +237,7 @@ pub enum Boundary {
     /// `cost::output_precision`), so the shortened cut stays on that face; where the cut turns
     /// from one face to another it stays put. The removal is costed by boundary quadrics: for
     /// each boundary edge, the plane through it perpendicular to its triangle, weighted by its
-    /// squared length (Garland and Heckbert 1997, section 6), so straight and gently curved
+    /// squared length (Garland and Heckbert 1997, "preserving boundaries"), so straight and gently curved
     /// stretches of the cut go first.
     Planar { lo: DVec3, hi: DVec3 },
 }
