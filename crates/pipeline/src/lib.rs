@@ -609,7 +609,7 @@ fn rate_missed(
             }
         };
         let cause = if forced == 0 {
-            "the topology allows no fewer here".to_string()
+            "the topology and geometry checks allow no fewer here".to_string()
         } else {
             format!(
                 "the memory budget retired {forced} vertices before the target was reached, so \
@@ -714,7 +714,10 @@ mod tests {
             "within 2 %"
         );
         let floor = rate_missed(1000, 1500, &stats, 0, false).unwrap();
-        assert!(floor.contains("+50 %") && floor.contains("the topology allows no fewer"));
+        assert!(
+            floor.contains("+50 %")
+                && floor.contains("the topology and geometry checks allow no fewer")
+        );
         assert!(!floor.contains("memory_budget_mib"), "{floor}");
         let budget = rate_missed(1000, 1500, &stats, 37, true).unwrap();
         assert!(
