@@ -142,19 +142,26 @@ def plot(results: list, counts: list, path: Path) -> None:
         cg = [r["gvoxels"] for r in counts]
         a.plot(cg, [r["peak_rss_mib"] for r in counts], "s--", label="first pass only (read, upsample, skip, extract)")
         b.plot(cg, [r["count_seconds"] / r["gvoxels"] for r in counts], "s--", label="first pass only")
-    # One curve per memory budget; a size run again replaces its earlier result.
-    curves = {}
-    for r in results:
-        curves.setdefault(r.get("memory_budget_mib"), {})[r["factor"]] = r
-    for budget, by_factor in sorted(curves.items(), key=lambda c: c[0] or 0):
-        runs = sorted(by_factor.values(), key=lambda r: r["gvoxels"])
-        label = f"whole run, budget {budget} MiB" if budget else "whole run, default budget"
-        rg = [r["gvoxels"] for r in runs]
-        a.plot(rg, [r["peak_rss_mib"] for r in runs], "o-", label=label)
-        b.plot(rg, [r["seconds_per_gvoxel"] for r in runs], "o-", label=f"{label} (both passes)")
+    # One curve per memory budget; a size run again replaces its earlier result. A row marked
+    # `"contended"` (its run shared the cores with other work) counts for memory, not for time.
+    def curves(rows):
+        by_budget = {}
+        for r in rows:
+            by_budget.setdefault(r.get("memory_budget_mib"), {})[r["factor"]] = r
+        return {k: sorted(v.values(), key=lambda r: r["gvoxels"]) for k, v in by_budget.items()}
+
+    def label(budget):
+        return f"whole run, budget {budget} MiB" if budget else "whole run, default budget"
+
+    for budget, runs in sorted(curves(results).items(), key=lambda c: c[0] or 0):
+        a.plot([r["gvoxels"] for r in runs], [r["peak_rss_mib"] for r in runs], "o-", label=label(budget))
         for r in runs:
             a.annotate("x".join(str(d) for d in r["dims"]), (r["gvoxels"], r["peak_rss_mib"]),
                        fontsize=7, textcoords="offset points", xytext=(4, 4))
+    timed = [r for r in results if not r.get("contended")]
+    for budget, runs in sorted(curves(timed).items(), key=lambda c: c[0] or 0):
+        b.plot([r["gvoxels"] for r in runs], [r["seconds_per_gvoxel"] for r in runs], "o-",
+               label=f"{label(budget)} (both passes)")
     a.set_xscale("log")
     a.set_ylim(bottom=0)
     a.set_xlabel("Gvoxels (upsampled)")
