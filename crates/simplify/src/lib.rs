@@ -115,6 +115,14 @@ const SECOND_STAGE_FLOOR: usize = 3;
 
 /// Whatever the sweep front holds, `1 / FRONT_ROOM_SHARE` of the face budget stays for the
 /// surface behind it (see [`Simplifier::budget`]).
+
+/// A boundary quadric's weight per squared edge length ([`Boundary::Planar`]). The boundary's
+/// edges keep their full-resolution lengths in the sum while faces grow, so with 1 the cut
+/// became cheap to move late in a run: engine in core at R = 0.2 had a Hausdorff distance of
+/// 0.099 % of the diagonal against 0.061 % with the exact rule. 10 brings it to 0.063 %, and at
+/// R = 0.01 it is also closer than 1 (stent: RMS 0.50 -> 0.42 %, Hausdorff 6.8 -> 4.8 %;
+/// engine Hausdorff 0.90 -> 0.83 %); 100 keeps 1.7x the boundary edges for no better RMS.
+const BOUNDARY_WEIGHT: f64 = 10.0;
 const FRONT_ROOM_SHARE: usize = 2;
 
 /// Everything a [`Simplifier`] needs, given at once to [`Simplifier::new`], which validates it:
@@ -627,7 +635,7 @@ impl Simplifier {
             let normal = (p[1] - p[0]).cross(p[2] - p[0]);
             let m = edge.cross(normal).normalize_or_zero();
             if m != DVec3::ZERO {
-                q += Quadric::plane(m, -m.dot(v.pos), edge.length_squared());
+                q += Quadric::plane(m, -m.dot(v.pos), BOUNDARY_WEIGHT * edge.length_squared());
             }
         }
         if let Some(v) = self.store.vertex_mut(id) {
