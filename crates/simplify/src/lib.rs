@@ -115,6 +115,7 @@ const SECOND_STAGE_FLOOR: usize = 3;
 
 /// Whatever the sweep front holds, `1 / FRONT_ROOM_SHARE` of the face budget stays for the
 /// surface behind it (see [`Simplifier::budget`]).
+const FRONT_ROOM_SHARE: usize = 2;
 
 /// A boundary quadric's weight per squared edge length ([`Boundary::Planar`]). The boundary's
 /// edges keep their full-resolution lengths in the sum while faces grow, so with 1 the cut
@@ -123,7 +124,6 @@ const SECOND_STAGE_FLOOR: usize = 3;
 /// R = 0.01 it is also closer than 1 (stent: RMS 0.50 -> 0.42 %, Hausdorff 6.8 -> 4.8 %;
 /// engine Hausdorff 0.90 -> 0.83 %); 100 keeps 1.7x the boundary edges for no better RMS.
 const BOUNDARY_WEIGHT: f64 = 10.0;
-const FRONT_ROOM_SHARE: usize = 2;
 
 /// Everything a [`Simplifier`] needs, given at once to [`Simplifier::new`], which validates it:
 /// there is no setter that must come "before the first vertex".
