@@ -236,9 +236,9 @@ pub enum Boundary {
     /// of the box `[lo, hi]` with both its boundary neighbours (coordinates as written, see
     /// `cost::output_precision`), so the shortened cut stays on that face; where the cut turns
     /// from one face to another it stays put. The removal is costed by boundary quadrics: for
-    /// each boundary edge, the plane through it perpendicular to its triangle, weighted by its
-    /// squared length (Garland and Heckbert 1997, "preserving boundaries"), so straight and gently curved
-    /// stretches of the cut go first.
+    /// each boundary edge, the plane through it perpendicular to its triangle, weighted by
+    /// `BOUNDARY_WEIGHT` times its squared length (Garland and Heckbert 1997, "preserving
+    /// boundaries"), so straight and gently curved stretches of the cut go first.
     Planar { lo: DVec3, hi: DVec3 },
 }
 
