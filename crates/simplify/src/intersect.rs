@@ -136,11 +136,76 @@ impl Aabb {
 #[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Entry {
     r: u32,
-    /// The box within the cell in 1/256 of the cell, low corner then high (see [`Quantized`]).
-    q: Quantized,
-    /// Bit `k` set when the record's box starts in this cell along axis `k` (the query's
-    /// one-cell rule).
-    first: u8,
+    /// The quantized box and the first-cell bits, packed for [`meets`] (two words keep the
+    /// entry at 12 bytes; a `u64` would align it to 16).
+    key: [u32; 2],
+}
+
+impl Entry {
+    fn new(r: u32, q: &Quantized, first: u8) -> Self {
+        let key = pack(q, first);
+        Self {
+            r,
+            key: [key as u32, (key >> 32) as u32],
+        }
+    }
+
+    fn key(&self) -> u64 {
+        u64::from(self.key[0]) | (u64::from(self.key[1]) << 32)
+    }
+}
+
+/// Lanes of an entry's key and of a query's probe, compared all at once by [`meets`]: the key
+/// holds `hi[k]`, `255 - lo[k]` (9-bit lanes) and the first-cell bit `k` (2-bit lanes); the
+/// probe holds the query's `lo[k]`, `255 - hi[k]` and the bits the one-cell rule needs. Every
+/// key lane at least its probe lane is exactly "the quantized boxes meet and the record's
+/// first cell is this one along the needed axes". The cell scan is the guard's largest loop
+/// (about 230 entries per query on bonsai at R = 0.2): branch-free, it is four instructions
+/// an entry.
+const BOX_LANE: u32 = 9;
+const BIT_LANE: u32 = 2;
+const BITS_AT: u32 = 6 * BOX_LANE;
+/// The top bit of every lane.
+const GUARD: u64 = {
+    let mut g = 0u64;
+    let mut k = 0;
+    while k < 6 {
+        g |= 1 << (k * BOX_LANE + BOX_LANE - 1);
+        k += 1;
+    }
+    while k < 9 {
+        g |= 1 << (BITS_AT + (k - 6) * BIT_LANE + BIT_LANE - 1);
+        k += 1;
+    }
+    g
+};
+
+/// Lanes `hi, 255 - lo, bits` or `lo, 255 - hi, bits` (see [`GUARD`]).
+fn lanes(x: [u8; 3], y: [u8; 3], bits: u8) -> u64 {
+    let mut w = 0u64;
+    for k in 0..3 {
+        w |= u64::from(x[k]) << (k as u32 * BOX_LANE);
+        w |= u64::from(255 - y[k]) << ((k as u32 + 3) * BOX_LANE);
+        w |= u64::from((bits >> k) & 1) << (BITS_AT + k as u32 * BIT_LANE);
+    }
+    w
+}
+
+/// An entry's key: its quantized box `q` and its first-cell bits.
+fn pack(q: &Quantized, first: u8) -> u64 {
+    lanes([q[3], q[4], q[5]], [q[0], q[1], q[2]], first)
+}
+
+/// A query's probe in one cell: its quantized box `q` and the first-cell bits it needs.
+fn probe(q: &Quantized, need: u8) -> u64 {
+    lanes([q[0], q[1], q[2]], [q[3], q[4], q[5]], need)
+}
+
+/// Whether every lane of `key` is at least that of `probe`: with the guard bit set, a lane's
+/// difference stays positive (no borrow reaches the next lane) and keeps that bit exactly when
+/// the key's lane is not smaller.
+fn meets(key: u64, probe: u64) -> bool {
+    ((key | GUARD) - probe) & GUARD == GUARD
 }
 
 /// A box clipped to one cell in 1/256 of the cell: `[lo; 3]`, `[hi; 3]`. Every step from the
@@ -155,11 +220,6 @@ type Scaled = [i64; 6];
 fn clip(s: &Scaled, c: Cell) -> Quantized {
     let q = |i: usize| (s[i] - 256 * i64::from(c[i % 3])).clamp(0, 255) as u8;
     [q(0), q(1), q(2), q(3), q(4), q(5)]
-}
-
-/// Whether two quantized boxes (of the same cell) may meet.
-fn quantized_meet(a: &Quantized, b: &Quantized) -> bool {
-    (0..3).all(|k| a[k] <= b[k + 3] && a[k + 3] >= b[k])
 }
 
 /// Where a record is filed: its level, cell range and place in the level's record list.
@@ -380,9 +440,9 @@ impl TriIndex {
                         // query's first. (`key` is monotonic, so the cell of the larger corner
                         // is the larger of the two corners' cells.)
                         let need = !first_bits(clo, c) & 0b111;
-                        let q = clip(&scaled, c);
+                        let probe = probe(&clip(&scaled, c), need);
                         for e in list {
-                            if e.first & need == need && quantized_meet(&e.q, &q) {
+                            if meets(e.key(), probe) {
                                 meet(e.r);
                             }
                         }
@@ -513,11 +573,7 @@ impl TriIndex {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
-                    let e = Entry {
-                        r,
-                        q: clip(&scaled, c),
-                        first: first_bits(lo, c),
-                    };
+                    let e = Entry::new(r, &clip(&scaled, c), first_bits(lo, c));
                     self.cells.entry((l, c)).or_default().push(e);
                 }
             }
@@ -555,11 +611,11 @@ impl TriIndex {
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
-                    let q = clip(&scaled, [x, y, z]);
-                    if let Some(list) = self.cells.get_mut(&(f.level, [x, y, z]))
+                    let c = [x, y, z];
+                    if let Some(list) = self.cells.get_mut(&(f.level, c))
                         && let Some(e) = list.iter_mut().find(|e| e.r == r)
                     {
-                        e.q = q;
+                        *e = Entry::new(r, &clip(&scaled, c), first_bits(lo, c));
                     }
                 }
             }
@@ -859,6 +915,24 @@ mod tests {
         assert_eq!(ix.levels.iter().map(Vec::len).sum::<usize>(), 1);
     }
 
+    /// The plain test the packed [`meets`] replaces: two quantized boxes of a cell meet.
+    fn quantized_meet(a: &Quantized, b: &Quantized) -> bool {
+        (0..3).all(|k| a[k] <= b[k + 3] && a[k + 3] >= b[k])
+    }
+
+    proptest! {
+        #[test]
+        fn the_packed_test_is_the_box_and_first_cell_test(
+            a in prop::array::uniform6(0u8..=255),
+            b in prop::array::uniform6(0u8..=255),
+            first in 0u8..8,
+            need in 0u8..8,
+        ) {
+            let plain = first & need == need && quantized_meet(&a, &b);
+            prop_assert_eq!(meets(pack(&a, first), probe(&b, need)), plain);
+        }
+    }
+
     fn a_box() -> impl Strategy<Value = Aabb> {
         let corner = || prop::array::uniform3(-50.0f32..50.0);
         (corner(), prop::array::uniform3(0.0f32..8.0)).prop_map(|(lo, size)| {
@@ -891,6 +965,7 @@ mod tests {
             }
             let (qa, qb) = (clip(&ix.scaled(level, &a), c), clip(&ix.scaled(level, &b), c));
             prop_assert!(quantized_meet(&qa, &qb));
+            prop_assert!(meets(pack(&qa, 0), probe(&qb, 0)));
         }
     }
 
