@@ -307,10 +307,12 @@ fn feed_stages(
         .iter()
         .map(|&p| coord(p))
         .fold(f64::INFINITY, f64::min);
+    // Ranks from 1: slab 0 stays empty, so that a front one below the lowest rank still to
+    // come is never negative.
     let rank: Vec<u32> = mesh
         .pos
         .iter()
-        .map(|&p| ((coord(p) - min) / sweep.slab).floor() as u32)
+        .map(|&p| ((coord(p) - min) / sweep.slab).floor() as u32 + 1)
         .collect();
     let mut order: Vec<usize> = (0..mesh.pos.len()).collect();
     order.sort_by(|&a, &b| {
@@ -322,13 +324,20 @@ fn feed_stages(
     for (k, &v) in order.iter().enumerate() {
         id[v] = k as u64;
     }
-    // Slab `k`'s triangles lie below the plane `coord = min + (k + 1) * slab` (harness triangles
-    // may also reach back, unlike marching cubes'), and `end_batch(k)` follows them.
+    // Slab `k`'s triangles lie below the plane `coord = min + k * slab`, rank `k`'s plane. Unlike
+    // marching cubes', harness triangles may reach back: a slab thinner than the mesh's cells,
+    // or not aligned with them, delivers triangles whose lowest corner lies slabs behind. The
+    // simplifier relies on what is still to come lying beyond its front (`Sweep`), so a
+    // cascade's batches close with the front below the lowest corner of every triangle not yet
+    // delivered (at most `k`): with `k` alone, a later triangle reaching back crossed a fan the
+    // first stage had contracted around its still incomplete corner (found by the cascade
+    // property test, which counts crossings). Single runs keep the front at `k`: their tests
+    // count no crossings, and the memory-budget tests measure what the band holds at `k`.
     let mut direction = DVec3::ZERO;
     direction[sweep.axis] = if sweep.reverse { -1.0 } else { 1.0 };
     config.sweep = Some(isostream_simplify::Sweep {
         direction,
-        origin: min + sweep.slab,
+        origin: min,
         spacing: sweep.slab,
     });
     let mut second = second.map(|c| {
@@ -349,40 +358,58 @@ fn feed_stages(
             remaining[v as usize] += 1;
         }
     }
+    let chunks_of = |tris: &[[u32; 3]]| -> Vec<Vec<[u32; 3]>> {
+        let per_batch = tris.len().div_ceil(sweep.batches_per_slab).max(1);
+        let mut chunks: Vec<Vec<[u32; 3]>> = tris.chunks(per_batch).map(<[_]>::to_vec).collect();
+        if chunks.is_empty() {
+            chunks.push(Vec::new());
+        }
+        chunks
+    };
+    let batches: Vec<(usize, Vec<[u32; 3]>)> = tris_by_slab
+        .iter()
+        .enumerate()
+        .flat_map(|(k, tris)| chunks_of(tris).into_iter().map(move |c| (k, c)))
+        .collect();
+    // The lowest rank among the corners of the triangles after each batch.
+    let mut still_to_come = vec![u32::MAX; batches.len()];
+    for i in (0..batches.len().saturating_sub(1)).rev() {
+        let next = batches[i + 1].1.iter().flatten().map(|&v| rank[v as usize]);
+        still_to_come[i] = next.fold(still_to_come[i + 1], u32::min);
+    }
     let mut out = OutBatch::default();
     let mut trace = Vec::new();
     let mut next_vertex = 0;
-    for (k, tris) in tris_by_slab.iter().enumerate() {
+    for (i, (k, chunk)) in batches.iter().enumerate() {
+        let k = *k;
         while next_vertex < order.len() && rank[order[next_vertex]] as usize == k {
             let v = order[next_vertex];
             s.add_vertex(id[v], mesh.pos[v], rank[v], &attr(mesh.pos[v]));
             next_vertex += 1;
         }
-        let per_batch = tris.len().div_ceil(sweep.batches_per_slab).max(1);
-        let mut chunks: Vec<&[[u32; 3]]> = tris.chunks(per_batch).collect();
-        if chunks.is_empty() {
-            chunks.push(&[]);
-        }
-        for chunk in chunks {
-            let mut done = Vec::new();
-            for t in chunk {
-                s.add_triangle(t.map(|v| id[v as usize]));
-                for &v in t {
-                    remaining[v as usize] -= 1;
-                    if remaining[v as usize] == 0 {
-                        done.push(id[v as usize]);
-                    }
+        let mut done = Vec::new();
+        for t in chunk {
+            s.add_triangle(t.map(|v| id[v as usize]));
+            for &v in t {
+                remaining[v as usize] -= 1;
+                if remaining[v as usize] == 0 {
+                    done.push(id[v as usize]);
                 }
             }
-            done.sort_unstable();
-            for v in done {
-                s.set_modifiable(v);
-            }
-            let mut batch = OutBatch::default();
-            s.end_batch(k as u32, &mut batch);
-            pass_on(batch, second.as_mut(), false, &mut out);
-            trace.push(s.stats());
         }
+        done.sort_unstable();
+        for v in done {
+            s.set_modifiable(v);
+        }
+        let mut batch = OutBatch::default();
+        let front = if second.is_some() {
+            (k as u32).min(still_to_come[i].saturating_sub(1))
+        } else {
+            k as u32
+        };
+        s.end_batch(front, &mut batch);
+        pass_on(batch, second.as_mut(), false, &mut out);
+        trace.push(s.stats());
     }
     let mut batch = OutBatch::default();
     s.finish(&mut batch);
