@@ -358,19 +358,15 @@ fn feed_stages(
             remaining[v as usize] += 1;
         }
     }
-    let chunks_of = |tris: &[[u32; 3]]| -> Vec<Vec<[u32; 3]>> {
+    // Each slab in `batches_per_slab` batches (an empty slab still closes one).
+    let mut batches: Vec<(usize, &[[u32; 3]])> = Vec::new();
+    for (k, tris) in tris_by_slab.iter().enumerate() {
         let per_batch = tris.len().div_ceil(sweep.batches_per_slab).max(1);
-        let mut chunks: Vec<Vec<[u32; 3]>> = tris.chunks(per_batch).map(<[_]>::to_vec).collect();
-        if chunks.is_empty() {
-            chunks.push(Vec::new());
+        batches.extend(tris.chunks(per_batch).map(|c| (k, c)));
+        if tris.is_empty() {
+            batches.push((k, &[]));
         }
-        chunks
-    };
-    let batches: Vec<(usize, Vec<[u32; 3]>)> = tris_by_slab
-        .iter()
-        .enumerate()
-        .flat_map(|(k, tris)| chunks_of(tris).into_iter().map(move |c| (k, c)))
-        .collect();
+    }
     // The lowest rank among the corners of the triangles after each batch.
     let mut still_to_come = vec![u32::MAX; batches.len()];
     for i in (0..batches.len().saturating_sub(1)).rev() {
@@ -380,8 +376,7 @@ fn feed_stages(
     let mut out = OutBatch::default();
     let mut trace = Vec::new();
     let mut next_vertex = 0;
-    for (i, (k, chunk)) in batches.iter().enumerate() {
-        let k = *k;
+    for (i, &(k, chunk)) in batches.iter().enumerate() {
         while next_vertex < order.len() && rank[order[next_vertex]] as usize == k {
             let v = order[next_vertex];
             s.add_vertex(id[v], mesh.pos[v], rank[v], &attr(mesh.pos[v]));
