@@ -62,8 +62,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// entries; 6: the second simplifier's view of the first's resident faces, for the shared
 /// budget; 7: the guard's records with their query mark, without boxes; 8: without the mark;
 /// 9: vertex flags beside the slot generations; 10: the boundary rule in the simplifier's
-/// configuration; 11: the guard's cell entries packed for the branch-free test).
-const FORMAT: u32 = 11;
+/// configuration; 11: the guard's cell entries packed for the branch-free test; 12: the
+/// candidate queue in buckets of cost).
+const FORMAT: u32 = 12;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

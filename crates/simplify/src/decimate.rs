@@ -136,7 +136,7 @@ impl Simplifier {
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
-    fn next_is_coincident(&self) -> bool {
+    fn next_is_coincident(&mut self) -> bool {
         self.candidates.peek().is_some_and(|c| c.cost == COINCIDENT)
     }
 

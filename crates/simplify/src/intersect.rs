@@ -116,6 +116,17 @@ impl Aabb {
         !(self.lo.cmpgt(o.hi).any() || self.hi.cmplt(o.lo).any())
     }
 
+    /// [`Aabb::overlaps`] without branches, for loops over many boxes (the same answer for
+    /// boxes of finite corners, which every triangle's are).
+    fn meets(&self, o: &Self) -> bool {
+        (self.lo.x <= o.hi.x)
+            & (self.lo.y <= o.hi.y)
+            & (self.lo.z <= o.hi.z)
+            & (self.hi.x >= o.lo.x)
+            & (self.hi.y >= o.lo.y)
+            & (self.hi.z >= o.lo.z)
+    }
+
     fn union(&self, o: &Self) -> Self {
         Self {
             lo: self.lo.min(o.lo),
@@ -389,17 +400,37 @@ impl TriIndex {
                 }
             }
         }
+        // The fan's boxes side by side: a record is compared with all of them branch-free, and
+        // only the fan triangles whose box meets its own are tested exactly.
+        let fan_boxes: SmallVec<[Aabb; 24]> = fan.iter().map(|(_, b)| *b).collect();
         let hits = |r: u32| {
             let rec = &self.recs[r as usize];
             let rb = rec.aabb();
             if !rb.overlaps(&union) {
                 return false;
             }
-            let other = Tri64::new(rec.v, rec.p.map(|x| x.as_dvec3()));
-            // Every fan triangle starts at the new vertex: its side of `other` once per record.
-            let apex = other.side(pos);
-            fan.iter()
-                .any(|(t, fb)| fb.overlaps(&rb) && crosses_fan(t, apex, &other))
+            let mut other = None;
+            for (chunk, boxes) in fan_boxes.chunks(64).enumerate() {
+                let mut mask = boxes
+                    .iter()
+                    .enumerate()
+                    .fold(0u64, |m, (i, fb)| m | (u64::from(fb.meets(&rb)) << i));
+                while mask != 0 {
+                    let i = 64 * chunk + mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    // Every fan triangle starts at the new vertex: its side of the record's
+                    // plane once per record.
+                    let (o, apex) = other.get_or_insert_with(|| {
+                        let o = Tri64::new(rec.v, rec.p.map(|x| x.as_dvec3()));
+                        let apex = o.side(pos);
+                        (o, apex)
+                    });
+                    if crosses_fan(&fan[i].0, *apex, o) {
+                        return true;
+                    }
+                }
+            }
+            false
         };
         // The records to test are gathered first and read after: each is a cache miss, and
         // reads issued together overlap where a test per record waited for each in turn.
@@ -409,6 +440,7 @@ impl TriIndex {
                 met.push(r);
             }
         };
+        let mut lists: SmallVec<[(&[Entry], u64); 32]> = SmallVec::new();
         for level in 0..LEVELS {
             let count = self.levels.get(level).map_or(0, Vec::len);
             if count == 0 {
@@ -440,13 +472,21 @@ impl TriIndex {
                         // query's first. (`key` is monotonic, so the cell of the larger corner
                         // is the larger of the two corners' cells.)
                         let need = !first_bits(clo, c) & 0b111;
-                        let probe = probe(&clip(&scaled, c), need);
-                        for e in list {
-                            if meets(e.key(), probe) {
-                                meet(e.r);
-                            }
-                        }
+                        lists.push((list.as_slice(), probe(&clip(&scaled, c), need)));
                     }
+                }
+            }
+        }
+        // The cells' lists are found first and scanned after, for the same reason as the
+        // records below: each list's first entries are a cache miss.
+        let first_keys = lists.iter().fold(0, |acc, (list, _)| {
+            acc ^ list.first().map_or(0, |e| e.key[0])
+        });
+        std::hint::black_box(first_keys);
+        for (list, probe) in &lists {
+            for e in *list {
+                if meets(e.key(), *probe) {
+                    meet(e.r);
                 }
             }
         }

@@ -111,10 +111,13 @@ pub(crate) fn segment_bounds(values: &[f32]) -> (f32, f32) {
     let mut lo = f32::INFINITY;
     let mut hi = f32::NEG_INFINITY;
     let mut finite = true;
+    // Compare-and-select rather than `f32::min`/`max`, whose NaN rule keeps the loop from
+    // vectorizing (two thirds of the extraction thread's bounds time); a NaN is caught by
+    // `finite` either way.
     for &v in values {
         finite &= v.is_finite();
-        lo = lo.min(v);
-        hi = hi.max(v);
+        lo = if v < lo { v } else { lo };
+        hi = if v > hi { v } else { hi };
     }
     if finite {
         (lo, hi)
