@@ -11,7 +11,7 @@
 //! * `topology`: link condition, boundary rule, no-flip/no-degenerate checks;
 //! * `cost`: cost and placement of one contraction, per objective (the policy hook);
 //! * `policy`: the public [`Policy`] and when/how far to decimate (Hou and Chen 4.2, Tandem);
-//! * `candidates`: the lazy edge heap and the time-lag waiting queue;
+//! * `candidates`: the lazily invalidated edge queue (buckets of cost) and the time-lag queue;
 //! * `decimate`: the one contraction loop;
 //! * `intersect`: spatial hash of the resident triangles; rejects contractions whose new fan
 //!   would cross another sheet (thin structures, touching surfaces);
