@@ -360,7 +360,10 @@ impl TriIndex {
         if self.cell == 0.0 {
             self.fix_cell();
         }
-        let mut fan: SmallVec<[(Tri64, Aabb); 24]> = SmallVec::new();
+        let mut fan: SmallVec<[Tri64; 24]> = SmallVec::new();
+        // The fan's boxes side by side: a record is compared with all of them branch-free, and
+        // only the fan triangles whose box meets its own are tested exactly.
+        let mut fan_boxes: SmallVec<[Wide; 24]> = SmallVec::new();
         // The old patch's records: replaced, so no obstacles. Known by number here, from the
         // dense `of_tri`, they are passed over without reading them (a third of the records a
         // query meets, each a cache miss).
@@ -388,7 +391,8 @@ impl TriIndex {
                 ];
                 let bx = Aabb::of(&p.map(|x| x.as_vec3()));
                 union = union.union(&bx);
-                fan.push((Tri64::new(v, p), bx));
+                fan.push(Tri64::new(v, p));
+                fan_boxes.push(Wide::of(&bx));
             }
         }
         if fan.is_empty() {
@@ -399,7 +403,7 @@ impl TriIndex {
         // neighbours too, but proving them costs more than the pair tests they save.)
         let fan_spokes: SmallVec<[Spoke; 24]> = fan
             .iter()
-            .map(|(t, _)| Spoke {
+            .map(|t| Spoke {
                 s: t.v[1],
                 e: t.v[2],
                 ps: t.p[1],
@@ -407,15 +411,12 @@ impl TriIndex {
             })
             .collect();
         if !star::embedded(pos, &fan_spokes) {
-            for (i, (t, _)) in fan.iter().enumerate() {
-                if fan[..i].iter().any(|(u, _)| cross(t, u)) {
+            for (i, t) in fan.iter().enumerate() {
+                if fan[..i].iter().any(|u| cross(t, u)) {
                     return true;
                 }
             }
         }
-        // The fan's boxes side by side: a record is compared with all of them branch-free, and
-        // only the fan triangles whose box meets its own are tested exactly.
-        let fan_boxes: SmallVec<[Wide; 24]> = fan.iter().map(|(_, b)| Wide::of(b)).collect();
         let hits = |r: u32| {
             let rec = &self.recs[r as usize];
             let rb = rec.aabb();
@@ -439,7 +440,7 @@ impl TriIndex {
                         let apex = o.side(pos);
                         (o, apex)
                     });
-                    if crosses_fan(&fan[i].0, *apex, o) {
+                    if crosses_fan(&fan[i], *apex, o) {
                         return true;
                     }
                 }
