@@ -161,8 +161,8 @@ fn shape_measure(q: &Quadric, w: f64, c: DVec3) -> f64 {
 fn isotropy_quadric(store: &Store, a: u64, b: u64) -> (Quadric, f64) {
     let mut g = Quadric::default();
     let mut area = 0.0;
-    for t in topology::patch(store, a, b) {
-        let p = store.corners(store.tri(t));
+    for pt in &topology::Patch::gather(store, a, b).tris {
+        let p = pt.p;
         let w = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).length();
         let centroid = (p[0] + p[1] + p[2]) / 3.0;
         let avg = p
@@ -262,10 +262,9 @@ mod tests {
                 .unwrap()
         };
         let centroid: DVec3 = {
-            let tris = topology::patch(&s, a, b);
             let (mut sum, mut area) = (DVec3::ZERO, 0.0);
-            for t in tris {
-                let p = s.corners(s.tri(t));
+            for pt in &topology::Patch::gather(&s, a, b).tris {
+                let p = pt.p;
                 let w = (p[1] - p[0]).cross(p[2] - p[0]).length();
                 sum += w * (p[0] + p[1] + p[2]) / 3.0;
                 area += w;

@@ -8,7 +8,7 @@ use crate::Simplifier;
 use crate::candidates::Candidate;
 use crate::cost::{COINCIDENT, Eval};
 use crate::store::Store;
-use crate::topology;
+use crate::topology::{self, Patch};
 
 /// How far below its preimage's lowest rank a cascade's first stage may place a vertex (see
 /// `Simplifier::outside_first_stage_room`): a slab, so most quadric optima pass.
@@ -63,50 +63,36 @@ impl Simplifier {
             // again when it comes back (a cascade's second stage, whose front is the first
             // stage's rear, delayed one candidate in two before it gated vertices by their whole
             // star; it still delays more than one stage does).
-            if let Some(reach) = self.beyond_front(c.a, c.b, eval.pos) {
+            let patch = Patch::gather(&self.store, c.a, c.b);
+            if let Some(reach) = self.beyond_front(&patch, eval.pos) {
                 self.stats.delayed_front += 1;
                 self.candidates.delay(c, reach);
             } else if !topology::link_ok(&self.store, c.a, c.b) {
                 self.stats.rejected_link += 1;
-            } else if !topology::geometry_ok(&self.store, c.a, c.b, eval.pos) {
+            } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
                 self.stats.rejected_flip += 1;
             } else if eval.cost != COINCIDENT
                 // Merging coincident vertices moves nothing: any crossing of the new fan existed.
-                && self
-                    .isect
-                    .would_intersect(&self.store, c.a, c.b, c.b, eval.pos)
+                && self.isect.would_intersect(&patch, c.a, c.b, c.b, eval.pos)
             {
                 self.stats.rejected_intersection += 1;
             } else {
-                self.contract(c.a, c.b, eval);
+                self.contract(&patch, c.a, c.b, eval);
             }
         }
     }
 
     /// The rank the front must reach before contracting `a`, `b` to `pos` is safe from the
     /// triangles still to come, when that is beyond the current front: the farthest rank of the
-    /// new fan's corners (the fan lies in their convex hull; see [`crate::Sweep`]).
-    fn beyond_front(&self, a: u64, b: u64, pos: DVec3) -> Option<f64> {
+    /// corners of the new fan and of the `patch` it replaces (the fan lies in the convex hull of
+    /// its corners; see [`crate::Sweep`]).
+    fn beyond_front(&self, patch: &Patch, pos: DVec3) -> Option<f64> {
         let sweep = self.config.sweep?;
-        // The highest corner, then its rank (monotonic in the height): `a` and `b` once, and
-        // their neighbours, rather than every corner of every triangle of both fans.
-        let mut top = sweep.height(pos);
-        for x in [a, b] {
-            let Some(vx) = self.store.vertex(x) else {
-                continue;
-            };
-            top = top.max(sweep.height(vx.pos));
-            for &t in &vx.tris {
-                for y in self.store.tri(t).v {
-                    if y != a
-                        && y != b
-                        && let Some(vy) = self.store.vertex(y)
-                    {
-                        top = top.max(sweep.height(vy.pos));
-                    }
-                }
-            }
-        }
+        let top = patch
+            .tris
+            .iter()
+            .flat_map(|pt| pt.p)
+            .fold(sweep.height(pos), |top, p| top.max(sweep.height(p)));
         let far = sweep.rank_at(top);
         (far > self.front).then_some(far)
     }
@@ -233,12 +219,12 @@ impl Simplifier {
     /// `ab -> c` at `pos`. The younger id `b` survives as `c` (its slot is nearer the front, so the
     /// store's front slot frees sooner); `a` dies. Triangles on `ab` disappear, `a`'s others are
     /// relinked to `b`; orientation is preserved because only the id is replaced.
-    fn contract(&mut self, a: u64, b: u64, eval: Eval) {
+    fn contract(&mut self, patch: &Patch, a: u64, b: u64, eval: Eval) {
         let (gone, keep, pos) = (a, b, eval.pos);
         if self.time_lag && eval.reach > self.front {
             self.stats.lag_violations += 1;
         }
-        let merged = self.merged_data(gone, keep, pos);
+        let merged = self.merged_data(patch, gone, keep, pos);
         let tris = self
             .store
             .vertex(gone)

@@ -41,7 +41,8 @@ use glam::{DVec3, Vec3, Vec3A};
 use rustc_hash::FxHashMap;
 use smallvec::SmallVec;
 
-use crate::store::{Store, TriId};
+use crate::store::TriId;
+use crate::topology::Patch;
 
 mod star;
 
@@ -351,7 +352,7 @@ impl TriIndex {
     /// the new fan cross another triangle (see the module documentation).
     pub(crate) fn would_intersect(
         &mut self,
-        store: &Store,
+        old: &Patch,
         a: u64,
         b: u64,
         keep: u64,
@@ -369,31 +370,23 @@ impl TriIndex {
         // query meets, each a cache miss).
         let mut patch: SmallVec<[u32; 24]> = SmallVec::new();
         let mut union = Aabb::EMPTY;
-        for x in [a, b] {
-            let Some(vx) = store.vertex(x) else { continue };
-            for &t in &vx.tris {
-                if let Some(&r) = self.of_tri.get(t as usize) {
-                    patch.push(r);
-                }
-                let tri = store.tri(t);
-                if tri.contains(a) && tri.contains(b) {
-                    continue; // removed, and in both fans
-                }
-                // Rotated so that the new vertex comes first (a rotation keeps the orientation
-                // and every edge's direction, so the predicates see the same segments).
-                let i = tri.v.iter().position(|&x| x == a || x == b).unwrap_or(0);
-                let v = [tri.v[i], tri.v[(i + 1) % 3], tri.v[(i + 2) % 3]];
-                let v = [keep, v[1], v[2]];
-                let p = [
-                    pos,
-                    store.vertex(v[1]).map_or(DVec3::ZERO, |y| y.pos),
-                    store.vertex(v[2]).map_or(DVec3::ZERO, |y| y.pos),
-                ];
-                let bx = Aabb::of(&p.map(|x| x.as_vec3()));
-                union = union.union(&bx);
-                fan.push(Tri64::new(v, p));
-                fan_boxes.push(Wide::of(&bx));
+        for pt in &old.tris {
+            if let Some(&r) = self.of_tri.get(pt.t as usize) {
+                patch.push(r);
             }
+            if pt.v.contains(&a) && pt.v.contains(&b) {
+                continue; // removed by the contraction
+            }
+            // Rotated so that the new vertex comes first (a rotation keeps the orientation and
+            // every edge's direction, so the predicates see the same segments).
+            let i = pt.v.iter().position(|&x| x == a || x == b).unwrap_or(0);
+            let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+            let v = [keep, pt.v[j], pt.v[k]];
+            let p = [pos, pt.p[j], pt.p[k]];
+            let bx = Aabb::of(&p.map(|x| x.as_vec3()));
+            union = union.union(&bx);
+            fan.push(Tri64::new(v, p));
+            fan_boxes.push(Wide::of(&bx));
         }
         if fan.is_empty() {
             return false;

@@ -12,6 +12,7 @@ use crate::attribute_quadric::{self, AttrQuadric};
 use crate::cost::{COINCIDENT, Eval, Objective};
 use crate::data_dependent;
 use crate::store::Vertex;
+use crate::topology::Patch;
 use crate::{Simplifier, SimplifyError};
 
 /// Order (and for the attribute quadric, placement) of contractions.
@@ -104,7 +105,7 @@ impl Simplifier {
 
     /// Attributes (and attribute quadric) of the vertex replacing `gone` and `keep` at `pos`.
     /// Called before the contraction changes the store.
-    pub(crate) fn merged_data(&self, gone: u64, keep: u64, pos: DVec3) -> Merged {
+    pub(crate) fn merged_data(&self, patch: &Patch, gone: u64, keep: u64, pos: DVec3) -> Merged {
         let (Some(g), Some(k)) = (self.store.vertex(gone), self.store.vertex(keep)) else {
             return Merged {
                 attrs: Box::default(),
@@ -124,7 +125,7 @@ impl Simplifier {
             }
             _ => Merged {
                 attrs: self
-                    .interpolated_in_patch(gone, keep, pos)
+                    .interpolated_in_patch(patch, pos)
                     .unwrap_or_else(|| interpolated(g, k, pos)),
                 attr_quadric: None,
             },
@@ -136,15 +137,14 @@ impl Simplifier {
     /// clamped when `c` is outside them all). Exact for attributes linear in position on flat
     /// patches, wherever the placement went (isotropy moves it off the edge). `None` when the
     /// vertices carry no attributes or the patch has no proper triangle.
-    fn interpolated_in_patch(&self, gone: u64, keep: u64, c: DVec3) -> Option<Box<[f32]>> {
+    fn interpolated_in_patch(&self, patch: &Patch, c: DVec3) -> Option<Box<[f32]>> {
         let m = self.config.attributes;
         if m == 0 {
             return None;
         }
         let mut best: Option<(f64, [u64; 3], [f64; 3])> = None;
-        for t in crate::topology::patch(&self.store, gone, keep) {
-            let tri = self.store.tri(t);
-            let [p0, p1, p2] = self.store.corners(tri);
+        for pt in &patch.tris {
+            let [p0, p1, p2] = pt.p;
             let (e1, e2, d) = (p1 - p0, p2 - p0, c - p0);
             let (a11, a12, a22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
             let det = a11 * a22 - a12 * a12;
@@ -157,7 +157,7 @@ impl Simplifier {
             let w = [1.0 - u - v, u, v];
             let score = w[0].min(w[1]).min(w[2]);
             if best.is_none_or(|(s, _, _)| score > s) {
-                best = Some((score, tri.v, w));
+                best = Some((score, pt.v, w));
             }
         }
         let (score, ids, mut w) = best?;

@@ -266,19 +266,48 @@ pub(crate) enum Sites {
     Fixed([Option<DVec3>; 2]),
 }
 
-/// `T_ab`: the triangles containing `a` or `b` (each once), whose union is the patch replaced by
-/// the contraction.
-pub(crate) fn patch(store: &Store, a: u64, b: u64) -> SmallVec<[TriId; 32]> {
-    let fan = |v: u64| {
-        store
-            .vertex(v)
-            .into_iter()
-            .flat_map(|x| x.tris.iter().copied())
-    };
-    let mut tris: SmallVec<[TriId; 32]> = fan(a).chain(fan(b)).collect();
-    tris.sort_unstable();
-    tris.dedup();
-    tris
+/// One triangle of a [`Patch`]: its slot, corners' ids and positions.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PatchTri {
+    pub(crate) t: TriId,
+    pub(crate) v: [u64; 3],
+    pub(crate) p: [DVec3; 3],
+}
+
+/// `T_ab`: the triangles containing `a` or `b` (each once, by slot), whose union is the patch
+/// replaced by the contraction, with their corners. Gathered from the store once per popped
+/// candidate and shared by the checks that follow (front, flips, guard, attributes): each of them
+/// used to read the same triangles and corners again, about a hundred vertex lookups a
+/// contraction where forty do.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Patch {
+    pub(crate) tris: SmallVec<[PatchTri; 16]>,
+}
+
+impl Patch {
+    pub(crate) fn gather(store: &Store, a: u64, b: u64) -> Self {
+        let fan = |v: u64| {
+            store
+                .vertex(v)
+                .into_iter()
+                .flat_map(|x| x.tris.iter().copied())
+        };
+        let mut ids: SmallVec<[TriId; 32]> = fan(a).chain(fan(b)).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let tris = ids
+            .iter()
+            .map(|&t| {
+                let tri = store.tri(t);
+                PatchTri {
+                    t,
+                    v: tri.v,
+                    p: store.corners(tri),
+                }
+            })
+            .collect();
+        Self { tris }
+    }
 }
 
 /// No surviving triangle of the fans of `a` and `b` may turn its normal by more than about 84
@@ -289,49 +318,51 @@ pub(crate) fn patch(store: &Store, a: u64, b: u64) -> SmallVec<[TriId; 32]> {
 /// steps (marching-cubes vertices either side of a corner valued almost exactly iso, on the
 /// volume box where the boundary rule keeps both) counts as small, and moving its third corner
 /// onto the line of that edge wrote a zero-area triangle (bonsai upsampled 4x, R = 0.0006).
-pub(crate) fn geometry_ok(store: &Store, a: u64, b: u64, pos: DVec3) -> bool {
-    let tris = patch(store, a, b);
+pub(crate) fn geometry_ok(patch: &Patch, a: u64, b: u64, pos: DVec3) -> bool {
     let cross = |p: [DVec3; 3]| (p[1] - p[0]).cross(p[2] - p[0]);
     let mut max_old = 0.0_f64;
     let mut reference = DVec3::ZERO;
-    // Corners, old normal and its length per triangle, read once (the store lookups dominate).
-    type Seen<'a> = (&'a Tri, [DVec3; 3], DVec3, f64);
-    let fan: SmallVec<[Seen; 32]> = tris
+    // Old normal and its length per triangle, computed once.
+    let normals: SmallVec<[(DVec3, f64); 16]> = patch
+        .tris
         .iter()
-        .map(|&t| {
-            let tri = store.tri(t);
-            let old = store.corners(tri);
-            let n = cross(old);
+        .map(|pt| {
+            let n = cross(pt.p);
             let l = n.length();
             max_old = max_old.max(l);
             reference += n;
-            (tri, old, n, l)
+            (n, l)
         })
         .collect();
     let tiny = DEGENERATE_FRACTION * max_old;
-    fan.iter().all(|&(tri, old, n_old, l_old)| {
-        if tri.contains(a) && tri.contains(b) {
-            return true; // removed by the contraction
-        }
-        let mut new = old;
-        for (p, &id) in new.iter_mut().zip(&tri.v) {
-            if id == a || id == b {
-                *p = pos;
+    patch
+        .tris
+        .iter()
+        .zip(&normals)
+        .all(|(pt, &(n_old, l_old))| {
+            if pt.v.contains(&a) && pt.v.contains(&b) {
+                return true; // removed by the contraction
             }
-        }
-        if new == old {
-            return true;
-        }
-        let n_new = cross(new);
-        let l_new = n_new.length();
-        if l_new <= tiny {
-            return l_old <= tiny && (collinear(old, l_old) || !collinear(new, l_new));
-        }
-        if l_old <= tiny {
-            return n_new.dot(reference) > 0.0;
-        }
-        n_old.dot(n_new) > MIN_NORMAL_COS * l_old * l_new
-    })
+            let old = pt.p;
+            let mut new = old;
+            for (p, &id) in new.iter_mut().zip(&pt.v) {
+                if id == a || id == b {
+                    *p = pos;
+                }
+            }
+            if new == old {
+                return true;
+            }
+            let n_new = cross(new);
+            let l_new = n_new.length();
+            if l_new <= tiny {
+                return l_old <= tiny && (collinear(old, l_old) || !collinear(new, l_new));
+            }
+            if l_old <= tiny {
+                return n_new.dot(reference) > 0.0;
+            }
+            n_old.dot(n_new) > MIN_NORMAL_COS * l_old * l_new
+        })
 }
 
 /// `|cross|` (`l`) at most [`COLLINEAR_FRACTION`] of the longest edge squared: a sliver whose
@@ -520,16 +551,20 @@ mod tests {
         assert!(link_ok(&s, 0, 1), "boundary edge of the strip");
     }
 
+    fn flips_ok(s: &Store, a: u64, b: u64, pos: DVec3) -> bool {
+        geometry_ok(&Patch::gather(s, a, b), a, b, pos)
+    }
+
     #[test]
     fn flips_and_degenerates_are_detected() {
         let s = grid();
-        assert!(geometry_ok(&s, 4, 0, DVec3::ZERO));
+        assert!(flips_ok(&s, 4, 0, DVec3::ZERO));
         // Past the left side: triangle 3-4-7 turns over.
-        assert!(!geometry_ok(&s, 4, 5, DVec3::new(-5.0, 1.0, 0.0)));
+        assert!(!flips_ok(&s, 4, 5, DVec3::new(-5.0, 1.0, 0.0)));
         // Far above the plane: normals turn by almost 90 degrees.
-        assert!(!geometry_ok(&s, 4, 5, DVec3::new(1.0, 1.0, 50.0)));
+        assert!(!flips_ok(&s, 4, 5, DVec3::new(1.0, 1.0, 50.0)));
         // Onto vertex 1: triangle 0-1-4 (which survives contracting 4-3) becomes degenerate.
-        assert!(!geometry_ok(&s, 4, 3, DVec3::new(1.0, 0.0, 0.0)));
+        assert!(!flips_ok(&s, 4, 3, DVec3::new(1.0, 0.0, 0.0)));
     }
 
     /// The zero-area triangle of bonsai upsampled 4x (`docs/scale.md`): two marching-cubes
@@ -552,8 +587,8 @@ mod tests {
             &[[0, 1, 3], [1, 2, 3], [3, 2, 4], [3, 4, 5]],
         );
         let c = s.vertex(2).unwrap().pos;
-        assert!(!geometry_ok(&s, 3, 2, c), "A-B-X onto the line of A-B");
+        assert!(!flips_ok(&s, 3, 2, c), "A-B-X onto the line of A-B");
         // Off that line the sliver stays a small, non-collinear triangle: still allowed.
-        assert!(geometry_ok(&s, 3, 2, c + DVec3::new(0.0, 0.5, 0.0)));
+        assert!(flips_ok(&s, 3, 2, c + DVec3::new(0.0, 0.5, 0.0)));
     }
 }
