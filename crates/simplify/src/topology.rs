@@ -276,9 +276,10 @@ pub(crate) struct PatchTri {
 
 /// `T_ab`: the triangles containing `a` or `b` (each once, by slot), whose union is the patch
 /// replaced by the contraction, with their corners. Gathered from the store once per popped
-/// candidate and shared by the checks that follow (front, flips, guard, attributes): each of them
-/// used to read the same triangles and corners again, about a hundred vertex lookups a
-/// contraction where forty do.
+/// candidate and shared by the checks that follow (front, flips, guard, attributes), which
+/// each read the same triangles and corners again before. That was about a hundred vertex
+/// lookups a contraction where forty do, yet callgrind counts the same instructions either way
+/// (engine crop, 5.37 G): the lookups were cheap; what one gather buys is one view of the patch.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Patch {
     pub(crate) tris: SmallVec<[PatchTri; 16]>,
