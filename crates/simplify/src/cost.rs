@@ -7,9 +7,11 @@
 
 use glam::DVec3;
 
+use crate::priority::Priority;
 use crate::quadric::Quadric;
 use crate::store::Store;
 use crate::topology::{self, Boundary, Sites};
+use crate::{attribute_quadric, data_dependent};
 
 /// An optimal placement farther than this many edge lengths from the edge midpoint is treated
 /// like an ill-conditioned one: nearly flat neighbourhoods put the exact minimum far away.
@@ -86,6 +88,67 @@ pub(crate) fn place(
             (p, cost(p))
         })
         .min_by(|x, y| x.1.total_cmp(&y.1))
+}
+
+/// The one contraction evaluator every candidate goes through: the mode's [`Objective`], then
+/// the data-aware [`Priority`] re-ranking it (data-dependent weights) or re-placing it
+/// (attribute quadric), under the boundary rule. Built once from the configuration; the
+/// contraction loop, the queue and the checks never ask which priority runs.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Evaluator {
+    objective: Objective,
+    priority: Priority,
+    boundary: Boundary,
+    /// Physical length of one rank, for the time-lag's patch radius (`Eval::reach`).
+    rank_spacing: f64,
+}
+
+impl Evaluator {
+    pub(crate) fn new(
+        objective: Objective,
+        priority: Priority,
+        boundary: Boundary,
+        rank_spacing: f64,
+    ) -> Self {
+        Self {
+            objective,
+            priority,
+            boundary,
+            rank_spacing,
+        }
+    }
+
+    /// Cost and placement of `ab -> c`; `None` when the edge is no candidate (no admissible
+    /// site, above the error threshold, or no attribute placement within it).
+    pub(crate) fn evaluate(&self, store: &Store, a: u64, b: u64) -> Option<Eval> {
+        let mut eval = self
+            .objective
+            .evaluate(store, (a, b), &self.boundary, self.rank_spacing)?;
+        if eval.cost == COINCIDENT {
+            return Some(eval);
+        }
+        match &self.priority {
+            Priority::Geometric => {}
+            Priority::DataDependent { lambda } => {
+                eval.cost = data_dependent::weight(store, a, *lambda)
+                    + data_dependent::weight(store, b, *lambda);
+            }
+            Priority::AttributeQuadric { weights } => {
+                let e0 = match self.objective {
+                    Objective::Shape { e0, .. } => e0,
+                    Objective::Quadric => f64::INFINITY,
+                };
+                let (pos, cost, shape) = attribute_quadric::place(store, a, b, weights)?;
+                if shape > e0 {
+                    return None;
+                }
+                eval.pos = pos;
+                eval.cost = cost;
+                eval.shape_error = shape;
+            }
+        }
+        Some(eval)
+    }
 }
 
 impl Objective {

@@ -24,6 +24,11 @@ pub(crate) enum Until {
 }
 
 impl Simplifier {
+    /// Cost and placement of `ab -> c` (see [`crate::cost::Evaluator`]).
+    fn evaluate(&self, a: u64, b: u64) -> Option<Eval> {
+        self.evaluator.as_ref()?.evaluate(&self.store, a, b)
+    }
+
     pub(crate) fn reached(&self, until: Until) -> bool {
         match until {
             Until::Resident(target) => self.store.resident() <= target,
@@ -32,9 +37,9 @@ impl Simplifier {
     }
 
     pub(crate) fn decimate(&mut self, until: Until) {
-        let Some(objective) = self.objective else {
+        if self.evaluator.is_none() {
             return;
-        };
+        }
         while !self.reached(until) || self.next_is_coincident() {
             let Some(c) = self.candidates.pop() else {
                 break;
@@ -44,7 +49,7 @@ impl Simplifier {
             }
             // Re-evaluated: the placement is not stored in the heap, and objectives reading the
             // neighbourhood (isotropy) may have changed without a stamp change.
-            let Some(eval) = self.evaluate(objective, c.a, c.b) else {
+            let Some(eval) = self.evaluate(c.a, c.b) else {
                 self.stats.rejected_other += 1;
                 continue;
             };
@@ -149,10 +154,7 @@ impl Simplifier {
         ring: &topology::Ring,
         take: impl Fn(u64) -> bool,
     ) {
-        let Some(objective) = self.objective else {
-            return;
-        };
-        if !self.store.is_free(v) {
+        if self.evaluator.is_none() || !self.store.is_free(v) {
             return;
         }
         for &(n, _) in ring {
@@ -163,7 +165,7 @@ impl Simplifier {
             if !self.span_ok(a, b) {
                 continue;
             }
-            let Some(eval) = self.evaluate(objective, a, b) else {
+            let Some(eval) = self.evaluate(a, b) else {
                 continue;
             };
             let stamps = [a, b].map(|x| self.store.stamp(x));

@@ -9,7 +9,8 @@
 //! * `quadric`: symmetric 4x4 quadrics (Garland and Heckbert 1997);
 //! * `store`: the resident mesh band (vertices by `id - base`, triangle slab);
 //! * `topology`: link condition, boundary rule, no-flip/no-degenerate checks;
-//! * `cost`: cost and placement of one contraction, per objective (the policy hook);
+//! * `cost`: cost and placement of one contraction: the one `Evaluator` (the mode's objective,
+//!   re-ranked or re-placed by the priority; the policy hook);
 //! * `policy`: the public [`Policy`] and when/how far to decimate (Hou and Chen 4.2, Tandem);
 //! * `candidates`: the lazily invalidated edge queue (buckets of cost) and the time-lag queue;
 //! * `decimate`: the one contraction loop;
@@ -102,7 +103,7 @@ pub use priority::Priority;
 pub use topology::Boundary;
 
 use candidates::Candidates;
-use cost::Objective;
+use cost::Evaluator;
 use decimate::Until;
 use policy::{FaceCounts, Schedule};
 use quadric::Quadric;
@@ -330,7 +331,8 @@ pub enum OutElement {
 #[derive(serde::Serialize, serde::Deserialize)]
 pub struct Simplifier {
     config: SimplifyConfig,
-    objective: Option<Objective>,
+    /// Cost and placement of contractions; `None` for policy `none`, which contracts nothing.
+    evaluator: Option<Evaluator>,
     schedule: Schedule,
     time_lag: bool,
     rank_spacing: f64,
@@ -388,15 +390,23 @@ impl Simplifier {
         {
             return Err(SimplifyError::InvalidBoundary);
         }
-        let objective = config.policy.objective();
-        let pass = (objective.is_none() && !config.in_core)
+        let rank_spacing = config.sweep.map_or(1.0, |w| w.spacing);
+        let evaluator = config.policy.objective().map(|objective| {
+            Evaluator::new(
+                objective,
+                config.priority.clone(),
+                config.boundary,
+                rank_spacing,
+            )
+        });
+        let pass = (evaluator.is_none() && !config.in_core)
             .then(|| passthrough::PassThrough::new(config.attributes));
         Ok(Self {
-            objective,
+            evaluator,
             pass,
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
-            rank_spacing: config.sweep.map_or(1.0, |w| w.spacing),
+            rank_spacing,
             config,
             store: Store::default(),
             isect: intersect::TriIndex::default(),
@@ -486,7 +496,7 @@ impl Simplifier {
         }
         // Without an objective (policy `none`) nothing is ever contracted: no quadric, no
         // obstacle for the guard (half of a pass-through run's time went into them).
-        let contracting = self.objective.is_some();
+        let contracting = self.evaluator.is_some();
         // A cascade's second stage receives its vertices' quadrics with them.
         let quadrics = contracting && self.config.cascade != Cascade::Second;
         let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
@@ -585,7 +595,7 @@ impl Simplifier {
         }
         // One ring for the boundary test and the new candidates: nothing changes it between
         // (and neither is needed when nothing is contracted).
-        let ring = if self.objective.is_some() {
+        let ring = if self.evaluator.is_some() {
             topology::ring(&self.store, id)
         } else {
             topology::Ring::new()
@@ -615,7 +625,7 @@ impl Simplifier {
     /// completes, so each edge counts once at each end, like a face. A cascade's second stage
     /// receives the quadrics with the vertices, as for faces.
     fn add_boundary_quadrics(&mut self, id: u64, ring: &topology::Ring) {
-        if self.objective.is_none()
+        if self.evaluator.is_none()
             || self.config.cascade == Cascade::Second
             || !self.config.boundary.is_planar()
         {

@@ -1,16 +1,15 @@
 //! Which edge goes first, and how vertex data merges: the data-aware priorities (issue 5).
 //!
 //! The mode ([`crate::Policy`]: rate, error, tandem time-lag) says how far to decimate; the
-//! [`Priority`] says in which order and, for the attribute quadric, where. Both plug into the one
-//! contraction loop in `decimate` through [`Simplifier::evaluate`] and
-//! [`Simplifier::merged_data`]; every topology and geometry check stays the same.
+//! [`Priority`] says in which order and, for the attribute quadric, where. Both meet in the one
+//! contraction evaluator, [`crate::cost::Evaluator`]; this module keeps what a contraction does
+//! to the vertex data ([`Simplifier::merged_data`]). Every topology and geometry check stays
+//! the same whatever the priority.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-use crate::attribute_quadric::{self, AttrQuadric};
-use crate::cost::{COINCIDENT, Eval, Objective};
-use crate::data_dependent;
+use crate::attribute_quadric::AttrQuadric;
 use crate::store::Vertex;
 use crate::topology::Patch;
 use crate::{Simplifier, SimplifyError};
@@ -65,44 +64,6 @@ pub(crate) struct Merged {
 }
 
 impl Simplifier {
-    pub fn priority(&self) -> &Priority {
-        &self.config.priority
-    }
-
-    /// Cost and placement of `ab -> c`: the objective's, re-ranked or re-placed by the priority.
-    pub(crate) fn evaluate(&self, objective: Objective, a: u64, b: u64) -> Option<Eval> {
-        let mut eval = objective.evaluate(
-            &self.store,
-            (a, b),
-            &self.config.boundary,
-            self.rank_spacing,
-        )?;
-        if eval.cost == COINCIDENT {
-            return Some(eval);
-        }
-        match &self.config.priority {
-            Priority::Geometric => {}
-            Priority::DataDependent { lambda } => {
-                eval.cost = data_dependent::weight(&self.store, a, *lambda)
-                    + data_dependent::weight(&self.store, b, *lambda);
-            }
-            Priority::AttributeQuadric { weights } => {
-                let e0 = match objective {
-                    Objective::Shape { e0, .. } => e0,
-                    Objective::Quadric => f64::INFINITY,
-                };
-                let (pos, cost, shape) = attribute_quadric::place(&self.store, a, b, weights)?;
-                if shape > e0 {
-                    return None;
-                }
-                eval.pos = pos;
-                eval.cost = cost;
-                eval.shape_error = shape;
-            }
-        }
-        Some(eval)
-    }
-
     /// Attributes (and attribute quadric) of the vertex replacing `gone` and `keep` at `pos`.
     /// Called before the contraction changes the store.
     pub(crate) fn merged_data(&self, patch: &Patch, gone: u64, keep: u64, pos: DVec3) -> Merged {
