@@ -63,8 +63,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// budget; 7: the guard's records with their query mark, without boxes; 8: without the mark;
 /// 9: vertex flags beside the slot generations; 10: the boundary rule in the simplifier's
 /// configuration; 11: the guard's cell entries packed for the branch-free test; 12: the
-/// candidate queue in buckets of cost; 13: one contraction evaluator in the simplifier).
-const FORMAT: u32 = 13;
+/// candidate queue in buckets of cost; 13: one contraction evaluator in the simplifier; 14: the
+/// data-dependent weight kept with each vertex).
+const FORMAT: u32 = 14;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

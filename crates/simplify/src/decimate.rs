@@ -4,11 +4,11 @@
 
 use glam::DVec3;
 
-use crate::Simplifier;
 use crate::candidates::Candidate;
 use crate::cost::{COINCIDENT, Eval};
 use crate::store::Store;
 use crate::topology::{self, Patch};
+use crate::{Priority, Simplifier, data_dependent};
 
 /// How far below its preimage's lowest rank a cascade's first stage may place a vertex (see
 /// `Simplifier::outside_first_stage_room`): a slab, so most quadric optima pass.
@@ -129,12 +129,6 @@ impl Simplifier {
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
     fn next_is_coincident(&mut self) -> bool {
         self.candidates.peek().is_some_and(|c| c.cost == COINCIDENT)
-    }
-
-    /// Queues the edges from `v` to its free neighbours.
-    pub(crate) fn push_edges(&mut self, v: u64) {
-        let ring = topology::ring(&self.store, v);
-        self.push_ring_edges(v, &ring, |_| true);
     }
 
     /// Queues every edge between free vertices once more (used at the end, when refused edges
@@ -281,7 +275,11 @@ impl Simplifier {
                 self.isect.update(t, tri.v, self.store.corners(tri));
             }
         }
-        self.push_edges(keep);
+        let ring = topology::ring(&self.store, keep);
+        if matches!(self.config.priority, Priority::DataDependent { .. }) {
+            data_dependent::forget(&self.store, keep, &ring);
+        }
+        self.push_ring_edges(keep, &ring, |_| true);
     }
 }
 

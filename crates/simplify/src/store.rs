@@ -9,6 +9,8 @@
 //! Triangles live in a slab with a free list, so their storage is bounded by the peak number of
 //! resident triangles.
 
+use std::cell::Cell;
+
 use glam::DVec3;
 use smallvec::SmallVec;
 
@@ -50,6 +52,11 @@ pub(crate) struct Vertex {
     pub(crate) attrs: Box<[f32]>,
     /// Position-and-attribute quadric of the preimage (attribute-quadric priority only).
     pub(crate) attr_quadric: Option<Box<crate::attribute_quadric::AttrQuadric>>,
+    /// The data-dependent priority's terms of this vertex once computed (absolute angle
+    /// deficit, attribute gradient), NaN until then and again after a contraction changed its
+    /// star or a neighbour (`data_dependent::weight`). A `Cell` because costs are evaluated on
+    /// a shared store.
+    pub(crate) weight_terms: Cell<[f64; 2]>,
 }
 
 impl Vertex {
@@ -68,6 +75,7 @@ impl Vertex {
             tris: TriList::new(),
             attrs: attrs.into(),
             attr_quadric: None,
+            weight_terms: Cell::new([f64::NAN; 2]),
         }
     }
 
