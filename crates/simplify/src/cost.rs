@@ -99,8 +99,9 @@ pub(crate) struct Evaluator {
     objective: Objective,
     priority: Priority,
     boundary: Boundary,
-    /// Physical length of one rank, for the time-lag's patch radius (`Eval::reach`).
-    rank_spacing: f64,
+    /// Physical length of one rank, for the time-lag's patch radius (`Eval::reach`, and the
+    /// merged vertex's in `contract`).
+    pub(crate) rank_spacing: f64,
 }
 
 impl Evaluator {

@@ -246,7 +246,8 @@ impl Simplifier {
         let Some(g) = self.store.remove_vertex(gone) else {
             return;
         };
-        let rank_spacing = self.rank_spacing;
+        // Contractions only happen with an evaluator.
+        let rank_spacing = self.evaluator.as_ref().map_or(1.0, |e| e.rank_spacing);
         let Some(k) = self.store.vertex_mut(keep) else {
             return;
         };

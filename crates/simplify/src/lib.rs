@@ -335,7 +335,6 @@ pub struct Simplifier {
     evaluator: Option<Evaluator>,
     schedule: Schedule,
     time_lag: bool,
-    rank_spacing: f64,
     store: Store,
     /// Spatial hash of the resident (and latest emitted) triangles for the intersection guard.
     isect: intersect::TriIndex,
@@ -390,13 +389,12 @@ impl Simplifier {
         {
             return Err(SimplifyError::InvalidBoundary);
         }
-        let rank_spacing = config.sweep.map_or(1.0, |w| w.spacing);
         let evaluator = config.policy.objective().map(|objective| {
             Evaluator::new(
                 objective,
                 config.priority.clone(),
                 config.boundary,
-                rank_spacing,
+                config.sweep.map_or(1.0, |w| w.spacing),
             )
         });
         let pass = (evaluator.is_none() && !config.in_core)
@@ -406,7 +404,6 @@ impl Simplifier {
             pass,
             schedule: config.policy.schedule(),
             time_lag: config.policy.time_lag(),
-            rank_spacing,
             config,
             store: Store::default(),
             isect: intersect::TriIndex::default(),
