@@ -27,9 +27,8 @@
 //! about ten slabs, where quadric optima far below their preimage once made it 15 to 20 on
 //! bonsai upsampled to 511^3, and the second stage's front held 1.8x the faces.
 //!
-//! The second stage holds what the first wrote above the rear (about ten slabs; outside its
-//! store while a triangle lies wholly above the rear, see `held`) and lets a vertex move only
-//! once the rear has passed its whole star: gated by its preimage's ranks, as
+//! The second stage holds what the first wrote above the rear (about ten slabs) and lets a
+//! vertex move only once the rear has passed its whole star: gated by its preimage's ranks, as
 //! a single simplifier is, vertices whose triangles reach into that backlog counted as
 //! modifiable but could not contract (half of its candidates waited for the front), so the rate
 //! target over-decimated the rest (engine at R = 0.01: 1.27x the single simplifier's RMS

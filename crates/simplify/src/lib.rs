@@ -19,7 +19,6 @@
 //! * `retire`: retirement behind the front or for the memory budget, and emission;
 //! * `passthrough`: policy `none` when streaming: triangles leave as soon as their vertices are
 //!   complete, without any of the contraction machinery.
-//! * `held`: what a cascade's second stage keeps out of the store until its front reaches it;
 //! * `cascade`: what two simplifiers in series exchange (vertex states, the first stage's rear)
 //!   and why the pair is as safe as one.
 //!
@@ -86,7 +85,6 @@ mod cascade;
 mod cost;
 mod data_dependent;
 mod decimate;
-mod held;
 mod intersect;
 mod passthrough;
 mod policy;
@@ -115,10 +113,6 @@ use store::{Store, Tri, Vertex};
 /// A cascade's second stage keeps at least `1 / SECOND_STAGE_FLOOR` of the shared budget
 /// however much the first holds (see [`Simplifier::budget`]).
 const SECOND_STAGE_FLOOR: usize = 3;
-
-/// A face held outside the store by a cascade's second stage (`held`: three ids, and half a
-/// vertex with its state) costs about this fraction of a resident face in memory.
-const HELD_FACES_PER_FACE: usize = 5;
 
 /// Whatever the sweep front holds, `1 / FRONT_ROOM_SHARE` of the face budget stays for the
 /// surface behind it (see [`Simplifier::budget`]).
@@ -265,9 +259,6 @@ pub struct SimplifyStats {
     pub front_stretch_faces: usize,
     /// Most faces the sweep front held at the end of a batch (`faces_unmodifiable`).
     pub peak_front_faces: usize,
-    /// A cascade's second stage: most faces held outside the store, wholly beyond its front
-    /// (`held`).
-    pub peak_held_faces: usize,
     /// Highest cost of a performed contraction (objective units; merging coincident vertices
     /// counts as -1).
     pub max_cost: f64,
@@ -304,7 +295,6 @@ impl SimplifyStats {
             forced_retirements: first.forced_retirements + second.forced_retirements,
             front_stretch_faces: first.front_stretch_faces.max(second.front_stretch_faces),
             peak_front_faces: first.peak_front_faces + second.peak_front_faces,
-            peak_held_faces: second.peak_held_faces,
             max_cost: first.max_cost.max(second.max_cost),
             max_shape_error: first.max_shape_error.max(second.max_shape_error),
             candidates: first.candidates + second.candidates,
@@ -363,8 +353,6 @@ pub struct Simplifier {
     rear: u32,
     /// Second stage of a cascade: the faces the first stage held at its last hand-off.
     first_resident: usize,
-    /// Second stage of a cascade: its input wholly beyond its front, outside the store.
-    held: held::Held,
     next_out: u64,
     stats: SimplifyStats,
 }
@@ -426,7 +414,6 @@ impl Simplifier {
             front: 0.0,
             rear: 0,
             first_resident: 0,
-            held: held::Held::default(),
             next_out: 0,
             stats: SimplifyStats::default(),
         })
@@ -670,25 +657,6 @@ impl Simplifier {
             pass.flush(out, &mut self.stats);
             return;
         }
-        if self.config.cascade == Cascade::Second {
-            self.admit_up_to(front, out);
-        }
-        self.close_batch(front, out);
-    }
-
-    /// A cascade's second stage: what its front passed enters the store rank by rank, each
-    /// rank closed like a batch, so that a front that moves far at once (the first stage's last
-    /// hand-off moves it to the end) does not take everything held into the store at once.
-    fn admit_up_to(&mut self, front: u32, out: &mut OutBatch) {
-        while let Some(rank) = self.held.next_rank().filter(|&r| r < front) {
-            self.admit(rank);
-            self.close_batch(rank, out);
-        }
-        self.admit(front);
-    }
-
-    /// [`Simplifier::end_batch`] once the store holds what the front `front` reached.
-    fn close_batch(&mut self, front: u32, out: &mut OutBatch) {
         self.front = f64::from(front);
         self.release_reached();
         if self.config.in_core {
@@ -772,72 +740,41 @@ impl Simplifier {
         let stride = self.config.attributes;
         let mut states = batch.states.iter();
         let mut attrs = batch.attrs.chunks(stride.max(1));
-        let sweep = self
-            .config
-            .sweep
-            .expect("a second stage has a sweep (checked by new)");
         for e in &batch.elements {
             match *e {
                 OutElement::Vertex { pos } => {
+                    // The first stage numbers its output 0, 1, 2, ...: those numbers are the ids.
+                    let id = self.stats.vertices_in;
                     let state = *states.next().expect("a state per vertex");
                     let values = if stride == 0 {
                         &[][..]
                     } else {
                         attrs.next().unwrap_or(&[])
                     };
-                    self.held.vertex(held::HeldVertex {
-                        pos,
-                        state,
-                        attrs: values.into(),
-                    });
+                    self.add_vertex(id, pos, state.rank_max, values);
+                    if let Some(slot) = self.store.slot_of(id)
+                        && let Some(v) = self.store.vertex_mut(slot)
+                    {
+                        v.quadric = state.quadric;
+                        v.area = state.area;
+                        v.rank_min = state.rank_min;
+                    }
                 }
                 OutElement::Triangle { v, last_use } => {
-                    let low = v
-                        .iter()
-                        .map(|&id| {
-                            self.held.position(id).unwrap_or_else(|| {
-                                let slot = self.store.slot_of(id).unwrap_or_else(|| {
-                                    panic!("triangle {v:?} uses unknown vertex {id}")
-                                });
-                                self.store.vertex(slot).map_or(DVec3::ZERO, |x| x.pos)
-                            })
-                        })
-                        .map(|p| sweep.rank_of(p))
-                        .fold(f64::INFINITY, f64::min);
-                    let rank = low.ceil().clamp(0.0, f64::from(u32::MAX)) as u32;
-                    self.held.triangle(v, rank, last_use);
+                    self.add_triangle(v);
+                    for (id, last) in v.into_iter().zip(last_use) {
+                        if last {
+                            self.set_modifiable(id);
+                        }
+                    }
                 }
             }
         }
-        self.stats.peak_held_faces = self.stats.peak_held_faces.max(self.held.faces());
         if let Schedule::Rate(rate) = &mut self.schedule {
             rate.set_source_ratio(handoff.ratio());
         }
         self.first_resident = usize::try_from(handoff.faces_resident).unwrap_or(usize::MAX);
         handoff.rear
-    }
-
-    /// A cascade's second stage: moves into the store what the front `front` has reached
-    /// (`held`).
-    fn admit(&mut self, front: u32) {
-        let mut entries = Vec::new();
-        self.held.release(front, &mut entries);
-        for e in entries {
-            match e {
-                held::Entry::Vertex(id, v) => {
-                    self.add_vertex(id, v.pos, v.state.rank_max, &v.attrs);
-                    if let Some(slot) = self.store.slot_of(id)
-                        && let Some(x) = self.store.vertex_mut(slot)
-                    {
-                        x.quadric = v.state.quadric;
-                        x.area = v.state.area;
-                        x.rank_min = v.state.rank_min;
-                    }
-                }
-                held::Entry::Triangle(v) => self.add_triangle(v),
-                held::Entry::Modifiable(id) => self.set_modifiable(id),
-            }
-        }
     }
 
     /// The resident faces this simplifier may hold before it decimates and retires for memory.
@@ -885,7 +822,6 @@ impl Simplifier {
         match self.config.cascade {
             Cascade::Second => total
                 .saturating_sub(self.first_resident)
-                .saturating_sub(self.held.faces() / HELD_FACES_PER_FACE)
                 .max(total / SECOND_STAGE_FLOOR),
             _ => total,
         }
@@ -896,9 +832,6 @@ impl Simplifier {
         if let Some(pass) = &mut self.pass {
             pass.finish(out, &mut self.stats);
             return;
-        }
-        if self.config.cascade == Cascade::Second {
-            self.admit_up_to(u32::MAX, out);
         }
         self.front = f64::INFINITY;
         self.release_reached();

@@ -484,8 +484,7 @@ fn thin_shells_do_not_self_intersect() {
 
 /// The two stages of a cascade (first to `(1 + R) / 2`, second to `R`) on the thin shell: each
 /// stage edits its side of the first stage's rear, so the pair never crosses itself either, the
-/// topology is kept and the rate is met, with the second stage holding what lies beyond its
-/// front outside its store.
+/// topology is kept and the rate is met.
 #[test]
 fn a_cascade_keeps_thin_shells_apart_and_meets_the_rate() {
     let c = DVec3::splat(10.0);
@@ -505,8 +504,5 @@ fn a_cascade_keeps_thin_shells_apart_and_meets_the_rate() {
         let crossing = isostream_meshcheck::self_intersections(&pos, &run.mesh.tris);
         assert_eq!(crossing, 0, "rate {rate}: {:?}", run.stats);
         assert_rate_met(&input, &run, rate);
-        // What arrives wholly above the second stage's front waits outside its store (`held`):
-        // the checks above ran with that path taken.
-        assert!(run.stats.peak_held_faces > 0, "{:?}", run.stats);
     }
 }
