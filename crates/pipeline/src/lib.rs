@@ -621,11 +621,13 @@ fn rate_missed(
             "rate target missed: {written} faces written for a target of {target} (+{:.0} %); \
              {cause}: the remaining edges were refused by the link condition ({} times: closed \
              components stay at least tetrahedra, the box's cut stays on its faces), by flips \
-             ({}) and by the self-intersection guard ({}){hint}",
+             ({}) and by the self-intersection guard ({}, and {} next to written triangles it \
+             no longer holds){hint}",
             100.0 * (written as f64 / target.max(1) as f64 - 1.0),
             stats.rejected_link,
             stats.rejected_flip,
             stats.rejected_intersection,
+            stats.rejected_unguarded,
         )
     })
 }

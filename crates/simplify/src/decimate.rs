@@ -6,6 +6,7 @@ use glam::DVec3;
 
 use crate::candidates::Candidate;
 use crate::cost::{COINCIDENT, Eval};
+use crate::intersect::Verdict;
 use crate::store::Store;
 use crate::topology::{self, Patch};
 use crate::{Priority, Simplifier, data_dependent};
@@ -76,13 +77,18 @@ impl Simplifier {
                 self.stats.rejected_link += 1;
             } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
                 self.stats.rejected_flip += 1;
-            } else if eval.cost != COINCIDENT
-                // Merging coincident vertices moves nothing: any crossing of the new fan existed.
-                && self.isect.would_intersect(&patch, c.a, c.b, c.b, eval.pos)
-            {
-                self.stats.rejected_intersection += 1;
             } else {
-                self.contract(&patch, c.a, c.b, eval);
+                // Merging coincident vertices moves nothing: any crossing of the new fan existed.
+                let verdict = if eval.cost == COINCIDENT {
+                    Verdict::Clear
+                } else {
+                    self.isect.would_intersect(&patch, c.a, c.b, c.b, eval.pos)
+                };
+                match verdict {
+                    Verdict::Clear => self.contract(&patch, c.a, c.b, eval),
+                    Verdict::Crosses => self.stats.rejected_intersection += 1,
+                    Verdict::Unguarded => self.stats.rejected_unguarded += 1,
+                }
             }
         }
     }

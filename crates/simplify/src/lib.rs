@@ -246,6 +246,9 @@ pub struct SimplifyStats {
     pub rejected_flip: u64,
     /// Candidates refused because the new fan would cross another triangle (`intersect`).
     pub rejected_intersection: u64,
+    /// Candidates refused because the new fan would reach the region of emitted triangles the
+    /// guard no longer holds (`intersect`, dropped ghosts), where it could not tell.
+    pub rejected_unguarded: u64,
     /// Contractions postponed because their new fan reached past the front (see
     /// [`Sweep`]).
     pub delayed_front: u64,
@@ -290,6 +293,7 @@ impl SimplifyStats {
             rejected_link: first.rejected_link + second.rejected_link,
             rejected_flip: first.rejected_flip + second.rejected_flip,
             rejected_intersection: first.rejected_intersection + second.rejected_intersection,
+            rejected_unguarded: first.rejected_unguarded + second.rejected_unguarded,
             delayed_front: first.delayed_front + second.delayed_front,
             rejected_other: first.rejected_other + second.rejected_other,
             forced_retirements: first.forced_retirements + second.forced_retirements,
