@@ -5,6 +5,7 @@
     python3 tools/quality_grid.py rates  --volumes engine,bonsai,aneurism,mni152,stent --rates 0.05,0.01,0.001
     python3 tools/quality_grid.py fig7   --volumes engine --rates 0.1,0.01 --batches 2000,5000,10000,20000,50000,200000
     python3 tools/quality_grid.py validity --volumes all --rates 0.2,0.05,0.01
+    python3 tools/quality_grid.py validity --volumes all --rates 0.2,0.05,0.01 --pipeline 'memory_budget_mib = 16'
     python3 tools/quality_grid.py boundary --volumes engine,bonsai,aneurism,mni152,stent --rates 0.2,0.01
 
 `rates`: for each volume and rate, one run with the defaults (a user who only writes `rate`) and one
@@ -17,7 +18,8 @@ matplotlib is importable (`--plot docs/fig7.png`).
 `validity`: the guarantees, checked on the output of a default run for each volume and rate: edge- and
 vertex-manifold, oriented, no zero-area triangle, Euler characteristic and component count equal to
 the full-resolution surface's (a `mode = "none"` run), crossing triangles counted by the referee
-(`crates/meshcheck`, its `self_intersections` example), the face-target miss and peak RSS.
+(`crates/meshcheck`, its `self_intersections` example), the face-target miss and peak RSS; `--pipeline`
+runs the simplified jobs with extra `[pipeline]` lines (the tightest budget, one stage or two).
 `boundary`: `[simplify] boundary = "exact"` against the default `"planar"` (default runs, RMS and
 Hausdorff from `isostream measure --volume`, boundary edges of the output); where planar writes
 fewer faces (exact's floor), one more planar run at exact's face count compares them at one size.
@@ -123,7 +125,7 @@ def validity(args, work):
     for v in args.volumes.split(","):
         full = run(args.bin, work, v, None)["quality"]
         for r in [float(x) for x in args.rates.split(",")]:
-            s = run(args.bin, work, v, r)
+            s = run(args.bin, work, v, r, pipeline_extra=args.pipeline.replace(";", "\n"))
             q = s["quality"]
             s["crossings"] = crossings(args.bin, s["out"])
             s["euler_kept"] = (q["euler"], q["components"]) == (full["euler"], full["components"])
@@ -203,6 +205,9 @@ def main():
     p.add_argument("--work", default="/tmp/isostream-quality")
     p.add_argument("--json", help="write the raw rows here")
     p.add_argument("--plot", help="fig7: write a PNG here")
+    p.add_argument("--pipeline", default="",
+                   help="validity: extra [pipeline] lines for the simplified runs, ';' between them "
+                        "(e.g. 'memory_budget_mib = 16;simplify_stages = 1')")
     args = p.parse_args()
     if args.volumes == "all":
         args.volumes = ",".join(VOLUMES)
