@@ -33,9 +33,8 @@
 //!   might cross a triangle the index forgot. Dropping the oldest quarter without that wrote
 //!   crossing triangles when retirement for a tight memory budget emitted right next to
 //!   contractible vertices (bonsai at R = 0.01 with 16 MiB: 4 with one stage, 25 with two; 86
-//!   and 116 with no ghosts at all); with the
-//!   default budget on the real volumes no fan reached a dropped ghost (every ghost dropped at
-//!   once wrote the same bytes).
+//!   and 116 with no ghosts at all); with the default budget on the real volumes no fan reached
+//!   a dropped ghost (every ghost dropped at once wrote the same bytes).
 //! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict exact orientation signs:
 //!   triangles with no common vertex cross when an edge of one crosses the other; with one common
 //!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
