@@ -218,12 +218,9 @@ fn a_cascade_resumes_to_the_same_bytes_and_uses_both_stages() {
 
 #[test]
 fn a_real_volume_resumes_to_the_same_bytes() {
-    let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"));
-    let volume = data.join("ironprot/ironProt.vtk");
-    if !volume.exists() {
-        eprintln!("skipped: {} is not here", volume.display());
+    let Some(volume) = common::shared_volume("ironprot/ironProt.vtk") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     let text = |output: &str, pipeline: &str| {
         format!(

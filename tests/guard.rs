@@ -4,20 +4,15 @@
 
 mod common;
 
-use std::path::Path;
-
 /// Bonsai at R = 0.01 with 16 MiB, one simplifier stage and two: valid and crossing-free. When
 /// the guard forgot its oldest written triangles without refusing fans where they were, these
 /// jobs wrote 4 (one stage) and 25 (two stages) crossing triangles; generated volumes of the
 /// property tests never reached back that far.
 #[test]
 fn a_tight_budget_never_crosses_written_triangles() {
-    let data = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"));
-    let volume = data.join("bonsai/bonsai.vti");
-    if !volume.exists() {
-        eprintln!("skipped: {} is not here", volume.display());
+    let Some(volume) = common::shared_volume("bonsai/bonsai.vti") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
     for stages in [1, 2] {
         let job = dir.path().join(format!("job{stages}.toml"));

@@ -110,6 +110,18 @@ impl Mesh {
     }
 }
 
+/// A real volume from `../shared/data` (`rel` inside it), or `None` with a note when that folder
+/// is not beside the checkout: tests on real data are skipped there.
+pub fn shared_volume(rel: &str) -> Option<PathBuf> {
+    let volume = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")).join(rel);
+    if volume.exists() {
+        Some(volume)
+    } else {
+        eprintln!("skipped: {} is not here", volume.display());
+        None
+    }
+}
+
 /// Runs a job file through the library (the same path as `isostream run`).
 pub fn run_job(job: &Path) -> RunSummary {
     let config = JobConfig::load(job).unwrap();
