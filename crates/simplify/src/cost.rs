@@ -169,12 +169,12 @@ impl Objective {
         let m = self.metric(store, a, b, h, w);
         let (pos, value) = place(
             sites,
-            va.pos,
-            vb.pos,
+            va.pos(),
+            vb.pos(),
             || m.minimizer(),
             |p| m.eval(p).max(0.0),
         )?;
-        let (pa, pb) = (va.pos, vb.pos);
+        let (pa, pb) = (va.pos(), vb.pos());
         let shape_error = shape_measure(&h, w, pos);
         let cost = match *self {
             Objective::Shape { e0, .. } if shape_error > e0 => return None,
@@ -261,7 +261,7 @@ mod tests {
             for i in 0..n - 1 {
                 let v = j * n + i;
                 for t in [[v, v + 1, v + n + 1], [v, v + n + 1, v + n]] {
-                    let p = t.map(|id| s.vertex(id).unwrap().pos);
+                    let p = t.map(|id| s.vertex(id).unwrap().pos());
                     let cross = (p[1] - p[0]).cross(p[2] - p[0]);
                     let normal = cross.normalize();
                     let q = Quadric::plane(normal, -normal.dot(p[0]), 0.5 * cross.length());
@@ -356,7 +356,7 @@ mod tests {
             .evaluate(&s, (a, b), &Boundary::Exact, 2.0)
             .unwrap();
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
-        let len = (s.vertex(a).unwrap().pos - s.vertex(b).unwrap().pos).length();
+        let len = (s.vertex(a).unwrap().pos() - s.vertex(b).unwrap().pos()).length();
         assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);
     }
 

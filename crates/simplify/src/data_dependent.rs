@@ -48,7 +48,7 @@ pub(crate) fn gradient(store: &Store, v: u64) -> f64 {
         let Some(y) = store.vertex(n) else {
             continue;
         };
-        let d = (y.pos - x.pos).abs().element_sum();
+        let d = (y.pos() - x.pos()).abs().element_sum();
         if d <= 0.0 {
             continue;
         }

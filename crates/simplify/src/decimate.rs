@@ -213,7 +213,7 @@ impl Simplifier {
             _ => self.config.retire_lag.saturating_mul(2).saturating_add(2),
         };
         match (self.store.vertex(a), self.store.vertex(b)) {
-            (Some(va), Some(vb)) => va.pos == vb.pos || va.merged_span(vb) <= max_span,
+            (Some(va), Some(vb)) => va.pos() == vb.pos() || va.merged_span(vb) <= max_span,
             _ => false,
         }
     }
@@ -260,7 +260,6 @@ impl Simplifier {
         (k.height, k.rad) = k.merged_patch(&g, rank_spacing);
         k.attrs = merged.attrs;
         k.attr_quadric = merged.attr_quadric;
-        k.pos = pos;
         k.quadric += g.quadric;
         k.area += g.area;
         k.boundary |= g.boundary;
@@ -268,6 +267,7 @@ impl Simplifier {
         k.rank_max = k.rank_max.max(g.rank_max);
         k.rank_min = k.rank_min.min(g.rank_min);
         let rank = k.rank_max;
+        self.store.set_pos(keep, pos);
         self.store.bump_stamp(keep);
         if rank_moved {
             self.buckets.push(rank, keep, &mut self.store);

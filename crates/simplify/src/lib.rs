@@ -500,7 +500,7 @@ impl Simplifier {
         let contracting = self.evaluator.is_some();
         // A cascade's second stage receives its vertices' quadrics with them.
         let quadrics = contracting && self.config.cascade != Cascade::Second;
-        let p = v.map(|id| self.store.vertex(id).map_or(DVec3::ZERO, |x| x.pos));
+        let p = v.map(|id| self.store.pos(id));
         let cross = (p[1] - p[0]).cross(p[2] - p[0]);
         let len = cross.length();
         if quadrics && len > 0.0 {
@@ -642,11 +642,11 @@ impl Simplifier {
                 continue;
             };
             let p = store.corners(t);
-            let edge = store.vertex(x).map_or(DVec3::ZERO, |vx| vx.pos) - v.pos;
+            let edge = store.pos(x) - v.pos();
             let normal = (p[1] - p[0]).cross(p[2] - p[0]);
             let m = edge.cross(normal).normalize_or_zero();
             if m != DVec3::ZERO {
-                q += Quadric::plane(m, -m.dot(v.pos), BOUNDARY_WEIGHT * edge.length_squared());
+                q += Quadric::plane(m, -m.dot(v.pos()), BOUNDARY_WEIGHT * edge.length_squared());
             }
         }
         if let Some(v) = self.store.vertex_mut(id) {
@@ -706,10 +706,7 @@ impl Simplifier {
             self.rear = u32::MAX;
         } else if let Some(sweep) = &self.config.sweep {
             let store = &self.store;
-            let held = cascade::rear_of(
-                sweep,
-                store.ids().filter_map(|id| store.vertex(id).map(|v| v.pos)),
-            );
+            let held = cascade::rear_of(sweep, store.ids().map(|id| store.pos(id)));
             let next = (self.front as u32).saturating_sub(1);
             self.rear = self.rear.max(held.map_or(next, |h| h.min(next)));
         }

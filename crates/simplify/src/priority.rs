@@ -142,7 +142,7 @@ impl Simplifier {
         let Priority::AttributeQuadric { weights } = &self.config.priority else {
             return;
         };
-        let corners = v.map(|id| self.store.vertex(id).map(|x| (x.pos, x.attrs.clone())));
+        let corners = v.map(|id| self.store.vertex(id).map(|x| (x.pos(), x.attrs.clone())));
         let [Some(p0), Some(p1), Some(p2)] = corners else {
             return;
         };
@@ -163,10 +163,10 @@ impl Simplifier {
 /// Attributes by linear interpolation along the edge, at the projection of `c` onto it: the
 /// fallback when the patch has no proper triangle.
 fn interpolated(gone: &Vertex, keep: &Vertex, c: DVec3) -> Box<[f32]> {
-    let d = keep.pos - gone.pos;
+    let d = keep.pos() - gone.pos();
     let len2 = d.length_squared();
     let t = if len2 > 0.0 {
-        ((c - gone.pos).dot(d) / len2).clamp(0.0, 1.0)
+        ((c - gone.pos()).dot(d) / len2).clamp(0.0, 1.0)
     } else {
         0.5
     };

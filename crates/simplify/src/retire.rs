@@ -213,7 +213,7 @@ impl Simplifier {
                     let o = self.next_out;
                     self.next_out += 1;
                     x.out = Some(o);
-                    out.elements.push(OutElement::Vertex { pos: x.pos });
+                    out.elements.push(OutElement::Vertex { pos: x.pos() });
                     out.attrs.extend_from_slice(&x.attrs);
                     if self.config.cascade == crate::Cascade::First {
                         out.states.push(crate::VertexState {

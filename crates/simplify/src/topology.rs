@@ -176,16 +176,16 @@ pub(crate) fn sites(store: &Store, a: u64, b: u64, rule: &Boundary) -> Option<Si
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
     match (va.boundary, vb.boundary) {
         (false, false) => Some(Sites::Free),
-        (true, false) => Some(Sites::Fixed([Some(va.pos), None])),
-        (false, true) => Some(Sites::Fixed([Some(vb.pos), None])),
+        (true, false) => Some(Sites::Fixed([Some(va.pos()), None])),
+        (false, true) => Some(Sites::Fixed([Some(vb.pos()), None])),
         (true, true) => {
             let (ra, rb) = (ring(store, a), ring(store, b));
             let boundary_edge = ra.iter().any(|&(x, n)| x == b && n == 1);
             if !boundary_edge {
                 return None;
             }
-            let keep_a = removable_onto(store, &rb, vb.pos, va.pos, rule).then_some(va.pos);
-            let keep_b = removable_onto(store, &ra, va.pos, vb.pos, rule).then_some(vb.pos);
+            let keep_a = removable_onto(store, &rb, vb.pos(), va.pos(), rule).then_some(va.pos());
+            let keep_b = removable_onto(store, &ra, va.pos(), vb.pos(), rule).then_some(vb.pos());
             (keep_a.is_some() || keep_b.is_some()).then_some(Sites::Fixed([keep_a, keep_b]))
         }
     }
@@ -210,7 +210,8 @@ fn removable_onto(
     }
     let Some(po) = bn
         .iter()
-        .filter_map(|&x| store.vertex(x).map(|v| v.pos))
+        .filter(|&&x| store.vertex(x).is_some())
+        .map(|&x| store.pos(x))
         .find(|&p| p != pk)
     else {
         return false;
@@ -475,7 +476,7 @@ mod tests {
     #[test]
     fn boundary_rules() {
         let s = grid();
-        let p = |i: u64| s.vertex(i).unwrap().pos;
+        let p = |i: u64| s.vertex(i).unwrap().pos();
         assert!(link_ok(&s, 4, 0), "interior vertex to corner");
         assert_eq!(
             sites(&s, 4, 0, &Boundary::Exact),
@@ -507,8 +508,9 @@ mod tests {
     #[test]
     fn a_planar_boundary_simplifies_the_cut_within_a_box_face() {
         let mut s = grid();
-        s.vertex_mut(1).unwrap().pos.z = 0.3;
-        let p = |i: u64| s.vertex(i).unwrap().pos;
+        let bent = s.pos(1).with_z(0.3);
+        s.set_pos(1, bent);
+        let p = |i: u64| s.vertex(i).unwrap().pos();
         let planar = Boundary::Planar {
             lo: DVec3::new(0.0, 0.0, -1.0),
             hi: DVec3::new(2.0, 2.0, 1.0),
@@ -587,7 +589,7 @@ mod tests {
             ],
             &[[0, 1, 3], [1, 2, 3], [3, 2, 4], [3, 4, 5]],
         );
-        let c = s.vertex(2).unwrap().pos;
+        let c = s.vertex(2).unwrap().pos();
         assert!(!flips_ok(&s, 3, 2, c), "A-B-X onto the line of A-B");
         // Off that line the sliver stays a small, non-collinear triangle: still allowed.
         assert!(flips_ok(&s, 3, 2, c + DVec3::new(0.0, 0.5, 0.0)));
