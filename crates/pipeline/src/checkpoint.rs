@@ -65,8 +65,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// configuration; 11: the guard's cell entries packed for the branch-free test; 12: the
 /// candidate queue in buckets of cost; 13: one contraction evaluator in the simplifier; 14: the
 /// data-dependent weight kept with each vertex; 15: the rank spacing kept by the evaluator
-/// only; 16: the guard's region of dropped ghosts and its refusal count).
-const FORMAT: u32 = 16;
+/// only; 16: the guard's region of dropped ghosts and its refusal count; 17: vertex positions
+/// kept dense beside the slots).
+const FORMAT: u32 = 17;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
