@@ -161,7 +161,9 @@ pub(crate) struct Store {
     resident: usize,
     /// Every live vertex's position by slot, beside [`Vertex::pos`]: reading a triangle's
     /// corners (the patch, the guard's updates, the second stage's star reach) touched three
-    /// 200-byte vertices, each a cache miss, for 24 bytes each.
+    /// 248-byte vertices, each a cache miss, for 24 bytes each. The vertex keeps its copy for
+    /// the code that holds a `&Vertex` already (the evaluator reads its quadric beside it);
+    /// [`Store::set_pos`] writes both.
     pos: Vec<DVec3>,
 }
 
@@ -344,9 +346,14 @@ impl Store {
         tri
     }
 
+    /// Position of vertex `v`, if the handle names one.
+    pub(crate) fn position(&self, v: u64) -> Option<DVec3> {
+        self.slot(v).map(|slot| self.pos[slot])
+    }
+
     /// Position of vertex `v` (zero for a handle that names no vertex).
     pub(crate) fn pos(&self, v: u64) -> DVec3 {
-        self.slot(v).map_or(DVec3::ZERO, |slot| self.pos[slot])
+        self.position(v).unwrap_or(DVec3::ZERO)
     }
 
     /// Moves vertex `v` to `pos`.

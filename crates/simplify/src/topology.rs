@@ -210,8 +210,7 @@ fn removable_onto(
     }
     let Some(po) = bn
         .iter()
-        .filter(|&&x| store.vertex(x).is_some())
-        .map(|&x| store.pos(x))
+        .filter_map(|&x| store.position(x))
         .find(|&p| p != pk)
     else {
         return false;
