@@ -23,7 +23,7 @@
 //! The rear is the lowest vertex the first stage holds, retired ones included (a vertex stays
 //! until its last triangle is written). It trails the first stage's front by its retirement lag,
 //! the rank span of its preimages and how far below them it places a vertex; the first stage
-//! keeps the last two short (`Simplifier::span_ok`, `Simplifier::outside_first_stage_room`):
+//! keeps the last two short (`Decimator::span_ok`, `decimate::outside_first_stage_room`):
 //! about ten slabs, where quadric optima far below their preimage once made it 15 to 20 on
 //! bonsai upsampled to 511^3, and the second stage's front held 1.8x the faces.
 //!

@@ -1,18 +1,22 @@
-//! The contraction loop, shared by every policy: pop the cheapest candidate, drop it if stale,
-//! check topology and geometry, contract, re-queue the new vertex's edges (Garland and Heckbert
-//! 1997; incremental as in Hou and Chen section 3.2).
+//! The decimator: the one contraction loop, shared by every policy. Pop the cheapest candidate,
+//! drop it if stale, check topology and geometry, contract, re-queue the new vertex's edges
+//! (Garland and Heckbert 1997; incremental as in Hou and Chen section 3.2).
+//!
+//! It owns what only contracting needs (the evaluator and the candidate queue) and works on the
+//! stage's [`Band`]; when and how far to decimate is the stage's to say ([`Until`]).
 
 use glam::DVec3;
 
-use crate::candidates::Candidate;
-use crate::cost::{COINCIDENT, Eval};
+use crate::band::Band;
+use crate::candidates::{Candidate, Candidates};
+use crate::cost::{COINCIDENT, Eval, Evaluator};
 use crate::intersect::Verdict;
 use crate::store::Store;
 use crate::topology::{self, Patch};
-use crate::{Priority, Simplifier, data_dependent};
+use crate::{Cascade, Priority, SimplifyConfig, SimplifyStats, data_dependent, priority};
 
 /// How far below its preimage's lowest rank a cascade's first stage may place a vertex (see
-/// `Simplifier::outside_first_stage_room`): a slab, so most quadric optima pass.
+/// `outside_first_stage_room`): a slab, so most quadric optima pass.
 const PREIMAGE_SLACK: f64 = 1.0;
 
 /// Where a decimation run stops (besides running out of candidates).
@@ -24,38 +28,93 @@ pub(crate) enum Until {
     Exhausted,
 }
 
-impl Simplifier {
-    /// Cost and placement of `ab -> c` (see [`crate::cost::Evaluator`]).
-    fn evaluate(&self, a: u64, b: u64) -> Option<Eval> {
-        self.evaluator.as_ref()?.evaluate(&self.store, a, b)
-    }
-
-    pub(crate) fn reached(&self, until: Until) -> bool {
-        match until {
-            Until::Resident(target) => self.store.resident() <= target,
+impl Until {
+    pub(crate) fn reached(self, band: &Band) -> bool {
+        match self {
+            Until::Resident(target) => band.resident() <= target,
             Until::Exhausted => false,
         }
     }
+}
 
-    pub(crate) fn decimate(&mut self, until: Until) {
-        if self.evaluator.is_none() {
-            return;
+/// Where the stage stands when it asks the decimator: its configuration and its sweep.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct At<'a> {
+    pub(crate) config: &'a SimplifyConfig,
+    /// Rank of the front, `+inf` after the end of the volume.
+    pub(crate) front: f64,
+    /// First stage of a cascade: the rear it announced last (no vertex is placed below it).
+    pub(crate) rear: u32,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+pub(crate) struct Decimator {
+    /// Cost and placement of contractions.
+    evaluator: Evaluator,
+    candidates: Candidates,
+    /// Mode `error` with the Tandem time-lag: an edge reaching past the front waits for it.
+    time_lag: bool,
+    /// The rank span a preimage may reach (see `span_ok`); `None` when the stage retires by the
+    /// memory budget, which needs no bound.
+    max_span: Option<u32>,
+}
+
+impl Decimator {
+    /// The decimator for `config`, contracting by `evaluator`.
+    pub(crate) fn new(config: &SimplifyConfig, evaluator: Evaluator) -> Self {
+        let max_span = config.lag_retirement().then(|| match config.cascade {
+            // Its output is not final, and the span is what its rear trails by (see
+            // `outside_first_stage_room`).
+            Cascade::First => config.retire_lag.saturating_add(1),
+            _ => config.retire_lag.saturating_mul(2).saturating_add(2),
+        });
+        Self {
+            evaluator,
+            candidates: Candidates::default(),
+            time_lag: config.policy.time_lag(),
+            max_span,
         }
-        while !self.reached(until) || self.next_is_coincident() {
+    }
+
+    /// The new front: delayed candidates it has passed come back.
+    pub(crate) fn activate(&mut self, front: f64) {
+        self.candidates.activate(front);
+    }
+
+    /// Queued candidates, stale ones included (the run summary's `candidates`).
+    pub(crate) fn queued(&self) -> usize {
+        self.candidates.len()
+    }
+
+    /// Cost and placement of `ab -> c` (see [`crate::cost::Evaluator`]).
+    fn evaluate(&self, store: &Store, a: u64, b: u64) -> Option<Eval> {
+        self.evaluator.evaluate(store, a, b)
+    }
+
+    /// Contracts the cheapest candidates until `until` (and past it while the cheapest merges
+    /// coincident vertices).
+    pub(crate) fn decimate(
+        &mut self,
+        band: &mut Band,
+        at: &At,
+        stats: &mut SimplifyStats,
+        until: Until,
+    ) {
+        while !until.reached(band) || self.next_is_coincident() {
             let Some(c) = self.candidates.pop() else {
                 break;
             };
-            if !is_current(&self.store, &c) {
+            if !is_current(&band.store, &c) {
                 continue;
             }
             // Re-evaluated: the placement is not stored in the heap, and objectives reading the
             // neighbourhood (isotropy) may have changed without a stamp change.
-            let Some(eval) = self.evaluate(c.a, c.b) else {
-                self.stats.rejected_other += 1;
+            let Some(eval) = self.evaluate(&band.store, c.a, c.b) else {
+                stats.rejected_other += 1;
                 continue;
             };
-            if self.outside_first_stage_room(c.a, c.b, eval.pos) {
-                self.stats.rejected_other += 1;
+            if outside_first_stage_room(&band.store, at, c.a, c.b, eval.pos) {
+                stats.rejected_other += 1;
                 continue;
             }
             if eval.cost > c.cost {
@@ -69,67 +128,28 @@ impl Simplifier {
             // again when it comes back (a cascade's second stage, whose front is the first
             // stage's rear, delayed one candidate in two before it gated vertices by their whole
             // star; it still delays more than one stage does).
-            let patch = Patch::gather(&self.store, c.a, c.b);
-            if let Some(reach) = self.beyond_front(&patch, eval.pos) {
-                self.stats.delayed_front += 1;
+            let patch = Patch::gather(&band.store, c.a, c.b);
+            if let Some(reach) = beyond_front(at, &patch, eval.pos) {
+                stats.delayed_front += 1;
                 self.candidates.delay(c, reach);
-            } else if !topology::link_ok(&self.store, c.a, c.b) {
-                self.stats.rejected_link += 1;
+            } else if !topology::link_ok(&band.store, c.a, c.b) {
+                stats.rejected_link += 1;
             } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
-                self.stats.rejected_flip += 1;
+                stats.rejected_flip += 1;
             } else {
                 // Merging coincident vertices moves nothing: any crossing of the new fan existed.
                 let verdict = if eval.cost == COINCIDENT {
                     Verdict::Clear
                 } else {
-                    self.isect.would_intersect(&patch, c.a, c.b, c.b, eval.pos)
+                    band.guard.would_intersect(&patch, c.a, c.b, c.b, eval.pos)
                 };
                 match verdict {
-                    Verdict::Clear => self.contract(&patch, c.a, c.b, eval),
-                    Verdict::Crosses => self.stats.rejected_intersection += 1,
-                    Verdict::Unguarded => self.stats.rejected_unguarded += 1,
+                    Verdict::Clear => self.contract(band, at, stats, &patch, (c.a, c.b), eval),
+                    Verdict::Crosses => stats.rejected_intersection += 1,
+                    Verdict::Unguarded => stats.rejected_unguarded += 1,
                 }
             }
         }
-    }
-
-    /// The rank the front must reach before contracting `a`, `b` to `pos` is safe from the
-    /// triangles still to come, when that is beyond the current front: the farthest rank of the
-    /// corners of the new fan and of the `patch` it replaces (the fan lies in the convex hull of
-    /// its corners; see [`crate::Sweep`]).
-    fn beyond_front(&self, patch: &Patch, pos: DVec3) -> Option<f64> {
-        let sweep = self.config.sweep?;
-        let top = patch
-            .tris
-            .iter()
-            .flat_map(|pt| pt.p)
-            .fold(sweep.height(pos), |top, p| top.max(sweep.height(p)));
-        let far = sweep.rank_at(top);
-        (far > self.front).then_some(far)
-    }
-
-    /// A cascade's first stage never places a vertex below the rear it announced (`cascade`):
-    /// the second stage edits the surface up to that plane. Nor more than [`PREIMAGE_SLACK`]
-    /// ranks below the lowest rank of the new vertex's preimage: the rear is the lowest vertex
-    /// the first stage holds, retired ones included (they stay until their last triangle is
-    /// written), and quadric optima far outside their preimage (10 slabs below it, on bonsai
-    /// upsampled to 511^3) kept it 15 to 20 slabs behind the front, where the second stage held
-    /// everything above it as its front.
-    fn outside_first_stage_room(&self, a: u64, b: u64, pos: DVec3) -> bool {
-        if self.config.cascade != crate::Cascade::First {
-            return false;
-        }
-        let Some(sweep) = self.config.sweep else {
-            return false;
-        };
-        let rank = sweep.rank_of(pos);
-        let preimage = [a, b]
-            .iter()
-            .filter_map(|&x| self.store.vertex(x))
-            .map(|v| v.rank_min)
-            .min();
-        rank < f64::from(self.rear)
-            || preimage.is_some_and(|low| rank < f64::from(low) - PREIMAGE_SLACK)
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
@@ -139,43 +159,44 @@ impl Simplifier {
 
     /// Queues every edge between free vertices once more (used at the end, when refused edges
     /// may pass in their changed neighbourhoods).
-    pub(crate) fn requeue_all(&mut self) {
-        let ids: Vec<u64> = self.store.ids().collect();
-        for id in ids {
-            let ring = topology::ring(&self.store, id);
-            self.push_ring_edges(id, &ring, |n| n > id);
+    pub(crate) fn requeue_all(&mut self, band: &Band, at: &At) {
+        for id in band.store.ids() {
+            let ring = topology::ring(&band.store, id);
+            self.push_ring_edges(&band.store, at, id, &ring, |n| n > id);
         }
     }
 
     /// Queues the edges from `v` to the free neighbours in its `ring` that `take` accepts.
     pub(crate) fn push_ring_edges(
         &mut self,
+        store: &Store,
+        at: &At,
         v: u64,
         ring: &topology::Ring,
         take: impl Fn(u64) -> bool,
     ) {
-        if self.evaluator.is_none() || !self.store.is_free(v) {
+        if !store.is_free(v) {
             return;
         }
         for &(n, _) in ring {
-            if !take(n) || !self.store.is_free(n) {
+            if !take(n) || !store.is_free(n) {
                 continue;
             }
             let (a, b) = (v.min(n), v.max(n));
-            if !self.span_ok(a, b) {
+            if !self.span_ok(store, a, b) {
                 continue;
             }
-            let Some(eval) = self.evaluate(a, b) else {
+            let Some(eval) = self.evaluate(store, a, b) else {
                 continue;
             };
-            let stamps = [a, b].map(|x| self.store.stamp(x));
+            let stamps = [a, b].map(|x| store.stamp(x));
             let c = Candidate {
                 cost: eval.cost,
                 a,
                 b,
                 stamps,
             };
-            if self.time_lag && eval.reach > self.front {
+            if self.time_lag && eval.reach > at.front {
                 self.candidates.delay(c, eval.reach);
             } else {
                 self.candidates.push(c);
@@ -186,9 +207,9 @@ impl Simplifier {
     /// Drops stale heap entries once they outnumber the live ones by far. Retired vertices'
     /// edges would otherwise stay in the heap for good (the costly ones are never popped), and the
     /// heap would grow with the surface instead of the band.
-    pub(crate) fn compact_candidates(&mut self) {
-        if self.candidates.len() > 2 * self.store.resident() + 1024 {
-            let store = &self.store;
+    pub(crate) fn compact(&mut self, band: &Band) {
+        if self.candidates.len() > 2 * band.resident() + 1024 {
+            let store = &band.store;
             self.candidates.retain(|c| is_current(store, c));
         }
     }
@@ -202,17 +223,11 @@ impl Simplifier {
     /// and leaving them would leave zero-area triangles.
     /// Retirement by the memory budget alone (rate) needs no such bound: the oldest buckets leave
     /// first whatever rides ahead, and a rider's fan is all it keeps.
-    fn span_ok(&self, a: u64, b: u64) -> bool {
-        if !self.lag_retirement() {
+    fn span_ok(&self, store: &Store, a: u64, b: u64) -> bool {
+        let Some(max_span) = self.max_span else {
             return true;
-        }
-        let max_span = match self.config.cascade {
-            // Its output is not final, and the span is what its rear trails by (see
-            // `outside_first_stage_room`).
-            crate::Cascade::First => self.config.retire_lag.saturating_add(1),
-            _ => self.config.retire_lag.saturating_mul(2).saturating_add(2),
         };
-        match (self.store.vertex(a), self.store.vertex(b)) {
+        match (store.vertex(a), store.vertex(b)) {
             (Some(va), Some(vb)) => va.pos() == vb.pos() || va.merged_span(vb) <= max_span,
             _ => false,
         }
@@ -221,40 +236,47 @@ impl Simplifier {
     /// `ab -> c` at `pos`. The younger id `b` survives as `c` (its slot is nearer the front, so the
     /// store's front slot frees sooner); `a` dies. Triangles on `ab` disappear, `a`'s others are
     /// relinked to `b`; orientation is preserved because only the id is replaced.
-    fn contract(&mut self, patch: &Patch, a: u64, b: u64, eval: Eval) {
+    fn contract(
+        &mut self,
+        band: &mut Band,
+        at: &At,
+        stats: &mut SimplifyStats,
+        patch: &Patch,
+        (a, b): (u64, u64),
+        eval: Eval,
+    ) {
         let (gone, keep, pos) = (a, b, eval.pos);
-        if self.time_lag && eval.reach > self.front {
-            self.stats.lag_violations += 1;
+        if self.time_lag && eval.reach > at.front {
+            stats.lag_violations += 1;
         }
-        let merged = self.merged_data(patch, gone, keep, pos);
-        let tris = self
-            .store
+        let merged = priority::merged_data(&band.store, at.config, patch, gone, keep, pos);
+        let store = &mut band.store;
+        let tris = store
             .vertex(gone)
             .map(|v| v.tris.clone())
             .unwrap_or_default();
         for t in tris {
-            if self.store.tri(t).contains(keep) {
-                self.isect.remove(t);
-                let removed = self.store.remove_triangle(t);
-                self.stats.faces_unmodifiable -= usize::from(removed.unmodifiable > 0);
+            if store.tri(t).contains(keep) {
+                band.guard.remove(t);
+                let removed = store.remove_triangle(t);
+                stats.faces_unmodifiable -= usize::from(removed.unmodifiable > 0);
             } else {
-                let tri = self.store.tri_mut(t);
+                let tri = store.tri_mut(t);
                 for id in &mut tri.v {
                     if *id == gone {
                         *id = keep;
                     }
                 }
-                if let Some(k) = self.store.vertex_mut(keep) {
+                if let Some(k) = store.vertex_mut(keep) {
                     k.tris.push(t);
                 }
             }
         }
-        let Some(g) = self.store.remove_vertex(gone) else {
+        let Some(g) = store.remove_vertex(gone) else {
             return;
         };
-        // Contractions only happen with an evaluator.
-        let rank_spacing = self.evaluator.as_ref().map_or(1.0, |e| e.rank_spacing);
-        let Some(k) = self.store.vertex_mut(keep) else {
+        let rank_spacing = self.evaluator.rank_spacing;
+        let Some(k) = store.vertex_mut(keep) else {
             return;
         };
         (k.height, k.rad) = k.merged_patch(&g, rank_spacing);
@@ -267,27 +289,66 @@ impl Simplifier {
         k.rank_max = k.rank_max.max(g.rank_max);
         k.rank_min = k.rank_min.min(g.rank_min);
         let rank = k.rank_max;
-        self.store.set_pos(keep, pos);
-        self.store.bump_stamp(keep);
+        store.set_pos(keep, pos);
+        store.bump_stamp(keep);
         if rank_moved {
-            self.buckets.push(rank, keep, &mut self.store);
+            band.file(rank, keep);
         }
-        self.stats.contractions += 1;
-        self.stats.max_cost = self.stats.max_cost.max(eval.cost);
-        self.stats.max_shape_error = self.stats.max_shape_error.max(eval.shape_error);
-        if let Some(k) = self.store.vertex(keep) {
-            self.isect.warm(&k.tris);
+        stats.contractions += 1;
+        stats.max_cost = stats.max_cost.max(eval.cost);
+        stats.max_shape_error = stats.max_shape_error.max(eval.shape_error);
+        let store = &band.store;
+        if let Some(k) = store.vertex(keep) {
+            band.guard.warm(&k.tris);
             for &t in &k.tris {
-                let tri = self.store.tri(t);
-                self.isect.update(t, tri.v, self.store.corners(tri));
+                let tri = store.tri(t);
+                band.guard.update(t, tri.v, store.corners(tri));
             }
         }
-        let ring = topology::ring(&self.store, keep);
-        if matches!(self.config.priority, Priority::DataDependent { .. }) {
-            data_dependent::forget(&self.store, keep, &ring);
+        let ring = topology::ring(store, keep);
+        if matches!(at.config.priority, Priority::DataDependent { .. }) {
+            data_dependent::forget(store, keep, &ring);
         }
-        self.push_ring_edges(keep, &ring, |_| true);
+        self.push_ring_edges(store, at, keep, &ring, |_| true);
     }
+}
+
+/// The rank the front must reach before contracting to `pos` is safe from the triangles still
+/// to come, when that is beyond the current front: the farthest rank of the corners of the new
+/// fan and of the `patch` it replaces (the fan lies in the convex hull of its corners; see
+/// [`crate::Sweep`]).
+fn beyond_front(at: &At, patch: &Patch, pos: DVec3) -> Option<f64> {
+    let sweep = at.config.sweep?;
+    let top = patch
+        .tris
+        .iter()
+        .flat_map(|pt| pt.p)
+        .fold(sweep.height(pos), |top, p| top.max(sweep.height(p)));
+    let far = sweep.rank_at(top);
+    (far > at.front).then_some(far)
+}
+
+/// A cascade's first stage never places a vertex below the rear it announced (`cascade`): the
+/// second stage edits the surface up to that plane. Nor more than [`PREIMAGE_SLACK`] ranks below
+/// the lowest rank of the new vertex's preimage: the rear is the lowest vertex the first stage
+/// holds, retired ones included (they stay until their last triangle is written), and quadric
+/// optima far outside their preimage (10 slabs below it, on bonsai upsampled to 511^3) kept it
+/// 15 to 20 slabs behind the front, where the second stage held everything above it as its
+/// front.
+fn outside_first_stage_room(store: &Store, at: &At, a: u64, b: u64, pos: DVec3) -> bool {
+    if at.config.cascade != Cascade::First {
+        return false;
+    }
+    let Some(sweep) = at.config.sweep else {
+        return false;
+    };
+    let rank = sweep.rank_of(pos);
+    let preimage = [a, b]
+        .iter()
+        .filter_map(|&x| store.vertex(x))
+        .map(|v| v.rank_min)
+        .min();
+    rank < f64::from(at.rear) || preimage.is_some_and(|low| rank < f64::from(low) - PREIMAGE_SLACK)
 }
 
 /// Both endpoints unchanged since the candidate was evaluated, and still free to move.
@@ -299,33 +360,57 @@ fn is_current(store: &Store, c: &Candidate) -> bool {
 mod tests {
     use glam::DVec3;
 
-    use crate::{Cascade, Simplifier};
+    use super::*;
+    use crate::store::Vertex;
+    use crate::{Policy, Sweep};
 
-    /// A simplifier at rate 0.5 sweeping along z (rank = z), holding an edge from rank 5 to 6.
-    fn edge(cascade: Cascade) -> (Simplifier, u64, u64) {
-        let mut s = crate::tests::swept(cascade, usize::MAX);
-        s.add_vertex(0, DVec3::new(0.0, 0.0, 5.5), 5, &[]);
-        s.add_vertex(1, DVec3::new(1.0, 0.0, 6.5), 6, &[]);
-        let slot = |id| s.store.slot_of(id).unwrap();
-        let (a, b) = (slot(0), slot(1));
-        (s, a, b)
+    /// A stage in place `cascade` at rate 0.5 sweeping along z (rank = z), holding an edge from
+    /// rank 5 to 6.
+    fn edge(cascade: Cascade) -> (SimplifyConfig, Store, u64, u64) {
+        let config = SimplifyConfig {
+            cascade,
+            sweep: Some(Sweep {
+                direction: DVec3::Z,
+                origin: 0.0,
+                spacing: 1.0,
+            }),
+            ..SimplifyConfig::new(Policy::Rate {
+                rate: 0.5,
+                batch: 1,
+                initial_rate: 0.5,
+            })
+        };
+        let mut store = Store::default();
+        let a = store.insert_vertex(0, Vertex::new(DVec3::new(0.0, 0.0, 5.5), 5, &[]));
+        let b = store.insert_vertex(1, Vertex::new(DVec3::new(1.0, 0.0, 6.5), 6, &[]));
+        (config, store, a, b)
     }
 
     /// The first stage's rear trails its front by how far below their preimages it places
     /// vertices, so it keeps them within a slab of it; other stages place them freely.
     #[test]
     fn a_first_stage_places_no_vertex_far_below_its_preimage() {
-        let (first, a, b) = edge(Cascade::First);
         let at = |z| DVec3::new(0.5, 0.0, z);
+        let (config, store, a, b) = edge(Cascade::First);
+        let first = At {
+            config: &config,
+            front: 7.0,
+            rear: 0,
+        };
         assert!(
-            !first.outside_first_stage_room(a, b, at(4.5)),
+            !outside_first_stage_room(&store, &first, a, b, at(4.5)),
             "a slab below"
         );
         assert!(
-            first.outside_first_stage_room(a, b, at(3.5)),
+            outside_first_stage_room(&store, &first, a, b, at(3.5)),
             "two slabs below"
         );
-        let (single, a, b) = edge(Cascade::Single);
-        assert!(!single.outside_first_stage_room(a, b, at(3.5)));
+        let (config, store, a, b) = edge(Cascade::Single);
+        let single = At {
+            config: &config,
+            front: 7.0,
+            rear: 0,
+        };
+        assert!(!outside_first_stage_room(&store, &single, a, b, at(3.5)));
     }
 }

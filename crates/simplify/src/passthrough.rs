@@ -16,7 +16,7 @@
 use glam::DVec3;
 use rustc_hash::FxHashMap;
 
-use crate::{OutBatch, OutElement, SimplifyStats};
+use crate::{OutBatch, OutElement, SimplifyConfig, SimplifyStats};
 
 /// `Slot::out` of a vertex not written yet.
 const UNWRITTEN: u64 = u64::MAX;
@@ -32,8 +32,10 @@ struct Slot {
     out: u64,
 }
 
-#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, serde::Serialize, serde::Deserialize)]
 pub(crate) struct PassThrough {
+    config: SimplifyConfig,
+    stats: SimplifyStats,
     slots: Vec<Slot>,
     /// `attributes` values per slot.
     attrs: Vec<f32>,
@@ -48,18 +50,32 @@ pub(crate) struct PassThrough {
 }
 
 impl PassThrough {
-    pub(crate) fn new(attributes: usize) -> Self {
+    pub(crate) fn new(config: SimplifyConfig) -> Self {
         Self {
-            stride: attributes,
-            ..Self::default()
+            stride: config.attributes,
+            config,
+            stats: SimplifyStats::default(),
+            slots: Vec::new(),
+            attrs: Vec::new(),
+            free: Vec::new(),
+            ids: FxHashMap::default(),
+            waiting: Vec::new(),
+            next_out: 0,
+            live: 0,
         }
     }
 
-    /// A vertex at `pos` (already rounded to the output precision) with `attrs` (`stride` values).
+    pub(crate) fn config(&self) -> &SimplifyConfig {
+        &self.config
+    }
+
+    /// See [`crate::Simplifier::add_vertex`].
     ///
     /// # Panics
     /// If a vertex that may still receive triangles already has this id.
     pub(crate) fn add_vertex(&mut self, id: u64, pos: DVec3, attrs: &[f32]) {
+        let (pos, attrs) = crate::vertex_input(pos, attrs, self.stride);
+        self.stats.vertices_in += 1;
         let slot = Slot {
             pos,
             pending: 0,
@@ -78,7 +94,7 @@ impl PassThrough {
             }
         };
         let range = s as usize * self.stride..(s as usize + 1) * self.stride;
-        self.attrs[range].copy_from_slice(attrs);
+        self.attrs[range].copy_from_slice(&attrs);
         let old = self.ids.insert(id, s);
         assert!(old.is_none(), "vertex id {id} added twice");
         self.live += 1;
@@ -97,6 +113,8 @@ impl PassThrough {
             self.slots[s as usize].pending += 1;
         }
         self.waiting.push(v);
+        self.stats.faces_in += 1;
+        self.stats.peak_resident_faces = self.stats.peak_resident_faces.max(self.waiting.len());
     }
 
     pub(crate) fn set_modifiable(&mut self, id: u64) {
@@ -112,12 +130,12 @@ impl PassThrough {
     }
 
     /// Writes every waiting triangle whose vertices are complete.
-    pub(crate) fn flush(&mut self, out: &mut OutBatch, stats: &mut SimplifyStats) {
+    pub(crate) fn flush(&mut self, out: &mut OutBatch) {
         let mut waiting = std::mem::take(&mut self.waiting);
         waiting.retain(|&v| {
             let ready = v.iter().all(|&s| self.slots[s as usize].complete);
             if ready {
-                self.write(v, out, stats);
+                self.write(v, out);
             }
             !ready
         });
@@ -125,32 +143,31 @@ impl PassThrough {
     }
 
     /// End of the volume: every vertex is complete; writes everything.
-    pub(crate) fn finish(&mut self, out: &mut OutBatch, stats: &mut SimplifyStats) {
+    pub(crate) fn finish(&mut self, out: &mut OutBatch) {
         let ids: Vec<u64> = self.ids.keys().copied().collect();
         for id in ids {
             self.set_modifiable(id);
         }
-        self.flush(out, stats);
+        self.flush(out);
         debug_assert!(self.waiting.is_empty() && self.live == 0);
     }
 
-    pub(crate) fn resident_faces(&self) -> usize {
-        self.waiting.len()
+    /// The run's counters: resident faces are the waiting triangles, unmodifiable those with a
+    /// vertex that is not complete (the rest leave at the next flush).
+    pub(crate) fn stats(&self) -> SimplifyStats {
+        SimplifyStats {
+            faces_resident: self.waiting.len(),
+            faces_unmodifiable: self
+                .waiting
+                .iter()
+                .filter(|v| v.iter().any(|&s| !self.slots[s as usize].complete))
+                .count(),
+            vertices_resident: self.live,
+            ..self.stats.clone()
+        }
     }
 
-    /// Waiting triangles with a vertex that is not complete (the rest leave at the next flush).
-    pub(crate) fn unmodifiable_faces(&self) -> usize {
-        self.waiting
-            .iter()
-            .filter(|v| v.iter().any(|&s| !self.slots[s as usize].complete))
-            .count()
-    }
-
-    pub(crate) fn resident_vertices(&self) -> usize {
-        self.live
-    }
-
-    fn write(&mut self, v: [u32; 3], out: &mut OutBatch, stats: &mut SimplifyStats) {
+    fn write(&mut self, v: [u32; 3], out: &mut OutBatch) {
         let mut numbers = [0; 3];
         let mut last_use = [false; 3];
         for (i, &s) in v.iter().enumerate() {
@@ -161,7 +178,7 @@ impl PassThrough {
                 out.elements.push(OutElement::Vertex { pos: slot.pos });
                 let range = s as usize * self.stride..(s as usize + 1) * self.stride;
                 out.attrs.extend_from_slice(&self.attrs[range]);
-                stats.vertices_out += 1;
+                self.stats.vertices_out += 1;
             }
             numbers[i] = slot.out;
             slot.pending -= 1;
@@ -171,7 +188,7 @@ impl PassThrough {
             v: numbers,
             last_use,
         });
-        stats.faces_out += 1;
+        self.stats.faces_out += 1;
         for (s, last) in v.into_iter().zip(last_use) {
             if last {
                 self.release(s);
@@ -193,8 +210,10 @@ mod tests {
     /// complete. Output in pre-order, finalized on the last use, every slot freed.
     #[test]
     fn triangles_leave_once_complete_and_ids_may_be_reused() {
-        let mut p = PassThrough::new(1);
-        let mut stats = SimplifyStats::default();
+        let mut p = PassThrough::new(SimplifyConfig {
+            attributes: 1,
+            ..SimplifyConfig::new(crate::Policy::None)
+        });
         let mut out = OutBatch::default();
         for (id, x) in [(0, 0.0), (1, 1.0), (2, 2.0)] {
             p.add_vertex(id, DVec3::X * x, &[x as f32]);
@@ -202,16 +221,16 @@ mod tests {
         p.add_triangle([0, 1, 2]);
         p.set_modifiable(0);
         p.set_modifiable(1);
-        p.flush(&mut out, &mut stats);
+        p.flush(&mut out);
         assert!(out.elements.is_empty(), "vertex 2 may still gain triangles");
         p.add_vertex(1, DVec3::Y, &[9.0]); // id 1 names a new vertex now
         p.add_vertex(3, DVec3::Z, &[3.0]);
         p.add_triangle([2, 1, 3]);
         p.set_modifiable(2);
-        p.flush(&mut out, &mut stats);
+        p.flush(&mut out);
         assert_eq!(out.elements.len(), 4, "the first triangle and its vertices");
-        assert_eq!(p.resident_faces(), 1);
-        p.finish(&mut out, &mut stats);
+        assert_eq!(p.stats().faces_resident, 1);
+        p.finish(&mut out);
         let tris: Vec<_> = out
             .elements
             .iter()
@@ -228,8 +247,9 @@ mod tests {
             ]
         );
         assert_eq!(out.attrs, vec![0.0, 1.0, 2.0, 9.0, 3.0]);
+        let stats = p.stats();
         assert_eq!((stats.faces_out, stats.vertices_out), (2, 5));
-        assert_eq!(p.resident_vertices(), 0);
+        assert_eq!(stats.vertices_resident, 0);
         assert_eq!(p.free.len(), p.slots.len(), "every slot is free again");
     }
 }

@@ -3,16 +3,16 @@
 //! The mode ([`crate::Policy`]: rate, error, tandem time-lag) says how far to decimate; the
 //! [`Priority`] says in which order and, for the attribute quadric, where. Both meet in the one
 //! contraction evaluator, [`crate::cost::Evaluator`]; this module keeps what a contraction does
-//! to the vertex data ([`Simplifier::merged_data`]). Every topology and geometry check stays
+//! to the vertex data ([`merged_data`]). Every topology and geometry check stays
 //! the same whatever the priority.
 
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::attribute_quadric::AttrQuadric;
-use crate::store::Vertex;
+use crate::store::{Store, Vertex};
 use crate::topology::Patch;
-use crate::{Simplifier, SimplifyError};
+use crate::{SimplifyConfig, SimplifyError};
 
 /// Order (and for the attribute quadric, placement) of contractions.
 #[derive(Debug, Clone, PartialEq, Default, Deserialize, Serialize)]
@@ -63,98 +63,101 @@ pub(crate) struct Merged {
     pub(crate) attr_quadric: Option<Box<AttrQuadric>>,
 }
 
-impl Simplifier {
-    /// Attributes (and attribute quadric) of the vertex replacing `gone` and `keep` at `pos`.
-    /// Called before the contraction changes the store.
-    pub(crate) fn merged_data(&self, patch: &Patch, gone: u64, keep: u64, pos: DVec3) -> Merged {
-        let (Some(g), Some(k)) = (self.store.vertex(gone), self.store.vertex(keep)) else {
-            return Merged {
-                attrs: Box::default(),
-                attr_quadric: None,
-            };
+/// Attributes (and attribute quadric) of the vertex replacing `gone` and `keep` at `pos`.
+/// Called before the contraction changes the store.
+pub(crate) fn merged_data(
+    store: &Store,
+    config: &SimplifyConfig,
+    patch: &Patch,
+    gone: u64,
+    keep: u64,
+    pos: DVec3,
+) -> Merged {
+    let (Some(g), Some(k)) = (store.vertex(gone), store.vertex(keep)) else {
+        return Merged {
+            attrs: Box::default(),
+            attr_quadric: None,
         };
-        match (&self.config.priority, &g.attr_quadric, &k.attr_quadric) {
-            (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
-                let q = qg.sum(qk);
-                let attrs = q
-                    .attributes_at(pos, weights)
-                    .unwrap_or_else(|| interpolated(g, k, pos));
-                Merged {
-                    attrs,
-                    attr_quadric: Some(Box::new(q)),
-                }
+    };
+    match (&config.priority, &g.attr_quadric, &k.attr_quadric) {
+        (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
+            let q = qg.sum(qk);
+            let attrs = q
+                .attributes_at(pos, weights)
+                .unwrap_or_else(|| interpolated(g, k, pos));
+            Merged {
+                attrs,
+                attr_quadric: Some(Box::new(q)),
             }
-            _ => Merged {
-                attrs: self
-                    .interpolated_in_patch(patch, pos)
-                    .unwrap_or_else(|| interpolated(g, k, pos)),
-                attr_quadric: None,
-            },
+        }
+        _ => Merged {
+            attrs: interpolated_in_patch(store, config.attributes, patch, pos)
+                .unwrap_or_else(|| interpolated(g, k, pos)),
+            attr_quadric: None,
+        },
+    }
+}
+
+/// Attributes at `c` by the barycentric weights of its projection in the patch triangle
+/// (around `gone` and `keep`) that contains it best (the largest smallest coordinate;
+/// clamped when `c` is outside them all). Exact for attributes linear in position on flat
+/// patches, wherever the placement went (isotropy moves it off the edge). `None` when the
+/// vertices carry no attributes or the patch has no proper triangle.
+fn interpolated_in_patch(store: &Store, m: usize, patch: &Patch, c: DVec3) -> Option<Box<[f32]>> {
+    if m == 0 {
+        return None;
+    }
+    let mut best: Option<(f64, [u64; 3], [f64; 3])> = None;
+    for pt in &patch.tris {
+        let [p0, p1, p2] = pt.p;
+        let (e1, e2, d) = (p1 - p0, p2 - p0, c - p0);
+        let (a11, a12, a22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+        let det = a11 * a22 - a12 * a12;
+        if det.is_nan() || det <= 1e-12 * a11 * a22 {
+            continue;
+        }
+        let (b1, b2) = (d.dot(e1), d.dot(e2));
+        let u = (a22 * b1 - a12 * b2) / det;
+        let v = (a11 * b2 - a12 * b1) / det;
+        let w = [1.0 - u - v, u, v];
+        let score = w[0].min(w[1]).min(w[2]);
+        if best.is_none_or(|(s, _, _)| score > s) {
+            best = Some((score, pt.v, w));
         }
     }
-
-    /// Attributes at `c` by the barycentric weights of its projection in the patch triangle
-    /// (around `gone` and `keep`) that contains it best (the largest smallest coordinate;
-    /// clamped when `c` is outside them all). Exact for attributes linear in position on flat
-    /// patches, wherever the placement went (isotropy moves it off the edge). `None` when the
-    /// vertices carry no attributes or the patch has no proper triangle.
-    fn interpolated_in_patch(&self, patch: &Patch, c: DVec3) -> Option<Box<[f32]>> {
-        let m = self.config.attributes;
-        if m == 0 {
-            return None;
-        }
-        let mut best: Option<(f64, [u64; 3], [f64; 3])> = None;
-        for pt in &patch.tris {
-            let [p0, p1, p2] = pt.p;
-            let (e1, e2, d) = (p1 - p0, p2 - p0, c - p0);
-            let (a11, a12, a22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
-            let det = a11 * a22 - a12 * a12;
-            if det.is_nan() || det <= 1e-12 * a11 * a22 {
-                continue;
-            }
-            let (b1, b2) = (d.dot(e1), d.dot(e2));
-            let u = (a22 * b1 - a12 * b2) / det;
-            let v = (a11 * b2 - a12 * b1) / det;
-            let w = [1.0 - u - v, u, v];
-            let score = w[0].min(w[1]).min(w[2]);
-            if best.is_none_or(|(s, _, _)| score > s) {
-                best = Some((score, pt.v, w));
-            }
-        }
-        let (score, ids, mut w) = best?;
-        if score < 0.0 {
-            w = w.map(|x| x.max(0.0));
-            let sum: f64 = w.iter().sum();
-            w = w.map(|x| x / sum);
-        }
-        let corners = ids.map(|id| self.store.vertex(id));
-        let mut out = vec![0.0f64; m];
-        for (wi, v) in w.iter().zip(corners) {
-            for (o, a) in out.iter_mut().zip(v?.attrs.iter()) {
-                *o += wi * f64::from(*a);
-            }
-        }
-        Some(out.into_iter().map(|x| x as f32).collect())
+    let (score, ids, mut w) = best?;
+    if score < 0.0 {
+        w = w.map(|x| x.max(0.0));
+        let sum: f64 = w.iter().sum();
+        w = w.map(|x| x / sum);
     }
+    let corners = ids.map(|id| store.vertex(id));
+    let mut out = vec![0.0f64; m];
+    for (wi, v) in w.iter().zip(corners) {
+        for (o, a) in out.iter_mut().zip(v?.attrs.iter()) {
+            *o += wi * f64::from(*a);
+        }
+    }
+    Some(out.into_iter().map(|x| x as f32).collect())
+}
 
-    /// Adds triangle `v`'s attribute quadric to its corners (attribute-quadric priority only).
-    pub(crate) fn add_attribute_quadric(&mut self, v: [u64; 3]) {
-        let Priority::AttributeQuadric { weights } = &self.config.priority else {
-            return;
-        };
-        let corners = v.map(|id| self.store.vertex(id).map(|x| (x.pos(), x.attrs.clone())));
-        let [Some(p0), Some(p1), Some(p2)] = corners else {
-            return;
-        };
-        let Some(q) = AttrQuadric::triangle([&p0, &p1, &p2], weights) else {
-            return;
-        };
-        for id in v {
-            if let Some(x) = self.store.vertex_mut(id) {
-                match &mut x.attr_quadric {
-                    Some(acc) => acc.add(&q),
-                    None => x.attr_quadric = Some(Box::new(q.clone())),
-                }
+/// Adds triangle `v`'s attribute quadric to its corners (attribute-quadric priority only).
+pub(crate) fn add_attribute_quadric(store: &mut Store, priority: &Priority, v: [u64; 3]) {
+    let Priority::AttributeQuadric { weights } = priority else {
+        return;
+    };
+    let corners = v.map(|id| store.vertex(id).map(|x| (x.pos(), x.attrs.clone())));
+    let [Some(p0), Some(p1), Some(p2)] = corners else {
+        return;
+    };
+    let Some(q) = AttrQuadric::triangle([&p0, &p1, &p2], weights) else {
+        return;
+    };
+    for id in v {
+        if let Some(x) = store.vertex_mut(id) {
+            match &mut x.attr_quadric {
+                Some(acc) => acc.add(&q),
+                None => x.attr_quadric = Some(Box::new(q.clone())),
             }
         }
     }

@@ -8,8 +8,9 @@
 
 use std::collections::VecDeque;
 
+use crate::band::Band;
 use crate::store::{Store, TriId};
-use crate::{OutBatch, OutElement, Simplifier};
+use crate::{Cascade, OutBatch, OutElement, SimplifyStats};
 
 /// Vertices filed by highest rank in a ring of per-rank lists. A contraction that raises a
 /// vertex's rank files it again; the old entry goes stale and is skipped (the vertex records its
@@ -31,10 +32,6 @@ pub(crate) struct RankBuckets {
 /// [`COMPACT_MIN`]): the compaction's cost, linear in the entries, is paid once per that many
 /// pushes, and the buckets stay within this multiple of the resident vertices.
 const COMPACT_SHARE: usize = 2;
-/// Slabs behind the front that retirement for memory leaves resident (see
-/// [`Simplifier::retire_for_memory`]): the front's own slab is not modifiable yet, and the one
-/// behind it mostly waits for the front (its fans reach it).
-const BAND_SLABS: u32 = 2;
 const COMPACT_MIN: usize = 4096;
 
 impl RankBuckets {
@@ -96,101 +93,111 @@ fn is_filed(store: &Store, id: u64, key: u32) -> bool {
     store.vertex(id).is_some_and(|v| v.bucket == key) && !store.is_retired(id)
 }
 
-impl Simplifier {
-    /// Retires the vertices with `rank_max < front - retire_lag`, and the earlier ones that were
-    /// due but not yet modifiable.
-    pub(crate) fn retire_behind(&mut self, front: u32, out: &mut OutBatch) {
-        for id in std::mem::take(&mut self.deferred) {
-            self.try_retire(id, out);
+/// Retirement and emission: what leaves the band, in streaming order. It owns only the output's
+/// numbering and the vertices due before they could leave; the band's rank buckets say who is
+/// oldest.
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Retirer {
+    /// Vertices due to retire that were not modifiable yet (they retire at the next call).
+    deferred: Vec<u64>,
+    /// The next output vertex number.
+    next_out: u64,
+    /// A cascade's first stage: each written vertex carries its state for the second.
+    states: bool,
+}
+
+impl Retirer {
+    pub(crate) fn new(cascade: Cascade) -> Self {
+        Self {
+            states: cascade == Cascade::First,
+            ..Self::default()
         }
-        let limit = front.saturating_sub(self.config.retire_lag);
-        while let Some((key, ids)) = self.buckets.pop_below(limit) {
+    }
+
+    /// Retires the vertices with `rank_max < limit`, and the earlier ones that were due but not
+    /// yet modifiable.
+    pub(crate) fn retire_below(
+        &mut self,
+        band: &mut Band,
+        limit: u32,
+        out: &mut OutBatch,
+        stats: &mut SimplifyStats,
+    ) {
+        self.retire_deferred(band, out, stats);
+        while let Some((key, ids)) = band.buckets.pop_below(limit) {
             for id in ids {
-                if self.is_filed(id, key) {
-                    self.try_retire(id, out);
+                if is_filed(&band.store, id, key) {
+                    self.try_retire(band, id, out, stats);
                 }
             }
         }
     }
 
-    /// Over the memory budget: retires the oldest vertices until resident faces are at most 90%
-    /// of it (or nothing is left to retire). The last [`BAND_SLABS`] slabs behind the front stay
-    /// (but in a cascade's first stage, which hands them on): their contractions mostly wait
-    /// for the front to pass, and retiring them wrote them undecimated; the budget is then
-    /// exceeded by what they hold, which the run summary reports (`front_stretch_faces`).
-    pub(crate) fn retire_for_memory(&mut self, out: &mut OutBatch) {
-        let budget = self.budget();
-        if self.store.resident() <= budget {
-            return;
-        }
-        for id in std::mem::take(&mut self.deferred) {
-            self.try_retire(id, out);
-        }
-        let goal = budget - budget / 10;
-        let limit = if self.holds_its_front() {
-            (self.front.min(f64::from(u32::MAX)) as u32).saturating_sub(BAND_SLABS)
-        } else {
-            u32::MAX
-        };
-        while self.store.resident() > goal {
-            let Some((key, ids)) = self.buckets.pop_below(limit) else {
+    /// Retires the oldest vertices with `rank_max < limit` until at most `goal` faces are
+    /// resident (or nothing is left to retire), the deferred ones first.
+    pub(crate) fn retire_until(
+        &mut self,
+        band: &mut Band,
+        goal: usize,
+        limit: u32,
+        out: &mut OutBatch,
+        stats: &mut SimplifyStats,
+    ) {
+        self.retire_deferred(band, out, stats);
+        while band.resident() > goal {
+            let Some((key, ids)) = band.buckets.pop_below(limit) else {
                 break;
             };
             let mut ids = ids.into_iter();
             for id in ids.by_ref() {
-                if self.is_filed(id, key) && self.try_retire(id, out) {
-                    self.stats.forced_retirements += 1;
+                if is_filed(&band.store, id, key) && self.try_retire(band, id, out, stats) {
+                    stats.forced_retirements += 1;
                 }
-                if self.store.resident() <= goal {
+                if band.resident() <= goal {
                     break;
                 }
             }
             let rest: Vec<u64> = ids.collect();
             if !rest.is_empty() {
-                self.buckets.restore(key, rest);
+                band.buckets.restore(key, rest);
             }
         }
-        if self.holds_its_front() {
-            self.note_stretch(self.store.resident());
+    }
+
+    fn retire_deferred(&mut self, band: &mut Band, out: &mut OutBatch, stats: &mut SimplifyStats) {
+        for id in std::mem::take(&mut self.deferred) {
+            self.try_retire(band, id, out, stats);
         }
-    }
-
-    /// End of the volume (everything is modifiable): retires and emits everything.
-    pub(crate) fn retire_all(&mut self, out: &mut OutBatch) {
-        self.retire_behind(u32::MAX, out);
-        debug_assert_eq!(self.store.resident(), 0, "everything emitted");
-    }
-
-    fn is_filed(&self, id: u64, key: u32) -> bool {
-        is_filed(&self.store, id, key)
     }
 
     /// Retires `id` if it is modifiable, else defers it. Returns whether it retired.
-    fn try_retire(&mut self, id: u64, out: &mut OutBatch) -> bool {
-        let Some(v) = self.store.vertex(id) else {
+    fn try_retire(
+        &mut self,
+        band: &mut Band,
+        id: u64,
+        out: &mut OutBatch,
+        stats: &mut SimplifyStats,
+    ) -> bool {
+        let store = &mut band.store;
+        let Some(v) = store.vertex(id) else {
             return false;
         };
-        if self.store.is_retired(id) {
+        if store.is_retired(id) {
             return false;
         }
-        if !self.store.is_modifiable(id) {
+        if !store.is_modifiable(id) {
             self.deferred.push(id);
             return false;
         }
         let tris = v.tris.clone();
-        self.store.retire(id);
+        store.retire(id);
         if tris.is_empty() {
-            self.store.remove_vertex(id);
+            store.remove_vertex(id);
         }
         for t in tris {
-            let done = self
-                .store
-                .tri(t)
-                .v
-                .iter()
-                .all(|&x| self.store.is_retired(x));
-            if done {
-                self.emit(t, out);
+            let store = &band.store;
+            if store.tri(t).v.iter().all(|&x| store.is_retired(x)) {
+                self.emit(band, t, out, stats);
             }
         }
         true
@@ -198,13 +205,14 @@ impl Simplifier {
 
     /// Emits a triangle with all three vertices retired, preceded by its vertices that did not go
     /// out yet; frees the vertices it used for the last time.
-    fn emit(&mut self, t: TriId, out: &mut OutBatch) {
-        self.isect.emit(t);
-        let tri = self.store.remove_triangle(t);
+    fn emit(&mut self, band: &mut Band, t: TriId, out: &mut OutBatch, stats: &mut SimplifyStats) {
+        band.guard.emit(t);
+        let store = &mut band.store;
+        let tri = store.remove_triangle(t);
         let mut v = [0; 3];
         let mut last_use = [false; 3];
         for (i, &id) in tri.v.iter().enumerate() {
-            let Some(x) = self.store.vertex_mut(id) else {
+            let Some(x) = store.vertex_mut(id) else {
                 continue;
             };
             v[i] = match x.out {
@@ -215,7 +223,7 @@ impl Simplifier {
                     x.out = Some(o);
                     out.elements.push(OutElement::Vertex { pos: x.pos() });
                     out.attrs.extend_from_slice(&x.attrs);
-                    if self.config.cascade == crate::Cascade::First {
+                    if self.states {
                         out.states.push(crate::VertexState {
                             quadric: x.quadric,
                             area: x.area,
@@ -223,17 +231,17 @@ impl Simplifier {
                             rank_max: x.rank_max,
                         });
                     }
-                    self.stats.vertices_out += 1;
+                    stats.vertices_out += 1;
                     o
                 }
             };
             last_use[i] = x.tris.is_empty();
         }
         out.elements.push(OutElement::Triangle { v, last_use });
-        self.stats.faces_out += 1;
+        stats.faces_out += 1;
         for (id, last) in tri.v.into_iter().zip(last_use) {
             if last {
-                self.store.remove_vertex(id);
+                store.remove_vertex(id);
             }
         }
     }

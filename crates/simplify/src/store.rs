@@ -33,7 +33,7 @@ pub(crate) struct Vertex {
     /// Sum of those triangle areas, `W_u` of the Tandem shape measure.
     pub(crate) area: f64,
     /// Lowest and highest rank (z plane) in the preimage. The highest decides when the vertex is
-    /// behind the front; the span between them is bounded (see `Simplifier::rank_span`).
+    /// behind the front; the span between them is bounded (see `Decimator::span_ok`).
     pub(crate) rank_min: u32,
     pub(crate) rank_max: u32,
     /// Rank bucket the vertex is currently filed under (stale bucket entries are skipped).
