@@ -4,8 +4,8 @@
 //! the memory budget the stage may hold.
 //!
 //! Why split this way: the stage owns the policy and the sweep, the [`Decimator`] only how to
-//! contract and the [`Retirer`] only how to leave, both over the stage's [`Band`]; before, one
-//! object held all of it and each part reached into the others' fields.
+//! contract and the [`Retirer`] only how to leave, both over the stage's [`Band`], so each part
+//! keeps its own state and none reaches into another's fields.
 
 use glam::DVec3;
 
