@@ -362,24 +362,11 @@ mod tests {
 
     use super::*;
     use crate::store::Vertex;
-    use crate::{Policy, Sweep};
 
     /// A stage in place `cascade` at rate 0.5 sweeping along z (rank = z), holding an edge from
     /// rank 5 to 6.
     fn edge(cascade: Cascade) -> (SimplifyConfig, Store, u64, u64) {
-        let config = SimplifyConfig {
-            cascade,
-            sweep: Some(Sweep {
-                direction: DVec3::Z,
-                origin: 0.0,
-                spacing: 1.0,
-            }),
-            ..SimplifyConfig::new(Policy::Rate {
-                rate: 0.5,
-                batch: 1,
-                initial_rate: 0.5,
-            })
-        };
+        let config = crate::tests::swept(cascade, usize::MAX);
         let mut store = Store::default();
         let a = store.insert_vertex(0, Vertex::new(DVec3::new(0.0, 0.0, 5.5), 5, &[]));
         let b = store.insert_vertex(1, Vertex::new(DVec3::new(1.0, 0.0, 6.5), 6, &[]));

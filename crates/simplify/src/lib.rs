@@ -650,6 +650,25 @@ mod tests {
         assert_eq!(s.stats().faces_out, 2);
     }
 
+    /// A configuration in place `cascade` at rate 0.5, sweeping along z (rank = z), with a
+    /// budget of `faces`.
+    pub(crate) fn swept(cascade: Cascade, faces: usize) -> SimplifyConfig {
+        SimplifyConfig {
+            cascade,
+            max_resident_faces: faces,
+            sweep: Some(Sweep {
+                direction: DVec3::Z,
+                origin: 0.0,
+                spacing: 1.0,
+            }),
+            ..SimplifyConfig::new(Policy::Rate {
+                rate: 0.5,
+                batch: 1,
+                initial_rate: 0.5,
+            })
+        }
+    }
+
     #[test]
     #[should_panic(expected = "unknown or retired vertex")]
     fn triangles_on_unknown_vertices_are_a_contract_violation() {

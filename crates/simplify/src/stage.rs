@@ -561,23 +561,8 @@ mod tests {
         swept(Cascade::Second, faces)
     }
 
-    /// A simplifier in place `cascade` at rate 0.5, sweeping along z (rank = z), with a budget
-    /// of `faces`.
     fn swept(cascade: Cascade, faces: usize) -> Stage {
-        Stage::new(SimplifyConfig {
-            cascade,
-            max_resident_faces: faces,
-            sweep: Some(Sweep {
-                direction: DVec3::Z,
-                origin: 0.0,
-                spacing: 1.0,
-            }),
-            ..SimplifyConfig::new(Policy::Rate {
-                rate: 0.5,
-                batch: 1,
-                initial_rate: 0.5,
-            })
-        })
+        Stage::new(crate::tests::swept(cascade, faces))
     }
 
     /// A second stage lets a vertex move only once its front (the first stage's rear) has
