@@ -39,7 +39,6 @@ pub(crate) struct PassThrough {
     slots: Vec<Slot>,
     /// `attributes` values per slot.
     attrs: Vec<f32>,
-    stride: usize,
     free: Vec<u32>,
     /// Detector id -> slot while the vertex may receive triangles (ids are reused after that).
     ids: FxHashMap<u64, u32>,
@@ -52,7 +51,6 @@ pub(crate) struct PassThrough {
 impl PassThrough {
     pub(crate) fn new(config: SimplifyConfig) -> Self {
         Self {
-            stride: config.attributes,
             config,
             stats: SimplifyStats::default(),
             slots: Vec::new(),
@@ -74,7 +72,7 @@ impl PassThrough {
     /// # Panics
     /// If a vertex that may still receive triangles already has this id.
     pub(crate) fn add_vertex(&mut self, id: u64, pos: DVec3, attrs: &[f32]) {
-        let (pos, attrs) = crate::vertex_input(pos, attrs, self.stride);
+        let (pos, attrs) = crate::vertex_input(pos, attrs, self.config.attributes);
         self.stats.vertices_in += 1;
         let slot = Slot {
             pos,
@@ -89,11 +87,12 @@ impl PassThrough {
             }
             None => {
                 self.slots.push(slot);
-                self.attrs.resize(self.slots.len() * self.stride, 0.0);
+                self.attrs
+                    .resize(self.slots.len() * self.config.attributes, 0.0);
                 u32::try_from(self.slots.len() - 1).expect("fewer than 2^32 resident vertices")
             }
         };
-        let range = s as usize * self.stride..(s as usize + 1) * self.stride;
+        let range = attr_range(self.config.attributes, s);
         self.attrs[range].copy_from_slice(&attrs);
         let old = self.ids.insert(id, s);
         assert!(old.is_none(), "vertex id {id} added twice");
@@ -176,8 +175,8 @@ impl PassThrough {
                 slot.out = self.next_out;
                 self.next_out += 1;
                 out.elements.push(OutElement::Vertex { pos: slot.pos });
-                let range = s as usize * self.stride..(s as usize + 1) * self.stride;
-                out.attrs.extend_from_slice(&self.attrs[range]);
+                out.attrs
+                    .extend_from_slice(&self.attrs[attr_range(self.config.attributes, s)]);
                 self.stats.vertices_out += 1;
             }
             numbers[i] = slot.out;
@@ -200,6 +199,11 @@ impl PassThrough {
         self.free.push(s);
         self.live -= 1;
     }
+}
+
+/// Where slot `s`'s values lie in an array of `attributes` values per slot.
+fn attr_range(attributes: usize, s: u32) -> std::ops::Range<usize> {
+    s as usize * attributes..(s as usize + 1) * attributes
 }
 
 #[cfg(test)]
