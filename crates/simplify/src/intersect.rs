@@ -294,6 +294,34 @@ pub(crate) struct TriIndex {
     /// meet it.
     unguarded: Option<Aabb>,
     live: usize,
+    work: GuardWork,
+}
+
+/// What the guard's queries met, for the run summary: where its time goes is the records a
+/// query reads (each a likely cache miss) and the fan/record pairs it tests, and both grow with
+/// the fans' size against the triangles around them (bonsai at R = 0.2: about 26 records and 55
+/// pairs a query; upsampled 4x with one stage, 162 and 223 once the fans are large: the
+/// eighteenth session in docs/performance.md).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct GuardWork {
+    /// Fans tested (contractions that reached the guard).
+    pub queries: u64,
+    /// Records whose cell entry met a fan's box and that were read.
+    pub records: u64,
+    /// Fan triangle and record pairs whose boxes met, tested exactly.
+    pub pairs: u64,
+}
+
+impl std::ops::Add for GuardWork {
+    type Output = Self;
+
+    fn add(self, o: Self) -> Self {
+        Self {
+            queries: self.queries + o.queries,
+            records: self.records + o.records,
+            pairs: self.pairs + o.pairs,
+        }
+    }
 }
 
 /// What [`TriIndex::would_intersect`] found for a new fan.
@@ -423,6 +451,7 @@ impl TriIndex {
         if self.cell == 0.0 {
             self.fix_cell();
         }
+        self.work.queries += 1;
         let mut fan: SmallVec<[Tri64; 24]> = SmallVec::new();
         // The fan's boxes side by side: a record is compared with all of them branch-free, and
         // only the fan triangles whose box meets its own are tested exactly.
@@ -475,7 +504,8 @@ impl TriIndex {
                 }
             }
         }
-        let hits = |r: u32| {
+        let mut pairs = 0;
+        let mut hits = |r: u32| {
             let rec = &self.recs[r as usize];
             let rb = rec.aabb();
             if !rb.overlaps(&union) {
@@ -491,6 +521,7 @@ impl TriIndex {
                 while mask != 0 {
                     let i = 64 * chunk + mask.trailing_zeros() as usize;
                     mask &= mask - 1;
+                    pairs += 1;
                     // Every fan triangle starts at the new vertex: its side of the record's
                     // plane once per record.
                     let (o, apex) = other.get_or_insert_with(|| {
@@ -567,11 +598,19 @@ impl TriIndex {
             .iter()
             .fold(0, |acc, &r| acc ^ self.recs[r as usize].v[0]);
         std::hint::black_box(first_words);
-        if met.iter().any(|&r| hits(r)) {
+        let crosses = met.iter().any(|&r| hits(r));
+        self.work.records += met.len() as u64;
+        self.work.pairs += pairs;
+        if crosses {
             Verdict::Crosses
         } else {
             Verdict::Clear
         }
+    }
+
+    /// What the queries met so far.
+    pub(crate) fn work(&self) -> GuardWork {
+        self.work
     }
 
     fn take(&mut self, t: TriId) -> Option<u32> {
@@ -1170,6 +1209,37 @@ mod tests {
         let near = live[0] + DVec3::new(0.1, 0.1, 0.5);
         let verdict = move_corner(&mut ix, 5000, [90_000, 90_001, 90_002], live, near);
         assert_eq!(verdict, Verdict::Clear);
+    }
+
+    /// A fan moved through a triangle below it: one query, the obstacle read once and tested
+    /// against the fan's one triangle; a fan far from everything reads nothing.
+    #[test]
+    fn queries_count_the_records_and_pairs_they_meet() {
+        let mut ix = TriIndex::default();
+        let fan = right_triangle().map(|p| p + DVec3::Z);
+        ix.insert(
+            0,
+            [0, 1, 2],
+            right_triangle().map(|p| p + DVec3::new(0.2, 0.2, 0.0)),
+        );
+        ix.insert(1, [3, 4, 5], fan);
+        ix.fix_cell();
+        let through = DVec3::new(0.5, 0.5, -1.0);
+        assert_eq!(
+            move_corner(&mut ix, 1, [3, 4, 5], fan, through),
+            Verdict::Crosses
+        );
+        let work = ix.work();
+        assert_eq!((work.queries, work.records, work.pairs), (1, 1, 1));
+        let away = fan.map(|p| p + DVec3::X * 100.0);
+        ix.update(1, [3, 4, 5], away);
+        let beside = away[0] + DVec3::new(0.1, 0.1, 0.1);
+        assert_eq!(
+            move_corner(&mut ix, 1, [3, 4, 5], away, beside),
+            Verdict::Clear
+        );
+        let work = ix.work();
+        assert_eq!((work.queries, work.records, work.pairs), (2, 1, 1));
     }
 
     #[test]

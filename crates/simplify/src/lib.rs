@@ -100,6 +100,7 @@ mod cost;
 mod data_dependent;
 mod decimate;
 mod intersect;
+pub use intersect::GuardWork;
 mod passthrough;
 mod policy;
 mod priority;
@@ -305,6 +306,8 @@ pub struct SimplifyStats {
     /// Contractions performed while their reach was beyond the front. A self-check of the
     /// time-lag: always 0.
     pub lag_violations: u64,
+    /// What the self-intersection guard's queries met.
+    pub guard: GuardWork,
 }
 
 impl SimplifyStats {
@@ -336,6 +339,7 @@ impl SimplifyStats {
             max_shape_error: first.max_shape_error.max(second.max_shape_error),
             candidates: first.candidates + second.candidates,
             lag_violations: first.lag_violations + second.lag_violations,
+            guard: first.guard + second.guard,
         }
     }
 }

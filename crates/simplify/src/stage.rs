@@ -532,6 +532,7 @@ impl Stage {
             faces_resident: self.band.resident(),
             vertices_resident: self.band.store.live_vertices(),
             candidates: self.decimator.as_ref().map_or(0, Decimator::queued),
+            guard: self.band.guard.work(),
             ..self.stats.clone()
         }
     }
