@@ -304,9 +304,11 @@ pub(crate) struct TriIndex {
 /// eighteenth session in docs/performance.md).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct GuardWork {
-    /// Fans tested (contractions that reached the guard).
+    /// Fans the guard was asked about: every contraction that passed the topology checks,
+    /// merges of coincident vertices aside.
     pub queries: u64,
-    /// Records whose cell entry met a fan's box and that were read.
+    /// Records of other triangles whose cell entry met a fan's box: each is read, unless a
+    /// crossing found first ends the query.
     pub records: u64,
     /// Fan triangle and record pairs whose boxes met, tested exactly.
     pub pairs: u64,

@@ -100,7 +100,6 @@ mod cost;
 mod data_dependent;
 mod decimate;
 mod intersect;
-pub use intersect::GuardWork;
 mod passthrough;
 mod policy;
 mod priority;
@@ -114,6 +113,7 @@ use glam::DVec3;
 use serde::Serialize;
 
 pub use cascade::{Cascade, Handoff, VertexState};
+pub use intersect::GuardWork;
 pub use policy::Policy;
 pub use priority::Priority;
 pub use topology::Boundary;
