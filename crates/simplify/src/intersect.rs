@@ -12,7 +12,7 @@
 //!   of voxels wide; with one cell size they were filed in thousands of cells each and filing,
 //!   unfiling and querying grew with their size (86 % of a 2 M-face run at R = 0.01).
 //! * **Cell size**: `CELL_EDGES` times the mean edge length of the first `SAMPLE` triangles
-//!   (marching-cubes edges are about 0.6 grid spacings, so level-0 cells are about two voxels).
+//!   (marching-cubes edges are about 0.6 grid spacings, so level-0 cells are about four voxels).
 //!   Until it is fixed, triangles wait unfiled and the first query files them.
 //! * **Records** hold `f32` corners (positions are `f32`-exact from the simplifier on, see
 //!   `cost::output_precision`) and ids in one cache line: a query meets records in the order of
@@ -62,8 +62,13 @@ use star::Spoke;
 /// 41 MiB) for 0.5 % more instructions and the same output; 4 saved 4-7 MiB more for 4 % more
 /// instructions.
 const LEVEL_ROOM: f64 = 2.0;
-/// Cell edge in mean triangle edge lengths.
-const CELL_EDGES: f64 = 6.0;
+/// Cell edge in mean triangle edge lengths. 12 rather than 6: at low rates on large slices the
+/// fans behind the front grow tens of voxels wide while the front is at full resolution, and
+/// a fan's box spanned hundreds of level-0 cells, most of them empty (bonsai upsampled 4x, one
+/// stage: 184 lookups a query, 17.6 found); with 12 that run went about 20 % faster side by
+/// side with 6 (slab 421 at 276 s against slab 423 at 363 s), bonsai at R = 0.2 as fast within
+/// the noise, the same output bytes (the index only narrows what the exact test sees).
+const CELL_EDGES: f64 = 12.0;
 /// Triangles averaged for the cell size.
 const SAMPLE: usize = 1024;
 /// Cell sizes `cell * 2^L` for `L < LEVELS`: 2^23 level-0 cells covers any volume.
