@@ -733,14 +733,15 @@ impl JobConfig {
     /// When the default left a job that could run two simplifier stages on one because its
     /// slabs are large for the budget: a line saying how to use both cores. Two stages at such
     /// sizes cost memory (the second holds the first's output above its rear) and save time
-    /// (bonsai upsampled to 1021^3: 183 s at 256 MiB against 478 s at 64 MiB, docs/scale.md).
+    /// (bonsai upsampled to 1021^3 at the default 64 MiB: 359 s with two stages against 896 s
+    /// with one, at 107 MiB against 56; docs/scale.md, "fourteenth round").
     pub fn one_stage_hint(&self, dims: [u64; 3]) -> Option<String> {
         (self.pipeline.simplify_stages.is_none() && self.cascade_possible() && !self.cascade(dims))
             .then(|| {
                 format!(
                     "one simplifier stage: slices of {} x {} voxels are large for two within \
                      [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for about \
-                     twice the memory (bonsai at 1021^3: 387 s against 1132 s, 110 MiB against 56)",
+                     twice the memory (bonsai at 1021^3: 359 s against 896 s, 107 MiB against 56)",
                     dims[0], dims[1], self.pipeline.memory_budget_mib
                 )
             })
