@@ -67,8 +67,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// data-dependent weight kept with each vertex; 15: the rank spacing kept by the evaluator
 /// only; 16: the guard's region of dropped ghosts and its refusal count; 17: vertex positions
 /// kept dense beside the slots; 18: the simplifier as a pass-through or a stage of band,
-/// decimator and retirer; 19: the guard's work counters).
-const FORMAT: u32 = 19;
+/// decimator and retirer; 19: the guard's work counters; 20: the guard's records filed with
+/// room to move).
+const FORMAT: u32 = 20;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -69,6 +69,10 @@ const LEVEL_ROOM: f64 = 2.0;
 /// side with 6 (slab 421 at 276 s against slab 423 at 363 s), bonsai at R = 0.2 as fast within
 /// the noise, the same output bytes (the index only narrows what the exact test sees).
 const CELL_EDGES: f64 = 12.0;
+/// A record is filed with its box grown by this share of its level's cell on every side, so
+/// that the updates a contraction makes to its neighbours' corners (about an edge; level-0
+/// cells are [`CELL_EDGES`] edges) leave most records where they are filed.
+const SLACK: f64 = 0.0625;
 /// Triangles averaged for the cell size.
 const SAMPLE: usize = 1024;
 /// Cell sizes `cell * 2^L` for `L < LEVELS`: 2^23 level-0 cells covers any volume.
@@ -143,6 +147,20 @@ impl Aabb {
 
     fn extent(&self) -> f64 {
         f64::from((self.hi - self.lo).max_element())
+    }
+
+    /// Whether `o` lies within this box.
+    fn contains(&self, o: &Self) -> bool {
+        self.lo.cmple(o.lo).all() && o.hi.cmple(self.hi).all()
+    }
+
+    /// This box grown by `m` on every side (rounded outward: `f32` subtraction and addition
+    /// are monotonic, and `x - m <= x` for `m >= 0`).
+    fn grown(&self, m: f32) -> Self {
+        Self {
+            lo: self.lo - Vec3::splat(m),
+            hi: self.hi + Vec3::splat(m),
+        }
     }
 }
 
@@ -264,20 +282,21 @@ fn clip(s: &Scaled, c: Cell) -> Quantized {
     [q(0), q(1), q(2), q(3), q(4), q(5)]
 }
 
-/// Where a record is filed: its level, cell range and place in the level's record list.
+/// Where a record is filed: its level, its place in the level's record list, and the box its
+/// entries were made for (its room: its own box grown by [`SLACK`] within its cells, which are
+/// those of the room's corners), so that an update moving a corner a little needs no change
+/// of the index. 32 bytes, as the cell range it replaced.
 #[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 struct Filed {
     level: u8,
-    lo: Cell,
-    hi: Cell,
     slot: u32,
+    room: Aabb,
 }
 
 const NOT_FILED: Filed = Filed {
     level: UNFILED,
-    lo: [0; 3],
-    hi: [0; 3],
     slot: 0,
+    room: Aabb::EMPTY,
 };
 
 #[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
@@ -433,6 +452,13 @@ impl TriIndex {
         let rec = Rec::new(v, p);
         let bx = rec.aabb();
         self.recs[r as usize] = rec;
+        // Entries are conservative filters (the record's own box decides after), so a box
+        // that stays within the room it was filed with needs no change of the index: most
+        // updates after a contraction move one corner by about an edge.
+        let f = &self.filed[r as usize];
+        if f.level != UNFILED && f.room.contains(&bx) {
+            return;
+        }
         if self.refile_in_place(r, bx) {
             return;
         }
@@ -726,12 +752,10 @@ impl TriIndex {
     fn file(&mut self, r: u32) {
         let bx = self.recs[r as usize].aabb();
         let level = self.level_of(&bx);
-        let (lo, hi) = (
-            self.key(level, bx.lo.as_dvec3()),
-            self.key(level, bx.hi.as_dvec3()),
-        );
+        let (lo, hi) = self.cells_of(level, &bx);
+        let room = self.room(level, &bx, lo, hi);
         let l = level as u8;
-        let scaled = self.scaled(level, &bx);
+        let scaled = self.scaled(level, &room);
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
@@ -749,28 +773,62 @@ impl TriIndex {
         list.push(r);
         self.filed[r as usize] = Filed {
             level: l,
-            lo,
-            hi,
             slot,
+            room,
         };
     }
 
-    /// When record `r`'s new box `bx` stays on its level and in its cells, rewrites the box in
-    /// those cells (most updates after a contraction move a corner by less than a cell).
+    /// The box whose entries a record of box `bx`, filed in cells `lo..=hi` of `level`, gets:
+    /// `bx` grown by [`SLACK`] of the level's cell, within those cells (shrunk from their
+    /// walls by a thousandth of a cell, and `bx` itself where rounding would still take a
+    /// corner into another cell), so that its corners key to `lo` and `hi` and so does any box
+    /// inside it (`key` is monotonic). Growing past the cells would file the record in more of
+    /// them (more entries to scan and keep: measured slower).
+    fn room(&self, level: usize, bx: &Aabb, lo: Cell, hi: Cell) -> Aabb {
+        let size = self.cell * (1u64 << level) as f64;
+        let wall = |c: i32, up: bool| {
+            let edge = f64::from(c + i32::from(up)) * size;
+            let inset = if up { -1e-3 } else { 1e-3 } * size;
+            (edge + inset) as f32
+        };
+        let cells = Aabb {
+            lo: Vec3::new(wall(lo[0], false), wall(lo[1], false), wall(lo[2], false)),
+            hi: Vec3::new(wall(hi[0], true), wall(hi[1], true), wall(hi[2], true)),
+        };
+        let grown = bx.grown((SLACK * size) as f32);
+        let room = Aabb {
+            lo: grown.lo.max(cells.lo).min(bx.lo),
+            hi: grown.hi.min(cells.hi).max(bx.hi),
+        };
+        if self.cells_of(level, &room) == (lo, hi) {
+            room
+        } else {
+            *bx
+        }
+    }
+
+    /// The cells of `level` a box meets, from its low corner's to its high corner's.
+    fn cells_of(&self, level: usize, bx: &Aabb) -> (Cell, Cell) {
+        (
+            self.key(level, bx.lo.as_dvec3()),
+            self.key(level, bx.hi.as_dvec3()),
+        )
+    }
+
+    /// When record `r`'s new box `bx` stays on its level and in its cells, rewrites its room
+    /// in those cells.
     fn refile_in_place(&mut self, r: u32, bx: Aabb) -> bool {
         let f = self.filed[r as usize];
         if f.level == UNFILED || self.level_of(&bx) != usize::from(f.level) {
             return false;
         }
         let level = usize::from(f.level);
-        let (lo, hi) = (
-            self.key(level, bx.lo.as_dvec3()),
-            self.key(level, bx.hi.as_dvec3()),
-        );
-        if (lo, hi) != (f.lo, f.hi) {
+        let (lo, hi) = self.cells_of(level, &bx);
+        if (lo, hi) != self.cells_of(level, &f.room) {
             return false;
         }
-        let scaled = self.scaled(level, &bx);
+        let room = self.room(level, &bx, lo, hi);
+        let scaled = self.scaled(level, &room);
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
@@ -783,6 +841,7 @@ impl TriIndex {
                 }
             }
         }
+        self.filed[r as usize].room = room;
         true
     }
 
@@ -791,9 +850,10 @@ impl TriIndex {
         if f.level == UNFILED {
             return;
         }
-        for x in f.lo[0]..=f.hi[0] {
-            for y in f.lo[1]..=f.hi[1] {
-                for z in f.lo[2]..=f.hi[2] {
+        let (lo, hi) = self.cells_of(usize::from(f.level), &f.room);
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                for z in lo[2]..=hi[2] {
                     let key = (f.level, [x, y, z]);
                     if let Some(list) = self.cells.get_mut(&key) {
                         if let Some(i) = list.iter().position(|e| e.r == r) {
@@ -1002,6 +1062,55 @@ mod tests {
     use super::*;
 
     /// Legs of 2 along x and y at the origin.
+    /// An update within a record's room leaves the index as it was, one past it refiles the
+    /// record, and either way the record is found by a query over its new box alone.
+    #[test]
+    fn updates_within_the_room_keep_the_entries() {
+        let mut ix = TriIndex::default();
+        let t = right_triangle();
+        ix.insert(0, [0, 1, 2], t);
+        ix.fix_cell();
+        let entries = |ix: &TriIndex| {
+            let mut e: Vec<_> = ix.cells.iter().map(|(k, l)| (*k, l[0].key())).collect();
+            e.sort_unstable();
+            e
+        };
+        let before = entries(&ix);
+        let room = ix.filed[0].room;
+        assert!(room.contains(&ix.recs[0].aabb()));
+        // A corner moved by a hundredth of a cell stays within the room (slack is a sixteenth).
+        let nudge = DVec3::splat(ix.cell * 0.01);
+        let moved = [t[0] + nudge, t[1], t[2]];
+        ix.update(0, [0, 1, 2], moved);
+        assert_eq!(entries(&ix), before, "no change of the index");
+        assert!(room.contains(&ix.recs[0].aabb()));
+        let far = [t[0], t[1], t[2] + DVec3::splat(3.0 * ix.cell)];
+        ix.update(0, [0, 1, 2], far);
+        assert!(ix.filed[0].room.contains(&ix.recs[0].aabb()));
+        assert_ne!(entries(&ix), before, "refiled");
+        for corners in [moved, far] {
+            ix.update(0, [0, 1, 2], corners);
+            // A fan from a far vertex whose triangle pierces the record's new place.
+            let mid = (corners[0] + corners[1] + corners[2]) / 3.0;
+            let n = (corners[1] - corners[0])
+                .cross(corners[2] - corners[0])
+                .normalize();
+            let patch = Patch {
+                tris: smallvec::smallvec![crate::topology::PatchTri {
+                    t: 9,
+                    v: [10, 11, 12],
+                    p: [
+                        mid + n * 100.0,
+                        mid - n + DVec3::X * 0.01,
+                        mid - n - DVec3::Y * 0.01
+                    ],
+                }],
+            };
+            let verdict = ix.would_intersect(&patch, 10, 20, 10, mid + n);
+            assert_eq!(verdict, Verdict::Crosses);
+        }
+    }
+
     fn right_triangle() -> [DVec3; 3] {
         [
             DVec3::ZERO,
