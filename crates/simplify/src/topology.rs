@@ -269,7 +269,6 @@ pub(crate) enum Sites {
 /// One triangle of a [`Patch`]: its slot, corners' ids and positions.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PatchTri {
-    pub(crate) t: TriId,
     pub(crate) v: [u64; 3],
     pub(crate) p: [DVec3; 3],
 }
@@ -301,7 +300,6 @@ impl Patch {
             .map(|&t| {
                 let tri = store.tri(t);
                 PatchTri {
-                    t,
                     v: tri.v,
                     p: store.corners(tri),
                 }
