@@ -854,7 +854,7 @@ impl TriIndex {
                 for z in lo[2]..=hi[2] {
                     let key = (f.level, [x, y, z]);
                     if let Some(list) = self.cells.get_mut(&key) {
-                        if let Some(i) = list.iter().position(|e| e.r == r) {
+                        if let Some(i) = list.iter().rposition(|e| e.r == r) {
                             list.swap_remove(i);
                         }
                         if list.is_empty() {
