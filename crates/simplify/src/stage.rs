@@ -278,6 +278,7 @@ impl Stage {
 
     /// See [`crate::Simplifier::end_batch`].
     pub(crate) fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
+        let advanced = f64::from(front) > self.front;
         self.front = f64::from(front);
         self.release_reached();
         if self.config.in_core {
@@ -294,8 +295,15 @@ impl Stage {
             Schedule::Off => None,
             // Over the memory budget, a pass runs before anything is retired for it, so that what
             // leaves has been decimated (a huge `batch` otherwise emitted raw faces).
-            Schedule::Rate(rate) => (rate.due(counts.generated) || counts.resident > budget)
-                .then(|| Until::Resident(rate.resident_target(counts))),
+            // A pass as the front moves on keeps part of the budget resident (see
+            // `RateSchedule::kept`); within a slab, where the faces that just came cannot
+            // contract yet, the rate target alone.
+            Schedule::Rate(rate) => {
+                (rate.due(counts.generated) || counts.resident > budget).then(|| {
+                    let kept = if advanced { rate.kept(budget) } else { 0 };
+                    Until::Resident(rate.resident_target(counts).max(kept))
+                })
+            }
             Schedule::Threshold => Some(Until::Exhausted),
         };
         if let Some(until) = until {
