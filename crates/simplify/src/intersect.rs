@@ -1059,7 +1059,6 @@ mod tests {
 
     use super::*;
 
-    /// Legs of 2 along x and y at the origin.
     /// An update within a record's room leaves the index as it was, one past it refiles the
     /// record, and either way the record is found by a query over its new box alone.
     #[test]
@@ -1108,6 +1107,7 @@ mod tests {
         }
     }
 
+    /// Legs of 2 along x and y at the origin.
     fn right_triangle() -> [DVec3; 3] {
         [
             DVec3::ZERO,
