@@ -266,7 +266,7 @@ pub(crate) enum Sites {
     Fixed([Option<DVec3>; 2]),
 }
 
-/// One triangle of a [`Patch`]: its slot, corners' ids and positions.
+/// One triangle of a [`Patch`]: its corners' ids and positions.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PatchTri {
     pub(crate) v: [u64; 3],
