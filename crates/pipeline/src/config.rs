@@ -411,11 +411,22 @@ fn check_log_filter(level: &str) -> Result<(), String> {
 /// then had to write part of its surface before the end, 1.17x the in-core RMS distance; 600
 /// held 84 k faces and reached 65 MiB (docs/performance.md, "Sixth session").
 const BYTES_PER_FACE_CASCADE: u64 = 700;
-/// The same for one simplifier alone, which runs by default on larger slices only: there the
-/// sweep front and the slices, outside the face count, grow with the slice, and 700 bytes took
-/// bonsai upsampled to 511^3 (one stage, `[output] faces = 10000`) to 66.7 MiB; 1150 held it at
-/// 60.4 MiB before the allocator fix (docs/scale.md).
-const BYTES_PER_FACE_ALONE: u64 = 1150;
+/// The same for one simplifier alone, which runs by default on larger slices only, besides
+/// [`SLICE_BYTES_PER_CUBE`]. 1150 bytes (before the allocator fix) left a third of the budget
+/// unused and cost accuracy: bonsai upsampled to 511 x 511 x 256 at R = 0.01 peaked at 52.1 MiB
+/// with 43.7 k faces held and came out with 1.89x the in-core RMS distance (the passes squeezed
+/// the surface behind the front, two slabs of 15 k faces, into what the budget left). With 850
+/// and the slice's share (55.5 k faces): 57.9 MiB and 1.31x; R = 0.05 and 0.2 peaked at 62.3
+/// and 61.1 MiB, bonsai upsampled to 1021 x 1021 x 256 (`[output] faces = 10000`) at 62.0 MiB
+/// (docs/performance.md, "Twenty-first session").
+const BYTES_PER_FACE_ALONE: u64 = 850;
+/// What the pipeline holds per cube of one slice outside the simplifier's faces (slabs being
+/// extracted on every core, the detector's front, batches in flight), set aside from the budget
+/// of one simplifier alone, whose slices are the large ones: without it, 850 bytes per face took
+/// bonsai upsampled to 1021 x 1021 x 256 to 65.5 MiB; 12 bytes (12 MiB on 1021^2 slices) hold
+/// it at 62.0. (The cascade's [`BYTES_PER_FACE_CASCADE`] was measured on the slices it runs on,
+/// at most about 294^2 voxels, where this would be under 1 MiB.)
+const SLICE_BYTES_PER_CUBE: u64 = 12;
 /// Largest slab, in cubes per face of the memory budget, that gets two simplifier stages by
 /// default (about 294^2 voxels at the default budget). The first stage keeps a band of a few
 /// slabs within its share of the budget; past about this size its band no longer fits and it
@@ -721,7 +732,8 @@ impl JobConfig {
                 let slab_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
                 self.cascade_possible()
                     && slab_cubes as f64
-                        <= CASCADE_CUBES_PER_FACE * self.faces_held(BYTES_PER_FACE_CASCADE) as f64
+                        <= CASCADE_CUBES_PER_FACE
+                            * self.faces_held(BYTES_PER_FACE_CASCADE, 0) as f64
             }
         }
     }
@@ -750,22 +762,25 @@ impl JobConfig {
     /// The simplifiers' resident-face budget on a volume of `dims` voxels, derived from
     /// `pipeline.memory_budget_mib` (shared by the two stages of a cascade).
     pub fn max_resident_faces(&self, dims: [u64; 3]) -> usize {
-        self.faces_held(if self.cascade(dims) {
-            BYTES_PER_FACE_CASCADE
+        if self.cascade(dims) {
+            self.faces_held(BYTES_PER_FACE_CASCADE, 0)
         } else {
-            BYTES_PER_FACE_ALONE
-        })
+            let slice_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
+            self.faces_held(
+                BYTES_PER_FACE_ALONE,
+                slice_cubes.saturating_mul(SLICE_BYTES_PER_CUBE),
+            )
+        }
     }
 
-    /// Faces the budget holds at `bytes` per face: the budget less the fixed part (at least a
-    /// quarter of it).
-    fn faces_held(&self, bytes: u64) -> usize {
-        let mib = self
-            .pipeline
-            .memory_budget_mib
-            .saturating_sub(FIXED_MIB)
-            .max(self.pipeline.memory_budget_mib / 4);
-        (mib * 1024 * 1024 / bytes) as usize
+    /// Faces the budget holds at `bytes` per face: the budget less the fixed part and
+    /// `set_aside` bytes (at least a quarter of it).
+    fn faces_held(&self, bytes: u64, set_aside: u64) -> usize {
+        let budget = self.pipeline.memory_budget_mib * 1024 * 1024;
+        let held = budget
+            .saturating_sub(FIXED_MIB * 1024 * 1024 + set_aside)
+            .max(budget / 4);
+        (held / bytes) as usize
     }
 }
 
@@ -1003,6 +1018,27 @@ mod tests {
         let two = format!("{none}\n[pipeline]\nsimplify_stages = 2\n");
         let err = parse(&two).unwrap_err().to_string();
         assert!(err.contains("mode = \"rate\""), "{err}");
+    }
+
+    /// One stage alone sets its slices' share aside (their slabs in flight grow with them), and
+    /// never gives up more than three quarters of the budget for it.
+    #[test]
+    fn one_stage_sets_the_slices_share_aside_from_its_faces() {
+        let one = parse(&format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n")).unwrap();
+        let faces = |side: u64| one.max_resident_faces([side, side, 64]);
+        let mib = 1024 * 1024;
+        let held = |set_aside: u64| ((48 * mib - set_aside) / BYTES_PER_FACE_ALONE) as usize;
+        assert_eq!(faces(2), held(SLICE_BYTES_PER_CUBE));
+        assert_eq!(faces(511), held(510 * 510 * SLICE_BYTES_PER_CUBE));
+        assert!(faces(511) < faces(256) && faces(1021) < faces(511));
+        let floor = (16 * mib / BYTES_PER_FACE_ALONE) as usize;
+        assert_eq!(faces(4097), floor, "a quarter of the budget at least");
+        let two = parse(MINIMAL).unwrap();
+        assert_eq!(
+            two.max_resident_faces([256, 256, 64]),
+            (48 * mib / BYTES_PER_FACE_CASCADE) as usize,
+            "a cascade's bytes per face were measured with its slices"
+        );
     }
 
     #[test]
