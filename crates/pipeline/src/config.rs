@@ -774,11 +774,14 @@ impl JobConfig {
     }
 
     /// Faces the budget holds at `bytes` per face: the budget less the fixed part and
-    /// `set_aside` bytes (at least a quarter of it).
+    /// `set_aside` bytes, of which at most a quarter of the budget (past that the slices alone
+    /// fill the budget, the front stretches it, and the faces behind the front still need room:
+    /// bonsai upsampled to 2041^3 would otherwise hold 20 k faces behind a 33 k-face front), and
+    /// at least a quarter of the budget is left to the faces.
     fn faces_held(&self, bytes: u64, set_aside: u64) -> usize {
         let budget = self.pipeline.memory_budget_mib * 1024 * 1024;
         let held = budget
-            .saturating_sub(FIXED_MIB * 1024 * 1024 + set_aside)
+            .saturating_sub(FIXED_MIB * 1024 * 1024 + set_aside.min(budget / 4))
             .max(budget / 4);
         (held / bytes) as usize
     }
@@ -1020,8 +1023,8 @@ mod tests {
         assert!(err.contains("mode = \"rate\""), "{err}");
     }
 
-    /// One stage alone sets its slices' share aside (their slabs in flight grow with them), and
-    /// never gives up more than three quarters of the budget for it.
+    /// One stage alone sets its slices' share aside (their slabs in flight grow with them), up to
+    /// a quarter of the budget, and leaves a quarter of it to the faces whatever the budget.
     #[test]
     fn one_stage_sets_the_slices_share_aside_from_its_faces() {
         let one = parse(&format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n")).unwrap();
@@ -1031,8 +1034,21 @@ mod tests {
         assert_eq!(faces(2), held(SLICE_BYTES_PER_CUBE));
         assert_eq!(faces(511), held(510 * 510 * SLICE_BYTES_PER_CUBE));
         assert!(faces(511) < faces(256) && faces(1021) < faces(511));
-        let floor = (16 * mib / BYTES_PER_FACE_ALONE) as usize;
-        assert_eq!(faces(4097), floor, "a quarter of the budget at least");
+        let capped = (32 * mib / BYTES_PER_FACE_ALONE) as usize;
+        assert_eq!(
+            faces(2041),
+            capped,
+            "a quarter of the budget set aside at most"
+        );
+        let tight = parse(&format!(
+            "{MINIMAL}\n[pipeline]\nsimplify_stages = 1\nmemory_budget_mib = 20\n"
+        ))
+        .unwrap();
+        assert_eq!(
+            tight.max_resident_faces([511, 511, 64]),
+            (5 * mib / BYTES_PER_FACE_ALONE) as usize,
+            "a quarter of the budget left to the faces at least"
+        );
         let two = parse(MINIMAL).unwrap();
         assert_eq!(
             two.max_resident_faces([256, 256, 64]),
