@@ -153,17 +153,20 @@ impl RateSchedule {
         due
     }
 
-    /// Faces a pass decimating for the memory budget (`batch` unset) as the front moves on
-    /// leaves resident, whatever the rate target says: [`BUDGET_KEPT`] of the `budget`. The
-    /// rate target ([`RateSchedule::resident_target`]) counts the faces next to the sweep front
-    /// as contractible, yet most of their contractions must wait for the front (their fans
-    /// reach past it); where the output is small against the front (low rates, large slices)
-    /// the target could not be met, and every pass contracted all it could behind the front,
-    /// far past what the whole surface needs: bonsai upsampled to 511 x 511 x 256 at R = 0.01
-    /// came out with 3.8x the in-core RMS distance (1.9x with this rule). Kept resident, those
-    /// faces are decimated later among more of the surface, as in core; where the output is
-    /// larger than the budget the rate target is the larger and rules as before. With `batch`
-    /// set (Hou and Chen's schedule) the target is theirs alone.
+    /// Faces a pass decimating for the memory budget (`batch` unset) leaves resident whatever
+    /// the rate target says, as long as that brings the band within the budget (the stage goes
+    /// on to the target only when faces must leave: `Stage::end_batch`): [`BUDGET_KEPT`] of the
+    /// `budget`. The rate target ([`RateSchedule::resident_target`]) counts the faces next to the
+    /// sweep front as contractible, yet most of their contractions must wait for the front (their
+    /// fans reach past it), and before any face is written it is the initial phase's target,
+    /// which halves the modifiable faces at every pass; where the output is small against the
+    /// front (low rates, large slices) every pass chasing it contracted far past what the whole
+    /// surface needs: bonsai upsampled to 511 x 511 x 256 at R = 0.01 came out with 3.8x the
+    /// in-core RMS distance; 1.9x with this rule for passes made as the front moves on only (the
+    /// twentieth session), 1.01x with it for every pass and the budget measured again (the
+    /// twenty-first). Kept resident, those faces are decimated later among more of the surface,
+    /// as in core; where the output is larger than the budget the rate target is the larger and
+    /// rules as before. With `batch` set (Hou and Chen's schedule) the target is theirs alone.
     pub(crate) fn kept(&self, budget: usize) -> usize {
         if self.batch == u64::MAX {
             (budget as f64 * BUDGET_KEPT) as usize

@@ -278,7 +278,6 @@ impl Stage {
 
     /// See [`crate::Simplifier::end_batch`].
     pub(crate) fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
-        let advanced = f64::from(front) > self.front;
         self.front = f64::from(front);
         self.release_reached();
         if self.config.in_core {
@@ -291,23 +290,33 @@ impl Stage {
         let budget = self.budget();
         self.stats.peak_front_faces = self.stats.peak_front_faces.max(counts.unmodifiable);
         self.note_stretch(budget);
+        // Over the memory budget, a pass runs before anything is retired for it, so that what
+        // leaves has been decimated (a huge `batch` otherwise emitted raw faces). It stops where
+        // the budget has room again (`RateSchedule::kept`), unless that is still over it: then
+        // faces must leave, and it goes on to the rate target first, so that they leave at the
+        // density the whole output will have.
+        let mut squeeze = None;
         let until = match &mut self.schedule {
             Schedule::Off => None,
-            // Over the memory budget, a pass runs before anything is retired for it, so that what
-            // leaves has been decimated (a huge `batch` otherwise emitted raw faces).
-            // A pass as the front moves on keeps part of the budget resident (see
-            // `RateSchedule::kept`); within a slab, where the faces that just came cannot
-            // contract yet, the rate target alone.
             Schedule::Rate(rate) => {
                 (rate.due(counts.generated) || counts.resident > budget).then(|| {
-                    let kept = if advanced { rate.kept(budget) } else { 0 };
-                    Until::Resident(rate.resident_target(counts).max(kept))
+                    let target = rate.resident_target(counts);
+                    let kept = rate.kept(budget);
+                    if kept > target {
+                        squeeze = Some(Until::Resident(target));
+                    }
+                    Until::Resident(target.max(kept))
                 })
             }
             Schedule::Threshold => Some(Until::Exhausted),
         };
         if let Some(until) = until {
             self.decimate(until);
+        }
+        if let Some(squeeze) = squeeze
+            && self.band.resident() > budget
+        {
+            self.decimate(squeeze);
         }
         // Rate: the simplified surface stays resident, as in Hou and Chen 4.3 (R F + B faces),
         // and leaves only when the memory budget says so, oldest first (see `retire`). Other
