@@ -281,6 +281,46 @@ fn memory_is_bounded_by_the_budget_not_the_length() {
     assert!(long.2 <= 2 * long.0 + 1024, "candidates: {long:?}");
 }
 
+/// Where the whole output fits the memory budget, a pass run for the budget (`batch` unset)
+/// stops once the band has room again (three quarters of the budget), within a slab too, and
+/// nothing is written before the end: the surface is decimated among all of it, as in core.
+/// (Passes within a slab used to chase the rate target, whose initial phase halves the
+/// modifiable faces at every pass: bonsai upsampled to 511 x 511 x 256 at R = 0.01 came out with
+/// 1.3x the in-core RMS distance for it.)
+#[test]
+fn budget_passes_keep_the_band_where_the_output_fits() {
+    let input = tube(24, 400, 4.0, 400.0);
+    let budget = 2000;
+    let cfg = SimplifyConfig {
+        max_resident_faces: budget,
+        ..config(rate(0.02, u64::MAX), 3)
+    };
+    let sweep = Sweep {
+        batches_per_slab: 4,
+        ..Sweep::default()
+    };
+    let run = run(&input, cfg, &sweep);
+    assert_same_topology(&input, &run);
+    assert_rate_met(&input, &run, 0.02);
+    assert_eq!(
+        run.stats.forced_retirements, 0,
+        "the output fits the budget"
+    );
+    let kept = budget * 3 / 4;
+    let resident: Vec<usize> = run.trace.iter().map(|s| s.faces_resident).collect();
+    let first_full = resident
+        .iter()
+        .position(|&f| f >= kept)
+        .expect("the band fills up");
+    let low = resident[first_full..].iter().min().copied().unwrap_or(0);
+    // A contraction removes two faces, so a pass may stop one face below its target.
+    assert!(
+        low + 2 >= kept,
+        "a pass went below the kept share: {low} < {kept}"
+    );
+    assert!(resident.iter().all(|&f| f <= budget + 48), "{resident:?}");
+}
+
 #[test]
 fn memory_budget_forces_early_retirement() {
     let input = sphere(5, 10.0, DVec3::ZERO);
