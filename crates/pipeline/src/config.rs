@@ -440,6 +440,11 @@ const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
 const FIXED_MIB: u64 = 16;
 
+/// Cubes in one slab of a volume of `dims` voxels (the sweep runs along z).
+fn slice_cubes(dims: [u64; 3]) -> u64 {
+    dims[0].saturating_sub(1) * dims[1].saturating_sub(1)
+}
+
 impl JobConfig {
     /// Reads and validates a job file; relative paths inside are resolved against its folder.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
@@ -729,9 +734,8 @@ impl JobConfig {
         match self.pipeline.simplify_stages {
             Some(n) => n == 2,
             None => {
-                let slab_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
                 self.cascade_possible()
-                    && slab_cubes as f64
+                    && slice_cubes(dims) as f64
                         <= CASCADE_CUBES_PER_FACE
                             * self.faces_held(BYTES_PER_FACE_CASCADE, 0) as f64
             }
@@ -765,10 +769,9 @@ impl JobConfig {
         if self.cascade(dims) {
             self.faces_held(BYTES_PER_FACE_CASCADE, 0)
         } else {
-            let slice_cubes = dims[0].saturating_sub(1) * dims[1].saturating_sub(1);
             self.faces_held(
                 BYTES_PER_FACE_ALONE,
-                slice_cubes.saturating_mul(SLICE_BYTES_PER_CUBE),
+                slice_cubes(dims).saturating_mul(SLICE_BYTES_PER_CUBE),
             )
         }
     }
