@@ -131,9 +131,10 @@ mod tests {
     #[test]
     fn flat_interior_vertices_have_no_deficit() {
         let s = fan(0.0, &[]);
-        assert!(angle_deficit(&s, 0).abs() < 1e-12);
+        // Within the f32 rounding of the positions, as every position in the store.
+        assert!(angle_deficit(&s, 0).abs() < 1e-6);
         // Rim vertices are boundary vertices with two 60 degree angles: pi - 2 pi / 3.
-        assert!((angle_deficit(&s, 1) - PI / 3.0).abs() < 1e-12);
+        assert!((angle_deficit(&s, 1) - PI / 3.0).abs() < 1e-6);
         assert!(angle_deficit(&fan(0.5, &[]), 0) > 0.1, "a cone tip");
     }
 

@@ -505,7 +505,7 @@ mod tests {
     #[test]
     fn a_planar_boundary_simplifies_the_cut_within_a_box_face() {
         let mut s = grid();
-        let bent = s.pos(1).with_z(0.3);
+        let bent = crate::cost::output_precision(s.pos(1).with_z(0.3));
         s.set_pos(1, bent);
         let p = |i: u64| s.vertex(i).unwrap().pos();
         let planar = Boundary::Planar {
