@@ -143,6 +143,14 @@ fn handle(slot: usize, generation: u32) -> u64 {
 struct Slot {
     generation: u32,
     state: u32,
+    /// The vertex's position, beside [`Vertex::pos`]: reading a triangle's corners (the patch,
+    /// the guard's updates, the second stage's star reach) touched three 248-byte vertices, each
+    /// a cache miss, for 24 bytes each. Here beside the generation that every read checks
+    /// first, so that a corner is one cache line, not two. The vertex keeps its copy for the
+    /// code that holds a `&Vertex` already (the evaluator reads its quadric beside it);
+    /// [`Store::set_pos`] writes both. In `f32`, which loses nothing: every position is rounded
+    /// to `f32` where it is made ([`crate::cost::output_precision`]).
+    pos: Vec3,
 }
 
 const MODIFIABLE: u32 = 1;
@@ -161,15 +169,6 @@ pub(crate) struct Store {
     tris: Vec<Tri>,
     free_tris: Vec<TriId>,
     resident: usize,
-    /// Every live vertex's position by slot, beside [`Vertex::pos`]: reading a triangle's
-    /// corners (the patch, the guard's updates, the second stage's star reach) touched three
-    /// 248-byte vertices, each a cache miss, for 24 bytes each. The vertex keeps its copy for
-    /// the code that holds a `&Vertex` already (the evaluator reads its quadric beside it);
-    /// [`Store::set_pos`] writes both. In `f32`, which loses nothing: every position is rounded
-    /// to `f32` where it is made ([`crate::cost::output_precision`]), and half the bytes mean
-    /// fewer cache lines for the corner reads that grow with the fans (a fifth of the time on
-    /// bonsai upsampled 4 x 4 x 1 by `perf`).
-    pos: Vec<Vec3>,
 }
 
 impl Store {
@@ -202,9 +201,10 @@ impl Store {
     /// If a vertex that may still receive triangles already has this id.
     pub(crate) fn insert_vertex(&mut self, id: u64, v: Vertex) -> u64 {
         debug_assert_eq!(v.pos.as_vec3().as_dvec3(), v.pos, "positions are f32-exact");
+        let pos = v.pos.as_vec3();
         let slot = match self.free_verts.pop() {
             Some(slot) => {
-                self.pos[slot] = v.pos.as_vec3();
+                self.slots[slot].pos = pos;
                 self.verts[slot] = Some(v);
                 self.slots[slot].state = 0;
                 slot
@@ -214,9 +214,11 @@ impl Store {
                     self.verts.len() < u32::MAX as usize,
                     "fewer than 2^32 resident vertices"
                 );
-                self.pos.push(v.pos.as_vec3());
                 self.verts.push(Some(v));
-                self.slots.push(Slot::default());
+                self.slots.push(Slot {
+                    pos,
+                    ..Slot::default()
+                });
                 self.verts.len() - 1
             }
         };
@@ -354,7 +356,9 @@ impl Store {
 
     /// Position of vertex `v`, if the handle names one.
     pub(crate) fn position(&self, v: u64) -> Option<DVec3> {
-        self.slot(v).map(|slot| self.pos[slot].as_dvec3())
+        let slot = (v & u64::from(u32::MAX)) as usize;
+        let s = self.slots.get(slot)?;
+        (s.generation == (v >> 32) as u32).then(|| s.pos.as_dvec3())
     }
 
     /// Position of vertex `v` (zero for a handle that names no vertex).
@@ -369,7 +373,7 @@ impl Store {
         {
             debug_assert_eq!(pos.as_vec3().as_dvec3(), pos, "positions are f32-exact");
             x.pos = pos;
-            self.pos[slot] = pos.as_vec3();
+            self.slots[slot].pos = pos.as_vec3();
         }
     }
 
