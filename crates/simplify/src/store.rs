@@ -25,7 +25,7 @@ pub(crate) type TriList = SmallVec<[TriId; 8]>;
 
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Vertex {
-    /// Set only through [`Store::set_pos`], which keeps the store's dense copy equal to it.
+    /// Set only through [`Store::set_pos`], which keeps the copy in the vertex's [`Slot`] equal to it.
     pos: DVec3,
     /// Sum of the area-weighted plane quadrics of the triangles in the vertex's preimage patch:
     /// Garland and Heckbert's error quadric and the Tandem `H_u` (seed 000, section 3).
