@@ -387,6 +387,26 @@ mod tests {
     }
 
     #[test]
+    fn the_waiting_queue_gives_back_large_room_once_drained() {
+        let mut c = Candidates::default();
+        for i in 0..20_000 {
+            c.delay(cand(i, i + 1, 0.0), 1.0);
+        }
+        for i in 0..10 {
+            c.delay(cand(i, i + 2, 0.0), 5.0);
+        }
+        assert!(c.waiting.capacity() >= 20_010);
+        c.activate(2.0);
+        assert_eq!(c.waiting.len(), 10);
+        assert!(
+            c.waiting.capacity() < 2 * WAITING_KEPT_ROOM,
+            "{}",
+            c.waiting.capacity()
+        );
+        assert_eq!(c.len(), 20_010, "every entry kept, in Q or in W");
+    }
+
+    #[test]
     fn cost_keys_sort_like_total_cmp_and_round_trip() {
         let costs = [-1.0, -0.0, 0.0, 1e-300, 0.5, 1.0, 3e8, f64::INFINITY];
         for w in costs.windows(2) {
