@@ -25,7 +25,8 @@ pub(crate) type TriList = SmallVec<[TriId; 8]>;
 
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Vertex {
-    /// Set only through [`Store::set_pos`], which keeps the copy in the vertex's [`Slot`] equal to it.
+    /// Set only through [`Store::set_pos`], which keeps the copy in the vertex's [`Slot`] equal
+    /// to it.
     pos: DVec3,
     /// Sum of the area-weighted plane quadrics of the triangles in the vertex's preimage patch:
     /// Garland and Heckbert's error quadric and the Tandem `H_u` (seed 000, section 3).
@@ -172,9 +173,15 @@ pub(crate) struct Store {
 }
 
 impl Store {
-    fn slot(&self, v: u64) -> Option<usize> {
+    /// The slot `v` names and its entry, while the handle is current.
+    fn entry(&self, v: u64) -> Option<(usize, &Slot)> {
         let slot = (v & u64::from(u32::MAX)) as usize;
-        (self.slots.get(slot).map(|s| s.generation) == Some((v >> 32) as u32)).then_some(slot)
+        let s = self.slots.get(slot)?;
+        (s.generation == (v >> 32) as u32).then_some((slot, s))
+    }
+
+    fn slot(&self, v: u64) -> Option<usize> {
+        self.entry(v).map(|(slot, _)| slot)
     }
 
     pub(crate) fn vertex(&self, v: u64) -> Option<&Vertex> {
@@ -356,9 +363,7 @@ impl Store {
 
     /// Position of vertex `v`, if the handle names one.
     pub(crate) fn position(&self, v: u64) -> Option<DVec3> {
-        let slot = (v & u64::from(u32::MAX)) as usize;
-        let s = self.slots.get(slot)?;
-        (s.generation == (v >> 32) as u32).then(|| s.pos.as_dvec3())
+        self.entry(v).map(|(_, s)| s.pos.as_dvec3())
     }
 
     /// Position of vertex `v` (zero for a handle that names no vertex).
