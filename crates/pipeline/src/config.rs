@@ -245,7 +245,8 @@ fn yes() -> bool {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PipelineConfig {
-    /// Batches a channel between two stages may hold before its producer blocks.
+    /// Batches a channel between two stages may hold before its producer blocks (the
+    /// detector's link at most `stages::DELTA_DEPTH`).
     #[serde(default = "default_capacity")]
     pub channel_capacity: usize,
     /// Budget for the simplifier's resident surface; vertices are retired early to stay inside.

@@ -146,9 +146,10 @@ impl Stages<'_> {
             ),
         };
         let threads = threads.max(1);
-        let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(capacity);
+        let deltas = capacity.min(DELTA_DEPTH);
+        let (delta_tx, delta_rx) = bounded::<Msg<MeshDelta>>(deltas);
         // With pruning, the detector sends to the filter, which sends on to the simplifier.
-        let (detect_tx, pruned) = insert_stage(filter, delta_tx, capacity);
+        let (detect_tx, pruned) = insert_stage(filter, delta_tx, deltas);
         let (out_tx, out_rx) = bounded::<Msg<OutBatch>>(capacity);
         // With a cascade the first simplifier's batches go to the second, whose go to the writer.
         let (first_tx, second) = insert_stage(second, out_tx, capacity);
@@ -472,6 +473,15 @@ fn join<T>(
         Err(Stop::Failed(RunError::Internal { stage, reason }))
     })
 }
+
+/// Deltas a channel from the detector may hold (at most `channel_capacity`). The detector
+/// is never the slow side (bonsai: 0.18 s of a 5 s run; 17 s of 3,090 s at 2041^3), so deeper
+/// queues only hold full-resolution faces the simplifier is not ready for: up to 8 batches of
+/// 8,192 faces on slices large enough to fill them, about 3 MiB at 2041^3 (docs/scale.md,
+/// "Twenty-third session"). The simplifier stages' own links keep `channel_capacity`: a
+/// cascade's two stages work in bursts, and a depth of 2 between them made bonsai about 15 %
+/// slower.
+const DELTA_DEPTH: usize = 2;
 
 /// An optional stage put in front of `downstream`: the sender its producer then writes to, and
 /// the stage with its own input and `downstream` as its output.
