@@ -477,10 +477,11 @@ fn join<T>(
 /// Deltas a channel from the detector may hold (at most `channel_capacity`). The detector
 /// is never the slow side (bonsai: 0.18 s of a 5 s run; 17 s of 3,090 s at 2041^3), so deeper
 /// queues only hold full-resolution faces the simplifier is not ready for: up to 8 batches of
-/// 8,192 faces on slices large enough to fill them, about 3 MiB at 2041^3 (docs/scale.md,
-/// "Twenty-third session"). The simplifier stages' own links keep `channel_capacity`: a
-/// cascade's two stages work in bursts, and a depth of 2 between them made bonsai about 15 %
-/// slower.
+/// 8,192 faces on slices large enough to fill them: bonsai at 2041^3 peaked at 65.4 MiB with
+/// this depth against 69.0 with 8, same bytes, same speed at 256^3 (docs/scale.md, "The 2041^3
+/// peak is the widest section's high-water mark"). The simplifier stages' own links keep
+/// `channel_capacity`: a cascade's two stages work in bursts, and a depth of 2 between them too
+/// made bonsai about 15 % slower (under load).
 const DELTA_DEPTH: usize = 2;
 
 /// An optional stage put in front of `downstream`: the sender its producer then writes to, and
