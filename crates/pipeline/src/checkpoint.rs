@@ -68,8 +68,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// only; 16: the guard's region of dropped ghosts and its refusal count; 17: vertex positions
 /// kept dense beside the slots; 18: the simplifier as a pass-through or a stage of band,
 /// decimator and retirer; 19: the guard's work counters; 20: the guard's records filed with
-/// room to move; 21: the vertex positions in `f32`, beside the slot generations).
-const FORMAT: u32 = 21;
+/// room to move; 21: the vertex positions in `f32`, beside the slot generations; 22: the
+/// position kept only there, not in the vertex).
+const FORMAT: u32 = 22;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -201,8 +201,8 @@ pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(D
     };
     let (pos, cost) = crate::cost::place(
         sites,
-        va.pos(),
-        vb.pos(),
+        store.pos(a),
+        store.pos(b),
         || q.minimizer().map(|v| DVec3::new(v[0], v[1], v[2])),
         |p| q.cost_at(p).unwrap_or(f64::INFINITY),
     )?;

@@ -169,12 +169,12 @@ impl Objective {
         let m = self.metric(store, a, b, h, w);
         let (pos, value) = place(
             sites,
-            va.pos(),
-            vb.pos(),
+            store.pos(a),
+            store.pos(b),
             || m.minimizer(),
             |p| m.eval(p).max(0.0),
         )?;
-        let (pa, pb) = (va.pos(), vb.pos());
+        let (pa, pb) = (store.pos(a), store.pos(b));
         let shape_error = shape_measure(&h, w, pos);
         let cost = match *self {
             Objective::Shape { e0, .. } if shape_error > e0 => return None,
@@ -182,7 +182,7 @@ impl Objective {
             Objective::Quadric => value,
             Objective::Shape { .. } => shape_measure(&m, w, pos),
         };
-        let (height, rad) = va.merged_patch(vb, rank_spacing);
+        let (height, rad) = va.merged_patch(vb, (pa - pb).length(), rank_spacing);
         Some(Eval {
             pos,
             cost,
@@ -254,14 +254,14 @@ mod tests {
             for i in 0..n {
                 let (x, y) = (i as f64, j as f64);
                 let z = 0.3 * (1.3 * x).sin() * (0.7 * y).cos() + 0.05 * x * y;
-                s.insert_vertex(j * n + i, Vertex::new(DVec3::new(x, y, z), j as u32, &[]));
+                s.insert_vertex(j * n + i, DVec3::new(x, y, z), Vertex::new(j as u32, &[]));
             }
         }
         for j in 0..n - 1 {
             for i in 0..n - 1 {
                 let v = j * n + i;
                 for t in [[v, v + 1, v + n + 1], [v, v + n + 1, v + n]] {
-                    let p = t.map(|id| s.vertex(id).unwrap().pos());
+                    let p = t.map(|id| s.pos(id));
                     let cross = (p[1] - p[0]).cross(p[2] - p[0]);
                     let normal = cross.normalize();
                     let q = Quadric::plane(normal, -normal.dot(p[0]), 0.5 * cross.length());
@@ -356,7 +356,7 @@ mod tests {
             .evaluate(&s, (a, b), &Boundary::Exact, 2.0)
             .unwrap();
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
-        let len = (s.vertex(a).unwrap().pos() - s.vertex(b).unwrap().pos()).length();
+        let len = (s.pos(a) - s.pos(b)).length();
         assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);
     }
 

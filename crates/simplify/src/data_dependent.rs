@@ -48,7 +48,7 @@ pub(crate) fn gradient(store: &Store, v: u64) -> f64 {
         let Some(y) = store.vertex(n) else {
             continue;
         };
-        let d = (y.pos() - x.pos()).abs().element_sum();
+        let d = (store.pos(n) - store.pos(v)).abs().element_sum();
         if d <= 0.0 {
             continue;
         }
@@ -106,7 +106,7 @@ mod tests {
         let mut s = Store::default();
         for (i, p) in pos.iter().enumerate() {
             let a = attrs.get(i).map(std::slice::from_ref).unwrap_or(&[]);
-            s.insert_vertex(i as u64, Vertex::new(*p, 0, a));
+            s.insert_vertex(i as u64, *p, Vertex::new(0, a));
         }
         for t in tris {
             s.add_triangle(Tri {

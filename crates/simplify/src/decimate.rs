@@ -228,7 +228,7 @@ impl Decimator {
             return true;
         };
         match (store.vertex(a), store.vertex(b)) {
-            (Some(va), Some(vb)) => va.pos() == vb.pos() || va.merged_span(vb) <= max_span,
+            (Some(va), Some(vb)) => store.pos(a) == store.pos(b) || va.merged_span(vb) <= max_span,
             _ => false,
         }
     }
@@ -272,6 +272,7 @@ impl Decimator {
                 }
             }
         }
+        let length = (store.pos(gone) - store.pos(keep)).length();
         let Some(g) = store.remove_vertex(gone) else {
             return;
         };
@@ -279,7 +280,7 @@ impl Decimator {
         let Some(k) = store.vertex_mut(keep) else {
             return;
         };
-        (k.height, k.rad) = k.merged_patch(&g, rank_spacing);
+        (k.height, k.rad) = k.merged_patch(&g, length, rank_spacing);
         k.attrs = merged.attrs;
         k.attr_quadric = merged.attr_quadric;
         k.quadric += g.quadric;
@@ -368,8 +369,8 @@ mod tests {
     fn edge(cascade: Cascade) -> (SimplifyConfig, Store, u64, u64) {
         let config = crate::tests::swept(cascade, usize::MAX);
         let mut store = Store::default();
-        let a = store.insert_vertex(0, Vertex::new(DVec3::new(0.0, 0.0, 5.5), 5, &[]));
-        let b = store.insert_vertex(1, Vertex::new(DVec3::new(1.0, 0.0, 6.5), 6, &[]));
+        let a = store.insert_vertex(0, DVec3::new(0.0, 0.0, 5.5), Vertex::new(5, &[]));
+        let b = store.insert_vertex(1, DVec3::new(1.0, 0.0, 6.5), Vertex::new(6, &[]));
         (config, store, a, b)
     }
 

@@ -10,7 +10,7 @@ use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
 use crate::attribute_quadric::AttrQuadric;
-use crate::store::{Store, Vertex};
+use crate::store::Store;
 use crate::topology::Patch;
 use crate::{SimplifyConfig, SimplifyError};
 
@@ -79,12 +79,13 @@ pub(crate) fn merged_data(
             attr_quadric: None,
         };
     };
+    let ends = [(store.pos(gone), &*g.attrs), (store.pos(keep), &*k.attrs)];
     match (&config.priority, &g.attr_quadric, &k.attr_quadric) {
         (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
             let q = qg.sum(qk);
             let attrs = q
                 .attributes_at(pos, weights)
-                .unwrap_or_else(|| interpolated(g, k, pos));
+                .unwrap_or_else(|| interpolated(ends, pos));
             Merged {
                 attrs,
                 attr_quadric: Some(Box::new(q)),
@@ -92,7 +93,7 @@ pub(crate) fn merged_data(
         }
         _ => Merged {
             attrs: interpolated_in_patch(store, config.attributes, patch, pos)
-                .unwrap_or_else(|| interpolated(g, k, pos)),
+                .unwrap_or_else(|| interpolated(ends, pos)),
             attr_quadric: None,
         },
     }
@@ -146,7 +147,7 @@ pub(crate) fn add_attribute_quadric(store: &mut Store, priority: &Priority, v: [
     let Priority::AttributeQuadric { weights } = priority else {
         return;
     };
-    let corners = v.map(|id| store.vertex(id).map(|x| (x.pos(), x.attrs.clone())));
+    let corners = v.map(|id| store.vertex(id).map(|x| (store.pos(id), x.attrs.clone())));
     let [Some(p0), Some(p1), Some(p2)] = corners else {
         return;
     };
@@ -165,17 +166,19 @@ pub(crate) fn add_attribute_quadric(store: &mut Store, priority: &Priority, v: [
 
 /// Attributes by linear interpolation along the edge, at the projection of `c` onto it: the
 /// fallback when the patch has no proper triangle.
-fn interpolated(gone: &Vertex, keep: &Vertex, c: DVec3) -> Box<[f32]> {
-    let d = keep.pos() - gone.pos();
+/// `ends` are the position and attributes of the vertex that goes, then of the one kept.
+fn interpolated(ends: [(DVec3, &[f32]); 2], c: DVec3) -> Box<[f32]> {
+    let [(gone, gone_attrs), (keep, keep_attrs)] = ends;
+    let d = keep - gone;
     let len2 = d.length_squared();
     let t = if len2 > 0.0 {
-        ((c - gone.pos()).dot(d) / len2).clamp(0.0, 1.0)
+        ((c - gone).dot(d) / len2).clamp(0.0, 1.0)
     } else {
         0.5
     };
-    keep.attrs
+    keep_attrs
         .iter()
-        .zip(gone.attrs.iter())
+        .zip(gone_attrs.iter())
         .map(|(k, g)| (f64::from(*g) + t * (f64::from(*k) - f64::from(*g))) as f32)
         .collect()
 }
@@ -184,27 +187,20 @@ fn interpolated(gone: &Vertex, keep: &Vertex, c: DVec3) -> Box<[f32]> {
 mod tests {
     use super::*;
 
-    fn vertex(pos: DVec3, attrs: &[f32]) -> Vertex {
-        Vertex::new(pos, 0, attrs)
-    }
-
     #[test]
     fn attributes_interpolate_at_the_projection_onto_the_edge() {
-        let (g, k) = (
-            vertex(DVec3::ZERO, &[0.0, 4.0]),
-            vertex(DVec3::new(2.0, 0.0, 0.0), &[10.0, 0.0]),
-        );
+        let edge = [
+            (DVec3::ZERO, &[0.0, 4.0][..]),
+            (DVec3::new(2.0, 0.0, 0.0), &[10.0, 0.0][..]),
+        ];
+        assert_eq!(&*interpolated(edge, DVec3::new(0.5, 3.0, 0.0)), &[2.5, 3.0]);
         assert_eq!(
-            &*interpolated(&g, &k, DVec3::new(0.5, 3.0, 0.0)),
-            &[2.5, 3.0]
-        );
-        assert_eq!(
-            &*interpolated(&g, &k, DVec3::new(9.0, 0.0, 0.0)),
+            &*interpolated(edge, DVec3::new(9.0, 0.0, 0.0)),
             &[10.0, 0.0]
         );
-        let (a, b) = (vertex(DVec3::ZERO, &[3.0]), vertex(DVec3::ZERO, &[1.0]));
+        let coincident = [(DVec3::ZERO, &[3.0][..]), (DVec3::ZERO, &[1.0][..])];
         assert_eq!(
-            &*interpolated(&a, &b, DVec3::ZERO),
+            &*interpolated(coincident, DVec3::ZERO),
             &[2.0],
             "coincident: the mean"
         );

@@ -212,6 +212,7 @@ impl Retirer {
         let mut v = [0; 3];
         let mut last_use = [false; 3];
         for (i, &id) in tri.v.iter().enumerate() {
+            let pos = store.pos(id);
             let Some(x) = store.vertex_mut(id) else {
                 continue;
             };
@@ -221,7 +222,7 @@ impl Retirer {
                     let o = self.next_out;
                     self.next_out += 1;
                     x.out = Some(o);
-                    out.elements.push(OutElement::Vertex { pos: x.pos() });
+                    out.elements.push(OutElement::Vertex { pos });
                     out.attrs.extend_from_slice(&x.attrs);
                     if self.states {
                         out.states.push(crate::VertexState {
@@ -257,7 +258,7 @@ mod tests {
     fn store(ranks: &[u32]) -> Store {
         let mut s = Store::default();
         for (id, &r) in ranks.iter().enumerate() {
-            s.insert_vertex(id as u64, Vertex::new(DVec3::ZERO, r, &[]));
+            s.insert_vertex(id as u64, DVec3::ZERO, Vertex::new(r, &[]));
         }
         s
     }
@@ -295,7 +296,7 @@ mod tests {
         let mut kept = Vec::new();
         for i in 0..20 * COMPACT_MIN as u64 {
             let rank = (i / 1000) as u32;
-            let h = s.insert_vertex(i, Vertex::new(DVec3::ZERO, rank, &[]));
+            let h = s.insert_vertex(i, DVec3::ZERO, Vertex::new(rank, &[]));
             b.push(rank, h, &mut s);
             if i % 97 == 0 {
                 kept.push((rank, h));

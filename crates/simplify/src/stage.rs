@@ -105,7 +105,7 @@ impl Stage {
         let slot = self
             .band
             .store
-            .insert_vertex(id, Vertex::new(pos, rank, &values));
+            .insert_vertex(id, pos, Vertex::new(rank, &values));
         self.band.file(rank, slot);
     }
 
@@ -264,11 +264,15 @@ impl Stage {
                 continue;
             };
             let p = store.corners(t);
-            let edge = store.pos(x) - v.pos();
+            let edge = store.pos(x) - store.pos(id);
             let normal = (p[1] - p[0]).cross(p[2] - p[0]);
             let m = edge.cross(normal).normalize_or_zero();
             if m != DVec3::ZERO {
-                q += Quadric::plane(m, -m.dot(v.pos()), BOUNDARY_WEIGHT * edge.length_squared());
+                q += Quadric::plane(
+                    m,
+                    -m.dot(store.pos(id)),
+                    BOUNDARY_WEIGHT * edge.length_squared(),
+                );
             }
         }
         if let Some(v) = self.band.store.vertex_mut(id) {

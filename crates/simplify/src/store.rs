@@ -25,9 +25,6 @@ pub(crate) type TriList = SmallVec<[TriId; 8]>;
 
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Vertex {
-    /// Set only through [`Store::set_pos`], which keeps the copy in the vertex's [`Slot`] equal
-    /// to it.
-    pos: DVec3,
     /// Sum of the area-weighted plane quadrics of the triangles in the vertex's preimage patch:
     /// Garland and Heckbert's error quadric and the Tandem `H_u` (seed 000, section 3).
     pub(crate) quadric: Quadric,
@@ -62,15 +59,9 @@ pub(crate) struct Vertex {
 }
 
 impl Vertex {
-    pub(crate) fn pos(&self) -> DVec3 {
-        self.pos
-    }
-
-    /// A vertex at `pos` rounded to `f32` (a no-op for the stream's vertices, rounded at the
-    /// door by `vertex_input`), as every position in the store is.
-    pub(crate) fn new(pos: DVec3, rank: u32, attrs: &[f32]) -> Self {
+    /// A vertex first seen at rank `rank` (its position is the store's: [`Store::insert_vertex`]).
+    pub(crate) fn new(rank: u32, attrs: &[f32]) -> Self {
         Self {
-            pos: crate::cost::output_precision(pos),
             quadric: Quadric::default(),
             area: 0.0,
             rank_min: rank,
@@ -92,13 +83,18 @@ impl Vertex {
         self.rank_max.max(other.rank_max) - self.rank_min.min(other.rank_min)
     }
 
-    /// Reach of the patch created by contracting this vertex with `other`:
+    /// Reach of the patch created by contracting this vertex with `other`, `length` away:
     /// `height(c) + rad(c)` with `height(c) = (height(a) + height(b)) / 2` and
     /// `rad(c) = (|a - b| + rad(a) + rad(b)) / 2` (seed 000, section 3, "Time-lag").
     /// `rank_spacing` converts the physical edge length into rank units.
-    pub(crate) fn merged_patch(&self, other: &Vertex, rank_spacing: f64) -> (f64, f64) {
+    pub(crate) fn merged_patch(
+        &self,
+        other: &Vertex,
+        length: f64,
+        rank_spacing: f64,
+    ) -> (f64, f64) {
         let height = 0.5 * (self.height + other.height);
-        let rad = 0.5 * ((self.pos - other.pos).length() / rank_spacing + self.rad + other.rad);
+        let rad = 0.5 * (length / rank_spacing + self.rad + other.rad);
         (height, rad)
     }
 }
@@ -144,13 +140,12 @@ fn handle(slot: usize, generation: u32) -> u64 {
 struct Slot {
     generation: u32,
     state: u32,
-    /// The vertex's position, beside [`Vertex::pos`]: reading a triangle's corners (the patch,
-    /// the guard's updates, the second stage's star reach) touched three 248-byte vertices, each
-    /// a cache miss, for 24 bytes each. Here beside the generation that every read checks
-    /// first, so that a corner is one cache line, not two. The vertex keeps its copy for the
-    /// code that holds a `&Vertex` already (the evaluator reads its quadric beside it);
-    /// [`Store::set_pos`] writes both. In `f32`, which loses nothing: every position is rounded
-    /// to `f32` where it is made ([`crate::cost::output_precision`]).
+    /// The vertex's position, its only copy: reading a triangle's corners (the patch, the
+    /// guard's updates, the second stage's star reach) from the vertices touched three
+    /// vertices of 224 bytes, each a cache miss, for 12 bytes each. Here beside the generation that
+    /// every read checks first, a corner is one cache line. [`Store::set_pos`] is its one
+    /// writer. In `f32`, which loses nothing: every position is rounded to `f32` where it is
+    /// made ([`crate::cost::output_precision`]).
     pos: Vec3,
 }
 
@@ -206,9 +201,10 @@ impl Store {
     ///
     /// # Panics
     /// If a vertex that may still receive triangles already has this id.
-    pub(crate) fn insert_vertex(&mut self, id: u64, v: Vertex) -> u64 {
-        debug_assert_eq!(v.pos.as_vec3().as_dvec3(), v.pos, "positions are f32-exact");
-        let pos = v.pos.as_vec3();
+    pub(crate) fn insert_vertex(&mut self, id: u64, pos: DVec3, v: Vertex) -> u64 {
+        // A no-op for the stream's vertices, rounded at the door by `vertex_input`: every
+        // position in the store is `f32`-exact.
+        let pos = crate::cost::output_precision(pos).as_vec3();
         let slot = match self.free_verts.pop() {
             Some(slot) => {
                 self.slots[slot].pos = pos;
@@ -374,10 +370,9 @@ impl Store {
     /// Moves vertex `v` to `pos`.
     pub(crate) fn set_pos(&mut self, v: u64, pos: DVec3) {
         if let Some(slot) = self.slot(v)
-            && let Some(x) = self.verts[slot].as_mut()
+            && self.verts[slot].is_some()
         {
             debug_assert_eq!(pos.as_vec3().as_dvec3(), pos, "positions are f32-exact");
-            x.pos = pos;
             self.slots[slot].pos = pos.as_vec3();
         }
     }
@@ -396,7 +391,7 @@ mod tests {
     fn slots_are_reused_under_new_handles() {
         let mut s = Store::default();
         let slots: Vec<u64> = [10, 11, 13]
-            .map(|id| s.insert_vertex(id, Vertex::new(DVec3::ZERO, 0, &[])))
+            .map(|id| s.insert_vertex(id, DVec3::ZERO, Vertex::new(0, &[])))
             .to_vec();
         assert_eq!(slots, vec![0, 1, 2]);
         assert_eq!(s.slot_of(13), Some(2));
@@ -419,7 +414,7 @@ mod tests {
         s.remove_vertex(0);
         assert_eq!(s.ids().collect::<Vec<_>>(), vec![1, 2]);
         assert!(s.vertex(0).is_none());
-        let reused = s.insert_vertex(20, Vertex::new(DVec3::ZERO, 0, &[]));
+        let reused = s.insert_vertex(20, DVec3::ZERO, Vertex::new(0, &[]));
         assert_eq!(reused & 0xffff_ffff, 0, "slot 0 is reused");
         assert_ne!(reused, 0, "under a new handle");
         assert!(s.vertex(0).is_none(), "the old handle names nothing");
@@ -432,7 +427,7 @@ mod tests {
     #[test]
     fn slot_state_follows_the_vertex() {
         let mut s = Store::default();
-        let v = s.insert_vertex(1, Vertex::new(DVec3::ZERO, 0, &[]));
+        let v = s.insert_vertex(1, DVec3::ZERO, Vertex::new(0, &[]));
         assert!(!s.is_free(v) && !s.is_modifiable(v) && !s.is_retired(v));
         s.set_modifiable(v);
         assert!(s.is_free(v) && s.is_current(v, 0));
@@ -443,7 +438,7 @@ mod tests {
         assert!(s.is_retired(v) && s.is_modifiable(v) && !s.is_free(v) && !s.is_current(v, 1));
         s.remove_vertex(v);
         assert!(!s.is_retired(v) && !s.is_current(v, 1), "a dead handle");
-        let w = s.insert_vertex(2, Vertex::new(DVec3::ZERO, 0, &[]));
+        let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(0, &[]));
         assert_eq!(w & 0xffff_ffff, v & 0xffff_ffff, "the slot is reused");
         assert!(!s.is_modifiable(w) && !s.is_retired(w) && s.stamp(w) == 0);
     }
@@ -452,7 +447,7 @@ mod tests {
     #[should_panic(expected = "added twice")]
     fn ids_are_unique() {
         let mut s = Store::default();
-        s.insert_vertex(5, Vertex::new(DVec3::ZERO, 0, &[]));
-        s.insert_vertex(5, Vertex::new(DVec3::ZERO, 0, &[]));
+        s.insert_vertex(5, DVec3::ZERO, Vertex::new(0, &[]));
+        s.insert_vertex(5, DVec3::ZERO, Vertex::new(0, &[]));
     }
 }

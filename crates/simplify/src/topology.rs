@@ -174,18 +174,19 @@ pub(crate) fn link_ok(store: &Store, a: u64, b: u64) -> bool {
 /// `None`: no admissible position.
 pub(crate) fn sites(store: &Store, a: u64, b: u64, rule: &Boundary) -> Option<Sites> {
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
+    let (pa, pb) = (store.pos(a), store.pos(b));
     match (va.boundary, vb.boundary) {
         (false, false) => Some(Sites::Free),
-        (true, false) => Some(Sites::Fixed([Some(va.pos()), None])),
-        (false, true) => Some(Sites::Fixed([Some(vb.pos()), None])),
+        (true, false) => Some(Sites::Fixed([Some(pa), None])),
+        (false, true) => Some(Sites::Fixed([Some(pb), None])),
         (true, true) => {
             let (ra, rb) = (ring(store, a), ring(store, b));
             let boundary_edge = ra.iter().any(|&(x, n)| x == b && n == 1);
             if !boundary_edge {
                 return None;
             }
-            let keep_a = removable_onto(store, &rb, vb.pos(), va.pos(), rule).then_some(va.pos());
-            let keep_b = removable_onto(store, &ra, va.pos(), vb.pos(), rule).then_some(vb.pos());
+            let keep_a = removable_onto(store, &rb, pb, pa, rule).then_some(pa);
+            let keep_b = removable_onto(store, &ra, pa, pb, rule).then_some(pb);
             (keep_a.is_some() || keep_b.is_some()).then_some(Sites::Fixed([keep_a, keep_b]))
         }
     }
@@ -397,7 +398,7 @@ mod tests {
     fn store(pos: &[[f64; 3]], tris: &[[u64; 3]]) -> Store {
         let mut s = Store::default();
         for (i, p) in pos.iter().enumerate() {
-            s.insert_vertex(i as u64, Vertex::new(DVec3::from_array(*p), 0, &[]));
+            s.insert_vertex(i as u64, DVec3::from_array(*p), Vertex::new(0, &[]));
         }
         for &v in tris {
             s.add_triangle(Tri { v, unmodifiable: 0 });
@@ -473,7 +474,7 @@ mod tests {
     #[test]
     fn boundary_rules() {
         let s = grid();
-        let p = |i: u64| s.vertex(i).unwrap().pos();
+        let p = |i: u64| s.pos(i);
         assert!(link_ok(&s, 4, 0), "interior vertex to corner");
         assert_eq!(
             sites(&s, 4, 0, &Boundary::Exact),
@@ -507,7 +508,7 @@ mod tests {
         let mut s = grid();
         let bent = crate::cost::output_precision(s.pos(1).with_z(0.3));
         s.set_pos(1, bent);
-        let p = |i: u64| s.vertex(i).unwrap().pos();
+        let p = |i: u64| s.pos(i);
         let planar = Boundary::Planar {
             lo: DVec3::new(0.0, 0.0, -1.0),
             hi: DVec3::new(2.0, 2.0, 1.0),
@@ -586,7 +587,7 @@ mod tests {
             ],
             &[[0, 1, 3], [1, 2, 3], [3, 2, 4], [3, 4, 5]],
         );
-        let c = s.vertex(2).unwrap().pos();
+        let c = s.pos(2);
         assert!(!flips_ok(&s, 3, 2, c), "A-B-X onto the line of A-B");
         // Off that line the sliver stays a small, non-collinear triangle: still allowed.
         assert!(flips_ok(&s, 3, 2, c + DVec3::new(0.0, 0.5, 0.0)));
