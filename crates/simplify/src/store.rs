@@ -197,7 +197,8 @@ impl Store {
             .filter_map(|(slot, (x, s))| x.as_ref().map(|_| handle(slot, s.generation)))
     }
 
-    /// Stores a vertex known to the detector as `id` and returns its handle.
+    /// Stores a vertex known to the detector as `id`, at `pos` (rounded to `f32`), and returns
+    /// its handle.
     ///
     /// # Panics
     /// If a vertex that may still receive triangles already has this id.
