@@ -69,8 +69,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// kept dense beside the slots; 18: the simplifier as a pass-through or a stage of band,
 /// decimator and retirer; 19: the guard's work counters; 20: the guard's records filed with
 /// room to move; 21: the vertex positions in `f32`, beside the slot generations; 22: the
-/// position kept only there, not in the vertex).
-const FORMAT: u32 = 22;
+/// position kept only there, not in the vertex; 23: the time-lag's and priorities' vertex state
+/// beside the vertices, kept only by the policies that use it).
+const FORMAT: u32 = 23;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

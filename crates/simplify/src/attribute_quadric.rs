@@ -194,9 +194,10 @@ pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(D
     // The attribute quadric has no boundary term: its boundary stays exact (`Simplifier::new`).
     let sites = topology::sites(store, a, b, &topology::Boundary::Exact)?;
     let n = 3 + weights.len();
-    let q = match (&va.attr_quadric, &vb.attr_quadric) {
+    let quadric = |v| store.extra(v).and_then(|e| e.attr_quadric.as_deref());
+    let q = match (quadric(a), quadric(b)) {
         (Some(x), Some(y)) => x.sum(y),
-        (Some(x), None) | (None, Some(x)) => (**x).clone(),
+        (Some(x), None) | (None, Some(x)) => x.clone(),
         (None, None) => AttrQuadric::zero(n),
     };
     let (pos, cost) = crate::cost::place(

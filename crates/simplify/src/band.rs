@@ -23,6 +23,18 @@ pub(crate) struct Band {
 }
 
 impl Band {
+    /// An empty band whose store keeps each vertex's `store::Extra` when `extras`.
+    pub(crate) fn new(extras: bool) -> Self {
+        Self {
+            store: if extras {
+                Store::keeping_extras()
+            } else {
+                Store::default()
+            },
+            ..Self::default()
+        }
+    }
+
     /// Files vertex `slot` under `rank` for retirement.
     pub(crate) fn file(&mut self, rank: u32, slot: u64) {
         self.buckets.push(rank, slot, &mut self.store);

@@ -182,7 +182,11 @@ impl Objective {
             Objective::Quadric => value,
             Objective::Shape { .. } => shape_measure(&m, w, pos),
         };
-        let (height, rad) = va.merged_patch(vb, (pa - pb).length(), rank_spacing);
+        // Only the time-lag reads the reach, and only it keeps the patches' heights and radii.
+        let (height, rad) = match (store.extra(a), store.extra(b)) {
+            (Some(ea), Some(eb)) => ea.merged_patch(eb, (pa - pb).length(), rank_spacing),
+            _ => (0.0, 0.0),
+        };
         Some(Eval {
             pos,
             cost,
@@ -248,7 +252,7 @@ mod tests {
     /// A bumpy closed surface's worth of interior vertices: a 6x6 grid with heights, all fans
     /// complete, quadrics accumulated as the simplifier does.
     fn bumpy() -> Store {
-        let mut s = Store::default();
+        let mut s = Store::keeping_extras();
         let n = 6u64;
         for j in 0..n {
             for i in 0..n {

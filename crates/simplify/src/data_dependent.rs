@@ -69,7 +69,7 @@ pub(crate) fn gradient(store: &Store, v: u64) -> f64 {
 /// recomputing them (an `acos` per triangle, two rings) made this priority 7x slower than the
 /// geometric one (half of that is left: the terms of the ring around each contraction).
 pub(crate) fn weight(store: &Store, v: u64, lambda: f64) -> f64 {
-    let Some(cell) = store.vertex(v).map(|x| &x.weight_terms) else {
+    let Some(cell) = store.extra(v).map(|x| &x.weight_terms) else {
         return 0.0;
     };
     let [mut curv, mut grad] = cell.get();
@@ -89,7 +89,7 @@ pub(crate) fn weight(store: &Store, v: u64, lambda: f64) -> f64 {
 /// neighbours' positions and attributes, all within that set).
 pub(crate) fn forget(store: &Store, keep: u64, ring: &topology::Ring) {
     for v in std::iter::once(keep).chain(ring.iter().map(|&(n, _)| n)) {
-        if let Some(x) = store.vertex(v) {
+        if let Some(x) = store.extra(v) {
             x.weight_terms.set([f64::NAN; 2]);
         }
     }
@@ -103,7 +103,7 @@ mod tests {
     use crate::store::{Tri, Vertex};
 
     fn mesh(pos: &[DVec3], attrs: &[f32], tris: &[[u64; 3]]) -> Store {
-        let mut s = Store::default();
+        let mut s = Store::keeping_extras();
         for (i, p) in pos.iter().enumerate() {
             let a = attrs.get(i).map(std::slice::from_ref).unwrap_or(&[]);
             s.insert_vertex(i as u64, *p, Vertex::new(0, a));

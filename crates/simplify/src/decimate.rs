@@ -272,17 +272,26 @@ impl Decimator {
                 }
             }
         }
-        let length = (store.pos(gone) - store.pos(keep)).length();
+        let patch_reach = match (store.extra(gone), store.extra(keep)) {
+            (Some(eg), Some(ek)) => {
+                let length = (store.pos(gone) - store.pos(keep)).length();
+                Some(ek.merged_patch(eg, length, self.evaluator.rank_spacing))
+            }
+            _ => None,
+        };
         let Some(g) = store.remove_vertex(gone) else {
             return;
         };
-        let rank_spacing = self.evaluator.rank_spacing;
+        if let Some(e) = store.extra_mut(keep) {
+            if let Some((height, rad)) = patch_reach {
+                (e.height, e.rad) = (height, rad);
+            }
+            e.attr_quadric = merged.attr_quadric;
+        }
         let Some(k) = store.vertex_mut(keep) else {
             return;
         };
-        (k.height, k.rad) = k.merged_patch(&g, length, rank_spacing);
         k.attrs = merged.attrs;
-        k.attr_quadric = merged.attr_quadric;
         k.quadric += g.quadric;
         k.area += g.area;
         k.boundary |= g.boundary;

@@ -80,7 +80,8 @@ pub(crate) fn merged_data(
         };
     };
     let ends = [(store.pos(gone), &*g.attrs), (store.pos(keep), &*k.attrs)];
-    match (&config.priority, &g.attr_quadric, &k.attr_quadric) {
+    let quadric = |v| store.extra(v).and_then(|e| e.attr_quadric.as_deref());
+    match (&config.priority, quadric(gone), quadric(keep)) {
         (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
             let q = qg.sum(qk);
             let attrs = q
@@ -155,7 +156,7 @@ pub(crate) fn add_attribute_quadric(store: &mut Store, priority: &Priority, v: [
         return;
     };
     for id in v {
-        if let Some(x) = store.vertex_mut(id) {
+        if let Some(x) = store.extra_mut(id) {
             match &mut x.attr_quadric {
                 Some(acc) => acc.add(&q),
                 None => x.attr_quadric = Some(Box::new(q.clone())),

@@ -65,6 +65,9 @@ pub(crate) struct Stage {
 impl Stage {
     /// A stage for `config`, validated by [`crate::Simplifier::new`].
     pub(crate) fn new(config: SimplifyConfig) -> Self {
+        // The Tandem time-lag and the two other priorities keep per-vertex state the default
+        // job does not (`store::Extra`).
+        let extras = config.policy.time_lag() || config.priority != crate::Priority::Geometric;
         let decimator = config.policy.objective().map(|objective| {
             let evaluator = Evaluator::new(
                 objective,
@@ -79,7 +82,7 @@ impl Stage {
             retirer: Retirer::new(config.cascade),
             decimator,
             config,
-            band: Band::default(),
+            band: Band::new(extras),
             beyond_front: std::collections::BinaryHeap::new(),
             front: 0.0,
             rear: 0,

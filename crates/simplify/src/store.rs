@@ -36,10 +36,6 @@ pub(crate) struct Vertex {
     pub(crate) rank_max: u32,
     /// Rank bucket the vertex is currently filed under (stale bucket entries are skipped).
     pub(crate) bucket: u32,
-    /// Tandem time-lag estimate of the preimage patch: centre height and radius, in rank units
-    /// (seed 000, section 3, "Time-lag").
-    pub(crate) height: f64,
-    pub(crate) rad: f64,
     /// On the surface boundary. Known once the vertex is modifiable (its fan is complete) and
     /// inherited through contractions: the boundary rule only ever places a merged vertex on the
     /// boundary when an endpoint was on it, and the link condition keeps interior vertices
@@ -49,6 +45,17 @@ pub(crate) struct Vertex {
     pub(crate) out: Option<u64>,
     pub(crate) tris: TriList,
     pub(crate) attrs: Box<[f32]>,
+}
+
+/// What only some policies keep of a vertex, beside the vertices by slot ([`Store::extra`]):
+/// the default job (mode `rate`, the geometric priority) has none of it, and its vertices were
+/// 40 bytes larger while they carried it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Extra {
+    /// Tandem time-lag estimate of the preimage patch: centre height and radius, in rank units
+    /// (seed 000, section 3, "Time-lag").
+    pub(crate) height: f64,
+    pub(crate) rad: f64,
     /// Position-and-attribute quadric of the preimage (attribute-quadric priority only).
     pub(crate) attr_quadric: Option<Box<crate::attribute_quadric::AttrQuadric>>,
     /// The data-dependent priority's terms of this vertex once computed (absolute angle
@@ -56,6 +63,28 @@ pub(crate) struct Vertex {
     /// star or a neighbour (`data_dependent::weight`). A `Cell` because costs are evaluated on
     /// a shared store.
     pub(crate) weight_terms: Cell<[f64; 2]>,
+}
+
+impl Extra {
+    /// A vertex's first state at rank `rank`: a patch of radius one around it.
+    fn new(rank: u32) -> Self {
+        Self {
+            height: f64::from(rank),
+            rad: 1.0,
+            attr_quadric: None,
+            weight_terms: Cell::new([f64::NAN; 2]),
+        }
+    }
+
+    /// Reach of the patch created by contracting this vertex with `other`, `length` away:
+    /// `height(c) + rad(c)` with `height(c) = (height(a) + height(b)) / 2` and
+    /// `rad(c) = (|a - b| + rad(a) + rad(b)) / 2` (seed 000, section 3, "Time-lag").
+    /// `rank_spacing` converts the physical edge length into rank units.
+    pub(crate) fn merged_patch(&self, other: &Extra, length: f64, rank_spacing: f64) -> (f64, f64) {
+        let height = 0.5 * (self.height + other.height);
+        let rad = 0.5 * (length / rank_spacing + self.rad + other.rad);
+        (height, rad)
+    }
 }
 
 impl Vertex {
@@ -67,35 +96,16 @@ impl Vertex {
             rank_min: rank,
             rank_max: rank,
             bucket: rank,
-            height: f64::from(rank),
-            rad: 1.0,
             boundary: false,
             out: None,
             tris: TriList::new(),
             attrs: attrs.into(),
-            attr_quadric: None,
-            weight_terms: Cell::new([f64::NAN; 2]),
         }
     }
 
     /// Rank span of the preimage of the vertex replacing this one and `other`.
     pub(crate) fn merged_span(&self, other: &Vertex) -> u32 {
         self.rank_max.max(other.rank_max) - self.rank_min.min(other.rank_min)
-    }
-
-    /// Reach of the patch created by contracting this vertex with `other`, `length` away:
-    /// `height(c) + rad(c)` with `height(c) = (height(a) + height(b)) / 2` and
-    /// `rad(c) = (|a - b| + rad(a) + rad(b)) / 2` (seed 000, section 3, "Time-lag").
-    /// `rank_spacing` converts the physical edge length into rank units.
-    pub(crate) fn merged_patch(
-        &self,
-        other: &Vertex,
-        length: f64,
-        rank_spacing: f64,
-    ) -> (f64, f64) {
-        let height = 0.5 * (self.height + other.height);
-        let rad = 0.5 * (length / rank_spacing + self.rad + other.rad);
-        (height, rad)
     }
 }
 
@@ -129,7 +139,7 @@ fn handle(slot: usize, generation: u32) -> u64 {
     (u64::from(generation) << 32) | slot as u64
 }
 
-/// What the hottest tests read of a slot, kept dense rather than in the 200-byte [`Vertex`]:
+/// What the hottest tests read of a slot, kept dense rather than in the [`Vertex`]:
 /// whether a handle still names the slot's vertex (`generation`, bumped when the vertex leaves),
 /// and that vertex's `state`: [`MODIFIABLE`] (all its triangles exist, the detector's word),
 /// [`RETIRED`] (behind the front: it never moves again, its edges are no candidates) and its
@@ -165,9 +175,36 @@ pub(crate) struct Store {
     tris: Vec<Tri>,
     free_tris: Vec<TriId>,
     resident: usize,
+    /// Each slot's [`Extra`], when the policy keeps them ([`Store::keeping_extras`]); empty
+    /// otherwise.
+    extras: Vec<Extra>,
+    keeps_extras: bool,
 }
 
 impl Store {
+    /// A store that keeps each vertex's [`Extra`]: for the Tandem time-lag and the
+    /// data-dependent and attribute-quadric priorities.
+    pub(crate) fn keeping_extras() -> Self {
+        Self {
+            keeps_extras: true,
+            ..Self::default()
+        }
+    }
+
+    /// What the policy keeps of vertex `v` besides the vertex (`None` when it keeps nothing,
+    /// or for a handle that names no vertex).
+    pub(crate) fn extra(&self, v: u64) -> Option<&Extra> {
+        let slot = self.slot(v)?;
+        self.verts[slot].as_ref()?;
+        self.extras.get(slot)
+    }
+
+    pub(crate) fn extra_mut(&mut self, v: u64) -> Option<&mut Extra> {
+        let slot = self.slot(v)?;
+        self.verts[slot].as_ref()?;
+        self.extras.get_mut(slot)
+    }
+
     /// The slot `v` names and its entry, while the handle is current.
     fn entry(&self, v: u64) -> Option<(usize, &Slot)> {
         let slot = (v & u64::from(u32::MAX)) as usize;
@@ -206,6 +243,7 @@ impl Store {
         // A no-op for the stream's vertices, rounded at the door by `vertex_input`: every
         // position in the store is `f32`-exact.
         let pos = crate::cost::output_precision(pos).as_vec3();
+        let rank = v.rank_min;
         let slot = match self.free_verts.pop() {
             Some(slot) => {
                 self.slots[slot].pos = pos;
@@ -226,6 +264,13 @@ impl Store {
                 self.verts.len() - 1
             }
         };
+        if self.keeps_extras {
+            let extra = Extra::new(rank);
+            match self.extras.get_mut(slot) {
+                Some(e) => *e = extra,
+                None => self.extras.push(extra),
+            }
+        }
         let h = handle(slot, self.slots[slot].generation);
         let old = self.handles.insert(id, h);
         assert!(old.is_none(), "vertex id {id} added twice");
@@ -251,6 +296,9 @@ impl Store {
     pub(crate) fn remove_vertex(&mut self, v: u64) -> Option<Vertex> {
         let slot = self.slot(v)?;
         let x = self.verts[slot].take()?;
+        if let Some(e) = self.extras.get_mut(slot) {
+            e.attr_quadric = None;
+        }
         self.slots[slot].generation = self.slots[slot].generation.wrapping_add(1);
         self.free_verts.push(slot);
         self.live_verts -= 1;
@@ -442,6 +490,25 @@ mod tests {
         let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(0, &[]));
         assert_eq!(w & 0xffff_ffff, v & 0xffff_ffff, "the slot is reused");
         assert!(!s.is_modifiable(w) && !s.is_retired(w) && s.stamp(w) == 0);
+    }
+
+    /// Only a store that keeps extras has them, and a reused slot starts its vertex's afresh.
+    #[test]
+    fn extras_are_kept_only_when_asked_and_start_afresh() {
+        let mut plain = Store::default();
+        let v = plain.insert_vertex(1, DVec3::ZERO, Vertex::new(3, &[]));
+        assert!(plain.extra(v).is_none());
+        let mut s = Store::keeping_extras();
+        let v = s.insert_vertex(1, DVec3::ZERO, Vertex::new(3, &[]));
+        let e = s.extra(v).expect("kept");
+        assert_eq!((e.height, e.rad), (3.0, 1.0));
+        s.extra_mut(v).unwrap().height = 9.0;
+        s.forget_id(1);
+        s.remove_vertex(v);
+        assert!(s.extra(v).is_none(), "a dead handle has none");
+        let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(5, &[]));
+        assert_eq!(w & 0xffff_ffff, v & 0xffff_ffff, "the slot is reused");
+        assert_eq!(s.extra(w).map(|e| e.height), Some(5.0));
     }
 
     #[test]
