@@ -70,8 +70,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// decimator and retirer; 19: the guard's work counters; 20: the guard's records filed with
 /// room to move; 21: the vertex positions in `f32`, beside the slot generations; 22: the
 /// position kept only there, not in the vertex; 23: the time-lag's and priorities' vertex state
-/// beside the vertices, kept only by the policies that use it).
-const FORMAT: u32 = 23;
+/// beside the vertices, kept only by the policies that use it; 24: a vertex's output number
+/// without its `Option`).
+const FORMAT: u32 = 24;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

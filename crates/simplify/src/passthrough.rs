@@ -16,10 +16,8 @@
 use glam::DVec3;
 use rustc_hash::FxHashMap;
 
+use crate::store::UNWRITTEN;
 use crate::{OutBatch, OutElement, SimplifyConfig, SimplifyStats};
-
-/// `Slot::out` of a vertex not written yet.
-const UNWRITTEN: u64 = u64::MAX;
 
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 struct Slot {

@@ -216,12 +216,12 @@ impl Retirer {
             let Some(x) = store.vertex_mut(id) else {
                 continue;
             };
-            v[i] = match x.out {
+            v[i] = match x.out() {
                 Some(o) => o,
                 None => {
                     let o = self.next_out;
                     self.next_out += 1;
-                    x.out = Some(o);
+                    x.set_out(o);
                     out.elements.push(OutElement::Vertex { pos });
                     out.attrs.extend_from_slice(&x.attrs);
                     if self.states {
