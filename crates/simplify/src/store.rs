@@ -166,7 +166,7 @@ struct Slot {
     state: u32,
     /// The vertex's position, its only copy: reading a triangle's corners (the patch, the
     /// guard's updates, the second stage's star reach) from the vertices touched three vertices
-    /// of over 200 bytes, each a cache miss, for 12 bytes each. Here beside the generation that
+    /// (of 248 bytes then), each a cache miss, for 12 bytes each. Here beside the generation that
     /// every read checks first, a corner is one cache line. [`Store::set_pos`] is its one
     /// writer. In `f32`, which loses nothing: every position is rounded to `f32` where it is
     /// made ([`crate::cost::output_precision`]).
