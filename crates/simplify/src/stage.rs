@@ -261,21 +261,18 @@ impl Stage {
         let Some(v) = store.vertex(id) else {
             return;
         };
+        let pv = store.pos(id);
         let mut q = Quadric::default();
         for &(x, _) in ring.iter().filter(|&&(_, n)| n == 1) {
             let Some(t) = v.tris.iter().map(|&t| store.tri(t)).find(|t| t.contains(x)) else {
                 continue;
             };
             let p = store.corners(t);
-            let edge = store.pos(x) - store.pos(id);
+            let edge = store.pos(x) - pv;
             let normal = (p[1] - p[0]).cross(p[2] - p[0]);
             let m = edge.cross(normal).normalize_or_zero();
             if m != DVec3::ZERO {
-                q += Quadric::plane(
-                    m,
-                    -m.dot(store.pos(id)),
-                    BOUNDARY_WEIGHT * edge.length_squared(),
-                );
+                q += Quadric::plane(m, -m.dot(pv), BOUNDARY_WEIGHT * edge.length_squared());
             }
         }
         if let Some(v) = self.band.store.vertex_mut(id) {
