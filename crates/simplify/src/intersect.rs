@@ -191,30 +191,62 @@ impl Wide {
     }
 }
 
-/// A record's entry in a cell: its box clipped to the cell and quantized inline, so a query
-/// scans cells contiguously and fetches the box and corners only of the records whose clipped
-/// box meets the fan's. 12 bytes: with the box and its low cell in `f32` and `i32` (40 bytes)
-/// the cells were the largest part of the index (12 MiB of a 47 MiB heap on engine at R = 0.2,
-/// heaptrack), and the largest that grew with the resident faces.
-#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
-struct Entry {
-    r: u32,
-    /// The quantized box and the first-cell bits, packed for [`meets`] (two words keep the
-    /// entry at 12 bytes; a `u64` would align it to 16).
-    key: [u32; 2],
+/// The records filed in one cell, each with its box clipped to the cell and quantized inline
+/// (its key, see [`meets`]), so a query scans cells contiguously and fetches the box and corners
+/// only of the records whose clipped box meets the fan's. 12 bytes an entry: with the box and its
+/// low cell in `f32` and `i32` (40 bytes) the cells were the largest part of the index (12 MiB
+/// of a 47 MiB heap on engine at R = 0.2, heaptrack), and the largest that grew with the
+/// resident faces.
+///
+/// Keys and record numbers in two arrays rather than one of entries: a query reads the keys and
+/// only the matches' numbers, and unfiling a record scans the numbers alone for it (cells of
+/// [`CELL_EDGES`] edges hold about 350 records on bonsai, and that scan was 12 % of a run that
+/// made no contraction).
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+struct CellList {
+    keys: Vec<u64>,
+    recs: Vec<u32>,
 }
 
-impl Entry {
-    fn new(r: u32, q: &Quantized, first: u8) -> Self {
-        let key = pack(q, first);
-        Self {
-            r,
-            key: [key as u32, (key >> 32) as u32],
-        }
+impl CellList {
+    fn push(&mut self, r: u32, q: &Quantized, first: u8) {
+        self.keys.push(pack(q, first));
+        self.recs.push(r);
     }
 
-    fn key(&self) -> u64 {
-        u64::from(self.key[0]) | (u64::from(self.key[1]) << 32)
+    fn len(&self) -> usize {
+        self.recs.len()
+    }
+
+    /// Where record `r` is in this list, searched from the end (records filed last are also
+    /// the likeliest to change again), eight numbers at a time: a compare over a chunk without
+    /// an early exit compiles to vector instructions, and the chunk holding `r` is rescanned.
+    fn find(&self, r: u32) -> Option<usize> {
+        const CHUNK: usize = 8;
+        let full = self.recs.len() / CHUNK * CHUNK;
+        if let Some(i) = self.recs[full..].iter().rposition(|&x| x == r) {
+            return Some(full + i);
+        }
+        (0..full / CHUNK).rev().find_map(|c| {
+            let chunk = &self.recs[c * CHUNK..(c + 1) * CHUNK];
+            let any = chunk.iter().fold(false, |m, &x| m | (x == r));
+            any.then(|| c * CHUNK + chunk.iter().rposition(|&x| x == r).unwrap_or(0))
+        })
+    }
+
+    fn swap_remove(&mut self, i: usize) {
+        self.keys.swap_remove(i);
+        self.recs.swap_remove(i);
+    }
+
+    /// Gives back the room of a cell that once held many records (a dense slab, triangles
+    /// before they grew), which it would otherwise keep for good.
+    fn trim(&mut self) {
+        let n = self.recs.len();
+        if self.recs.capacity() >= 4 * n.max(4) {
+            self.keys.shrink_to(2 * n);
+            self.recs.shrink_to(2 * n);
+        }
     }
 }
 
@@ -306,7 +338,7 @@ const NOT_FILED: Filed = Filed {
 pub(crate) struct TriIndex {
     /// Level-0 cell edge; 0 until fixed.
     cell: f64,
-    cells: FxHashMap<(u8, Cell), Vec<Entry>>,
+    cells: FxHashMap<(u8, Cell), CellList>,
     recs: Vec<Rec>,
     filed: Vec<Filed>,
     /// The records filed at each level.
@@ -314,7 +346,9 @@ pub(crate) struct TriIndex {
     free: Vec<u32>,
     /// Record of each store triangle slot (`NONE` when empty).
     of_tri: Vec<u32>,
-    ghosts: VecDeque<u32>,
+    /// Ghost records with their highest corner along z, oldest first: the scan for ghosts to
+    /// drop reads no record (each a cache miss, half of that scan's time).
+    ghosts: VecDeque<(u32, f32)>,
     /// Ghosts at which [`TriIndex::emit`] looks for ones to drop again.
     ghost_check: usize,
     /// The box around every ghost dropped so far (`None` before the first): no new fan may
@@ -395,33 +429,46 @@ impl TriIndex {
     /// of both, paid once per that many emissions); the others only beyond [`GHOST_LIMIT`].
     pub(crate) fn emit(&mut self, t: TriId) {
         if let Some(r) = self.take(t) {
-            self.ghosts.push_back(r);
+            let top = self.recs[r as usize].aabb().hi.z;
+            self.ghosts.push_back((r, top));
         }
         let share = (self.live / GHOST_SHARE).max(SAMPLE);
         if self.ghosts.len() <= share.max(self.ghost_check) {
             return;
         }
-        let floor = self
-            .of_tri
-            .iter()
-            .filter(|&&r| r != NONE)
-            .map(|&r| self.recs[r as usize].aabb().lo.z)
-            .fold(f32::INFINITY, f32::min);
+        let floor = self.resident_floor();
         let ghosts = std::mem::take(&mut self.ghosts);
-        for r in ghosts {
-            if self.recs[r as usize].aabb().hi.z < floor {
+        for (r, top) in ghosts {
+            if top < floor {
                 self.forget(r);
             } else {
-                self.ghosts.push_back(r);
+                self.ghosts.push_back((r, top));
             }
         }
         let limit = (self.live * GHOST_LIMIT).max(SAMPLE);
         while self.ghosts.len() > limit {
-            if let Some(r) = self.ghosts.pop_front() {
+            if let Some((r, _)) = self.ghosts.pop_front() {
                 self.forget(r);
             }
         }
         self.ghost_check = self.ghosts.len() + share;
+    }
+
+    /// The lowest corner along z of the resident triangles' records. Read in the records' order
+    /// (the records neither ghosts nor free), not through the triangles' slots: one read of
+    /// the records in turn rather than a cache miss for each (reached through the slots, this
+    /// was 6 % of a run that made no contraction).
+    fn resident_floor(&self) -> f32 {
+        let mut resident = vec![true; self.recs.len()];
+        for &r in self.ghosts.iter().map(|(r, _)| r).chain(&self.free) {
+            resident[r as usize] = false;
+        }
+        self.recs
+            .iter()
+            .zip(&resident)
+            .filter(|(_, resident)| **resident)
+            .map(|(rec, _)| rec.p[0].z.min(rec.p[1].z).min(rec.p[2].z))
+            .fold(f32::INFINITY, f32::min)
     }
 
     /// Drops ghost record `r`, adding its box to the region refused to new fans.
@@ -575,7 +622,7 @@ impl TriIndex {
         // reads issued together overlap where a test per record waited for each in turn.
         let mut met: SmallVec<[u32; 64]> = SmallVec::new();
         let mut meet = |r: u32| met.push(r);
-        let mut lists: SmallVec<[(&[Entry], u64); 32]> = SmallVec::new();
+        let mut lists: SmallVec<[(&CellList, u64); 32]> = SmallVec::new();
         for level in 0..LEVELS {
             let count = self.levels.get(level).map_or(0, Vec::len);
             if count == 0 {
@@ -607,7 +654,7 @@ impl TriIndex {
                         // query's first. (`key` is monotonic, so the cell of the larger corner
                         // is the larger of the two corners' cells.)
                         let need = !first_bits(clo, c) & 0b111;
-                        lists.push((list.as_slice(), probe(&clip(&scaled, c), need)));
+                        lists.push((list, probe(&clip(&scaled, c), need)));
                     }
                 }
             }
@@ -615,13 +662,13 @@ impl TriIndex {
         // The cells' lists are found first and scanned after, for the same reason as the
         // records below: each list's first entries are a cache miss.
         let first_keys = lists.iter().fold(0, |acc, (list, _)| {
-            acc ^ list.first().map_or(0, |e| e.key[0])
+            acc ^ list.keys.first().copied().unwrap_or(0)
         });
         std::hint::black_box(first_keys);
         for (list, probe) in &lists {
-            for e in *list {
-                if meets(e.key(), *probe) {
-                    meet(e.r);
+            for (&key, &r) in list.keys.iter().zip(&list.recs) {
+                if meets(key, *probe) {
+                    meet(r);
                 }
             }
         }
@@ -758,8 +805,11 @@ impl TriIndex {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
-                    let e = Entry::new(r, &clip(&scaled, c), first_bits(lo, c));
-                    self.cells.entry((l, c)).or_default().push(e);
+                    let q = clip(&scaled, c);
+                    self.cells
+                        .entry((l, c))
+                        .or_default()
+                        .push(r, &q, first_bits(lo, c));
                 }
             }
         }
@@ -832,9 +882,9 @@ impl TriIndex {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
                     if let Some(list) = self.cells.get_mut(&(f.level, c))
-                        && let Some(e) = list.iter_mut().find(|e| e.r == r)
+                        && let Some(i) = list.find(r)
                     {
-                        *e = Entry::new(r, &clip(&scaled, c), first_bits(lo, c));
+                        list.keys[i] = pack(&clip(&scaled, c), first_bits(lo, c));
                     }
                 }
             }
@@ -854,15 +904,13 @@ impl TriIndex {
                 for z in lo[2]..=hi[2] {
                     let key = (f.level, [x, y, z]);
                     if let Some(list) = self.cells.get_mut(&key) {
-                        if let Some(i) = list.iter().rposition(|e| e.r == r) {
+                        if let Some(i) = list.find(r) {
                             list.swap_remove(i);
                         }
-                        if list.is_empty() {
+                        if list.len() == 0 {
                             self.cells.remove(&key);
-                        } else if list.capacity() >= 4 * list.len().max(4) {
-                            // A cell that once held many records (a dense slab, triangles before
-                            // they grew) would keep their room for good.
-                            list.shrink_to(2 * list.len());
+                        } else {
+                            list.trim();
                         }
                     }
                 }
@@ -1068,7 +1116,7 @@ mod tests {
         ix.insert(0, [0, 1, 2], t);
         ix.fix_cell();
         let entries = |ix: &TriIndex| {
-            let mut e: Vec<_> = ix.cells.iter().map(|(k, l)| (*k, l[0].key())).collect();
+            let mut e: Vec<_> = ix.cells.iter().map(|(k, l)| (*k, l.keys[0])).collect();
             e.sort_unstable();
             e
         };
@@ -1117,7 +1165,7 @@ mod tests {
     }
 
     fn filed(ix: &TriIndex) -> usize {
-        ix.cells.values().map(|l| l.len()).sum()
+        ix.cells.values().map(CellList::len).sum()
     }
 
     #[test]
@@ -1187,6 +1235,20 @@ mod tests {
     /// The plain test the packed [`meets`] replaces: two quantized boxes of a cell meet.
     fn quantized_meet(a: &Quantized, b: &Quantized) -> bool {
         (0..3).all(|k| a[k] <= b[k + 3] && a[k + 3] >= b[k])
+    }
+
+    proptest! {
+        #[test]
+        fn a_cell_list_finds_the_last_place_of_a_record(
+            recs in prop::collection::vec(0u32..40, 0..70),
+            r in 0u32..40,
+        ) {
+            let list = CellList {
+                keys: vec![0; recs.len()],
+                recs: recs.clone(),
+            };
+            prop_assert_eq!(list.find(r), recs.iter().rposition(|&x| x == r));
+        }
     }
 
     proptest! {
