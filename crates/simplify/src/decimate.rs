@@ -150,6 +150,7 @@ impl Decimator {
                 }
             }
         }
+        self.candidates.trim();
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
