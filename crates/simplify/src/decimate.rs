@@ -57,6 +57,10 @@ pub(crate) struct Decimator {
     /// The rank span a preimage may reach (see `span_ok`); `None` when the stage retires by the
     /// memory budget, which needs no bound.
     max_span: Option<u32>,
+    /// The popped candidate's patch, gathered into the same room each time (scratch, refilled
+    /// for every candidate: a checkpoint need not hold it).
+    #[serde(skip)]
+    patch: Option<Box<Patch>>,
 }
 
 impl Decimator {
@@ -73,6 +77,7 @@ impl Decimator {
             candidates: Candidates::default(),
             time_lag: config.policy.time_lag(),
             max_span,
+            patch: None,
         }
     }
 
@@ -128,7 +133,10 @@ impl Decimator {
             // again when it comes back (a cascade's second stage, whose front is the first
             // stage's rear, delayed one candidate in two before it gated vertices by their whole
             // star; it still delays more than one stage does).
-            let patch = Patch::gather(&band.store, c.a, c.b);
+            // Taken out while the checks and the contraction borrow the decimator (a box, so
+            // that taking it moves a pointer, not the patch's inline room).
+            let mut patch = self.patch.take().unwrap_or_default();
+            patch.gather_into(&band.store, c.a, c.b);
             if let Some(reach) = beyond_front(at, &patch, eval.pos) {
                 stats.delayed_front += 1;
                 self.candidates.delay(c, reach);
@@ -149,6 +157,7 @@ impl Decimator {
                     Verdict::Unguarded => stats.rejected_unguarded += 1,
                 }
             }
+            self.patch = Some(patch);
         }
         self.candidates.trim();
     }

@@ -1140,16 +1140,14 @@ mod tests {
             let n = (corners[1] - corners[0])
                 .cross(corners[2] - corners[0])
                 .normalize();
-            let patch = Patch {
-                tris: smallvec::smallvec![crate::topology::PatchTri {
-                    v: [10, 11, 12],
-                    p: [
-                        mid + n * 100.0,
-                        mid - n + DVec3::X * 0.01,
-                        mid - n - DVec3::Y * 0.01
-                    ],
-                }],
-            };
+            let patch = Patch::of(smallvec::smallvec![crate::topology::PatchTri {
+                v: [10, 11, 12],
+                p: [
+                    mid + n * 100.0,
+                    mid - n + DVec3::X * 0.01,
+                    mid - n - DVec3::Y * 0.01
+                ],
+            }]);
             let verdict = ix.would_intersect(&patch, 10, 20, 10, mid + n);
             assert_eq!(verdict, Verdict::Crosses);
         }
@@ -1355,9 +1353,7 @@ mod tests {
 
     /// The patch of one store triangle whose corner `v[0]` is contracted away to `pos`.
     fn move_corner(ix: &mut TriIndex, v: [u64; 3], p: [DVec3; 3], pos: DVec3) -> Verdict {
-        let patch = Patch {
-            tris: [crate::topology::PatchTri { v, p }].into_iter().collect(),
-        };
+        let patch = Patch::of([crate::topology::PatchTri { v, p }].into_iter().collect());
         ix.would_intersect(&patch, v[0], u64::MAX, u64::MAX, pos)
     }
 
