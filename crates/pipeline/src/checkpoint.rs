@@ -72,8 +72,8 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// position kept only there, not in the vertex; 23: the time-lag's and priorities' vertex state
 /// beside the vertices, kept only by the policies that use it; 24: a vertex's output number
 /// without its `Option`); 25: the guard's cells as arrays of keys and of record numbers, its
-/// ghosts with their top).
-const FORMAT: u32 = 25;
+/// ghosts with their top; 26: the guard's count of records a level instead of their lists).
+const FORMAT: u32 = 26;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
