@@ -368,7 +368,9 @@ pub enum OutElement {
 ///
 /// Serializable as a whole (checkpoints, see [`Simplifier::restore`]): between two calls the
 /// state is complete, nothing refers outside it, and every map is looked up only, never
-/// iterated, so a restored simplifier continues with exactly the same decisions.
+/// iterated where the order could change a decision (the guard's large queries walk its cells,
+/// and a crossing is found in any order, though the work counters may differ), so a restored
+/// simplifier continues with exactly the same decisions.
 #[derive(serde::Serialize, serde::Deserialize)]
 pub struct Simplifier {
     engine: Engine,
