@@ -83,8 +83,8 @@ impl MeasureReport {
 fn write_distances(s: &mut String, d: &Distances) {
     let line = |label: &str, x: &DirectedDistance| {
         format!(
-            "  {label}: mean {:.6}, rms {:.6}, hausdorff {:.6} ({} samples)\n",
-            x.mean, x.rms, x.hausdorff, x.samples
+            "  {label}: mean {:.6}, rms {:.6}, hausdorff {:.6}, 99.9 % within {:.6} ({} samples)\n",
+            x.mean, x.rms, x.hausdorff, x.p999, x.samples
         )
     };
     let _ = writeln!(
@@ -103,8 +103,16 @@ fn write_distances(s: &mut String, d: &Distances) {
     }
     let _ = writeln!(
         s,
-        "  undirected: mean {:.6} ({:.4}%), rms {:.6} ({:.4}%), hausdorff {:.6} ({:.4}%) of diagonal {:.6}",
-        d.mean, d.mean_pct, d.rms, d.rms_pct, d.hausdorff, d.hausdorff_pct, d.diagonal
+        "  undirected: mean {:.6} ({:.4}%), rms {:.6} ({:.4}%), hausdorff {:.6} ({:.4}%), 99.9 % within {:.6} ({:.4}%) of diagonal {:.6}",
+        d.mean,
+        d.mean_pct,
+        d.rms,
+        d.rms_pct,
+        d.hausdorff,
+        d.hausdorff_pct,
+        d.p999,
+        d.p999_pct,
+        d.diagonal
     );
 }
 
@@ -118,6 +126,7 @@ mod tests {
             mean: x,
             rms: x,
             hausdorff: x,
+            p999: x / 2.0,
             samples: 10,
             histogram: vec![(0.0, 10)],
         }
@@ -133,10 +142,12 @@ mod tests {
                 mean: 0.2,
                 rms: 0.2,
                 hausdorff: 0.2,
+                p999: 0.1,
                 diagonal: 2.0,
                 mean_pct: 10.0,
                 rms_pct: 10.0,
                 hausdorff_pct: 10.0,
+                p999_pct: 5.0,
                 full_resolution_triangles: 7,
                 clipped_samples: clipped,
                 max_distance: 0.2,
@@ -160,6 +171,7 @@ mod tests {
             "full -> output: mean 0.100000",
             "output -> full: mean 0.200000",
             "hausdorff 0.200000 (10.0000%)",
+            "99.9 % within 0.100000 (5.0000%)",
         ] {
             assert!(text.contains(needle), "{needle:?} missing from\n{text}");
         }
