@@ -52,7 +52,8 @@ pub enum Command {
         json: bool,
     },
     /// Measure a mesh: topology, triangle quality, anisotropy, directional bias, and with
-    /// `--volume` the mean/RMS/Hausdorff distances to the full-resolution surface.
+    /// `--volume` the mean/RMS/Hausdorff distances to the full-resolution surface (and the
+    /// distance 99.9 % of the samples are within).
     Measure {
         /// The job file whose volume and iso value define the full-resolution surface.
         #[arg(long)]
