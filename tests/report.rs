@@ -166,6 +166,11 @@ fn a_run_and_its_measure_make_one_page_of_plots() {
         assert_eq!(Some(total), m["distances"][key]["samples"].as_u64());
         assert_eq!(figure(&page, id).matches("<rect").count(), 1 + bins.len());
     }
+    // The distance most samples are within, beside the one sample's Hausdorff distance.
+    let p999 = m["distances"]["p999_pct"].as_f64().unwrap();
+    assert!(p999 > 0.0 && p999 <= m["distances"]["hausdorff_pct"].as_f64().unwrap());
+    let within = format!("99.9 % of the samples within {p999:.4} %");
+    assert!(page.contains(&within), "{within} missing");
 }
 
 #[test]

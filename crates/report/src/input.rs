@@ -73,6 +73,9 @@ pub struct Distances {
     pub max_distance: f64,
     pub rms_pct: f64,
     pub hausdorff_pct: f64,
+    /// Absent in reports of versions before the percentile existed.
+    #[serde(default)]
+    pub p999_pct: Option<f64>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -80,6 +83,9 @@ pub struct Directed {
     pub mean: f64,
     pub rms: f64,
     pub hausdorff: f64,
+    /// Absent in reports of versions before the percentile existed.
+    #[serde(default)]
+    pub p999: Option<f64>,
     /// Absent in reports of versions before the histogram existed.
     #[serde(default)]
     pub histogram: Bins,

@@ -135,8 +135,14 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
             rows.push((
                 "distance to the full surface",
                 format!(
-                    "RMS {:.4} % and Hausdorff {:.4} % of the diagonal (full -> output mean {:.4}, output -> full mean {:.4})",
-                    d.rms_pct, d.hausdorff_pct, d.full_to_output.mean, d.output_to_full.mean
+                    "RMS {:.4} %, Hausdorff {:.4} %{} of the diagonal (full -> output mean {:.4}, output -> full mean {:.4})",
+                    d.rms_pct,
+                    d.hausdorff_pct,
+                    d.p999_pct
+                        .map(|p| format!(", 99.9 % of the samples within {p:.4} %"))
+                        .unwrap_or_default(),
+                    d.full_to_output.mean,
+                    d.output_to_full.mean
                 ),
             ));
         }
@@ -183,8 +189,14 @@ fn measure_figures(s: &mut String, m: &Measure) -> Result<(), ReportError> {
             id,
             &plots::histogram(title, "distance", &dir.histogram, "distance")?,
             &format!(
-                "Samples by distance (mean {:.4}, RMS {:.4}, Hausdorff {:.4}); the last bin also counts samples farther than the search radius {:.4}.",
-                dir.mean, dir.rms, dir.hausdorff, d.max_distance
+                "Samples by distance (mean {:.4}, RMS {:.4}, Hausdorff {:.4}{}); the last bin also counts samples farther than the search radius {:.4}.",
+                dir.mean,
+                dir.rms,
+                dir.hausdorff,
+                dir.p999
+                    .map(|p| format!(", 99.9 % within {p:.4}"))
+                    .unwrap_or_default(),
+                d.max_distance
             ),
         );
     }
