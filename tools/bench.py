@@ -34,6 +34,10 @@ What is measured (every number is the median of --runs runs, default 3):
    `get_self_intersecting_triangles` is quadratic, 109 s for 60k faces, and counts neighbours),
    which also counts pairs that only touch; and crossing triangles by our exact referee
    (`crates/meshcheck`'s `self_intersections` example, the same count for every tool).
+   And every tool's accuracy on the same ruler (unless `--skip-distances`): `isostream measure
+   --volume` against the full-resolution surface of the same volume and iso value, RMS, Hausdorff
+   and the distance 99.9 % of the samples are within, in % of the bounding-box diagonal (about
+   20-40 s a mesh on bonsai).
 2. Memory scaling: procedural sphere at 128^3 .. 512^3, mode rate 0.1 and mode none: peak RSS from
    the OS and faces in/out per size.
 3. Per-stage busy seconds from `<out>.run.json` for engine and bonsai (median over the runs of 1).
@@ -367,6 +371,17 @@ def measure_topology(binary, mesh, work, selfx_max):
     return topo
 
 
+def measure_distances(binary, mesh, job):
+    """RMS, Hausdorff and 99.9th-percentile distance (% of the diagonal) of `mesh` to the
+    full-resolution surface of `job`'s volume and iso value, by `isostream measure --volume`."""
+    res = subprocess.run([binary, "measure", "--volume", str(job), str(mesh), "--json"],
+                         capture_output=True, text=True)
+    if res.returncode != 0:
+        sys.exit(f"isostream measure --volume {job} {mesh} failed: {res.stderr}")
+    d = json.loads(res.stdout)["distances"]
+    return {k: d[k] for k in ("rms_pct", "hausdorff_pct", "p999_pct")}
+
+
 def med(xs):
     xs = [x for x in xs if x is not None]
     return statistics.median(xs) if xs else None
@@ -398,6 +413,11 @@ def bench_volumes(args, binary, work):
                               for k in runs[0]["summary"]["stage_seconds"]},
             "topology": measure_topology(binary, out, work, args.selfx_max),
         }
+        # The job of the runs above: it names the volume and iso value every tool's output is
+        # measured against.
+        ruler = work / f"{name}-isostream-0.toml"
+        if not args.skip_distances:
+            entry["tools"]["isostream"]["distances"] = measure_distances(binary, out, ruler)
         for peer in args.peers:
             runs = []
             for i in range(args.runs):
@@ -420,6 +440,8 @@ def bench_volumes(args, binary, work):
                 "faces_full": runs[0]["faces_full"], "faces_out": runs[0]["faces_out"],
                 "topology": measure_topology(binary, ply, work, args.selfx_max),
             }
+            if not args.skip_distances:
+                entry["tools"][peer]["distances"] = measure_distances(binary, ply, ruler)
         results[name] = entry
     return results
 
@@ -487,6 +509,20 @@ def tables(results, scaling, runs):
                            f"{yes(q['oriented'])} | {q['boundary_edges']} | {q['zero_area']} | "
                            f"{q['euler']} | {q['components']} | {sx} | "
                            f"{q['crossing_exact']} |")
+        measured = [(n, tool, t) for n, e in results.items() for tool, t in e["tools"].items()
+                    if "distances" in t]
+        if measured:
+            out.append("\n### Accuracy: distance to the full-resolution surface (% of the diagonal)\n")
+            out.append("| volume | tool | faces | RMS | Hausdorff | 99.9 % within | RMS ratio |")
+            out.append("|---|---|---:|---:|---:|---:|---:|")
+            for name, tool, t in measured:
+                d, base = t["distances"], results[name]["tools"]["isostream"]["distances"]
+                out.append(f"| {name} | {tool} | {t['faces_out']} | {d['rms_pct']:.4f} | "
+                           f"{d['hausdorff_pct']:.3f} | {d['p999_pct']:.4f} | "
+                           f"{fmt(d['rms_pct'] / base['rms_pct'])} |")
+            out.append("\nMeasured by `isostream measure --volume` against isostream's own "
+                       "marching-cubes surface of the same volume and iso value; RMS ratio is "
+                       "tool / isostream.\n")
         stage_rows = [(n, e) for n, e in results.items() if n in ("engine", "bonsai")]
         if stage_rows:
             out.append(f"\n### isostream stage busy seconds (median of {runs} runs)\n")
@@ -522,6 +558,8 @@ def main():
     ap.add_argument("--rate", type=float, default=0.2, help="R, the same face target for every tool (default 0.2)")
     ap.add_argument("--sizes", default="128,256,384,512", help="sphere sizes for the scaling run")
     ap.add_argument("--skip-scaling", action="store_true")
+    ap.add_argument("--skip-distances", action="store_true",
+                    help="do not measure every output's distance to the full surface")
     ap.add_argument("--selfx-max", type=int, default=2000000,
                     help="check self-intersections on outputs up to this many faces (0: never)")
     ap.add_argument("--work", default="/tmp/isostream-bench", help="scratch folder (meshes, logs)")
