@@ -91,10 +91,9 @@ pub struct DirectedDistance {
     /// The distance 99.9 % of the samples are within (from the 4096 bins the samples are
     /// counted in: at most one bin, `max_distance / 4096`, above the exact quantile, and never
     /// above `hausdorff`). Why beside the Hausdorff distance: that is one sample's distance, and
-    /// on a simplified surface it sits at whichever convex corner the order of contractions
-    /// happened to cut; any change of that order moves it by a factor of two or three (on
-    /// engine at R = 0.2, 0.06 to 0.20 % of the diagonal in core, docs/performance.md), while
-    /// the 99.9th percentile follows the surface as a whole.
+    /// small changes of the order of contractions move it by a factor of two or three (engine
+    /// at R = 0.2 in core: 0.063 to 0.197 % of the diagonal, docs/performance.md "Twenty-seventh
+    /// session"), while the 99.9th percentile follows the surface as a whole.
     pub p999: f64,
     pub samples: u64,
     /// `(bin start, samples)`: at most [`DISTANCE_BINS`] bins of equal width from 0 up to just
