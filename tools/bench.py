@@ -58,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quality_grid import referee_count
+from quality_grid import measure_json, referee_count
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = (ROOT / ".." / "shared" / "data").resolve()
@@ -343,12 +343,12 @@ def run_isostream(binary, job, work, tag):
     return wall, rss, summary, out
 
 
-def measure_topology(binary, mesh, work, selfx_max):
-    """isostream measure (no --volume) + numpy edge counts + Open3D self-intersections."""
-    res = subprocess.run([binary, "measure", str(mesh), "--json"], capture_output=True, text=True)
-    if res.returncode != 0:
-        sys.exit(f"isostream measure {mesh} failed: {res.stderr}")
-    q = json.loads(res.stdout)["quality"]
+def measure_output(binary, mesh, work, selfx_max, ruler):
+    """isostream measure + numpy edge counts + Open3D self-intersections; with `ruler` (a job
+    naming the volume and iso value), the same `measure` call also gives the distances to the
+    full-resolution surface: RMS, Hausdorff and 99.9th percentile, % of the diagonal."""
+    m = measure_json(binary, mesh, ruler)
+    q = m["quality"]
     ply = mesh
     if mesh.suffix != ".ply":
         ply = work / (mesh.stem + ".check.ply")
@@ -368,18 +368,10 @@ def measure_topology(binary, mesh, work, selfx_max):
         t = time.perf_counter()
         topo["self_intersecting"] = self_intersections(v, f)
         topo["selfx_seconds"] = time.perf_counter() - t
-    return topo
-
-
-def measure_distances(binary, mesh, job):
-    """RMS, Hausdorff and 99.9th-percentile distance (% of the diagonal) of `mesh` to the
-    full-resolution surface of `job`'s volume and iso value, by `isostream measure --volume`."""
-    res = subprocess.run([binary, "measure", "--volume", str(job), str(mesh), "--json"],
-                         capture_output=True, text=True)
-    if res.returncode != 0:
-        sys.exit(f"isostream measure --volume {job} {mesh} failed: {res.stderr}")
-    d = json.loads(res.stdout)["distances"]
-    return {k: d[k] for k in ("rms_pct", "hausdorff_pct", "p999_pct")}
+    result = {"topology": topo}
+    if ruler is not None:
+        result["distances"] = {k: m["distances"][k] for k in ("rms_pct", "hausdorff_pct", "p999_pct")}
+    return result
 
 
 def med(xs):
@@ -404,6 +396,9 @@ def bench_volumes(args, binary, work):
         target = round(RATE * full)
         entry["faces_full_isostream"] = full
         entry["target_faces"] = target
+        # The job of the runs above: it names the volume and iso value every tool's output is
+        # measured against.
+        ruler = None if args.skip_distances else work / f"{name}-isostream-0.toml"
         entry["tools"]["isostream"] = {
             "runs": runs, "wall_s": med([r["wall_s"] for r in runs]),
             "rss_mib": med([r["rss_mib"] for r in runs]),
@@ -411,13 +406,8 @@ def bench_volumes(args, binary, work):
             "faces_full": full, "faces_out": runs[0]["summary"]["faces_written"],
             "stage_seconds": {k: med([r["summary"]["stage_seconds"][k] for r in runs])
                               for k in runs[0]["summary"]["stage_seconds"]},
-            "topology": measure_topology(binary, out, work, args.selfx_max),
+            **measure_output(binary, out, work, args.selfx_max, ruler),
         }
-        # The job of the runs above: it names the volume and iso value every tool's output is
-        # measured against.
-        ruler = work / f"{name}-isostream-0.toml"
-        if not args.skip_distances:
-            entry["tools"]["isostream"]["distances"] = measure_distances(binary, out, ruler)
         for peer in args.peers:
             runs = []
             for i in range(args.runs):
@@ -438,10 +428,8 @@ def bench_volumes(args, binary, work):
                 "extract_s": med([r["extract_s"] for r in runs]),
                 "simplify_s": med([r["simplify_s"] for r in runs]),
                 "faces_full": runs[0]["faces_full"], "faces_out": runs[0]["faces_out"],
-                "topology": measure_topology(binary, ply, work, args.selfx_max),
+                **measure_output(binary, ply, work, args.selfx_max, ruler),
             }
-            if not args.skip_distances:
-                entry["tools"][peer]["distances"] = measure_distances(binary, ply, ruler)
         results[name] = entry
     return results
 

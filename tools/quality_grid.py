@@ -52,6 +52,17 @@ VOLUMES = {
 }
 
 
+def measure_json(binary, mesh, job=None):
+    """`isostream measure --json` of `mesh`, parsed; with `job`, also the distances to the
+    full-resolution surface of its volume and iso value (`--volume`)."""
+    volume = [] if job is None else ["--volume", str(job)]
+    res = subprocess.run([str(binary), "measure", *volume, str(mesh), "--json"],
+                         capture_output=True, text=True)
+    if res.returncode != 0:
+        sys.exit(f"isostream measure {' '.join(volume)} {mesh} failed: {res.stderr}")
+    return json.loads(res.stdout)
+
+
 def run(binary, work, volume, rate, simplify_extra="", pipeline_extra=""):
     """One job at `rate` (`None`: `mode = "none"`, the full-resolution surface), measured."""
     inp, iso = VOLUMES[volume]
@@ -65,10 +76,7 @@ def run(binary, work, volume, rate, simplify_extra="", pipeline_extra=""):
     subprocess.run([binary, "run", str(job)], check=True, capture_output=True)
     seconds = time.time() - t
     summary = json.loads((work / f"{tag}.smb.run.json").read_text())
-    distances = [] if rate is None else ["--volume", str(job)]
-    m = subprocess.run([binary, "measure", *distances, str(out), "--json"], check=True,
-                       capture_output=True, text=True)
-    d = json.loads(m.stdout)
+    d = measure_json(binary, out, None if rate is None else job)
     q = d["quality"]
     return dict(volume=volume, rate=rate, faces_in=summary["faces_extracted"], faces=summary["faces_written"],
                 target=round(summary["faces_extracted"] * (rate or 1)), seconds=seconds,
