@@ -52,6 +52,12 @@ pub struct CubeBatch {
     /// [`Extractor::extract_slab_with_attributes`]; empty without attributes.
     pub attrs: Vec<f32>,
     pub end_of_slab: bool,
+    /// The last batch of its group: the batches of a slab come in groups of whole rows holding
+    /// at least `max_triangles` each (the last group of a slab may hold fewer), and an extractor
+    /// [`Extractor::chunked`] cuts a group into batches of about its chunk size. A consumer that
+    /// wants the group (the pipeline's detector makes one delta of each) closes it here. Always
+    /// set with `end_of_slab`; set on every batch of an extractor that is not chunked.
+    pub ends_group: bool,
 }
 
 impl CubeBatch {
@@ -63,6 +69,7 @@ impl CubeBatch {
         self.triangles.clear();
         self.attrs.clear();
         self.end_of_slab = false;
+        self.ends_group = false;
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -100,6 +107,7 @@ impl CubeBatch {
             triangles: Vec::with_capacity(sizes[2]),
             attrs: Vec::new(),
             end_of_slab: false,
+            ends_group: false,
         }
     }
 
@@ -158,8 +166,12 @@ pub struct Extractor {
     columns: Vec<u8>,
     /// Largest (cubes, vertices, triangles) of any batch so far: the capacity of new batches.
     /// Batches travel through a channel, so each needs its own buffers; sizing them up front
-    /// avoids regrowing them row after row. Bounded by `max_triangles` plus one row.
+    /// avoids regrowing them row after row. Bounded by the chunk (or `max_triangles`) plus one
+    /// row.
     batch_sizes: [usize; 3],
+    /// Most triangles per batch within a group ([`Extractor::chunked`]); `usize::MAX`: a
+    /// batch is a whole group.
+    chunk_triangles: usize,
 }
 
 /// The four rows of voxels holding the corners of one row of cubes, indexed by `c >> 1` for
@@ -200,6 +212,20 @@ impl Extractor {
             stats: ExtractStats::default(),
             columns: Vec::new(),
             batch_sizes: [0; 3],
+            chunk_triangles: usize::MAX,
+        }
+    }
+
+    /// This extractor, cutting each group of `max_triangles` (see [`CubeBatch::ends_group`])
+    /// into batches of whole rows holding at least `chunk_triangles` each. The groups are the
+    /// same, so a consumer joining each group's batches sees what an unchunked extractor
+    /// sends; the batches in flight between threads are smaller: on 2041^2 slices a group of
+    /// 8,192 triangles is about 0.8 MB of cubes and duplicated vertices, and the extraction
+    /// workers and slab replies hold several at once (docs/scale.md).
+    pub fn chunked(self, chunk_triangles: usize) -> Self {
+        Extractor {
+            chunk_triangles: chunk_triangles.max(1),
+            ..self
         }
     }
 
@@ -213,8 +239,9 @@ impl Extractor {
     }
 
     /// Extracts slab z (cubes between slices z and z+1, z in `0..dims[2] - 1`). Emits batches
-    /// holding whole rows, flushing when a batch reaches `max_triangles` (at least one row per
-    /// batch, and never an empty batch before the last); the last batch of the slab has
+    /// holding whole rows, closing a group when it reaches `max_triangles` (at least one row per
+    /// batch, and never an empty batch before the last; a batch is a whole group unless the
+    /// extractor is [`Extractor::chunked`]); the last batch of the slab has
     /// `end_of_slab = true` (an empty one if needed). Slabs are independent: extracting them in
     /// any order (or on several extractors) gives the same batches. The first error returned by
     /// `emit` stops the slab and is returned.
@@ -281,6 +308,8 @@ impl Extractor {
 
         let cube_rows = ny.saturating_sub(1);
         let mut batch = CubeBatch::with_capacity(z, self.batch_sizes);
+        // The group's cubes and triangles in the batches already sent.
+        let (mut group_cubes, mut group_triangles) = (0, 0);
         for y in 0..cube_rows {
             let quad = rows.quad(y);
             assert!(
@@ -300,15 +329,26 @@ impl Extractor {
                 None => self.extract_row([0, y, z], quad, &mut batch),
                 Some(b) => self.extract_row_blocks(b, [y, z], quad, &mut batch),
             }
-            let full = !batch.cubes.is_empty() && batch.triangles.len() >= max_triangles;
-            if full && y + 1 < cube_rows {
+            let ends_group = group_cubes + batch.cubes.len() > 0
+                && group_triangles + batch.triangles.len() >= max_triangles;
+            let chunk_full =
+                !batch.cubes.is_empty() && batch.triangles.len() >= self.chunk_triangles;
+            if (ends_group || chunk_full) && y + 1 < cube_rows {
+                if ends_group {
+                    (group_cubes, group_triangles) = (0, 0);
+                } else {
+                    group_cubes += batch.cubes.len();
+                    group_triangles += batch.triangles.len();
+                }
                 self.remember_sizes(&batch);
                 let next = CubeBatch::with_capacity(z, self.batch_sizes);
+                batch.ends_group = ends_group;
                 emit(std::mem::replace(&mut batch, next))?;
             }
         }
         self.remember_sizes(&batch);
         batch.end_of_slab = true;
+        batch.ends_group = true;
         emit(batch)
     }
 

@@ -260,6 +260,68 @@ proptest! {
     }
 }
 
+/// The batches of every slab, from `extractor`, each with its triangles as keys.
+fn batches(mut extractor: Extractor, grid: Grid, data: &[f32], max: usize) -> Vec<CubeBatch> {
+    let n = grid.slice_len();
+    let mut out = Vec::new();
+    for z in 0..grid.dims[2] - 1 {
+        let z_ = z as usize;
+        let (lower, upper) = (&data[z_ * n..][..n], &data[(z_ + 1) * n..][..n]);
+        extractor
+            .extract_slab(z, lower, upper, max, |b| {
+                out.push(b);
+                Ok::<_, ()>(())
+            })
+            .unwrap();
+    }
+    out
+}
+
+/// A group of batches (see `CubeBatch::ends_group`) as one: its slab, its cubes' coordinates,
+/// its triangles by key and whether it ends the slab.
+type Group = (u64, Vec<[u64; 3]>, Vec<[EdgeKey; 3]>, bool);
+
+fn groups(batches: &[CubeBatch]) -> Vec<Group> {
+    let mut out = Vec::new();
+    let mut open: Option<Group> = None;
+    for b in batches {
+        let g = open.get_or_insert_with(|| (b.slab, Vec::new(), Vec::new(), false));
+        assert_eq!(g.0, b.slab, "a group within one slab");
+        g.1.extend(b.cubes.iter().map(|c| c.coord));
+        g.2.extend(b.keyed_triangles());
+        g.3 = b.end_of_slab;
+        assert!(
+            !b.end_of_slab || b.ends_group,
+            "the end of a slab ends its group"
+        );
+        if b.ends_group {
+            out.extend(open.take());
+        }
+    }
+    assert!(open.is_none(), "every group ends");
+    out
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// Chunking cuts groups into smaller batches and changes nothing else: joined, the chunks
+    /// of each group are the batch an unchunked extractor sends, group by group.
+    #[test]
+    fn chunked_batches_join_into_the_same_groups(
+        (grid, data) in volume(),
+        iso in iso(),
+        max_triangles in prop_oneof![Just(0usize), 1usize..40, Just(usize::MAX)],
+        chunk in 1usize..12,
+    ) {
+        let whole = batches(Extractor::new(grid, iso), grid, &data, max_triangles);
+        prop_assert!(whole.iter().all(|b| b.ends_group));
+        let chunked = batches(Extractor::new(grid, iso).chunked(chunk), grid, &data, max_triangles);
+        prop_assert!(chunked.iter().all(|b| b.triangle_count() < chunk + grid.dims[0] as usize * 5));
+        prop_assert_eq!(groups(&chunked), groups(&whole));
+    }
+}
+
 #[test]
 fn sphere_is_closed_genus_zero_and_outward() {
     let grid = Grid::new([24, 20, 22], [0.5, 0.6, 0.55], [-6.0, -5.5, -5.8]).unwrap();

@@ -252,7 +252,10 @@ pub struct PipelineConfig {
     /// Budget for the simplifier's resident surface; vertices are retired early to stay inside.
     #[serde(default = "default_budget")]
     pub memory_budget_mib: u64,
-    /// Most triangles per batch sent from the extractor.
+    /// Triangles per delta the simplifier takes at once: the detector joins the extraction
+    /// workers' batches (whole rows of cubes) into groups of whole rows holding at least this
+    /// many (the last of a slab may hold fewer). The simplifier decimates after each delta, so
+    /// the output depends on it.
     #[serde(default = "default_batch_triangles")]
     pub batch_triangles: usize,
     /// When to save a resumable state (`isostream run --resume`).

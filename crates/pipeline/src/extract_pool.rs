@@ -199,8 +199,14 @@ const STORED_BLOCK: [u64; 2] = [16, 16];
 
 /// Voxels per strip row buffer when slices come as rows (`Slices::rows`): a strip is
 /// `STRIP_VOXELS / nx` rows of cubes (at least [`MIN_STRIP_ROWS`]), so a worker holds two
-/// strips of about 1 MiB each whatever the slice area (64 rows of a 4081^2 slice).
-const STRIP_VOXELS: usize = 1 << 18;
+/// strips of about 256 KiB each whatever the slice area (32 rows of a 2041^2 slice). With
+/// 1 MiB strips the two workers' four buffers were 3.8 MiB of the peak of bonsai's slices
+/// 100-131 upsampled 8x (mode `none`: 26.7 -> 22.9 MiB; docs/scale.md).
+const STRIP_VOXELS: usize = 1 << 16;
+/// Triangles per batch a worker sends (`Extractor::chunked`): the detector joins them into the
+/// job's `batch_triangles` groups. Batches wait in the slab replies and in the workers, several
+/// at once, and a group of 8,192 triangles on wide slices is about 0.8 MB.
+const CHUNK_TRIANGLES: usize = 1024;
 /// Rows of cubes per strip at least: each strip computes its first row again (the last row of
 /// the strip before), an overhead of one row per strip.
 const MIN_STRIP_ROWS: usize = 16;
@@ -230,7 +236,7 @@ impl WorkStep {
     ) -> Self {
         let nx = grid.dims[0] as usize;
         Self {
-            extractor: Extractor::resume(grid, iso, stats),
+            extractor: Extractor::resume(grid, iso, stats).chunked(CHUNK_TRIANGLES),
             batch_triangles,
             skip_empty,
             strip_rows: (STRIP_VOXELS / nx).max(MIN_STRIP_ROWS),

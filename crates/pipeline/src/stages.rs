@@ -182,6 +182,7 @@ impl Stages<'_> {
             let detect = s.spawn(move || {
                 let step = DetectStep {
                     detector,
+                    group: MeshDelta::default(),
                     pending: None,
                 };
                 run(
@@ -527,10 +528,14 @@ struct SecondCounts {
     resident: AtomicU64,
 }
 
-/// Cube batches -> indexed deltas. The delta of the last batch is held back until the end is
-/// known, so the detector's final release joins it and the simplifier sees one final delta.
+/// Cube batches -> indexed deltas, one per group of batches (`CubeBatch::ends_group`: the
+/// extraction workers send smaller batches than the simplifier's unit of work, which the
+/// groups keep). The delta of the last group is held back until the end is known, so the
+/// detector's final release joins it and the simplifier sees one final delta.
 struct DetectStep {
     detector: Detector,
+    /// The group's batches so far, converted.
+    group: MeshDelta,
     pending: Option<MeshDelta>,
 }
 
@@ -540,8 +545,12 @@ impl Step for DetectStep {
     type Done = DetectStats;
 
     fn batch(&mut self, batch: CubeBatch, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
-        let mut delta = MeshDelta::default();
-        self.detector.process(&batch, &mut delta);
+        // `process` appends: the group's delta is its batches' deltas end to end.
+        self.detector.process(&batch, &mut self.group);
+        if !batch.ends_group {
+            return Ok(());
+        }
+        let delta = std::mem::take(&mut self.group);
         match self.pending.replace(delta) {
             Some(ready) => out.send(ready),
             None => Ok(()),
@@ -549,8 +558,10 @@ impl Step for DetectStep {
     }
 
     /// The delta held back goes out first: the cut is never after the last slab, so a later
-    /// batch still carries the final release, and the simplifier sees the same deltas.
+    /// batch still carries the final release, and the simplifier sees the same deltas. (Cuts
+    /// come between slabs, where no group is open.)
     fn cut(&mut self, mut cut: Box<Cut>, out: &mut Outbox<'_, MeshDelta>) -> StageResult<()> {
+        debug_assert!(self.group.triangles.is_empty() && self.group.vertices.is_empty());
         if let Some(ready) = self.pending.take() {
             out.send(ready)?;
         }
