@@ -655,10 +655,14 @@ mod tests {
                 let (lo, up) = (&data[z * n..][..n], &data[(z + 1) * n..][..n]);
                 let bounds = SlabBounds::from_slices(&grid, block, lo, up);
                 plain
-                    .extract_slab(z as u64, lo, up, 5, |x| Ok::<_, ()>(a.push(x)))
+                    .extract_slab(z as u64, lo, up, 5, |x| {
+                        a.push(x);
+                        Ok::<_, ()>(())
+                    })
                     .unwrap();
                 skip.extract_slab_skipping(z as u64, lo, up, Some(&bounds), 5, |x| {
-                    Ok::<_, ()>(b.push(x))
+                    b.push(x);
+                    Ok::<_, ()>(())
                 })
                 .unwrap();
             }
