@@ -38,24 +38,12 @@ struct Streamed {
 }
 
 fn stream(grid: Grid, data: &[f32], iso: f32, max_triangles: usize) -> Streamed {
-    let n = grid.slice_len();
-    let mut extractor = Extractor::new(grid, iso);
-    let mut batches: Vec<CubeBatch> = Vec::new();
-    for z in 0..grid.dims[2] - 1 {
-        let z_ = z as usize;
-        let (lower, upper) = (&data[z_ * n..][..n], &data[(z_ + 1) * n..][..n]);
-        extractor
-            .extract_slab(z, lower, upper, max_triangles, |b| {
-                batches.push(b);
-                Ok::<_, ()>(())
-            })
-            .unwrap();
-    }
+    let (batches, stats) = extract(Extractor::new(grid, iso), grid, data, max_triangles);
     let mut out = Streamed {
         positions: FxHashMap::default(),
         triangles: Vec::new(),
         batches: batches.len(),
-        stats: extractor.stats(),
+        stats,
     };
     let mut previous_coord = None;
     let mut expected_slab = 0;
@@ -96,6 +84,28 @@ fn stream(grid: Grid, data: &[f32], iso: f32, max_triangles: usize) -> Streamed 
     }
     assert_eq!(expected_slab, grid.dims[2] - 1, "one end_of_slab per slab");
     out
+}
+
+/// Every slab's batches from `extractor`, in order, and its counters after the volume.
+fn extract(
+    mut extractor: Extractor,
+    grid: Grid,
+    data: &[f32],
+    max_triangles: usize,
+) -> (Vec<CubeBatch>, ExtractStats) {
+    let n = grid.slice_len();
+    let mut batches = Vec::new();
+    for z in 0..grid.dims[2] - 1 {
+        let z_ = z as usize;
+        let (lower, upper) = (&data[z_ * n..][..n], &data[(z_ + 1) * n..][..n]);
+        extractor
+            .extract_slab(z, lower, upper, max_triangles, |b| {
+                batches.push(b);
+                Ok::<_, ()>(())
+            })
+            .unwrap();
+    }
+    (batches, extractor.stats())
 }
 
 /// Undirected edges used by exactly one triangle, as vertex keys.
@@ -260,23 +270,6 @@ proptest! {
     }
 }
 
-/// The batches of every slab, from `extractor`, each with its triangles as keys.
-fn batches(mut extractor: Extractor, grid: Grid, data: &[f32], max: usize) -> Vec<CubeBatch> {
-    let n = grid.slice_len();
-    let mut out = Vec::new();
-    for z in 0..grid.dims[2] - 1 {
-        let z_ = z as usize;
-        let (lower, upper) = (&data[z_ * n..][..n], &data[(z_ + 1) * n..][..n]);
-        extractor
-            .extract_slab(z, lower, upper, max, |b| {
-                out.push(b);
-                Ok::<_, ()>(())
-            })
-            .unwrap();
-    }
-    out
-}
-
 /// A group of batches (see `CubeBatch::ends_group`) as one: its slab, its cubes' coordinates,
 /// its triangles by key and whether it ends the slab.
 type Group = (u64, Vec<[u64; 3]>, Vec<[EdgeKey; 3]>, bool);
@@ -314,9 +307,9 @@ proptest! {
         max_triangles in prop_oneof![Just(0usize), 1usize..40, Just(usize::MAX)],
         chunk in 1usize..12,
     ) {
-        let whole = batches(Extractor::new(grid, iso), grid, &data, max_triangles);
+        let (whole, _) = extract(Extractor::new(grid, iso), grid, &data, max_triangles);
         prop_assert!(whole.iter().all(|b| b.ends_group));
-        let chunked = batches(Extractor::new(grid, iso).chunked(chunk), grid, &data, max_triangles);
+        let (chunked, _) = extract(Extractor::new(grid, iso).chunked(chunk), grid, &data, max_triangles);
         prop_assert!(chunked.iter().all(|b| b.triangle_count() < chunk + grid.dims[0] as usize * 5));
         prop_assert_eq!(groups(&chunked), groups(&whole));
     }

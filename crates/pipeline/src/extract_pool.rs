@@ -47,7 +47,8 @@ pub(crate) enum SlabReply {
 /// every reply channel is full and room ahead only holds memory: with 4, the batches in flight
 /// grew with the slab's surface (1 per slab at 256^3, 4 from 1021^3 on: about 0.7 MB each, 16 in
 /// all), which kept the whole run's peak RSS from being flat across upsampled sizes
-/// (docs/scale.md). One per slab is what a 256^3 slab needs anyway.
+/// (docs/scale.md). One per slab is what a 256^3 slab needs anyway, and since the workers send
+/// batches of [`CHUNK_TRIANGLES`] it is about 0.1 MB whatever the slice.
 pub(crate) const RUN_REPLY_BATCHES: usize = 1;
 /// The same for the first pass of `[output] faces`, which only counts: extraction is its slowest
 /// stage, and a worker ahead needs room to keep busy while the one behind finishes its slab.
