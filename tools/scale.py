@@ -16,6 +16,8 @@ The plot draws one whole-run curve per memory budget (a size run again replaces 
 result on the curve).
 
     python3 tools/scale.py --factors 8,16 --count-only            # the front half alone
+    python3 tools/scale.py --factors 1,2 --from-summaries --keep DIR --contended
+                                        # record runs of this tool's jobs made by hand in DIR
 
 `--count-only` measures the front half of a run (read, upsample, empty-space skipping, parallel
 extraction) at sizes where the simplifier would take too long: the run's first pass (the face
@@ -64,6 +66,14 @@ def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads:
     subprocess.run([str(binary), "run", str(job)], check=True, stderr=subprocess.DEVNULL)
     wall = time.monotonic() - started
     child_rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+    return result(volume, k, faces, budget_mib, output, wall,
+                  child_rss if child_rss > before * 1024 else None)
+
+
+def result(volume: Path, k: int, faces: int, budget_mib: int, output: Path, wall: float,
+           child_rss) -> dict:
+    """One result line from the run summary next to `output`; `child_rss` (bytes) is the OS's
+    peak for the run when known."""
     summary = json.loads(Path(str(output) + ".run.json").read_text())
     gvox = summary["voxels"] / 1e9
     return {
@@ -83,7 +93,7 @@ def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads:
         "stage_seconds": summary["stage_seconds"],
         "peak_rss_mib": (summary.get("peak_rss_bytes") or child_rss) / 2**20,
         # Only meaningful for the first child of this process (RUSAGE_CHILDREN keeps the max).
-        "child_peak_rss_mib": child_rss / 2**20 if child_rss > before * 1024 else None,
+        "child_peak_rss_mib": child_rss / 2**20 if child_rss else None,
         "skipped_cubes": summary["extract"]["skipped_cubes"],
         "cubes": summary["extract"]["cubes"],
         "output": str(output),
@@ -194,12 +204,24 @@ def main() -> int:
     p.add_argument("--plot", type=Path, default=ROOT / "docs/scale.png")
     p.add_argument("--count-only", action="store_true", help="time only the first (counting) pass")
     p.add_argument("--count-results", type=Path, default=ROOT / "docs/scale_count.jsonl")
+    p.add_argument("--from-summaries", action="store_true",
+                   help="run nothing: record the runs already in --keep (their run summaries, "
+                        "`<volume>_x<k>.smb.run.json`), e.g. runs made by hand with this tool's jobs")
+    p.add_argument("--contended", action="store_true",
+                   help="mark the results as run beside other work: plotted for memory, not time")
     a = p.parse_args()
     for k in [int(x) for x in a.factors.split(",") if x]:
         if a.count_only:
             r, to = count_only(a.binary, a.volume, a.iso, k, a.threads, a.keep), a.count_results
+        elif a.from_summaries:
+            output = a.keep / f"{a.volume.stem}_x{k}.smb"
+            summary = json.loads(Path(str(output) + ".run.json").read_text())
+            r = result(a.volume, k, a.faces, a.budget_mib, output, summary["seconds"], None)
+            to = a.results
         else:
             r, to = run_one(a.binary, a.volume, a.iso, k, a.faces, a.threads, a.keep, a.budget_mib), a.results
+        if a.contended:
+            r["contended"] = True
         print(json.dumps(r), flush=True)
         with to.open("a") as f:
             f.write(json.dumps(r) + "\n")
