@@ -416,6 +416,8 @@ impl Step for Count {
     type Done = Option<SmallPieces>;
     fn batch(&mut self, batch: CubeBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
         if let Some((detector, census)) = &mut self.census {
+            // Batch by batch, not by group: the census follows the triangles' order, and a
+            // notice never precedes a triangle of its vertex however the stream is cut.
             let mut delta = MeshDelta::default();
             detector.process(&batch, &mut delta);
             census.add(&delta);
