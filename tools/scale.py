@@ -70,12 +70,13 @@ def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads:
                   child_rss if child_rss > before * 1024 else None)
 
 
-def result(volume: Path, k: int, faces: int, budget_mib: int, output: Path, wall: float,
-           child_rss) -> dict:
-    """One result line from the run summary next to `output`; `child_rss` (bytes) is the OS's
-    peak for the run when known."""
+def result(volume: Path, k: int, faces: int, budget_mib: int, output: Path, wall, child_rss) -> dict:
+    """One result line from the run summary next to `output`; `wall` (seconds) and `child_rss`
+    (bytes, the OS's peak) are the run's when this process made it, else None."""
     summary = json.loads(Path(str(output) + ".run.json").read_text())
     gvox = summary["voxels"] / 1e9
+    if wall is None:
+        wall = summary["seconds"]
     return {
         "volume": volume.name,
         "factor": k,
@@ -215,9 +216,7 @@ def main() -> int:
             r, to = count_only(a.binary, a.volume, a.iso, k, a.threads, a.keep), a.count_results
         elif a.from_summaries:
             output = a.keep / f"{a.volume.stem}_x{k}.smb"
-            summary = json.loads(Path(str(output) + ".run.json").read_text())
-            r = result(a.volume, k, a.faces, a.budget_mib, output, summary["seconds"], None)
-            to = a.results
+            r, to = result(a.volume, k, a.faces, a.budget_mib, output, None, None), a.results
         else:
             r, to = run_one(a.binary, a.volume, a.iso, k, a.faces, a.threads, a.keep, a.budget_mib), a.results
         if a.contended:

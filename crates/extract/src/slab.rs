@@ -217,7 +217,8 @@ impl Extractor {
     }
 
     /// This extractor, cutting each group of `max_triangles` (see [`CubeBatch::ends_group`])
-    /// into batches of whole rows holding at least `chunk_triangles` each. The groups are the
+    /// into batches of whole rows holding at least `chunk_triangles` each (the last of a group
+    /// may hold fewer). The groups are the
     /// same, so a consumer joining each group's batches sees what an unchunked extractor
     /// sends; the batches in flight between threads are smaller: on 2041^2 slices a group of
     /// 8,192 triangles is about 0.8 MB of cubes and duplicated vertices, and the extraction
