@@ -422,8 +422,14 @@ const BYTES_PER_FACE_CASCADE: u64 = 700;
 /// the surface behind the front, two slabs of 15 k faces, into what the budget left). With 850
 /// and the slice's share (55.5 k faces): 57.9 MiB and 1.31x; R = 0.05 and 0.2 peaked at 62.3
 /// and 61.1 MiB, bonsai upsampled to 1021 x 1021 x 256 (`[output] faces = 10000`) at 62.0 MiB
-/// (docs/performance.md, "Twenty-first session").
-const BYTES_PER_FACE_ALONE: u64 = 850;
+/// (docs/performance.md, "Twenty-first session"). The memory work since then left 850 using
+/// 40-52 MiB of the 64, and on large slices that shallow band was slow: the coarse fans just
+/// behind the front lie next to its full-resolution triangles, and the guard's queries met
+/// 192 records each at 1021^3 (`faces = 10000`, 350 s, 48.8 MiB). With 600: 79 records,
+/// 247 s, 56.6 MiB, 21,786 faces written instead of 22,909; bonsai upsampled to 511 x 511 x
+/// 256 at R = 0.2, 0.05 and 0.01 peaks at 60.1, 61.5 and 59.3 MiB, and one stage on bonsai or
+/// engine at 51-52 MiB (docs/performance.md, "Thirtieth session").
+const BYTES_PER_FACE_ALONE: u64 = 600;
 /// What the pipeline holds per cube of one slice outside the simplifier's faces (slabs being
 /// extracted on every core, the detector's front, batches in flight), set aside from the budget
 /// of one simplifier alone, whose slices are the large ones: without it, 850 bytes per face took
@@ -753,15 +759,15 @@ impl JobConfig {
     /// When the default left a job that could run two simplifier stages on one because its
     /// slabs are large for the budget: a line saying how to use both cores. Two stages at such
     /// sizes cost memory (the second holds the first's output above its rear) and save time
-    /// (bonsai upsampled to 1021^3 at the default 64 MiB: 359 s with two stages against 896 s
-    /// with one, at 107 MiB against 56; docs/scale.md, "fourteenth round").
+    /// (bonsai upsampled to 511^3 at the default 64 MiB: 28.6 s with two stages against 42.6 s
+    /// with one, at 63.3 MiB against 59.6; docs/performance.md, "Thirtieth session").
     pub fn one_stage_hint(&self, dims: [u64; 3]) -> Option<String> {
         (self.pipeline.simplify_stages.is_none() && self.cascade_possible() && !self.cascade(dims))
             .then(|| {
                 format!(
                     "one simplifier stage: slices of {} x {} voxels are large for two within \
                      [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for about \
-                     twice the memory (bonsai at 1021^3: 359 s against 896 s, 107 MiB against 56)",
+                     more memory (bonsai at 511^3: 28.6 s against 42.6 s, 63 MiB against 60)",
                     dims[0], dims[1], self.pipeline.memory_budget_mib
                 )
             })
