@@ -428,7 +428,9 @@ const BYTES_PER_FACE_CASCADE: u64 = 700;
 /// 192 records each at 1021^3 (`faces = 10000`, 350 s, 48.8 MiB). With 600: 79 records,
 /// 247 s, 56.6 MiB, 21,786 faces written instead of 22,909; bonsai upsampled to 511 x 511 x
 /// 256 at R = 0.2, 0.05 and 0.01 peaks at 60.1, 61.5 and 59.3 MiB, and one stage on bonsai or
-/// engine at 51-52 MiB (docs/performance.md, "Thirtieth session").
+/// engine at 51-52 MiB. Where the front stretches the budget (`Stage::budget`) the larger share
+/// stretches it further: 2041^3 peaks at 65.7 MiB instead of 58.0 (docs/performance.md,
+/// "Thirtieth session").
 const BYTES_PER_FACE_ALONE: u64 = 600;
 /// What the pipeline holds per cube of one slice outside the simplifier's faces (slabs being
 /// extracted on every core, the detector's front, batches in flight), set aside from the budget
