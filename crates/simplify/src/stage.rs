@@ -297,19 +297,17 @@ impl Stage {
         // Over the memory budget, a pass runs before anything is retired for it, so that what
         // leaves has been decimated (a huge `batch` otherwise emitted raw faces). It stops where
         // the budget has room again (`RateSchedule::kept`), unless that is still over it: then
-        // faces must leave, and it goes on to the rate target first, so that they leave at the
-        // density the whole output will have.
+        // faces must leave, and it goes on to the rate target first (without the initial phase:
+        // `RateSchedule::standard_target`), so that they leave at the density the whole output
+        // will have.
         let mut squeeze = None;
         let until = match &mut self.schedule {
             Schedule::Off => None,
             Schedule::Rate(rate) => {
                 (rate.due(counts.generated) || counts.resident > budget).then(|| {
                     let target = rate.resident_target(counts);
-                    let kept = rate.kept(budget);
-                    if kept > target {
-                        squeeze = Some(Until::Resident(target));
-                    }
-                    Until::Resident(target.max(kept))
+                    squeeze = Some(Until::Resident(rate.standard_target(counts)));
+                    Until::Resident(target.max(rate.kept(budget)))
                 })
             }
             Schedule::Threshold => Some(Until::Exhausted),
@@ -700,5 +698,68 @@ mod tests {
         s2.end_batch(0, &mut OutBatch::default());
         assert_eq!(s2.stats().front_stretch_faces, 7);
         assert_eq!(s2.stats().peak_front_faces, 12);
+    }
+
+    /// A large front met before anything was written (the initial phase): the faces behind it
+    /// that no longer fit are decimated to the rate target before any of them leaves, not
+    /// written at the initial phase's density (which then left the rest of the output almost
+    /// nothing: hydrogen upsampled to 2017^3).
+    #[test]
+    fn faces_leave_at_the_rate_target_even_in_the_initial_phase() {
+        let mut s = Stage::new(SimplifyConfig {
+            max_resident_faces: 100,
+            ..SimplifyConfig::new(Policy::Rate {
+                rate: 0.1,
+                batch: u64::MAX,
+                initial_rate: 0.5,
+            })
+        });
+        // A flat 10 x 20 grid of 400 triangles behind the front, every vertex modifiable.
+        let (nx, ny) = (10u64, 20u64);
+        let id = |i: u64, j: u64| j * (nx + 1) + i;
+        for j in 0..=ny {
+            for i in 0..=nx {
+                s.add_vertex(id(i, j), DVec3::new(i as f64, j as f64, 0.0), 0, &[]);
+            }
+        }
+        for j in 0..ny {
+            for i in 0..nx {
+                s.add_triangle([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                s.add_triangle([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        for v in 0..id(nx, ny) + 1 {
+            s.set_modifiable(v);
+        }
+        // A front of 150 triangles far above it, none modifiable yet.
+        let centre = id(nx, ny) + 1;
+        s.add_vertex(centre, DVec3::new(5.0, 10.0, 50.0), 9, &[]);
+        for k in 1..=150u64 {
+            let a = std::f64::consts::TAU * k as f64 / 150.0;
+            s.add_vertex(
+                centre + k,
+                DVec3::new(5.0 + a.cos(), 10.0 + a.sin(), 50.0),
+                9,
+                &[],
+            );
+        }
+        for k in 1..=150u64 {
+            s.add_triangle([centre, centre + k, centre + k % 150 + 1]);
+        }
+        // Budget 150 + 100 / 2 = 200; the initial phase alone would keep 400 / 2 + 150 = 350,
+        // the rate target (400 * 0.1 + 150 = 190) fits.
+        assert_eq!(s.budget(), 200);
+        let mut out = OutBatch::default();
+        s.end_batch(9, &mut out);
+        let written = out
+            .elements
+            .iter()
+            .filter(|e| matches!(e, OutElement::Triangle { .. }))
+            .count();
+        assert_eq!(
+            written, 0,
+            "nothing had to leave once decimated to the target"
+        );
+        assert!(s.band.resident() <= 190, "{}", s.band.resident());
     }
 }
