@@ -51,17 +51,79 @@ pub fn certify(det: f64, norms: f64, [a, b, c, d]: [[f64; 3]; 4]) -> f64 {
     }
 }
 
-/// [`orient`] in exact arithmetic: rare (touching configurations), kept off the inlined path.
+/// [`orient`] in exact arithmetic, kept off the inlined path: [`orient_fixed`] where its
+/// integers hold the points, else Shewchuk's adaptive predicate.
 #[cold]
 #[inline(never)]
-fn exact_orient([a, b, c, d]: [[f64; 3]; 4]) -> f64 {
+fn exact_orient(points: [[f64; 3]; 4]) -> f64 {
+    if let Some(sign) = orient_fixed(points) {
+        return sign;
+    }
     let p = |x: [f64; 3]| robust::Coord3D {
         x: x[0],
         y: x[1],
         z: x[2],
     };
+    let [a, b, c, d] = points;
     // Shewchuk's sign convention is the opposite one.
     -robust::orient3d(p(a), p(b), p(c), p(d))
+}
+
+/// Bits of the integers [`orient_fixed`] turns coordinates into: differences then take 41, a
+/// triple product of them 123 and the determinant's three terms less than 2^126, within `i128`.
+const FIXED_BITS: i32 = 40;
+
+/// The sign of [`orient`] in `i128` arithmetic, exactly, when the twelve coordinates' set bits
+/// span at most [`FIXED_BITS`] (then each is an integer times one power of two); `None` when they
+/// do not (coordinates of very different magnitudes, non-finite or subnormal values), for the
+/// general predicate. The positions this project writes are `f32` (24 bits) and the points of
+/// one test lie close together, so nearly every call fits. Near-coplanar points are not rare on
+/// smooth surfaces: on hydrogen upsampled 32x, Shewchuk's adaptive stages (the `robust` crate,
+/// expansions in `f64`) took a fifth of a run's CPU samples, more than the guard's own code;
+/// this is integer shifts and a dozen multiplications.
+fn orient_fixed(points: [[f64; 3]; 4]) -> Option<f64> {
+    // Each coordinate as `mantissa * 2^exp` with an odd (or zero) mantissa.
+    let mut parts = [(0i64, 0i32); 12];
+    let (mut low, mut high) = (i32::MAX, i32::MIN);
+    for (part, &x) in parts.iter_mut().zip(points.as_flattened()) {
+        if x == 0.0 {
+            continue;
+        }
+        let bits = x.to_bits();
+        let biased = ((bits >> 52) & 0x7ff) as i32;
+        if biased == 0 || biased == 0x7ff {
+            return None;
+        }
+        let mantissa = (bits & ((1 << 52) - 1)) | (1 << 52);
+        let zeros = mantissa.trailing_zeros();
+        let exp = biased - 1075 + zeros as i32;
+        // x = ±(mantissa >> zeros) * 2^exp, below 2^(biased - 1022).
+        let odd = (mantissa >> zeros) as i64;
+        *part = (if x < 0.0 { -odd } else { odd }, exp);
+        low = low.min(exp);
+        high = high.max(biased - 1022);
+    }
+    if low == i32::MAX {
+        return Some(0.0);
+    }
+    if high - low > FIXED_BITS {
+        return None;
+    }
+    // Every coordinate an integer multiple of 2^low, below 2^FIXED_BITS in magnitude.
+    let fixed = |k: usize| {
+        let (m, exp) = parts[k];
+        m << (exp - low)
+    };
+    let p: [i64; 12] = std::array::from_fn(|k| if parts[k].0 == 0 { 0 } else { fixed(k) });
+    let diff = |q: usize, k: usize| i128::from(p[3 * q + k] - p[k]);
+    let (u, v, w) = (
+        [diff(1, 0), diff(1, 1), diff(1, 2)],
+        [diff(2, 0), diff(2, 1), diff(2, 2)],
+        [diff(3, 0), diff(3, 1), diff(3, 2)],
+    );
+    let det = u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+        + u[2] * (v[0] * w[1] - v[1] * w[0]);
+    Some(det.signum() as f64)
 }
 
 /// Relative rounding error bound of an `f64` triple product of differences (see [`certify`]):
@@ -193,6 +255,99 @@ pub fn self_intersections(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> usi
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// Shewchuk's sign, in this module's convention.
+    fn shewchuk(points: [[f64; 3]; 4]) -> f64 {
+        let p = |x: [f64; 3]| robust::Coord3D {
+            x: x[0],
+            y: x[1],
+            z: x[2],
+        };
+        let [a, b, c, d] = points;
+        sgn(-robust::orient3d(p(a), p(b), p(c), p(d)))
+    }
+
+    fn sgn(x: f64) -> f64 {
+        f64::from(i8::from(x > 0.0) - i8::from(x < 0.0))
+    }
+
+    /// `f32` coordinates near `origin` at the scale `2^exp`: what the simplifier's points are.
+    fn near(origin: [f32; 3], offsets: [[f32; 3]; 4], exp: i32) -> [[f64; 3]; 4] {
+        let unit = 2f32.powi(exp);
+        offsets.map(|o| std::array::from_fn(|k| f64::from(origin[k] + o[k] * unit)))
+    }
+
+    proptest! {
+        /// Wherever the integer path answers, it gives Shewchuk's sign: for points in general
+        /// position, on a common plane up to `f32` rounding (the near-coplanar case it is for),
+        /// and with repeated points.
+        #[test]
+        fn the_integer_path_agrees_with_shewchuk(
+            origin in prop::array::uniform3(-3000.0f32..3000.0),
+            offsets in prop::array::uniform4(prop::array::uniform3(-4.0f32..4.0)),
+            exp in -12i32..4,
+            mode in 0u8..4,
+        ) {
+            let mut points = near(origin, offsets, exp);
+            match mode {
+                // The fourth point on the plane of the first three, rounded to `f32`.
+                1 => {
+                    let [a, b, c, _] = points;
+                    let (s, t) = (f64::from(offsets[3][0]) / 4.0, f64::from(offsets[3][1]) / 4.0);
+                    points[3] = std::array::from_fn(|k| {
+                        f64::from((a[k] + s * (b[k] - a[k]) + t * (c[k] - a[k])) as f32)
+                    });
+                }
+                // All four on an axis plane.
+                2 => points.iter_mut().for_each(|p| p[2] = f64::from(origin[2])),
+                // A repeated point.
+                3 => points[3] = points[1],
+                _ => {}
+            }
+            let expected = shewchuk(points);
+            if let Some(sign) = orient_fixed(points) {
+                prop_assert_eq!(sign, expected, "{:?}", points);
+            }
+            prop_assert_eq!(sgn(exact_orient(points)), expected);
+        }
+    }
+
+    /// The cases the integer path leaves to the general predicate, and one it takes: `f32`
+    /// points a few voxels apart, nearly coplanar.
+    #[test]
+    fn wide_spans_go_to_the_general_predicate() {
+        let f = |x: f32, y: f32, z: f32| [f64::from(x), f64::from(y), f64::from(z)];
+        let flat = [
+            f(1201.25, 733.5, 95.125),
+            f(1203.0625, 733.875, 95.12501),
+            f(1202.5, 735.25, 95.12499),
+            f(1202.0, 734.0, 95.125),
+        ];
+        assert_eq!(orient_fixed(flat), Some(shewchuk(flat)));
+        // The largest integers taken, 2^40 - 1, in the largest determinants they make.
+        let m = (1u64 << FIXED_BITS) as f64 - 1.0;
+        for d in [[m, m, m], [-m, m, -m], [m, -m, m], [-m, -m, -m + 1.0]] {
+            let extreme = [[-m, -m, -m], [m, -m, m], [-m, m, m], d];
+            assert_eq!(orient_fixed(extreme), Some(shewchuk(extreme)), "{d:?}");
+        }
+        let (a, b, c) = ([0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        assert_eq!(orient_fixed([a, b, c, [0.25, 0.5, 0.0]]), Some(0.0));
+        assert_eq!(orient_fixed([a, b, c, [0.25, 0.5, 1.0]]), Some(1.0));
+        assert_eq!(
+            orient_fixed([a, b, c, [0.0, 0.0, -1e-30]]),
+            None,
+            "a span of 100 bits"
+        );
+        assert_eq!(
+            orient_fixed([a, b, c, [0.1, 0.2, 0.0]]),
+            None,
+            "53-bit mantissas"
+        );
+        assert_eq!(orient_fixed([a, b, c, [f64::NAN, 0.0, 0.0]]), None);
+        assert_eq!(orient_fixed([a; 4]), Some(0.0), "all zero");
+        assert_eq!(sgn(exact_orient([a, b, c, [0.0, 0.0, -1e-30]])), -1.0);
+    }
 
     #[test]
     fn two_crossing_triangles_count_both() {
