@@ -69,8 +69,9 @@ fn exact_orient(points: [[f64; 3]; 4]) -> f64 {
     -robust::orient3d(p(a), p(b), p(c), p(d))
 }
 
-/// Bits of the integers [`orient_fixed`] turns coordinates into: differences then take 41, a
-/// triple product of them 123 and the determinant's three terms less than 2^126, within `i128`.
+/// Bits of the integers [`orient_fixed`] turns coordinates into: differences then take 41 bits,
+/// the 2x2 minors 83, their products with a difference 124, and the determinant (three of those)
+/// stays below 2^126, within `i128`.
 const FIXED_BITS: i32 = 40;
 
 /// The sign of [`orient`] in `i128` arithmetic, exactly, when the twelve coordinates' set bits

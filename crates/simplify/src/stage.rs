@@ -585,6 +585,19 @@ mod tests {
         Stage::new(crate::tests::swept(cascade, faces))
     }
 
+    /// A stage alone at `rate` (initial rate 0.5), decimating every `batch` faces, with a budget
+    /// of `faces`.
+    fn rate_stage(faces: usize, rate: f64, batch: u64) -> Stage {
+        Stage::new(SimplifyConfig {
+            max_resident_faces: faces,
+            ..SimplifyConfig::new(Policy::Rate {
+                rate,
+                batch,
+                initial_rate: 0.5,
+            })
+        })
+    }
+
     /// A second stage lets a vertex move only once its front (the first stage's rear) has
     /// passed its whole star: a vertex below the rear whose triangle reaches far beyond it could
     /// not contract, so its face must count as unmodifiable for the rate target.
@@ -671,14 +684,7 @@ mod tests {
     /// stretches to hold them with half of it behind them, and the run summary says by how much.
     #[test]
     fn the_sweep_front_stretches_the_budget() {
-        let mut s = Stage::new(SimplifyConfig {
-            max_resident_faces: 10,
-            ..SimplifyConfig::new(Policy::Rate {
-                rate: 0.5,
-                batch: 1,
-                initial_rate: 0.5,
-            })
-        });
+        let mut s = rate_stage(10, 0.5, 1);
         // A fan of `n` triangles around vertex 0, nothing modifiable yet.
         let fan = |s: &mut Stage, n: u64| {
             s.add_vertex(0, DVec3::ZERO, 0, &[]);
@@ -706,14 +712,7 @@ mod tests {
     /// nothing: hydrogen upsampled to 2017^3).
     #[test]
     fn faces_leave_at_the_rate_target_even_in_the_initial_phase() {
-        let mut s = Stage::new(SimplifyConfig {
-            max_resident_faces: 100,
-            ..SimplifyConfig::new(Policy::Rate {
-                rate: 0.1,
-                batch: u64::MAX,
-                initial_rate: 0.5,
-            })
-        });
+        let mut s = rate_stage(100, 0.1, u64::MAX);
         // A flat 10 x 20 grid of 400 triangles behind the front, every vertex modifiable.
         let (nx, ny) = (10u64, 20u64);
         let id = |i: u64, j: u64| j * (nx + 1) + i;
