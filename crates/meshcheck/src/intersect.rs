@@ -56,17 +56,18 @@ pub fn certify(det: f64, norms: f64, [a, b, c, d]: [[f64; 3]; 4]) -> f64 {
 #[cold]
 #[inline(never)]
 fn exact_orient(points: [[f64; 3]; 4]) -> f64 {
-    if let Some(sign) = orient_fixed(points) {
-        return sign;
-    }
-    let p = |x: [f64; 3]| robust::Coord3D {
+    orient_fixed(points).unwrap_or_else(|| orient_adaptive(points))
+}
+
+/// [`orient`] by Shewchuk's adaptive predicate (the `robust` crate), for any finite points.
+fn orient_adaptive(points: [[f64; 3]; 4]) -> f64 {
+    let [a, b, c, d] = points.map(|x| robust::Coord3D {
         x: x[0],
         y: x[1],
         z: x[2],
-    };
-    let [a, b, c, d] = points;
+    });
     // Shewchuk's sign convention is the opposite one.
-    -robust::orient3d(p(a), p(b), p(c), p(d))
+    -robust::orient3d(a, b, c, d)
 }
 
 /// Bits of the integers [`orient_fixed`] turns coordinates into: differences then take 41 bits,
@@ -111,11 +112,7 @@ fn orient_fixed(points: [[f64; 3]; 4]) -> Option<f64> {
         return None;
     }
     // Every coordinate an integer multiple of 2^low, below 2^FIXED_BITS in magnitude.
-    let fixed = |k: usize| {
-        let (m, exp) = parts[k];
-        m << (exp - low)
-    };
-    let p: [i64; 12] = std::array::from_fn(|k| if parts[k].0 == 0 { 0 } else { fixed(k) });
+    let p = parts.map(|(m, exp)| if m == 0 { 0 } else { m << (exp - low) });
     let diff = |q: usize, k: usize| i128::from(p[3 * q + k] - p[k]);
     let (u, v, w) = (
         [diff(1, 0), diff(1, 1), diff(1, 2)],
@@ -260,13 +257,7 @@ mod tests {
 
     /// Shewchuk's sign, in this module's convention.
     fn shewchuk(points: [[f64; 3]; 4]) -> f64 {
-        let p = |x: [f64; 3]| robust::Coord3D {
-            x: x[0],
-            y: x[1],
-            z: x[2],
-        };
-        let [a, b, c, d] = points;
-        sgn(-robust::orient3d(p(a), p(b), p(c), p(d)))
+        sgn(orient_adaptive(points))
     }
 
     fn sgn(x: f64) -> f64 {
