@@ -2,10 +2,12 @@
 //! full-resolution surface of that job's volume (regenerated as a stream).
 
 use std::path::Path;
+use std::sync::atomic::AtomicBool;
 
 use anyhow::Context;
-use isostream_measure::{MeasureOptions, MeasureReport, mesh_quality, surface_distances};
-use isostream_pipeline::{JobConfig, open_source, summary_path};
+
+use isostream_measure::{FullSurfaceDistances, MeasureOptions, MeasureReport, mesh_quality};
+use isostream_pipeline::{JobConfig, open_source, summary_path, visit_surface};
 
 pub fn measure(
     job_path: Option<&Path>,
@@ -20,23 +22,23 @@ pub fn measure(
         None => None,
         Some(job_path) => {
             let job = JobConfig::load(job_path)?;
-            let mut source = open_source(&job.input)?;
+            let source = open_source(&job.input)?;
             let defaults = MeasureOptions::default();
             let opts = MeasureOptions {
                 samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),
                 seed: seed.unwrap_or(defaults.seed),
                 ..defaults
             };
-            Some(
-                surface_distances(
-                    &mut *source,
-                    job.extract.iso as f32,
-                    &mesh.positions,
-                    &mesh.triangles,
-                    &opts,
-                )
-                .with_context(|| format!("measuring {}", mesh_path.display()))?,
-            )
+            let context = || format!("measuring {}", mesh_path.display());
+            let mut full =
+                FullSurfaceDistances::new(source.grid(), &mesh.positions, &mesh.triangles, &opts)
+                    .with_context(context)?;
+            // The run's own extraction (parallel, empty space skipped): the full-resolution
+            // surface of a large job has far more faces than fit in memory, and streaming it
+            // on one thread through every voxel was most of the time.
+            let never = AtomicBool::new(false);
+            visit_surface(&job, source, &never, |batch| full.add(batch)).with_context(context)?;
+            Some(full.finish().with_context(context)?)
         }
     };
     let attributes = match job_path {

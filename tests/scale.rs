@@ -215,3 +215,59 @@ fn a_slab_larger_than_the_budget_is_not_written_raw() {
         s.faces_written
     );
 }
+
+/// `isostream measure --volume` streams the full-resolution surface through the run's own
+/// extraction (parallel, empty space skipped): its distances equal those of the library's
+/// one-thread extraction of every voxel (`surface_distances`), for 1 and 2 threads.
+#[test]
+fn measure_through_the_pool_equals_one_thread_over_every_voxel() {
+    let dir = tempfile::tempdir().unwrap();
+    let job_text = |threads: usize| {
+        format!(
+            "[input]\nshape = \"sphere\"\nsize = [16, 16, 16]\nupsample = [3, 3, 3]\n\n\
+             [extract]\niso = 0.0\n\n[simplify]\nrate = 0.05\n\n[output]\npath = \"out.smb\"\n\n\
+             [pipeline]\nthreads = {threads}\nbatch_triangles = 64\n"
+        )
+    };
+    let job = dir.path().join("job.toml");
+    std::fs::write(&job, job_text(2)).unwrap();
+    let summary = run_job(&job);
+    assert!(summary.extract.skipped_cubes > 0, "{:?}", summary.extract);
+    let mesh = common::Mesh::read(&dir.path().join("out.smb"));
+
+    let config = isostream_pipeline::JobConfig::load(&job).unwrap();
+    let mut source = isostream_pipeline::open_source(&config.input).unwrap();
+    let expected = isostream_measure::surface_distances(
+        &mut *source,
+        0.0,
+        &mesh.positions,
+        &mesh.triangles,
+        &isostream_measure::MeasureOptions::default(),
+    )
+    .unwrap();
+    for threads in [1, 2] {
+        std::fs::write(&job, job_text(threads)).unwrap();
+        let o = common::isostream(&[
+            "measure",
+            "--volume",
+            job.to_str().unwrap(),
+            "--json",
+            dir.path().join("out.smb").to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", common::stderr(&o));
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let d = &report["distances"];
+        assert_eq!(
+            d["full_resolution_triangles"].as_u64(),
+            Some(expected.full_resolution_triangles)
+        );
+        for (key, want) in [
+            ("mean", expected.mean),
+            ("rms", expected.rms),
+            ("hausdorff", expected.hausdorff),
+            ("p999", expected.p999),
+        ] {
+            assert_eq!(d[key].as_f64(), Some(want), "{key} with {threads} threads");
+        }
+    }
+}

@@ -483,8 +483,10 @@ fn push_cube(
     });
 }
 
-fn count_non_finite(slice: &[f32]) -> u64 {
-    slice.iter().filter(|v| !v.is_finite()).count() as u64
+/// Every voxel passes here: counted in `u32` lanes (a row has far fewer than 2^32 voxels), which
+/// the compiler vectorizes on any x86-64, where a `u64` count stayed scalar.
+fn count_non_finite(row: &[f32]) -> u64 {
+    u64::from(row.iter().map(|v| u32::from(!v.is_finite())).sum::<u32>())
 }
 
 #[cfg(test)]

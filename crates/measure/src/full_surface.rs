@@ -7,7 +7,7 @@
 
 use glam::DVec3;
 use isostream_extract::{CubeBatch, Extractor};
-use isostream_volume::VolumeSource;
+use isostream_volume::{Grid, VolumeSource};
 
 use crate::distances::{DEFAULT_SEARCH_VOXEL_DIAGONALS, DistanceStream};
 use crate::triangle::Triangle;
@@ -19,7 +19,9 @@ const MAX_BATCH_TRIANGLES: usize = 1 << 18;
 
 /// Metro-style distances between the output mesh (in memory: it is the simplified one) and the
 /// full-resolution iso-surface, which is regenerated from the volume as a stream (slab by slab,
-/// via `Extractor`) and never held in memory whole. Tandem paper, section 4 "Approximation error".
+/// via `Extractor`, on the calling thread) and never held in memory whole. Tandem paper, section
+/// 4 "Approximation error". A caller with its own extraction (`isostream measure` uses the
+/// pipeline's parallel one, which skips empty space) feeds [`FullSurfaceDistances`] instead.
 ///
 /// `volume` is read from slice 0; `positions`/`triangles` are the output mesh in the volume's
 /// physical coordinates.
@@ -30,44 +32,100 @@ pub fn surface_distances(
     triangles: &[[u32; 3]],
     opts: &MeasureOptions,
 ) -> Result<Distances, MeasureError> {
-    let voxel_diagonal = DVec3::from(volume.grid().spacing).length();
-    let radius = opts
-        .max_distance
-        .unwrap_or(DEFAULT_SEARCH_VOXEL_DIAGONALS * voxel_diagonal);
-    let mut stream = DistanceStream::new(positions, triangles, opts, radius)?;
-    feed(volume, iso, &mut stream, MAX_BATCH_TRIANGLES)?;
-    stream.finish()
+    let mut full = FullSurfaceDistances::new(volume.grid(), positions, triangles, opts)?;
+    feed(volume, iso, &mut full)?;
+    full.finish()
 }
 
-/// Extracts the volume slab by slab into `stream`, in batches of a slab or of at least
-/// `max_batch` triangles, each with the lowest z any later triangle can have.
+/// The distances of [`surface_distances`], taking the full-resolution surface as the batches
+/// of marching cubes over the volume's grid: every slab's batches after the previous slab's, as
+/// [`Extractor::extract_slab`] emits them (empty cubes may be left out). Only the triangles
+/// within the search radius of output samples still to measure are held.
+#[derive(Debug)]
+pub struct FullSurfaceDistances {
+    stream: DistanceStream,
+    grid: Grid,
+    /// Triangles gathered since the last hand-over to `stream`.
+    pending: Vec<Triangle>,
+    max_batch: usize,
+}
+
+impl FullSurfaceDistances {
+    /// Indexes and samples the output mesh (`positions`/`triangles`, in `grid`'s physical
+    /// coordinates).
+    pub fn new(
+        grid: Grid,
+        positions: &[[f64; 3]],
+        triangles: &[[u32; 3]],
+        opts: &MeasureOptions,
+    ) -> Result<Self, MeasureError> {
+        Self::with_max_batch(grid, positions, triangles, opts, MAX_BATCH_TRIANGLES)
+    }
+
+    fn with_max_batch(
+        grid: Grid,
+        positions: &[[f64; 3]],
+        triangles: &[[u32; 3]],
+        opts: &MeasureOptions,
+        max_batch: usize,
+    ) -> Result<Self, MeasureError> {
+        let voxel_diagonal = DVec3::from(grid.spacing).length();
+        let radius = opts
+            .max_distance
+            .unwrap_or(DEFAULT_SEARCH_VOXEL_DIAGONALS * voxel_diagonal);
+        Ok(Self {
+            stream: DistanceStream::new(positions, triangles, opts, radius)?,
+            grid,
+            pending: Vec::new(),
+            max_batch,
+        })
+    }
+
+    /// The next batch of the full-resolution surface. Handed on at the end of its slab (later
+    /// triangles lie above the slab's top slice) or once `max_batch` triangles wait (later ones
+    /// lie above its bottom slice).
+    pub fn add(&mut self, batch: &CubeBatch) {
+        append_triangles(batch, &mut self.pending);
+        let slice_height = |k: u64| self.grid.position(0.0, 0.0, k as f64).z;
+        if batch.end_of_slab {
+            let top = slice_height(batch.slab + 1);
+            self.stream
+                .add_batch(std::mem::take(&mut self.pending), top);
+        } else if self.pending.len() >= self.max_batch {
+            let bottom = slice_height(batch.slab);
+            self.stream
+                .add_batch(std::mem::take(&mut self.pending), bottom);
+        }
+    }
+
+    /// The distances, once the whole surface went by.
+    pub fn finish(mut self) -> Result<Distances, MeasureError> {
+        if !self.pending.is_empty() {
+            let rest = std::mem::take(&mut self.pending);
+            self.stream.add_batch(rest, f64::INFINITY);
+        }
+        self.stream.finish()
+    }
+}
+
+/// Extracts the volume slab by slab into `full`, in groups of rows of at least its `max_batch`
+/// triangles.
 fn feed(
     volume: &mut dyn VolumeSource,
     iso: f32,
-    stream: &mut DistanceStream,
-    max_batch: usize,
+    full: &mut FullSurfaceDistances,
 ) -> Result<(), MeasureError> {
     let grid = volume.grid();
     let mut extractor = Extractor::new(grid, iso);
     let n = grid.slice_len();
     let (mut lower, mut upper) = (vec![0.0f32; n], vec![0.0f32; n]);
     volume.read_slice(0, &mut lower)?;
-    let mut pending: Vec<Triangle> = Vec::new();
     for z in 0..grid.dims[2].saturating_sub(1) {
         volume.read_slice(z + 1, &mut upper)?;
-        // Later triangles of this slab lie above slice z, those of later slabs above slice z + 1.
-        let slice_height = |k: u64| grid.position(0.0, 0.0, k as f64).z;
-        let (slab_bottom, slab_top) = (slice_height(z), slice_height(z + 1));
-        let emit = |batch: CubeBatch| -> Result<(), MeasureError> {
-            append_triangles(&batch, &mut pending);
-            if batch.end_of_slab {
-                stream.add_batch(std::mem::take(&mut pending), slab_top);
-            } else if pending.len() >= max_batch {
-                stream.add_batch(std::mem::take(&mut pending), slab_bottom);
-            }
-            Ok(())
-        };
-        extractor.extract_slab(z, &lower, &upper, max_batch, emit)?;
+        extractor.extract_slab(z, &lower, &upper, full.max_batch, |batch: CubeBatch| {
+            full.add(&batch);
+            Ok::<(), MeasureError>(())
+        })?;
         std::mem::swap(&mut lower, &mut upper);
     }
     Ok(())
@@ -196,12 +254,19 @@ mod tests {
                 .iter()
                 .map(|p| p.map(|c| c + jitter * (2.0 * rng.next_f64() - 1.0)))
                 .collect();
-            let opts = MeasureOptions { seed, ..MeasureOptions::default() };
-            let Ok(mut stream) = DistanceStream::new(&output, &full.triangles, &opts, radius) else {
+            let opts = MeasureOptions {
+                seed,
+                max_distance: Some(radius),
+                ..MeasureOptions::default()
+            };
+            let Ok(mut stream) = FullSurfaceDistances::with_max_batch(
+                grid, &output, &full.triangles, &opts, max_batch,
+            ) else {
                 return Ok(()); // every jittered triangle degenerate: nothing to sample
             };
-            feed(&mut volume.clone(), 0.5, &mut stream, max_batch).unwrap();
+            feed(&mut volume.clone(), 0.5, &mut stream).unwrap();
             let expected: Vec<f64> = stream
+                .stream
                 .samples()
                 .iter()
                 .map(|p| brute_nearest(*p, &full_positions, &full.triangles).min(radius))

@@ -32,6 +32,6 @@ pub use distances::{
     Distances, MAX_SAMPLES, MIN_SAMPLES, MeasureOptions,
 };
 pub use error::MeasureError;
-pub use full_surface::surface_distances;
+pub use full_surface::{FullSurfaceDistances, surface_distances};
 pub use quality::{MeshQuality, mesh_quality};
 pub use report::MeasureReport;

@@ -26,11 +26,14 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use isostream_prune::{Filter, SmallPieces};
+use isostream_detect::{Detector, MeshDelta};
+use isostream_extract::{CubeBatch, ExtractStats};
+use isostream_prune::{Census, Filter, SmallPieces};
 use isostream_simplify::{
     Boundary, Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig,
 };
 use isostream_smesh::Header;
+use isostream_volume::VolumeSource;
 use serde::Serialize;
 use tracing::{info, warn};
 
@@ -284,14 +287,12 @@ fn run_job(
                     &parts.prune,
                 )?));
             }
-            let detector = isostream_detect::Detector::restore(
-                grid.dims,
-                checkpoint::decode(ckpt_path, &parts.detect)?,
-            )
-            .map_err(|e| RunError::ResumeMismatch {
-                path: ckpt_path.to_path_buf(),
-                what: e.to_string(),
-            })?;
+            let detector =
+                Detector::restore(grid.dims, checkpoint::decode(ckpt_path, &parts.detect)?)
+                    .map_err(|e| RunError::ResumeMismatch {
+                        path: ckpt_path.to_path_buf(),
+                        what: e.to_string(),
+                    })?;
             info!(
                 slab = parts.reader.z,
                 of = grid.dims[2] - 1,
@@ -442,23 +443,24 @@ fn first_pass(
     cancel: &AtomicBool,
 ) -> Result<FirstPass, RunError> {
     let started = Instant::now();
-    let iso = job.extract.iso as f32;
-    let mut reader = SliceReader::new(open_source(&job.input)?, Vec::new()).rows_on_demand();
-    if job.extract.skip_empty {
-        reader = reader.skip_empty(iso);
-    }
-    let (counted, small) = stages::Extraction {
-        reader,
-        iso,
-        batch_triangles: job.pipeline.batch_triangles,
-        threads: job.pipeline.threads(),
-        skip_empty: job.extract.skip_empty,
-        first: 0,
-        schedule: extract_pool::Schedule::never(),
-        carried: None,
-        stats: Default::default(),
-    }
-    .count(cancel, prune)?;
+    let source = open_source(&job.input)?;
+    let dims = source.grid().dims;
+    let mut census = prune.map(|n| (Detector::new(dims), Census::new(n)));
+    let counted = whole_extraction(job, source).visit("count", cancel, |batch| {
+        if let Some((detector, census)) = &mut census {
+            // Batch by batch, not by group: the census follows the triangles' order, and a
+            // notice never precedes a triangle of its vertex however the stream is cut.
+            let mut delta = MeshDelta::default();
+            detector.process(batch, &mut delta);
+            census.add(&delta);
+        }
+    })?;
+    let small = census.map(|(mut detector, mut census)| {
+        let mut last = MeshDelta::default();
+        detector.finish(&mut last);
+        census.add(&last);
+        census.finish()
+    });
     let pass = FirstPass {
         extracted: counted.triangles,
         small,
@@ -471,6 +473,41 @@ fn first_pass(
         "first pass (output.faces, simplify.min_component_faces)"
     );
     Ok(pass)
+}
+
+/// The job's full-resolution iso-surface, extracted as the first pass extracts it (the pool of
+/// `[pipeline] threads` workers, empty space skipped unless `[extract] skip_empty = false`) and
+/// handed to `visit` batch by batch in slab order, on the calling thread; nothing of it is kept.
+/// `source` is `open_source(&job.input)`'s, so that the caller can read its grid first.
+/// `isostream measure` streams the surface its distances need through this.
+pub fn visit_surface(
+    job: &JobConfig,
+    source: Box<dyn VolumeSource>,
+    cancel: &AtomicBool,
+    visit: impl FnMut(&CubeBatch),
+) -> Result<ExtractStats, RunError> {
+    whole_extraction(job, source).visit("surface", cancel, visit)
+}
+
+/// The reader and the extraction pool over the whole of `source` (the job's input), without
+/// checkpoints.
+fn whole_extraction(job: &JobConfig, source: Box<dyn VolumeSource>) -> stages::Extraction {
+    let iso = job.extract.iso as f32;
+    let mut reader = SliceReader::new(source, Vec::new()).rows_on_demand();
+    if job.extract.skip_empty {
+        reader = reader.skip_empty(iso);
+    }
+    stages::Extraction {
+        reader,
+        iso,
+        batch_triangles: job.pipeline.batch_triangles,
+        threads: job.pipeline.threads(),
+        skip_empty: job.extract.skip_empty,
+        first: 0,
+        schedule: extract_pool::Schedule::never(),
+        carried: None,
+        stats: Default::default(),
+    }
 }
 
 /// Slabs the first stage of a cascade keeps a vertex editable behind its front: its output is

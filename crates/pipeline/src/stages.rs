@@ -5,7 +5,6 @@
 //! what each stage does with one input and at its end.
 
 use std::convert::Infallible;
-use std::num::NonZeroU64;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
@@ -13,7 +12,7 @@ use std::time::Instant;
 use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
-use isostream_prune::{Census, Filter, PruneStats, SmallPieces};
+use isostream_prune::{Filter, PruneStats};
 use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
 use tracing::{debug, info};
 
@@ -369,33 +368,31 @@ impl Extraction {
         (read, workers)
     }
 
-    /// The first pass: extracts the whole volume to count its triangles (`[output] faces` needs
-    /// the extracted face count before simplifying starts) and, with `prune`, detects it and
-    /// takes the census of its components (`[simplify] min_component_faces`). Nothing is kept
-    /// but the counters and the list of small pieces.
-    pub fn count(
+    /// Extracts the whole volume and hands every batch, in slab order, to `visit` on the calling
+    /// thread (the stage `name` in the logs); nothing is kept. Returns the extractors'
+    /// counters. The first pass of `[output] faces` counts (and takes the census of components)
+    /// with it; `isostream measure` streams the full-resolution surface through it.
+    pub fn visit(
         self,
+        name: &'static str,
         cancel: &AtomicBool,
-        prune: Option<NonZeroU64>,
-    ) -> Result<(ExtractStats, Option<SmallPieces>), RunError> {
-        let grid = self.reader.grid();
+        visit: impl FnMut(&CubeBatch),
+    ) -> Result<ExtractStats, RunError> {
         let ctl = Control::new(cancel);
         let ctl = &ctl;
         let (order_tx, order_rx) = bounded(self.threads.max(1));
         std::thread::scope(|s| {
             let (read, workers) = self.spawn(s, order_tx, ctl, COUNT_REPLY_BATCHES);
             let drain = run(
-                "count",
+                name,
                 ctl,
-                Count {
-                    census: prune.map(|n| (Detector::new(grid.dims), Census::new(n))),
-                },
+                Visit(visit),
                 Ordered::new(order_rx, ExtractStats::default(), DataRange::default()),
                 Outbox::none(ctl),
             );
             let read = join(read, "read");
             match (read, join_workers(workers), drain) {
-                (Ok(_), Ok((_, stats)), Ok((_, small))) => Ok((stats, small)),
+                (Ok(_), Ok((_, stats)), Ok(_)) => Ok(stats),
                 (read, extract, drain) => Err(ctl.take_first().unwrap_or_else(|| {
                     first_failure([read.err(), extract.err(), drain.err(), None, None, None])
                 })),
@@ -404,33 +401,19 @@ impl Extraction {
     }
 }
 
-/// The first pass's last stage: the extractors' counters are all it needs, unless the job
-/// prunes: then the batches go through a detector and the census of components.
-struct Count {
-    census: Option<(Detector, Census)>,
-}
+/// [`Extraction::visit`]'s last stage: each batch to the visitor.
+struct Visit<F>(F);
 
-impl Step for Count {
+impl<F: FnMut(&CubeBatch)> Step for Visit<F> {
     type In = CubeBatch;
     type Out = Infallible;
-    type Done = Option<SmallPieces>;
+    type Done = ();
     fn batch(&mut self, batch: CubeBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
-        if let Some((detector, census)) = &mut self.census {
-            // Batch by batch, not by group: the census follows the triangles' order, and a
-            // notice never precedes a triangle of its vertex however the stream is cut.
-            let mut delta = MeshDelta::default();
-            detector.process(&batch, &mut delta);
-            census.add(&delta);
-        }
+        (self.0)(&batch);
         Ok(())
     }
-    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<Option<SmallPieces>> {
-        Ok(self.census.map(|(mut detector, mut census)| {
-            let mut last = MeshDelta::default();
-            detector.finish(&mut last);
-            census.add(&last);
-            census.finish()
-        }))
+    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
+        Ok(())
     }
 }
 
