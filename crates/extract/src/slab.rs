@@ -312,6 +312,16 @@ impl Extractor {
         // The group's cubes and triangles in the batches already sent.
         let (mut group_cubes, mut group_triangles) = (0, 0);
         for y in 0..cube_rows {
+            // A row of cubes none of whose blocks may cross is not even asked for: an upsampled
+            // source then computes none of its voxels. Its voxels need no counting either: a
+            // non-finite voxel leaves its blocks unbounded, so every row of cubes holding one is
+            // asked for (block bounds include their border rows).
+            if let Some(b) = bounds
+                && !b.row_may_cross((y / b.block()[1]) as usize, self.iso)
+            {
+                self.stats.skipped_cubes += nx.saturating_sub(1);
+                continue;
+            }
             let quad = rows.quad(y);
             assert!(
                 quad.iter().all(|r| r.len() == nx as usize),

@@ -246,7 +246,7 @@ impl WorkStep {
     }
 
     /// Extracts a slab from its two whole slices (and its attributes'); adds the slab's voxels
-    /// to `range`.
+    /// and its blocks' bounds to `range`.
     fn extract_slices(
         &mut self,
         job: &SlabJob,
@@ -276,6 +276,10 @@ impl WorkStep {
                 ))
             })
         });
+        // As in `extract_strips`, which computes no voxel of a row that cannot cross.
+        if let Some(b) = &bounds {
+            range.include(b.finite_range());
+        }
         self.extractor.extract_slab_with_attributes(
             job.z,
             &lo.iso,
@@ -288,7 +292,8 @@ impl WorkStep {
     }
 
     /// Extracts a slab whose two slices come as rows, strip by strip: the same batches as from
-    /// the whole slices ([`Extractor::extract_slab_rows`]); adds the slab's voxels to `range`.
+    /// the whole slices ([`Extractor::extract_slab_rows`]); adds the voxels it computed and the
+    /// bounds of the blocks it skipped to `range`.
     fn extract_strips(
         &mut self,
         job: &SlabJob,
@@ -307,6 +312,11 @@ impl WorkStep {
             }
             (_, false) => None,
         };
+        // Rows of cubes that cannot cross are never computed: their values are in the range by
+        // their blocks' bounds (for an upsampled source, values its voxels take).
+        if let Some(b) = bounds {
+            range.include(b.finite_range());
+        }
         let grid = self.extractor.grid();
         let mut strips = Strips {
             slices: [lower, upper],

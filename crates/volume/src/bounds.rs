@@ -83,6 +83,29 @@ impl SlabBounds {
         !(self.max[i] <= iso || self.min[i] > iso)
     }
 
+    /// Whether any cube of block row `by` may cross `iso` ([`Self::may_cross`]).
+    pub fn row_may_cross(&self, by: usize, iso: f32) -> bool {
+        (0..self.count[0]).any(|bx| self.may_cross(bx, by, iso))
+    }
+
+    /// The smallest lower and largest upper bound among the blocks with finite bounds (those
+    /// holding a non-finite voxel are unbounded); `(inf, -inf)` when there is none.
+    pub fn finite_range(&self) -> (f32, f32) {
+        let finite = |v: &&f32| v.is_finite();
+        (
+            self.min
+                .iter()
+                .filter(finite)
+                .copied()
+                .fold(f32::INFINITY, f32::min),
+            self.max
+                .iter()
+                .filter(finite)
+                .copied()
+                .fold(f32::NEG_INFINITY, f32::max),
+        )
+    }
+
     /// A value inside the bounds of block (`bx`, `by`) (its lower bound): on the same side of any
     /// iso value as every voxel of a block that cannot cross it.
     pub fn low(&self, bx: usize, by: usize) -> f32 {
@@ -147,6 +170,26 @@ mod tests {
         assert!(!b.may_cross(0, 0, -1.0), "all > iso is inside");
         assert_eq!(b.skipped_cubes(&grid, 12.0), 4);
         assert_eq!(b.skipped_cubes(&grid, 50.0), 12);
+        // Block row 1 holds 0..=19 (upper's zeros and lower's 12..=19 or 10..=14).
+        assert!(b.row_may_cross(1, 15.0) && !b.row_may_cross(0, 15.0));
+        assert!(!b.row_may_cross(1, 19.0));
+        assert_eq!(b.finite_range(), (0.0, 19.0));
+    }
+
+    #[test]
+    fn unbounded_blocks_stay_out_of_the_finite_range() {
+        let grid = Grid::new([3, 2, 2], [1.0; 3], [0.0; 3]).unwrap();
+        let b = SlabBounds::from_slices(
+            &grid,
+            [1, 1],
+            &[1.0, 2.0, f32::NAN, 3.0, 4.0, 5.0],
+            &[0.0; 6],
+        );
+        // Block 0 (x 0..=1) is 0..=4; block 1 (x 1..=2) holds the NaN.
+        assert_eq!(b.finite_range(), (0.0, 4.0));
+        assert!(b.row_may_cross(0, 100.0));
+        let none = SlabBounds::empty([1, 1], [1, 1]);
+        assert!(none.finite_range().0 > none.finite_range().1);
     }
 
     #[test]
