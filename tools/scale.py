@@ -184,8 +184,11 @@ def plot(results: list, counts: list, path: Path) -> None:
     b.set_xscale("log")
     b.set_xlabel("Gvoxels (upsampled)")
     b.set_ylabel("seconds per Gvoxel")
-    b.set_title(f"time per Gvoxel ({results[0]['faces_target']} faces out)")
-    fig.suptitle(f"isostream on {results[0]['volume']} upsampled (2 cores)")
+    # Either file may be empty (count-only results without whole runs, or the reverse).
+    first = (results or counts or [{}])[0]
+    out = f" ({first['faces_target']} faces out)" if "faces_target" in first else ""
+    b.set_title(f"time per Gvoxel{out}")
+    fig.suptitle(f"isostream on {first.get('volume', 'a volume')} upsampled (2 cores)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
