@@ -6,7 +6,8 @@
 //! * [`surface_distances`]: Metro-style mean / RMS / Hausdorff distances (and the distance 99.9 %
 //!   of the samples are within) in both directions between
 //!   the output mesh and the full-resolution iso-surface, which is regenerated from the volume slab
-//!   by slab and never held whole;
+//!   by slab and never held whole; [`FullSurfaceDistances`] takes that surface from the caller's
+//!   own extraction (`isostream measure` lends it the pipeline's parallel one);
 //! * [`MeasureReport`]: both, plus the run's shape error, as JSON or text.
 //!
 //! Modules: `triangle` (one triangle's geometry), `bvh` (nearest-point queries), `sampling`
