@@ -170,7 +170,7 @@ mod tests {
         assert!(!b.may_cross(0, 0, -1.0), "all > iso is inside");
         assert_eq!(b.skipped_cubes(&grid, 12.0), 4);
         assert_eq!(b.skipped_cubes(&grid, 50.0), 12);
-        // Block row 1 holds 0..=19 (upper's zeros and lower's 12..=19 or 10..=14).
+        // Block row 1 (voxel rows 2 and 3) holds 0..=19, block row 0 (rows 0 to 2) 0..=14.
         assert!(b.row_may_cross(1, 15.0) && !b.row_may_cross(0, 15.0));
         assert!(!b.row_may_cross(1, 19.0));
         assert_eq!(b.finite_range(), (0.0, 19.0));
