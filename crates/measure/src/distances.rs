@@ -13,7 +13,8 @@
 //!   front passes `z + r` every candidate is in the window: the sample is measured then, against
 //!   the window's batches (each with its own small BVH), those spanning `z` first, so the bound
 //!   found in its own slab prunes the others by their vertical gap. Batches entirely below the
-//!   lowest pending sample's `z - r` leave the window. Samples with nothing within `r` are
+//!   lowest pending sample's `z - r` leave the window, and a batch enters it with only the
+//!   triangles within `r` across of a pending sample of its heights (`Reach`). Samples with nothing within `r` are
 //!   reported at `r` and counted as clipped.
 //!
 //! Measuring each sample against every batch as it passed would need no window at all, but then a
@@ -236,6 +237,74 @@ impl WindowBatch {
     }
 }
 
+/// Where the output samples that may still need a batch lie, in columns `r` wide: a triangle
+/// farther than `r` across from every such sample is never any sample's nearest within `r`, so
+/// the window need not hold it. The window held every triangle of its slabs, and where a
+/// nearly flat surface crosses the slabs (hundreds of thousands of triangles each) against a
+/// few hundred output samples nearby that was most of `isostream measure`'s memory.
+struct Reach {
+    radius: f64,
+    /// Column of the first cell and cells per row and column.
+    origin: [i64; 2],
+    size: [i64; 2],
+    /// Whether a sample lies in each cell (row-major).
+    cells: Vec<bool>,
+}
+
+impl Reach {
+    /// The columns of `pending` samples (sorted by z) within `radius` of heights `z_min..=z_max`.
+    fn of(pending: &[DVec3], z_min: f64, z_max: f64, radius: f64) -> Self {
+        let from = pending.partition_point(|p| p.z < z_min - radius);
+        let to = pending.partition_point(|p| p.z <= z_max + radius);
+        let near = &pending[from..to.max(from)];
+        let cell = |p: &DVec3| [(p.x / radius).floor() as i64, (p.y / radius).floor() as i64];
+        let (lo, hi) = near
+            .iter()
+            .map(cell)
+            .fold(([i64::MAX; 2], [i64::MIN; 2]), |(lo, hi), c| {
+                (
+                    [lo[0].min(c[0]), lo[1].min(c[1])],
+                    [hi[0].max(c[0]), hi[1].max(c[1])],
+                )
+            });
+        let size = if near.is_empty() {
+            [0, 0]
+        } else {
+            [hi[0] - lo[0] + 1, hi[1] - lo[1] + 1]
+        };
+        let mut cells = vec![false; (size[0] * size[1]) as usize];
+        for c in near.iter().map(cell) {
+            cells[((c[1] - lo[1]) * size[0] + c[0] - lo[0]) as usize] = true;
+        }
+        Self {
+            radius,
+            origin: lo,
+            size,
+            cells,
+        }
+    }
+
+    /// Whether a sample's column cell lies within `radius` across (in x and y) of `t`'s box.
+    fn touches(&self, t: &Triangle) -> bool {
+        let r = self.radius;
+        let (lo, hi) = t.iter().fold(
+            ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
+            |(lo, hi), p| {
+                (
+                    [lo[0].min(p.x), lo[1].min(p.y)],
+                    [hi[0].max(p.x), hi[1].max(p.y)],
+                )
+            },
+        );
+        let span = |k: usize| {
+            let a = ((lo[k] - r) / r).floor() as i64 - self.origin[k];
+            let b = ((hi[k] + r) / r).floor() as i64 - self.origin[k];
+            a.max(0)..=b.min(self.size[k] - 1)
+        };
+        span(1).any(|y| span(0).any(|x| self.cells[(y * self.size[0] + x) as usize]))
+    }
+}
+
 impl DistanceStream {
     /// Indexes and samples the output mesh. `radius` is the resolved `max_distance`.
     pub(crate) fn new(
@@ -311,11 +380,23 @@ impl DistanceStream {
                     acc.add(output.nearest(p, hint));
                 });
             }
-            self.window.push_back(WindowBatch {
-                z_min,
-                z_max,
-                bvh: Bvh::new(batch),
-            });
+            let reach = Reach::of(&self.samples[self.next..], z_min, z_max, self.radius);
+            let mut kept: Vec<Triangle> = batch.into_iter().filter(|t| reach.touches(t)).collect();
+            // The filter reuses the batch's allocation, which the window would otherwise hold.
+            kept.shrink_to_fit();
+            if !kept.is_empty() {
+                let (z_min, z_max) = kept
+                    .iter()
+                    .flatten()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                        (lo.min(p.z), hi.max(p.z))
+                    });
+                self.window.push_back(WindowBatch {
+                    z_min,
+                    z_max,
+                    bvh: Bvh::new(kept),
+                });
+            }
         }
         self.advance(front);
     }
@@ -416,6 +497,54 @@ pub(crate) mod tests {
     use super::*;
     use crate::bias::tests::geodesic_sphere;
     use crate::triangle::closest_point;
+
+    /// The window keeps a triangle exactly when a pending sample of its heights lies within
+    /// `r` of its box across: the nearest triangle within `r` of any sample is never dropped.
+    #[test]
+    fn the_window_keeps_what_samples_can_reach() {
+        let r = 1.0;
+        let samples = [DVec3::new(0.5, 0.5, 0.0), DVec3::new(10.5, 0.5, 5.0)];
+        let reach = Reach::of(&samples, -0.5, 0.5, r);
+        let tri = |x: f64, y: f64| {
+            [
+                DVec3::new(x, y, 0.0),
+                DVec3::new(x + 0.1, y, 0.0),
+                DVec3::new(x, y + 0.1, 0.0),
+            ]
+        };
+        assert!(reach.touches(&tri(0.5, 0.5)));
+        // 0.9 away across: in reach, whatever the cells' borders.
+        assert!(reach.touches(&tri(1.4, 1.4)));
+        assert!(reach.touches(&tri(-0.5, 0.5)));
+        // Far across, and under the second sample but out of its heights' reach.
+        assert!(!reach.touches(&tri(4.0, 0.5)));
+        assert!(!reach.touches(&tri(10.5, 0.5)));
+        assert!(!Reach::of(&[], 0.0, 1.0, r).touches(&tri(0.0, 0.0)));
+
+        // Sampled: every triangle within `r` of a sample of its heights is kept.
+        let mut rng = SplitMix64::new(7);
+        let mut unit = || rng.next_f64();
+        let samples: Vec<DVec3> = {
+            let mut s: Vec<DVec3> = (0..40)
+                .map(|_| DVec3::new(20.0 * unit(), 20.0 * unit(), 4.0 * unit()))
+                .collect();
+            s.sort_unstable_by(|a, b| a.z.total_cmp(&b.z));
+            s
+        };
+        let reach = Reach::of(&samples, 1.0, 3.0, r);
+        for _ in 0..2000 {
+            let (x, y, z) = (20.0 * unit(), 20.0 * unit(), 1.0 + 2.0 * unit());
+            let t = [
+                DVec3::new(x, y, z),
+                DVec3::new(x + 0.3, y, z),
+                DVec3::new(x, y + 0.3, z),
+            ];
+            let near = samples
+                .iter()
+                .any(|p| closest_point(*p, &t).distance(*p) < r);
+            assert!(!near || reach.touches(&t), "{t:?}");
+        }
+    }
 
     #[test]
     fn histogram_bins_follow_the_data() {
