@@ -279,7 +279,7 @@ mod tests {
             origin in prop::array::uniform3(-3000.0f32..3000.0),
             offsets in prop::array::uniform4(prop::array::uniform3(-4.0f32..4.0)),
             exp in -12i32..4,
-            mode in 0u8..4,
+            mode in 0u8..5,
         ) {
             let mut points = near(origin, offsets, exp);
             match mode {
@@ -295,6 +295,12 @@ mod tests {
                 2 => points.iter_mut().for_each(|p| p[2] = f64::from(origin[2])),
                 // A repeated point.
                 3 => points[3] = points[1],
+                // Two edges parallel to the x axis (exactly coplanar: what symmetric or
+                // upsampled data makes most of).
+                4 => {
+                    points[2] = [points[2][0], points[0][1], points[0][2]];
+                    points[3] = [points[3][0], points[1][1], points[1][2]];
+                }
                 _ => {}
             }
             let expected = shewchuk(points);
@@ -338,6 +344,7 @@ mod tests {
         );
         assert_eq!(orient_fixed([a, b, c, [f64::NAN, 0.0, 0.0]]), None);
         assert_eq!(orient_fixed([a; 4]), Some(0.0), "all zero");
+        assert_eq!(orient_fixed([[f64::NAN; 3]; 4]), None, "all NaN");
         assert_eq!(sgn(exact_orient([a, b, c, [0.0, 0.0, -1e-30]])), -1.0);
     }
 
