@@ -67,7 +67,7 @@ use star::Spoke;
 /// 41 MiB) for 0.5 % more instructions and the same output; 4 saved 4-7 MiB more for 4 % more
 /// instructions.
 const LEVEL_ROOM: f64 = 2.0;
-/// Cell edge in mean triangle edge lengths. 12 rather than 6: at low rates on large slices the
+/// Cell edge in median triangle edge lengths (the mean before the thirty-third session). 12 rather than 6: at low rates on large slices the
 /// fans behind the front grow tens of voxels wide while the front is at full resolution, and
 /// a fan's box spanned hundreds of level-0 cells, most of them empty (bonsai upsampled 4x, one
 /// stage: 184 lookups a query, 17.6 found); with 12 that run went about 20 % faster side by
@@ -78,7 +78,7 @@ const CELL_EDGES: f64 = 12.0;
 /// that the updates a contraction makes to its neighbours' corners (about an edge; level-0
 /// cells are [`CELL_EDGES`] edges) leave most records where they are filed.
 const SLACK: f64 = 0.0625;
-/// Triangles averaged for the cell size.
+/// Triangles whose median edge sets the cell size.
 const SAMPLE: usize = 1024;
 /// Cell sizes `cell * 2^L` for `L < LEVELS`: 2^23 level-0 cells covers any volume.
 const LEVELS: usize = 24;
