@@ -1053,7 +1053,11 @@ fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
 /// there; the edge tests then reuse them.
 fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
     let one_side = |s: [i8; 3]| s[0] != 0 && s[0] == s[1] && s[0] == s[2];
-    if one_side(sides) {
+    // All of `ta` on `tb`'s plane: then all of `tb` is on `ta`'s (or `ta` is degenerate and
+    // every side of it is 0), no corner of either lies strictly off the other's plane, and no
+    // edge can cross. Coplanar pairs are common on symmetric or upsampled data, where each of
+    // those three sides would cost an exact predicate (see `Tri64::side`).
+    if one_side(sides) || sides == [0; 3] {
         return false;
     }
     let back = tb.p.map(|x| ta.side(x));
@@ -1077,7 +1081,9 @@ fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
 fn cross_at_corner(ta: &Tri64, i: usize, sides: [i8; 2], tb: &Tri64, j: usize) -> bool {
     let one_side = |s: [i8; 2]| s[0] != 0 && s[0] == s[1];
     let straddle = |s: [i8; 2]| s[0] != 0 && s[1] == -s[0];
-    if one_side(sides) {
+    // Coplanar (the shared corner and both far corners of `ta` on `tb`'s plane): as in
+    // `cross_apart`, then no side is strict and no edge crosses.
+    if one_side(sides) || sides == [0; 2] {
         return false;
     }
     let (q1, q2) = (tb.p[(j + 1) % 3], tb.p[(j + 2) % 3]);
