@@ -759,17 +759,22 @@ impl JobConfig {
     }
 
     /// When the default left a job that could run two simplifier stages on one because its
-    /// slabs are large for the budget: a line saying how to use both cores. Two stages at such
-    /// sizes cost memory (the second holds the first's output above its rear) and save time
-    /// (bonsai upsampled to 511^3 at the default 64 MiB: 28.6 s with two stages against 42.6 s
-    /// with one, at 63.3 MiB against 59.6; docs/performance.md, "Thirtieth session").
+    /// slabs are large for the budget: a line saying how to use both cores, and at what cost.
+    /// Two stages at such sizes cost memory (the second holds the first's output above its
+    /// rear) and save time (bonsai upsampled to 511^3 at the default 64 MiB: 25.9 s with two
+    /// stages against 38.3 s with one, at 63.4 MiB against 60.2; hydrogen upsampled to 2017^3
+    /// at 128 MiB: 70.8 s against 117.5 s, as accurate). Where one slab holds more faces than
+    /// the budget, the first stage hands them on unsimplified and the second is squeezed behind
+    /// them: hydrogen at 4033^3 and 128 MiB came out at 17 times one stage's RMS distance
+    /// (docs/scale.md, "thirty-third session").
     pub fn one_stage_hint(&self, dims: [u64; 3]) -> Option<String> {
         (self.pipeline.simplify_stages.is_none() && self.cascade_possible() && !self.cascade(dims))
             .then(|| {
                 format!(
                     "one simplifier stage: slices of {} x {} voxels are large for two within \
-                     [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for about \
-                     more memory (bonsai at 511^3: 28.6 s against 42.6 s, 63 MiB against 60)",
+                     [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for \
+                     more memory (bonsai at 511^3: 25.9 s against 38.3 s, 63 MiB against 60), \
+                     and is less accurate where one slab's faces pass the budget",
                     dims[0], dims[1], self.pipeline.memory_budget_mib
                 )
             })
