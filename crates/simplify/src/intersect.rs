@@ -982,6 +982,14 @@ impl Tri64 {
         }
     }
 
+    /// Certainly not degenerate: a component of the normal exceeds its rounding error (each
+    /// is a 2x2 minor of the rounded edges, within a few units in the last place of
+    /// `|p1 - p0|_1 |p2 - p0|_1`, well inside `err`). `false` for degenerate triangles and for
+    /// the rare ones too thin to tell.
+    fn has_plane(&self) -> bool {
+        self.n.abs().max_element() > self.err
+    }
+
     /// [`Tri64::side`] within rounding of the plane (rare: touching configurations).
     #[cold]
     #[inline(never)]
@@ -1053,11 +1061,12 @@ fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
 /// there; the edge tests then reuse them.
 fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
     let one_side = |s: [i8; 3]| s[0] != 0 && s[0] == s[1] && s[0] == s[2];
-    // All of `ta` on `tb`'s plane: then all of `tb` is on `ta`'s (or `ta` is degenerate and
-    // every side of it is 0), no corner of either lies strictly off the other's plane, and no
-    // edge can cross. Coplanar pairs are common on symmetric or upsampled data, where each of
-    // those three sides would cost an exact predicate (see `Tri64::side`).
-    if one_side(sides) || sides == [0; 3] {
+    // All of `ta` on the plane of a `tb` that has one: then all of `tb` is on `ta`'s (or `ta`
+    // is degenerate and every side of it is 0), no corner of either lies strictly off the
+    // other's plane, and no edge can cross. Coplanar pairs are common on symmetric or upsampled
+    // data, where each of those three sides would cost an exact predicate (see `Tri64::side`).
+    // (A degenerate `tb` puts every point at side 0, and its edges may still cross `ta`.)
+    if one_side(sides) || (sides == [0; 3] && tb.has_plane()) {
         return false;
     }
     let back = tb.p.map(|x| ta.side(x));
@@ -1081,9 +1090,9 @@ fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
 fn cross_at_corner(ta: &Tri64, i: usize, sides: [i8; 2], tb: &Tri64, j: usize) -> bool {
     let one_side = |s: [i8; 2]| s[0] != 0 && s[0] == s[1];
     let straddle = |s: [i8; 2]| s[0] != 0 && s[1] == -s[0];
-    // Coplanar (the shared corner and both far corners of `ta` on `tb`'s plane): as in
+    // Coplanar (the shared corner and both far corners of `ta` on the plane `tb` has): as in
     // `cross_apart`, then no side is strict and no edge crosses.
-    if one_side(sides) || sides == [0; 2] {
+    if one_side(sides) || (sides == [0; 2] && tb.has_plane()) {
         return false;
     }
     let (q1, q2) = (tb.p[(j + 1) % 3], tb.p[(j + 2) % 3]);
@@ -1454,6 +1463,32 @@ mod tests {
         assert!(ix.cells.is_empty());
         ix.fix_cell();
         assert!(!ix.cells.is_empty() && ix.cells.len() < 64);
+    }
+
+    #[test]
+    fn a_degenerate_record_puts_everything_on_its_plane_yet_its_edge_may_cross() {
+        // The record has two coincident corners (distinct ids): every point is at side 0 of
+        // it, which for a real plane would mean the pair is coplanar and cannot cross.
+        let p = |x: f64, y: f64, z: f64| DVec3::new(x, y, z) * 0.1;
+        let ta = Tri64::new(
+            [0, 1, 2],
+            [p(0.0, 2.0, 1.0), p(0.0, 3.0, 3.0), p(2.0, 2.0, 0.0)],
+        );
+        let tb = Tri64::new(
+            [3, 4, 5],
+            [p(1.0, 0.0, 0.0), p(0.0, 3.0, 2.0), p(0.0, 3.0, 2.0)],
+        );
+        assert!(!tb.has_plane());
+        assert_eq!(ta.p.map(|x| tb.side(x)), [0; 3]);
+        let referee = isostream_meshcheck::triangles_intersect(
+            [0, 1, 2],
+            ta.p.map(|x| x.to_array()),
+            [3, 4, 5],
+            tb.p.map(|x| x.to_array()),
+        );
+        assert!(referee);
+        assert!(cross(&ta, &tb));
+        assert!(crosses_fan(&ta, tb.side(ta.p[0]), &tb));
     }
 
     #[test]
