@@ -67,12 +67,13 @@ use star::Spoke;
 /// 41 MiB) for 0.5 % more instructions and the same output; 4 saved 4-7 MiB more for 4 % more
 /// instructions.
 const LEVEL_ROOM: f64 = 2.0;
-/// Cell edge in median triangle edge lengths (the mean before the thirty-third session). 12 rather than 6: at low rates on large slices the
-/// fans behind the front grow tens of voxels wide while the front is at full resolution, and
-/// a fan's box spanned hundreds of level-0 cells, most of them empty (bonsai upsampled 4x, one
-/// stage: 184 lookups a query, 17.6 found); with 12 that run went about 20 % faster side by
-/// side with 6 (slab 421 at 276 s against slab 423 at 363 s), bonsai at R = 0.2 as fast within
-/// the noise, the same output bytes (the index only narrows what the exact test sees).
+/// Cell edge in median triangle edge lengths (the mean until the thirty-third session). 12
+/// rather than 6: at low rates on large slices the fans behind the front grow tens of voxels
+/// wide while the front is at full resolution, and a fan's box spanned hundreds of level-0
+/// cells, most of them empty (bonsai upsampled 4x, one stage: 184 lookups a query, 17.6
+/// found); with 12 that run went about 20 % faster side by side with 6 (slab 421 at 276 s
+/// against slab 423 at 363 s), bonsai at R = 0.2 as fast within the noise, the same output
+/// bytes (the index only narrows what the exact test sees).
 const CELL_EDGES: f64 = 12.0;
 /// A record is filed with its box grown by this share of its level's cell on every side, so
 /// that the updates a contraction makes to its neighbours' corners (about an edge; level-0
