@@ -1089,7 +1089,8 @@ mod tests {
         assert!(
             hint.contains("1024 x 1024")
                 && hint.contains("memory_budget_mib = 64")
-                && hint.contains("simplify_stages = 2"),
+                && hint.contains("simplify_stages = 2")
+                && hint.contains("less accurate"),
             "{hint}"
         );
         let one = parse(&format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n")).unwrap();
