@@ -5,7 +5,6 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Context;
-
 use isostream_measure::{FullSurfaceDistances, MeasureOptions, MeasureReport, mesh_quality};
 use isostream_pipeline::{JobConfig, open_source, summary_path, visit_surface};
 

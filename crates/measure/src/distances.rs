@@ -14,8 +14,8 @@
 //!   the window's batches (each with its own small BVH), those spanning `z` first, so the bound
 //!   found in its own slab prunes the others by their vertical gap. Batches entirely below the
 //!   lowest pending sample's `z - r` leave the window, and a batch enters it with only the
-//!   triangles within `r` across of a pending sample of its heights (`Reach`). Samples with nothing within `r` are
-//!   reported at `r` and counted as clipped.
+//!   triangles within `r` across of a pending sample of its heights (`Reach`). Samples with
+//!   nothing within `r` are reported at `r` and counted as clipped.
 //!
 //! Measuring each sample against every batch as it passed would need no window at all, but then a
 //! sample meets the slabs below it first, with nothing but `r` to prune the search: on a 256^3
