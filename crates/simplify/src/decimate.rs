@@ -6,7 +6,6 @@
 //! stage's [`Band`]; when and how far to decimate is the stage's to say ([`Until`]).
 
 use glam::DVec3;
-use rustc_hash::FxHashMap;
 
 use crate::band::Band;
 use crate::candidates::{Candidate, Candidates};
@@ -62,16 +61,6 @@ pub(crate) struct Decimator {
     /// for every candidate: a checkpoint need not hold it).
     #[serde(skip)]
     patch: Option<Box<Patch>>,
-    /// Vertices whose star was seen reaching past the front in this decimation run, with the
-    /// rank the front must reach first. Within a run that stays true: the front does not move,
-    /// nothing retires, and the corner beyond the front can leave the star only by a
-    /// contraction whose patch holds it, which waits too. So a vertex's other candidates wait
-    /// without the evaluation and the patch that told the first (bonsai upsampled to 511^3, one
-    /// stage: 3.4 M candidates met the front for 2.2 M contractions, and their evaluations and
-    /// patches took 9 % of the run). The waits only skip work: the same candidates contract in
-    /// the same order (the same output bytes on every job tried). Emptied at every run.
-    #[serde(skip)]
-    waits: FxHashMap<u64, u32>,
 }
 
 impl Decimator {
@@ -89,7 +78,6 @@ impl Decimator {
             time_lag: config.policy.time_lag(),
             max_span,
             patch: None,
-            waits: FxHashMap::default(),
         }
     }
 
@@ -117,19 +105,11 @@ impl Decimator {
         stats: &mut SimplifyStats,
         until: Until,
     ) {
-        self.waits.clear();
         while !until.reached(band) || self.next_is_coincident() {
             let Some(c) = self.candidates.pop() else {
                 break;
             };
             if !is_current(&band.store, &c) {
-                continue;
-            }
-            // A candidate whose endpoint was seen reaching past the front in this run waits
-            // without being evaluated and gathered again (see `waits`).
-            if let Some(wait) = self.waiting_for_front(at, &c) {
-                stats.delayed_front += 1;
-                self.candidates.delay(c, wait);
                 continue;
             }
             // Re-evaluated: the placement is not stored in the heap, and objectives reading the
@@ -159,7 +139,6 @@ impl Decimator {
             patch.gather_into(&band.store, c.a, c.b);
             if let Some(reach) = beyond_front(at, &patch, eval.pos) {
                 stats.delayed_front += 1;
-                self.note_waits(at, &patch, [c.a, c.b]);
                 self.candidates.delay(c, reach);
             } else if !topology::link_ok(&band.store, c.a, c.b) {
                 stats.rejected_link += 1;
@@ -181,40 +160,6 @@ impl Decimator {
             self.patch = Some(patch);
         }
         self.candidates.trim();
-    }
-
-    /// The rank the front must reach before `c` can pass [`beyond_front`], if an endpoint's
-    /// star was seen reaching past the front earlier in this run.
-    fn waiting_for_front(&self, at: &At, c: &Candidate) -> Option<f64> {
-        if self.waits.is_empty() {
-            return None;
-        }
-        let wait = [c.a, c.b]
-            .iter()
-            .filter_map(|v| self.waits.get(v))
-            .max()
-            .map(|&w| f64::from(w))?;
-        (wait > at.front).then_some(wait)
-    }
-
-    /// Records, for each endpoint whose star reaches past the front, the rank the front must
-    /// reach: the smallest integer at or above its star's farthest corner.
-    fn note_waits(&mut self, at: &At, patch: &Patch, ends: [u64; 2]) {
-        let Some(sweep) = at.config.sweep else {
-            return;
-        };
-        for v in ends {
-            let top = patch
-                .tris
-                .iter()
-                .filter(|pt| pt.v.contains(&v))
-                .flat_map(|pt| pt.p)
-                .fold(f64::NEG_INFINITY, |top, p| top.max(sweep.height(p)));
-            let far = sweep.rank_at(top);
-            if far > at.front && far < f64::from(u32::MAX) {
-                self.waits.insert(v, far.ceil() as u32);
-            }
-        }
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
@@ -474,43 +419,5 @@ mod tests {
             rear: 0,
         };
         assert!(!outside_first_stage_room(&store, &single, a, b, at(3.5)));
-    }
-
-    /// An endpoint whose star reaches past the front makes its candidates wait until the front
-    /// passes the star's farthest corner (rounded up to a rank); the other endpoint's star is
-    /// not charged with it.
-    #[test]
-    fn a_star_seen_past_the_front_holds_its_candidates() {
-        let config = crate::tests::swept(Cascade::Single, usize::MAX);
-        let evaluator = Evaluator::new(
-            crate::cost::Objective::Quadric,
-            Priority::Geometric,
-            config.boundary,
-            1.0,
-        );
-        let mut d = Decimator::new(&config, evaluator);
-        let (a, b, x, y, u, w) = (1, 2, 3, 4, 5, 6);
-        let z = |h| DVec3::new(0.0, 0.0, h);
-        let tri = |v: [u64; 3], p: [f64; 3]| crate::topology::PatchTri { v, p: p.map(z) };
-        let mut patch = Patch::default();
-        patch.tris.push(tri([b, x, w], [5.5, 7.2, 5.0])); // only b's star reaches rank 7.2
-        patch.tris.push(tri([a, b, y], [5.0, 5.5, 4.0]));
-        patch.tris.push(tri([a, y, u], [5.0, 4.0, 3.0]));
-        let at = |front| At {
-            config: &config,
-            front,
-            rear: 0,
-        };
-        let candidate = |a, b| Candidate {
-            cost: 0.0,
-            a,
-            b,
-            stamps: [0, 0],
-        };
-        d.note_waits(&at(6.0), &patch, [a, b]);
-        assert_eq!(d.waiting_for_front(&at(6.0), &candidate(b, u)), Some(8.0));
-        assert_eq!(d.waiting_for_front(&at(6.0), &candidate(a, u)), None);
-        assert_eq!(d.waiting_for_front(&at(7.0), &candidate(u, b)), Some(8.0));
-        assert_eq!(d.waiting_for_front(&at(8.0), &candidate(b, u)), None);
     }
 }
