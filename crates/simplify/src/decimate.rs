@@ -130,9 +130,8 @@ impl Decimator {
                 continue;
             }
             // The front first: it is the cheapest test, and what waits for the front is tested
-            // again when it comes back (a cascade's second stage, whose front is the first
-            // stage's rear, delayed one candidate in two before it gated vertices by their whole
-            // star; it still delays more than one stage does).
+            // again when it comes back. Rare since vertices are let in by their whole star
+            // (`Stage::set_modifiable`): what is left are placements past the front.
             // Taken out while the checks and the contraction borrow the decimator (a box, so
             // that taking it moves a pointer, not the patch's inline room).
             let mut patch = self.patch.take().unwrap_or_default();

@@ -66,13 +66,13 @@
 //!   phase), and why a longer lag made it worse instead of better (the overshoot of the first
 //!   emitted slabs was charged to fewer, later passes). With the budget the rate is only ever
 //!   reached by decimating, never by emitting.
-//! * **Front-gated modifiability**: a vertex whose rank is beyond the front becomes modifiable
-//!   when the front reaches it (`set_modifiable`). Counting its faces as modifiable made the rate
-//!   target ask for contractions that could only wait for the front; near a dense slab a pass then
-//!   took edges costing a million times the in-core maximum (shape error 16 voxels on engine).
-//!   A cascade's second stage gates by the highest corner of the vertex's star instead (see
-//!   `cascade`): it holds slabs of input beyond its front, so a vertex's own ranks say nothing
-//!   of whether it can contract.
+//! * **Front-gated modifiability**: a vertex whose star reaches beyond the front becomes
+//!   modifiable when the front has passed the star's highest corner (`set_modifiable`). Counting
+//!   its faces as modifiable made the rate target ask for contractions that could only wait for
+//!   the front; near a dense slab a pass then took edges costing a million times the in-core
+//!   maximum (shape error 16 voxels on engine). A cascade's second stage holds slabs of input
+//!   beyond its front (see `cascade`), and a single stage fed a slab in several batches holds the
+//!   rest of that slab: either way a vertex's own ranks say nothing of whether it can contract.
 //! * **Coincident vertices** (marching cubes at value == iso): their edges sort before all
 //!   others and are contracted even past the rate target, so zero-area triangles only survive
 //!   where the link condition forbids the merge.
