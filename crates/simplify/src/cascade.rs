@@ -28,8 +28,8 @@
 //! bonsai upsampled to 511^3, and the second stage's front held 1.8x the faces.
 //!
 //! The second stage holds what the first wrote above the rear (about ten slabs) and lets a
-//! vertex move only once the rear has passed its whole star: gated by its preimage's ranks, as
-//! a single simplifier is, vertices whose triangles reach into that backlog counted as
+//! vertex move only once the rear has passed its whole star (as every stage now does): gated
+//! by its preimage's ranks alone, vertices whose triangles reach into that backlog counted as
 //! modifiable but could not contract (half of its candidates waited for the front), so the rate
 //! target over-decimated the rest (engine at R = 0.01: 1.27x the single simplifier's RMS
 //! distance; gated by the star, 0.95x, and 11 candidates wait instead of 159 k).
