@@ -760,9 +760,10 @@ impl TriIndex {
         // large on hydrogen at 16x, and each query read 153 records against the first stage's
         // 37 (685 against 82 at 64x).
         let mid = edges.len() / 2;
-        let median = match edges.is_empty() {
-            true => 0.0,
-            false => *edges.select_nth_unstable_by(mid, f64::total_cmp).1,
+        let median = if edges.is_empty() {
+            0.0
+        } else {
+            *edges.select_nth_unstable_by(mid, f64::total_cmp).1
         };
         let cell = CELL_EDGES * median;
         self.cell = if cell.is_finite() && cell > 0.0 {

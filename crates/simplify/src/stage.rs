@@ -39,7 +39,7 @@ const BOUNDARY_WEIGHT: f64 = 10.0;
 
 /// Slabs behind the front that retirement for memory leaves resident (see
 /// [`Stage::retire_for_memory`]): the front's own slab is not modifiable yet, and the one behind
-/// it mostly waits for the front (its fans reach it).
+/// it is mostly held back by the front (its vertices' stars reach into the front's slab).
 const BAND_SLABS: u32 = 2;
 
 #[derive(serde::Serialize, serde::Deserialize)]
