@@ -763,10 +763,11 @@ impl JobConfig {
     /// Two stages at such sizes cost memory (the second holds the first's output above its
     /// rear) and save time (bonsai upsampled to 511^3 at the default 64 MiB: 25.9 s with two
     /// stages against 38.3 s with one, at 63.4 MiB against 60.2; hydrogen upsampled to 2017^3
-    /// at 128 MiB: 70.8 s against 117.5 s, as accurate). Where one slab holds more faces than
-    /// the budget, the first stage hands them on unsimplified and the second is squeezed behind
-    /// them: hydrogen at 4033^3 and 128 MiB came out at 17 times one stage's RMS distance
-    /// (docs/scale.md, "thirty-third session").
+    /// at 128 MiB: 70.8 s against 117.5 s, as accurate; at 4033^3 and 128 MiB: 310 s against
+    /// 463 s, as accurate, at 288 MiB against 183). Where the stages' fronts leave the second
+    /// no room behind its own, it writes faces before it has seen the rest of the surface and
+    /// the rest is squeezed: hydrogen at 4033^3 and 96 MiB came out 20 % over its face target
+    /// at 500 times the RMS distance (docs/scale.md, "Two stages at 64x once more").
     pub fn one_stage_hint(&self, dims: [u64; 3]) -> Option<String> {
         (self.pipeline.simplify_stages.is_none() && self.cascade_possible() && !self.cascade(dims))
             .then(|| {
@@ -774,7 +775,8 @@ impl JobConfig {
                     "one simplifier stage: slices of {} x {} voxels are large for two within \
                      [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for \
                      more memory (bonsai at 511^3: 25.9 s against 38.3 s, 63 MiB against 60), \
-                     and is less accurate where one slab's faces pass the budget",
+                     and is less accurate where its fronts leave the budget no room (the run \
+                     then warns that faces were written before the target was reached)",
                     dims[0], dims[1], self.pipeline.memory_budget_mib
                 )
             })
