@@ -30,17 +30,22 @@
 //!
 //! **The file.** `.NAME.ckpt` next to the output: a magic line, the checkpoint format and the
 //! crate version (a checkpoint of another version is refused: the saved structures are the
-//! algorithm crates' own and change between versions), the lengths of its two sections, the
-//! simplifier's section, the rest (every other part, [`Checkpoint`]), and an xxHash64 of both
-//! sections. Both are bincode 2.0.1 through its serde integration, fixed-width floats: every f64
-//! comes back bit for bit. A truncated or corrupt file is refused with one line; nothing is
-//! decoded from a file whose hash does not match.
+//! algorithm crates' own and change between versions), the lengths of its three sections, the
+//! simplifier's section, a cascade's second simplifier's (empty without one), the rest (every
+//! other part, [`Checkpoint`]), and an xxHash64 of all three. All are bincode 2.0.1 through its
+//! serde integration, fixed-width floats: every f64 comes back bit for bit. A truncated or
+//! corrupt file is refused with one line; nothing is decoded from a file whose hash does not
+//! match.
 //!
 //! **Memory.** The simplifier's state is the band itself (tens of MiB): it is encoded straight
 //! into the checkpoint's temporary file ([`Partial`], buffered and hashed on the way) by the
-//! simplifier's stage, and decoded straight from the file on resume, so no second copy of it is
-//! ever in memory. The writer's stage appends the rest once its files are flushed, fills in the
-//! lengths, fsyncs the file, renames it and fsyncs the folder.
+//! simplifier's stage, a cascade's second stage appends its own the same way
+//! ([`Partial::append_second`]), and both are decoded straight from the file on resume, so no
+//! second copy of either is ever in memory. (Until format 27 the second stage's state went to
+//! the writer encoded in a `Vec`: on hydrogen upsampled to 4033^3 with two stages that copy
+//! took the run's peak RSS from 257 to 288 MiB; docs/scale.md.) The writer's stage appends the
+//! rest once its files are flushed, fills in the lengths, fsyncs the file, renames it and fsyncs
+//! the folder.
 
 use std::fs::File;
 use std::hash::Hasher;
@@ -72,8 +77,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// position kept only there, not in the vertex; 23: the time-lag's and priorities' vertex state
 /// beside the vertices, kept only by the policies that use it; 24: a vertex's output number
 /// without its `Option`); 25: the guard's cells as arrays of keys and of record numbers, its
-/// ghosts with their top; 26: the guard's count of records a level instead of their lists).
-const FORMAT: u32 = 26;
+/// ghosts with their top; 26: the guard's count of records a level instead of their lists;
+/// 27: a cascade's second simplifier streamed into a section of its own).
+const FORMAT: u32 = 27;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by
@@ -160,10 +166,9 @@ pub(crate) struct Cut {
     pub detect: Vec<u8>,
     /// Empty when the job does not prune.
     pub prune: Vec<u8>,
+    /// The checkpoint file, begun by the simplifier with its state (and a cascade's second
+    /// simplifier's after it).
     pub simplify: Option<Partial>,
-    /// A cascade's second simplifier (empty without one), encoded in memory: unlike the first's,
-    /// its state is not streamed into the file yet.
-    pub simplify_second: Vec<u8>,
 }
 
 impl Cut {
@@ -179,7 +184,6 @@ impl Cut {
             detect: Vec::new(),
             prune: Vec::new(),
             simplify: None,
-            simplify_second: Vec::new(),
         })
     }
 }
@@ -191,12 +195,10 @@ pub(crate) struct Parts {
     pub extract: isostream_extract::ExtractStats,
     pub detect: Vec<u8>,
     pub prune: Vec<u8>,
-    /// A cascade's second simplifier (empty without one).
-    pub simplify_second: Vec<u8>,
     pub sink: isostream_smesh::SinkState,
 }
 
-/// The checkpoint: its second section, and where its first (the simplifier's) lies.
+/// The checkpoint: its last section, and where the simplifiers' lie.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub(crate) struct Checkpoint {
     /// [`job_hash`] of the job that saved it.
@@ -204,9 +206,13 @@ pub(crate) struct Checkpoint {
     pub input: InputIdentity,
     pub slabs_total: u64,
     pub parts: Parts,
-    /// The simplifier's section in the file (filled in by [`read`]; decoded by [`decode_simplifier`]).
+    /// The simplifier's section in the file (filled in by [`read`]; decoded by
+    /// [`decode_section`]).
     #[serde(skip)]
     pub simplify: Section,
+    /// A cascade's second simplifier's section (empty without one).
+    #[serde(skip)]
+    pub simplify_second: Section,
 }
 
 /// Where a section lies in the checkpoint file.
@@ -314,6 +320,8 @@ pub(crate) struct Partial {
     hasher: XxHash64,
     /// Length of the simplifier's section.
     simplify: u64,
+    /// Length of a cascade's second simplifier's section (0 without one).
+    second: u64,
 }
 
 /// Writes through, hashing and counting what passes.
@@ -336,15 +344,16 @@ impl<W: Write> Write for Hashing<W> {
     }
 }
 
-/// Bytes before the sections: magic, format, version, the two sections' lengths.
-fn head(simplify: u64, rest: u64) -> Vec<u8> {
+/// Bytes before the sections: magic, format, version, the three sections' lengths.
+fn head(lengths: [u64; 3]) -> Vec<u8> {
     let mut head = Vec::with_capacity(64);
     head.extend_from_slice(MAGIC);
     head.extend_from_slice(&FORMAT.to_le_bytes());
     head.push(VERSION.len() as u8);
     head.extend_from_slice(VERSION.as_bytes());
-    head.extend_from_slice(&simplify.to_le_bytes());
-    head.extend_from_slice(&rest.to_le_bytes());
+    for len in lengths {
+        head.extend_from_slice(&len.to_le_bytes());
+    }
     head
 }
 
@@ -361,7 +370,7 @@ impl Partial {
             .tempfile_in(dir_of(path))
             .map_err(|e| write_error(path, &e))?;
         // The lengths are filled in by `finish`.
-        tmp.write_all(&head(0, 0))
+        tmp.write_all(&head([0; 3]))
             .map_err(|e| write_error(path, &e))?;
         let (hasher, simplify) = encode_hashed(tmp.as_file_mut(), XxHash64::with_seed(0), simplify)
             .map_err(|e| write_error(path, &e))?;
@@ -370,12 +379,24 @@ impl Partial {
             tmp,
             hasher,
             simplify,
+            second: 0,
         })
     }
 
     /// Bytes of the simplifier's section.
     pub fn simplify_len(&self) -> u64 {
         self.simplify
+    }
+
+    /// Appends a cascade's second simplifier's state `second`, encoded straight into the file
+    /// like the first's; returns its bytes.
+    pub fn append_second<T: Serialize + ?Sized>(&mut self, second: &T) -> Result<u64, RunError> {
+        let hasher = std::mem::replace(&mut self.hasher, XxHash64::with_seed(0));
+        let (hasher, len) = encode_hashed(self.tmp.as_file_mut(), hasher, second)
+            .map_err(|e| write_error(&self.path, &e))?;
+        self.hasher = hasher;
+        self.second += len;
+        Ok(len)
     }
 
     /// Appends the rest, the hash and the lengths, then makes the file the checkpoint atomically
@@ -386,6 +407,7 @@ impl Partial {
             mut tmp,
             hasher,
             simplify,
+            second,
         } = self;
         let fail = |e: std::io::Error| write_error(&path, &e);
         let (hasher, rest) = encode_hashed(tmp.as_file_mut(), hasher, ckpt).map_err(fail)?;
@@ -393,7 +415,7 @@ impl Partial {
         file.write_all(&hasher.finish().to_le_bytes())
             .map_err(fail)?;
         file.seek(SeekFrom::Start(0)).map_err(fail)?;
-        let head = head(simplify, rest);
+        let head = head([simplify, second, rest]);
         file.write_all(&head).map_err(fail)?;
         file.sync_all().map_err(fail)?;
         tmp.persist(&path).map_err(|e| fail(e.error))?;
@@ -401,7 +423,7 @@ impl Partial {
         File::open(dir_of(&path))
             .and_then(|d| d.sync_all())
             .map_err(fail)?;
-        Ok(head.len() as u64 + simplify + rest + 8)
+        Ok(head.len() as u64 + simplify + second + rest + 8)
     }
 }
 
@@ -441,10 +463,10 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
     };
     let mut file = File::open(path).map_err(cannot)?;
     let size = file.metadata().map_err(cannot)?.len();
-    // The longest head: magic, format, a version of 255 bytes, two lengths.
+    // The longest head: magic, format, a version of 255 bytes, three lengths.
     let mut bytes = Vec::new();
     (&mut file)
-        .take(16 + 4 + 1 + 255 + 16)
+        .take(16 + 4 + 1 + 255 + 24)
         .read_to_end(&mut bytes)
         .map_err(cannot)?;
     let refuse = |reason: String| RunError::Checkpoint {
@@ -471,11 +493,13 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
     }
     let rest = &rest[usize::from(n)..];
     let (simplify, rest) = take::<8>(rest).ok_or_else(truncated)?;
+    let (second, rest) = take::<8>(rest).ok_or_else(truncated)?;
     let (others, _) = take::<8>(rest).ok_or_else(truncated)?;
-    let (simplify, others) = (u64::from_le_bytes(simplify), u64::from_le_bytes(others));
-    let head = head(0, 0).len() as u64;
+    let [simplify, second, others] = [simplify, second, others].map(u64::from_le_bytes);
+    let head = head([0; 3]).len() as u64;
     let end = head
         .checked_add(simplify)
+        .and_then(|x| x.checked_add(second))
         .and_then(|x| x.checked_add(others))
         .ok_or_else(|| corrupt(path, "section lengths"))?;
     match size.checked_sub(end) {
@@ -483,7 +507,7 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
         Some(8) => {}
         Some(_) => return Err(corrupt(path, "bytes after the end")),
     }
-    // The hash of both sections, streamed: the simplifier's may be tens of MiB.
+    // The hash of the sections, streamed: the simplifiers' may be tens of MiB.
     file.seek(SeekFrom::Start(head)).map_err(cannot)?;
     let mut sections = Hashing {
         inner: std::io::sink(),
@@ -497,7 +521,7 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
         return Err(corrupt(path, "checksum mismatch"));
     }
     let mut body = Vec::new();
-    file.seek(SeekFrom::Start(head + simplify))
+    file.seek(SeekFrom::Start(head + simplify + second))
         .and_then(|_| (&mut file).take(others).read_to_end(&mut body))
         .map_err(cannot)?;
     let mut ckpt: Checkpoint = decode(path, &body)?;
@@ -505,15 +529,19 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
         offset: head,
         len: simplify,
     };
+    ckpt.simplify_second = Section {
+        offset: head + simplify,
+        len: second,
+    };
     Ok(ckpt)
 }
 
-/// Decodes the simplifier's section of a checkpoint [`read`] checked, straight from the file.
-pub(crate) fn decode_simplifier<T: DeserializeOwned>(
+/// Decodes a simplifier's section of a checkpoint [`read`] checked, straight from the file.
+pub(crate) fn decode_section<T: DeserializeOwned>(
     path: &Path,
-    ckpt: &Checkpoint,
+    section: Section,
 ) -> Result<T, RunError> {
-    let Section { offset, len } = ckpt.simplify;
+    let Section { offset, len } = section;
     let mut file = File::open(path).map_err(|e| RunError::Checkpoint {
         path: path.to_path_buf(),
         reason: format!("cannot read the checkpoint: {e}"),
@@ -629,10 +657,10 @@ mod tests {
                 extract: Default::default(),
                 detect: vec![1, 2, 3],
                 prune: vec![5, 6],
-                simplify_second: vec![5; 10],
                 sink: sink_state(),
             },
             simplify: Section::default(),
+            simplify_second: Section::default(),
         }
     }
 
@@ -652,15 +680,18 @@ mod tests {
     fn a_checkpoint_round_trips_and_every_damage_is_one_line() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(".m.smb.ckpt");
-        let partial = Partial::begin(&path, &vec![4u8; 100]).unwrap();
+        let mut partial = Partial::begin(&path, &vec![4u8; 100]).unwrap();
         assert_eq!(partial.simplify_len(), 108);
+        assert_eq!(partial.append_second(&vec![5u8; 10]).unwrap(), 18);
         let len = partial.finish(&sample()).unwrap();
         assert_eq!(std::fs::metadata(&path).unwrap().len(), len);
         let back = read(&path).unwrap();
         assert_eq!(back.percent(), 60.0);
         assert_eq!(back.parts.detect, vec![1, 2, 3]);
-        let simplify: Vec<u8> = decode_simplifier(&path, &back).unwrap();
+        let simplify: Vec<u8> = decode_section(&path, back.simplify).unwrap();
         assert_eq!(simplify, vec![4; 100]);
+        let second: Vec<u8> = decode_section(&path, back.simplify_second).unwrap();
+        assert_eq!(second, vec![5; 10]);
         let good = std::fs::read(&path).unwrap();
         let damaged = |bytes: &[u8]| {
             std::fs::write(&path, bytes).unwrap();

@@ -272,15 +272,18 @@ fn run_job(
                     what: e.to_string(),
                 })
             };
-            simplifier = restore(&config, checkpoint::decode_simplifier(ckpt_path, &saved)?)?;
-            let parts = saved.parts;
+            simplifier = restore(
+                &config,
+                checkpoint::decode_section(ckpt_path, saved.simplify)?,
+            )?;
             second = match &second_config {
                 Some(c) => Some(restore(
                     c,
-                    checkpoint::decode(ckpt_path, &parts.simplify_second)?,
+                    checkpoint::decode_section(ckpt_path, saved.simplify_second)?,
                 )?),
                 None => None,
             };
+            let parts = saved.parts;
             if prune.is_some() {
                 filter = Some(Filter::restore(checkpoint::decode(
                     ckpt_path,

@@ -763,9 +763,18 @@ impl Step for SecondStep<'_> {
     }
 
     /// Each batch is closed as it comes, so the state is between two batches here, after
-    /// everything the first stage sent before the cut.
+    /// everything the first stage sent before the cut. It goes into the file the first stage
+    /// began, after the first's state.
     fn cut(&mut self, mut cut: Box<Cut>, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
-        cut.simplify_second = checkpoint::encode(&self.simplifier);
+        if let Some(partial) = &mut cut.simplify {
+            let t = Instant::now();
+            let bytes = partial.append_second(&self.simplifier)?;
+            debug!(
+                bytes,
+                seconds = t.elapsed().as_secs_f64(),
+                "second simplifier's state written for a checkpoint"
+            );
+        }
         tx.cut(cut)
     }
 
@@ -828,7 +837,6 @@ impl Step for WriteStep<'_, '_> {
             detect,
             prune,
             simplify,
-            simplify_second,
         } = *cut;
         let partial = simplify.ok_or_else(|| RunError::Internal {
             stage: "write",
@@ -843,10 +851,10 @@ impl Step for WriteStep<'_, '_> {
                 extract,
                 detect,
                 prune,
-                simplify_second,
                 sink: self.sink.checkpoint()?,
             },
             simplify: Default::default(),
+            simplify_second: Default::default(),
         };
         let bytes = partial.finish(&ckpt)?;
         info!(
