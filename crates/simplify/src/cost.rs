@@ -258,7 +258,7 @@ mod tests {
             for i in 0..n {
                 let (x, y) = (i as f64, j as f64);
                 let z = 0.3 * (1.3 * x).sin() * (0.7 * y).cos() + 0.05 * x * y;
-                s.insert_vertex(j * n + i, DVec3::new(x, y, z), Vertex::new(j as u32, &[]));
+                s.insert_vertex(j * n + i, DVec3::new(x, y, z), Vertex::new(j as u32), &[]);
             }
         }
         for j in 0..n - 1 {

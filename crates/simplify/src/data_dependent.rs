@@ -37,25 +37,22 @@ pub(crate) fn angle_deficit(store: &Store, v: u64) -> f64 {
 
 /// Equation 2 of seed 001: the steepest L1 attribute change per L1 distance to a neighbour.
 pub(crate) fn gradient(store: &Store, v: u64) -> f64 {
-    let Some(x) = store.vertex(v) else {
-        return 0.0;
-    };
-    if x.attrs.is_empty() {
+    let x = store.attrs(v);
+    if x.is_empty() {
         return 0.0;
     }
     let mut g: f64 = 0.0;
     for (n, _) in topology::ring(store, v) {
-        let Some(y) = store.vertex(n) else {
+        if store.vertex(n).is_none() {
             continue;
-        };
+        }
         let d = (store.pos(n) - store.pos(v)).abs().element_sum();
         if d <= 0.0 {
             continue;
         }
         let df: f64 = x
-            .attrs
             .iter()
-            .zip(y.attrs.iter())
+            .zip(store.attrs(n))
             .map(|(a, b)| (f64::from(*a) - f64::from(*b)).abs())
             .sum();
         g = g.max(df / d);
@@ -106,7 +103,7 @@ mod tests {
         let mut s = Store::keeping_extras();
         for (i, p) in pos.iter().enumerate() {
             let a = attrs.get(i).map(std::slice::from_ref).unwrap_or(&[]);
-            s.insert_vertex(i as u64, *p, Vertex::new(0, a));
+            s.insert_vertex(i as u64, *p, Vertex::new(0), a);
         }
         for t in tris {
             s.add_triangle(Tri {

@@ -297,10 +297,10 @@ impl Decimator {
             }
             e.attr_quadric = merged.attr_quadric;
         }
+        store.set_attrs(keep, merged.attrs);
         let Some(k) = store.vertex_mut(keep) else {
             return;
         };
-        k.attrs = merged.attrs;
         k.quadric += g.quadric;
         k.area += g.area;
         k.boundary |= g.boundary;
@@ -387,8 +387,8 @@ mod tests {
     fn edge(cascade: Cascade) -> (SimplifyConfig, Store, u64, u64) {
         let config = crate::tests::swept(cascade, usize::MAX);
         let mut store = Store::default();
-        let a = store.insert_vertex(0, DVec3::new(0.0, 0.0, 5.5), Vertex::new(5, &[]));
-        let b = store.insert_vertex(1, DVec3::new(1.0, 0.0, 6.5), Vertex::new(6, &[]));
+        let a = store.insert_vertex(0, DVec3::new(0.0, 0.0, 5.5), Vertex::new(5), &[]);
+        let b = store.insert_vertex(1, DVec3::new(1.0, 0.0, 6.5), Vertex::new(6), &[]);
         (config, store, a, b)
     }
 

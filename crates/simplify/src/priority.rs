@@ -73,13 +73,16 @@ pub(crate) fn merged_data(
     keep: u64,
     pos: DVec3,
 ) -> Merged {
-    let (Some(g), Some(k)) = (store.vertex(gone), store.vertex(keep)) else {
+    if store.vertex(gone).is_none() || store.vertex(keep).is_none() {
         return Merged {
             attrs: Box::default(),
             attr_quadric: None,
         };
-    };
-    let ends = [(store.pos(gone), &*g.attrs), (store.pos(keep), &*k.attrs)];
+    }
+    let ends = [
+        (store.pos(gone), store.attrs(gone)),
+        (store.pos(keep), store.attrs(keep)),
+    ];
     let quadric = |v| store.extra(v).and_then(|e| e.attr_quadric.as_deref());
     match (&config.priority, quadric(gone), quadric(keep)) {
         (Priority::AttributeQuadric { weights }, Some(qg), Some(qk)) => {
@@ -133,10 +136,10 @@ fn interpolated_in_patch(store: &Store, m: usize, patch: &Patch, c: DVec3) -> Op
         let sum: f64 = w.iter().sum();
         w = w.map(|x| x / sum);
     }
-    let corners = ids.map(|id| store.vertex(id));
+    let corners = ids.map(|id| store.vertex(id).map(|_| store.attrs(id)));
     let mut out = vec![0.0f64; m];
     for (wi, v) in w.iter().zip(corners) {
-        for (o, a) in out.iter_mut().zip(v?.attrs.iter()) {
+        for (o, a) in out.iter_mut().zip(v?) {
             *o += wi * f64::from(*a);
         }
     }
@@ -148,7 +151,11 @@ pub(crate) fn add_attribute_quadric(store: &mut Store, priority: &Priority, v: [
     let Priority::AttributeQuadric { weights } = priority else {
         return;
     };
-    let corners = v.map(|id| store.vertex(id).map(|x| (store.pos(id), x.attrs.clone())));
+    let corners = v.map(|id| {
+        store
+            .vertex(id)
+            .map(|_| (store.pos(id), Box::<[f32]>::from(store.attrs(id))))
+    });
     let [Some(p0), Some(p1), Some(p2)] = corners else {
         return;
     };

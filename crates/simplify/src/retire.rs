@@ -213,6 +213,13 @@ impl Retirer {
         let mut last_use = [false; 3];
         for (i, &id) in tri.v.iter().enumerate() {
             let pos = store.pos(id);
+            // Read before the vertex is borrowed: they live beside it (`Store::attrs`).
+            out.attrs
+                .extend_from_slice(if store.vertex(id).is_some_and(|x| x.out().is_none()) {
+                    store.attrs(id)
+                } else {
+                    &[]
+                });
             let Some(x) = store.vertex_mut(id) else {
                 continue;
             };
@@ -223,7 +230,6 @@ impl Retirer {
                     self.next_out += 1;
                     x.set_out(o);
                     out.elements.push(OutElement::Vertex { pos });
-                    out.attrs.extend_from_slice(&x.attrs);
                     if self.states {
                         out.states.push(crate::VertexState {
                             quadric: x.quadric,
@@ -258,7 +264,7 @@ mod tests {
     fn store(ranks: &[u32]) -> Store {
         let mut s = Store::default();
         for (id, &r) in ranks.iter().enumerate() {
-            s.insert_vertex(id as u64, DVec3::ZERO, Vertex::new(r, &[]));
+            s.insert_vertex(id as u64, DVec3::ZERO, Vertex::new(r), &[]);
         }
         s
     }
@@ -296,7 +302,7 @@ mod tests {
         let mut kept = Vec::new();
         for i in 0..20 * COMPACT_MIN as u64 {
             let rank = (i / 1000) as u32;
-            let h = s.insert_vertex(i, DVec3::ZERO, Vertex::new(rank, &[]));
+            let h = s.insert_vertex(i, DVec3::ZERO, Vertex::new(rank), &[]);
             b.push(rank, h, &mut s);
             if i % 97 == 0 {
                 kept.push((rank, h));

@@ -108,7 +108,7 @@ impl Stage {
         let slot = self
             .band
             .store
-            .insert_vertex(id, pos, Vertex::new(rank, &values));
+            .insert_vertex(id, pos, Vertex::new(rank), &values);
         self.band.file(rank, slot);
     }
 

@@ -47,12 +47,12 @@ pub(crate) struct Vertex {
     /// Output number once emitted, [`UNWRITTEN`] before (8 bytes where an `Option` took 16).
     out: u64,
     pub(crate) tris: TriList,
-    pub(crate) attrs: Box<[f32]>,
 }
 
 /// What only some policies keep of a vertex, beside the vertices by slot ([`Store::extra`]):
 /// the default job (mode `rate`, the geometric priority) has none of it, and its vertices were
-/// 40 bytes larger while they carried it (168 bytes now).
+/// 40 bytes larger while they carried it (152 bytes now, the attributes beside them too:
+/// [`Store::attrs`]).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub(crate) struct Extra {
     /// Tandem time-lag estimate of the preimage patch: centre height and radius, in rank units
@@ -91,8 +91,9 @@ impl Extra {
 }
 
 impl Vertex {
-    /// A vertex first seen at rank `rank` (its position is the store's: [`Store::insert_vertex`]).
-    pub(crate) fn new(rank: u32, attrs: &[f32]) -> Self {
+    /// A vertex first seen at rank `rank` (its position and attributes are the store's:
+    /// [`Store::insert_vertex`]).
+    pub(crate) fn new(rank: u32) -> Self {
         Self {
             quadric: Quadric::default(),
             area: 0.0,
@@ -102,7 +103,6 @@ impl Vertex {
             boundary: false,
             out: UNWRITTEN,
             tris: TriList::new(),
-            attrs: attrs.into(),
         }
     }
 
@@ -193,6 +193,10 @@ pub(crate) struct Store {
     /// otherwise.
     extras: Vec<Extra>,
     keeps_extras: bool,
+    /// Each slot's attribute values (`[[attributes]]`), empty when the job has none: beside the
+    /// vertices rather than in them, where an empty box cost every vertex 16 bytes (a tenth of
+    /// it) in the jobs without attributes.
+    attrs: Vec<Box<[f32]>>,
 }
 
 impl Store {
@@ -217,6 +221,24 @@ impl Store {
         let slot = self.slot(v)?;
         self.verts[slot].as_ref()?;
         self.extras.get_mut(slot)
+    }
+
+    /// The attribute values of vertex `v` (empty without `[[attributes]]`, or for a handle that
+    /// names no vertex).
+    pub(crate) fn attrs(&self, v: u64) -> &[f32] {
+        self.slot(v)
+            .filter(|&slot| self.verts[slot].is_some())
+            .and_then(|slot| self.attrs.get(slot))
+            .map_or(&[], |a| a)
+    }
+
+    /// Vertex `v` now carries `attrs` (a contraction's merged values).
+    pub(crate) fn set_attrs(&mut self, v: u64, attrs: Box<[f32]>) {
+        if let Some(slot) = self.slot(v)
+            && let Some(a) = self.attrs.get_mut(slot)
+        {
+            *a = attrs;
+        }
     }
 
     /// The slot `v` names and its entry, while the handle is current.
@@ -253,7 +275,7 @@ impl Store {
     ///
     /// # Panics
     /// If a vertex that may still receive triangles already has this id.
-    pub(crate) fn insert_vertex(&mut self, id: u64, pos: DVec3, v: Vertex) -> u64 {
+    pub(crate) fn insert_vertex(&mut self, id: u64, pos: DVec3, v: Vertex, attrs: &[f32]) -> u64 {
         // A no-op for the stream's vertices, rounded at the door by `vertex_input`: every
         // position in the store is `f32`-exact.
         let pos = crate::cost::output_precision(pos).as_vec3();
@@ -285,6 +307,12 @@ impl Store {
                 None => self.extras.push(extra),
             }
         }
+        if !attrs.is_empty() {
+            if self.attrs.len() <= slot {
+                self.attrs.resize_with(slot + 1, Box::default);
+            }
+            self.attrs[slot] = attrs.into();
+        }
         let h = handle(slot, self.slots[slot].generation);
         let old = self.handles.insert(id, h);
         assert!(old.is_none(), "vertex id {id} added twice");
@@ -312,6 +340,9 @@ impl Store {
         let x = self.verts[slot].take()?;
         if let Some(e) = self.extras.get_mut(slot) {
             e.attr_quadric = None;
+        }
+        if let Some(a) = self.attrs.get_mut(slot) {
+            *a = Box::default();
         }
         self.slots[slot].generation = self.slots[slot].generation.wrapping_add(1);
         self.free_verts.push(slot);
@@ -454,7 +485,7 @@ mod tests {
     fn slots_are_reused_under_new_handles() {
         let mut s = Store::default();
         let slots: Vec<u64> = [10, 11, 13]
-            .map(|id| s.insert_vertex(id, DVec3::ZERO, Vertex::new(0, &[])))
+            .map(|id| s.insert_vertex(id, DVec3::ZERO, Vertex::new(0), &[]))
             .to_vec();
         assert_eq!(slots, vec![0, 1, 2]);
         assert_eq!(s.slot_of(13), Some(2));
@@ -477,7 +508,7 @@ mod tests {
         s.remove_vertex(0);
         assert_eq!(s.ids().collect::<Vec<_>>(), vec![1, 2]);
         assert!(s.vertex(0).is_none());
-        let reused = s.insert_vertex(20, DVec3::ZERO, Vertex::new(0, &[]));
+        let reused = s.insert_vertex(20, DVec3::ZERO, Vertex::new(0), &[]);
         assert_eq!(reused & 0xffff_ffff, 0, "slot 0 is reused");
         assert_ne!(reused, 0, "under a new handle");
         assert!(s.vertex(0).is_none(), "the old handle names nothing");
@@ -490,7 +521,7 @@ mod tests {
     #[test]
     fn slot_state_follows_the_vertex() {
         let mut s = Store::default();
-        let v = s.insert_vertex(1, DVec3::ZERO, Vertex::new(0, &[]));
+        let v = s.insert_vertex(1, DVec3::ZERO, Vertex::new(0), &[]);
         assert!(!s.is_free(v) && !s.is_modifiable(v) && !s.is_retired(v));
         s.set_modifiable(v);
         assert!(s.is_free(v) && s.is_current(v, 0));
@@ -501,7 +532,7 @@ mod tests {
         assert!(s.is_retired(v) && s.is_modifiable(v) && !s.is_free(v) && !s.is_current(v, 1));
         s.remove_vertex(v);
         assert!(!s.is_retired(v) && !s.is_current(v, 1), "a dead handle");
-        let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(0, &[]));
+        let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(0), &[]);
         assert_eq!(w & 0xffff_ffff, v & 0xffff_ffff, "the slot is reused");
         assert!(!s.is_modifiable(w) && !s.is_retired(w) && s.stamp(w) == 0);
     }
@@ -510,26 +541,54 @@ mod tests {
     #[test]
     fn extras_are_kept_only_when_asked_and_start_afresh() {
         let mut plain = Store::default();
-        let v = plain.insert_vertex(1, DVec3::ZERO, Vertex::new(3, &[]));
+        let v = plain.insert_vertex(1, DVec3::ZERO, Vertex::new(3), &[]);
         assert!(plain.extra(v).is_none());
         let mut s = Store::keeping_extras();
-        let v = s.insert_vertex(1, DVec3::ZERO, Vertex::new(3, &[]));
+        let v = s.insert_vertex(1, DVec3::ZERO, Vertex::new(3), &[]);
         let e = s.extra(v).expect("kept");
         assert_eq!((e.height, e.rad), (3.0, 1.0));
         s.extra_mut(v).unwrap().height = 9.0;
         s.forget_id(1);
         s.remove_vertex(v);
         assert!(s.extra(v).is_none(), "a dead handle has none");
-        let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(5, &[]));
+        let w = s.insert_vertex(2, DVec3::ZERO, Vertex::new(5), &[]);
         assert_eq!(w & 0xffff_ffff, v & 0xffff_ffff, "the slot is reused");
         assert_eq!(s.extra(w).map(|e| e.height), Some(5.0));
+    }
+
+    /// Attributes live beside the vertices: a job without them gives no vertex room for them,
+    /// a dead handle has none, and a reused slot starts with the new vertex's.
+    #[test]
+    fn attributes_follow_their_vertex_beside_it() {
+        assert_eq!(std::mem::size_of::<Vertex>(), 152);
+        assert_eq!(
+            std::mem::size_of::<Option<Vertex>>(),
+            152,
+            "a niche, no tag"
+        );
+        let mut plain = Store::default();
+        let v = plain.insert_vertex(1, DVec3::ZERO, Vertex::new(0), &[]);
+        assert!(plain.attrs(v).is_empty());
+        assert!(plain.attrs.is_empty(), "no room without attributes");
+        let mut s = Store::default();
+        let a = s.insert_vertex(1, DVec3::ZERO, Vertex::new(0), &[1.0, 2.0]);
+        let b = s.insert_vertex(2, DVec3::ZERO, Vertex::new(0), &[3.0, 4.0]);
+        assert_eq!((s.attrs(a), s.attrs(b)), (&[1.0, 2.0][..], &[3.0, 4.0][..]));
+        s.set_attrs(b, Box::new([5.0, 6.0]));
+        assert_eq!(s.attrs(b), &[5.0, 6.0]);
+        s.forget_id(1);
+        s.remove_vertex(a);
+        assert!(s.attrs(a).is_empty(), "a dead handle has none");
+        let c = s.insert_vertex(3, DVec3::ZERO, Vertex::new(0), &[7.0, 8.0]);
+        assert_eq!(c & 0xffff_ffff, a & 0xffff_ffff, "the slot is reused");
+        assert_eq!(s.attrs(c), &[7.0, 8.0]);
     }
 
     #[test]
     #[should_panic(expected = "added twice")]
     fn ids_are_unique() {
         let mut s = Store::default();
-        s.insert_vertex(5, DVec3::ZERO, Vertex::new(0, &[]));
-        s.insert_vertex(5, DVec3::ZERO, Vertex::new(0, &[]));
+        s.insert_vertex(5, DVec3::ZERO, Vertex::new(0), &[]);
+        s.insert_vertex(5, DVec3::ZERO, Vertex::new(0), &[]);
     }
 }

@@ -420,7 +420,7 @@ mod tests {
     fn store(pos: &[[f64; 3]], tris: &[[u64; 3]]) -> Store {
         let mut s = Store::default();
         for (i, p) in pos.iter().enumerate() {
-            s.insert_vertex(i as u64, DVec3::from_array(*p), Vertex::new(0, &[]));
+            s.insert_vertex(i as u64, DVec3::from_array(*p), Vertex::new(0), &[]);
         }
         for &v in tris {
             s.add_triangle(Tri { v, unmodifiable: 0 });
