@@ -763,7 +763,7 @@ impl JobConfig {
     /// Two stages at such sizes cost memory (the second holds the first's output above its
     /// rear) and save time (bonsai upsampled to 511^3 at the default 64 MiB: 25.9 s with two
     /// stages against 38.3 s with one, at 63.4 MiB against 60.2; hydrogen upsampled to 2017^3
-    /// at 128 MiB: 70.8 s against 117.5 s, as accurate; at 4033^3 and 128 MiB: 298 s against
+    /// at 128 MiB: 59.8 s against 89.0 s, as accurate; at 4033^3 and 128 MiB: 298 s against
     /// 463 s, as accurate, at 252 MiB against 183). Where the stages' fronts leave the second
     /// no room behind its own, it writes faces before it has seen the rest of the surface and
     /// the rest is squeezed: hydrogen at 4033^3 and 96 MiB came out 20 % over its face target
