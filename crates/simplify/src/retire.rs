@@ -213,36 +213,29 @@ impl Retirer {
         let mut last_use = [false; 3];
         for (i, &id) in tri.v.iter().enumerate() {
             let pos = store.pos(id);
-            // Read before the vertex is borrowed: they live beside it (`Store::attrs`).
-            out.attrs
-                .extend_from_slice(if store.vertex(id).is_some_and(|x| x.out().is_none()) {
-                    store.attrs(id)
-                } else {
-                    &[]
-                });
             let Some(x) = store.vertex_mut(id) else {
                 continue;
             };
-            v[i] = match x.out() {
-                Some(o) => o,
-                None => {
-                    let o = self.next_out;
-                    self.next_out += 1;
-                    x.set_out(o);
-                    out.elements.push(OutElement::Vertex { pos });
-                    if self.states {
-                        out.states.push(crate::VertexState {
-                            quadric: x.quadric,
-                            area: x.area,
-                            rank_min: x.rank_min,
-                            rank_max: x.rank_max,
-                        });
-                    }
-                    stats.vertices_out += 1;
-                    o
-                }
-            };
             last_use[i] = x.tris.is_empty();
+            if let Some(o) = x.out() {
+                v[i] = o;
+                continue;
+            }
+            let o = self.next_out;
+            self.next_out += 1;
+            x.set_out(o);
+            if self.states {
+                out.states.push(crate::VertexState {
+                    quadric: x.quadric,
+                    area: x.area,
+                    rank_min: x.rank_min,
+                    rank_max: x.rank_max,
+                });
+            }
+            out.elements.push(OutElement::Vertex { pos });
+            out.attrs.extend_from_slice(store.attrs(id));
+            stats.vertices_out += 1;
+            v[i] = o;
         }
         out.elements.push(OutElement::Triangle { v, last_use });
         stats.faces_out += 1;
