@@ -62,8 +62,8 @@ impl DataRange {
         self.non_finite += bad.iter().map(|&b| u64::from(b)).sum::<u64>();
     }
 
-    /// Finite values known to lie in the data without being seen (value bounds of blocks
-    /// whose voxels were never computed); `lo > hi` adds nothing.
+    /// Finite values known to lie in the data without being seen (value bounds of blocks);
+    /// `lo > hi` adds nothing.
     pub fn include(&mut self, (lo, hi): (f32, f32)) {
         if lo <= hi {
             self.min = self.min.min(lo);

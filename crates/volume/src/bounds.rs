@@ -106,6 +106,12 @@ impl SlabBounds {
         )
     }
 
+    /// Whether some block holds a non-finite voxel (and so has no finite bounds).
+    pub fn has_unbounded(&self) -> bool {
+        // A finite voxel never widens a bound to an infinity: only a non-finite one does.
+        self.min.contains(&f32::NEG_INFINITY) || self.max.contains(&f32::INFINITY)
+    }
+
     /// A value inside the bounds of block (`bx`, `by`) (its lower bound): on the same side of any
     /// iso value as every voxel of a block that cannot cross it.
     pub fn low(&self, bx: usize, by: usize) -> f32 {
@@ -174,6 +180,7 @@ mod tests {
         assert!(b.row_may_cross(1, 15.0) && !b.row_may_cross(0, 15.0));
         assert!(!b.row_may_cross(1, 19.0));
         assert_eq!(b.finite_range(), (0.0, 19.0));
+        assert!(!b.has_unbounded());
     }
 
     #[test]
@@ -187,6 +194,7 @@ mod tests {
         );
         // Block 0 (x 0..=1) is 0..=4; block 1 (x 1..=2) holds the NaN.
         assert_eq!(b.finite_range(), (0.0, 4.0));
+        assert!(b.has_unbounded());
         assert!(b.row_may_cross(0, 100.0));
         let none = SlabBounds::empty([1, 1], [1, 1]);
         assert!(none.finite_range().0 > none.finite_range().1);
