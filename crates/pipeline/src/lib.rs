@@ -439,7 +439,8 @@ impl FirstPass {
 /// The first pass, for `[output] faces` (the extracted face count sets the rate) and for
 /// `[simplify] min_component_faces` (the census of components, see `isostream_prune`): the
 /// volume is extracted (parallel, empty space skipped) and, to prune, detected; nothing is kept
-/// but the counts and the list of small pieces.
+/// but the counts and the list of small pieces. Without a census the triangles are only
+/// counted, not made.
 fn first_pass(
     job: &JobConfig,
     prune: Option<NonZeroU64>,
@@ -449,7 +450,12 @@ fn first_pass(
     let source = open_source(&job.input)?;
     let dims = source.grid().dims;
     let mut census = prune.map(|n| (Detector::new(dims), Census::new(n)));
-    let counted = whole_extraction(job, source).visit("count", cancel, |batch| {
+    // Only the census needs the triangles themselves; a face count is the extractors'.
+    let extraction = stages::Extraction {
+        counting: census.is_none(),
+        ..whole_extraction(job, source)
+    };
+    let counted = extraction.visit("count", cancel, |batch| {
         if let Some((detector, census)) = &mut census {
             // Batch by batch, not by group: the census follows the triangles' order, and a
             // notice never precedes a triangle of its vertex however the stream is cut.
@@ -510,6 +516,7 @@ fn whole_extraction(job: &JobConfig, source: Box<dyn VolumeSource>) -> stages::E
         schedule: extract_pool::Schedule::never(),
         carried: None,
         stats: Default::default(),
+        counting: false,
     }
 }
 

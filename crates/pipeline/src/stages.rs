@@ -175,6 +175,7 @@ impl Stages<'_> {
             schedule,
             carried,
             stats: extract_before,
+            counting: false,
         };
         std::thread::scope(|s| {
             let (read, workers) = extraction.spawn(s, order_tx, ctl, RUN_REPLY_BATCHES);
@@ -311,6 +312,8 @@ pub(crate) struct Extraction {
     pub carried: Option<u64>,
     /// The counters of the slabs before `first`.
     pub stats: ExtractStats,
+    /// Count the triangles without making them (`Extractor::counting`): the batches are empty.
+    pub counting: bool,
 }
 
 type Handle<'s, T> = std::thread::ScopedJoinHandle<'s, StageResult<T>>;
@@ -337,6 +340,7 @@ impl Extraction {
             schedule,
             carried,
             mut stats,
+            counting,
         } = self;
         let grid = reader.grid();
         let threads = threads.max(1);
@@ -361,6 +365,7 @@ impl Extraction {
                 let stats = std::mem::take(&mut stats);
                 s.spawn(move || {
                     let step = WorkStep::new(grid, iso, batch_triangles, skip_empty, stats);
+                    let step = if counting { step.counting() } else { step };
                     run("extract", ctl, step, jobs, Outbox::none(ctl))
                 })
             })
