@@ -289,6 +289,7 @@ pub(crate) fn run<S: Step>(
 ) -> StageResult<(f64, S::Done)> {
     ctl.stage(|| {
         let _span = info_span!(parent: &ctl.parent, "stage", name).entered();
+        let started = Instant::now();
         let mut busy = Duration::ZERO;
         loop {
             ctl.check()?;
@@ -307,7 +308,11 @@ pub(crate) fn run<S: Step>(
         busy += t.elapsed();
         let seconds = busy.saturating_sub(out.blocked).as_secs_f64();
         out.put(Msg::End)?;
-        debug!(seconds, "{name} done");
+        // Where a stage that is not the slowest spends the rest: waiting for its input, or
+        // for the next stage to take its output.
+        let waiting_in = started.elapsed().saturating_sub(busy).as_secs_f64();
+        let waiting_out = out.blocked.as_secs_f64();
+        debug!(seconds, waiting_in, waiting_out, "{name} done");
         Ok((seconds, done))
     })
 }
