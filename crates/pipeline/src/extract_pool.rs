@@ -253,8 +253,9 @@ impl WorkStep {
         }
     }
 
-    /// Extracts a slab from its two whole slices (and its attributes'); adds the slab's voxels
-    /// and its blocks' bounds to `range`.
+    /// Extracts a slab from its two whole slices (and its attributes'); adds its blocks' bounds
+    /// to `range`, or its voxels when it has no bounds or a block has none
+    /// ([`range_from_bounds`]).
     fn extract_slices(
         &mut self,
         job: &SlabJob,
@@ -298,8 +299,8 @@ impl WorkStep {
     }
 
     /// Extracts a slab whose two slices come as rows, strip by strip: the same batches as from
-    /// the whole slices ([`Extractor::extract_slab_rows`]); adds the voxels it computed and the
-    /// bounds of the blocks it skipped to `range`.
+    /// the whole slices ([`Extractor::extract_slab_rows`]); adds its blocks' bounds to `range`,
+    /// and the voxels it computed when a block has none ([`range_from_bounds`]).
     fn extract_strips(
         &mut self,
         job: &SlabJob,
@@ -422,8 +423,10 @@ impl Step for WorkStep {
             }
             _ => self.extract_slices(&job, &mut range, out)?,
         }
-        let stats = self.extractor.stats() - before;
-        let done = SlabReply::Done { stats, range };
+        let done = SlabReply::Done {
+            stats: self.extractor.stats() - before,
+            range,
+        };
         // A hang-up means the detector stopped.
         out.send_on(&job.reply, done)
     }
