@@ -38,9 +38,9 @@ impl AttrQuadric {
 
     /// The area-weighted quadric of a triangle, corners given as (position, attributes).
     /// `None` for a degenerate triangle.
-    pub(crate) fn triangle(corners: [&(DVec3, Box<[f32]>); 3], weights: &[f64]) -> Option<Self> {
+    pub(crate) fn triangle(corners: [(DVec3, &[f32]); 3], weights: &[f64]) -> Option<Self> {
         let n = 3 + weights.len();
-        let point = |(x, attrs): &(DVec3, Box<[f32]>)| -> Vec<f64> {
+        let point = |(x, attrs): (DVec3, &[f32])| -> Vec<f64> {
             let mut v = x.to_array().to_vec();
             v.extend(
                 weights
@@ -230,7 +230,7 @@ mod tests {
         let f = |x: DVec3| (2.0 * x.x - x.y + 0.5) as f32;
         let ps = [DVec3::ZERO, DVec3::X, DVec3::Y];
         let c = ps.map(|p| corner(p, f(p)));
-        let q = AttrQuadric::triangle([&c[0], &c[1], &c[2]], &[1.0]).unwrap();
+        let q = AttrQuadric::triangle(c.each_ref().map(|(x, a)| (*x, &a[..])), &[1.0]).unwrap();
         let x = DVec3::new(0.3, 0.2, 0.0);
         let s = q.scaled_attributes_at(x).unwrap();
         assert!((s[0] - f64::from(f(x))).abs() < 1e-6);

@@ -151,15 +151,12 @@ pub(crate) fn add_attribute_quadric(store: &mut Store, priority: &Priority, v: [
     let Priority::AttributeQuadric { weights } = priority else {
         return;
     };
-    let corners = v.map(|id| {
-        store
-            .vertex(id)
-            .map(|_| (store.pos(id), Box::<[f32]>::from(store.attrs(id))))
-    });
+    // Borrowed from the store: the quadric is made before the store is written.
+    let corners = v.map(|id| store.vertex(id).map(|_| (store.pos(id), store.attrs(id))));
     let [Some(p0), Some(p1), Some(p2)] = corners else {
         return;
     };
-    let Some(q) = AttrQuadric::triangle([&p0, &p1, &p2], weights) else {
+    let Some(q) = AttrQuadric::triangle([p0, p1, p2], weights) else {
         return;
     };
     for id in v {
