@@ -67,6 +67,42 @@ proptest! {
         prop_assert_eq!(mesh.boundary_off_the_box(vol.dims), 0);
     }
 
+    /// Rates far below what these small surfaces can reach: the last passes run at the topology
+    /// floor, where every remaining contraction is refused (the link condition, tested first,
+    /// keeps each closed component at least a tetrahedron; the box's cut stays on its faces;
+    /// flips and crossings are refused). The output keeps the full surface's topology, crosses
+    /// nothing, and the run says why it missed the target.
+    #[test]
+    fn rates_below_the_topology_floor_refuse_and_keep_the_surface(
+        nx in 3u64..10, ny in 3u64..10, nz in 3u64..10,
+        levels in 2u32..4, iso_pick in 0usize..4, seed in any::<u64>(),
+        rate in 1e-4f64..1e-2,
+    ) {
+        let iso = [0.5f32, 1.0, 1.5, 2.0][iso_pick];
+        let vol = random_levels([nx, ny, nz], levels, iso, seed);
+        let dir = tempfile::tempdir().unwrap();
+        let simplify = format!("mode = \"rate\"\nrate = {rate}");
+        let job = vol.job(dir.path(), &simplify, "out.smb");
+        let summary = run_job(&job);
+        let path = dir.path().join("out.smb");
+        isostream_smesh::validate(&path).unwrap();
+        let mesh = Mesh::read(&path);
+        let got = mesh.check();
+        let want = vol.reference().check();
+        prop_assert!(got.is_valid_manifold(), "{got:?}");
+        prop_assert_eq!(mesh.self_intersections(), 0);
+        prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
+        prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
+        prop_assert_eq!(mesh.boundary_off_the_box(vol.dims), 0);
+        let target = summary.target_faces.expect("mode rate has a target");
+        if summary.faces_written as f64 > 1.02 * target as f64 {
+            prop_assert!(
+                summary.warnings.iter().any(|w| w.contains("rate target missed")),
+                "{:?}", summary.warnings
+            );
+        }
+    }
+
     /// mode = "rate" on smooth blob fields: as above, plus no zero-area triangles and the face
     /// count within 10 % of R times the input.
     #[test]
