@@ -112,16 +112,6 @@ impl Decimator {
             if !is_current(&band.store, &c) {
                 continue;
             }
-            // The link condition first: it reads the endpoints' fans alone, and an edge that
-            // fails it fails whatever its cost and placement. At a topology floor most pops fail
-            // it (bonsai at R = 0.01: 30 k of the second stage's last 56 k), and each paid the
-            // evaluation and the patch before. Vertices are modifiable only with their whole
-            // star behind the front, so no triangle joins their fans later: testing it before
-            // the front changes no outcome (the same bytes on bonsai at R = 0.2 and 0.01).
-            if !topology::link_ok(&band.store, c.a, c.b) {
-                stats.rejected_link += 1;
-                continue;
-            }
             // Re-evaluated: the placement is not stored in the heap, and objectives reading the
             // neighbourhood (isotropy) may have changed without a stamp change.
             let Some(eval) = self.evaluate(&band.store, c.a, c.b) else {
@@ -139,8 +129,8 @@ impl Decimator {
                 });
                 continue;
             }
-            // Then the front: it is the cheapest test left, and what waits for the front is
-            // tested again when it comes back. Rare since vertices are let in by their whole star
+            // The front first: it is the cheapest test, and what waits for the front is tested
+            // again when it comes back. Rare since vertices are let in by their whole star
             // (`Stage::set_modifiable`): what is left are placements past the front.
             // Taken out while the checks and the contraction borrow the decimator (a box, so
             // that taking it moves a pointer, not the patch's inline room).
@@ -149,6 +139,8 @@ impl Decimator {
             if let Some(reach) = beyond_front(at, &patch, eval.pos) {
                 stats.delayed_front += 1;
                 self.candidates.delay(c, reach);
+            } else if !topology::link_ok(&band.store, c.a, c.b) {
+                stats.rejected_link += 1;
             } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
                 stats.rejected_flip += 1;
             } else {

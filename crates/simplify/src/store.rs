@@ -437,6 +437,13 @@ impl Store {
     }
 
     /// Unlinks a triangle from its vertices and frees its slot.
+    ///
+    /// A vertex's list that spilled to the heap (more than its inline room, as a contraction's
+    /// survivor briefly has) goes back inline once it fits again: `SmallVec` keeps a spilled
+    /// list on the heap for good otherwise, and with the simplified surface resident the
+    /// vertices that ever had nine triangles piled up (bonsai upsampled to 511^3 at a 128 MiB
+    /// budget: 52 k heap lists after 448 slabs, 4.5 k with this; peak RSS 110.7 -> 108.1 MiB,
+    /// the same output).
     pub(crate) fn remove_triangle(&mut self, t: TriId) -> Tri {
         let tri = self.tris[t as usize];
         for id in tri.v {
@@ -444,6 +451,9 @@ impl Store {
                 && let Some(i) = v.tris.iter().position(|&x| x == t)
             {
                 v.tris.swap_remove(i);
+                if v.tris.spilled() && v.tris.len() <= v.tris.inline_size() {
+                    v.tris.shrink_to_fit();
+                }
             }
         }
         self.free_tris.push(t);
@@ -514,6 +524,33 @@ mod tests {
         assert!(s.vertex(0).is_none(), "the old handle names nothing");
         assert_eq!(s.verts.len(), 3, "no slot for a gap");
         assert_eq!(s.live_vertices(), 3);
+    }
+
+    /// A list that spilled past its inline room goes back inline when triangles leave it.
+    #[test]
+    fn triangle_lists_go_back_inline_when_they_fit() {
+        let mut s = Store::default();
+        let hub = s.insert_vertex(0, DVec3::ZERO, Vertex::new(0), &[]);
+        let room = s.vertex(hub).unwrap().tris.inline_size();
+        let rim: Vec<u64> = (1..=room as u64 + 2)
+            .map(|id| s.insert_vertex(id, DVec3::ZERO, Vertex::new(0), &[]))
+            .collect();
+        let fan: Vec<TriId> = rim
+            .windows(2)
+            .map(|w| {
+                s.add_triangle(Tri {
+                    v: [hub, w[0], w[1]],
+                    unmodifiable: 0,
+                })
+            })
+            .collect();
+        assert_eq!(fan.len(), room + 1);
+        assert!(s.vertex(hub).unwrap().tris.spilled());
+        s.remove_triangle(fan[0]);
+        let tris = &s.vertex(hub).unwrap().tris;
+        assert!(!tris.spilled(), "back inline");
+        assert_eq!(tris.len(), room);
+        assert!(tris.iter().all(|t| fan[1..].contains(t)));
     }
 
     /// The flags and stamp follow the vertex through its life, a stale stamp or a dead handle is
