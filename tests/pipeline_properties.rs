@@ -83,10 +83,10 @@ proptest! {
     }
 
     /// Rates far below what these small surfaces can reach: the last passes run at the topology
-    /// floor, where every remaining contraction is refused (the link condition, tested first,
-    /// keeps each closed component at least a tetrahedron; the box's cut stays on its faces;
-    /// flips and crossings are refused). The output keeps the full surface's topology, crosses
-    /// nothing, and the run says why it missed the target.
+    /// floor, where every remaining contraction is refused (the link condition keeps each closed
+    /// component at least a tetrahedron; the box's cut stays on its faces; flips and crossings
+    /// are refused). The output keeps the full surface's topology, crosses nothing, and the run
+    /// says why it missed the target.
     #[test]
     fn rates_below_the_topology_floor_refuse_and_keep_the_surface(
         nx in 3u64..10, ny in 3u64..10, nz in 3u64..10,
