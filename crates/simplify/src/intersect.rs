@@ -243,12 +243,15 @@ impl CellList {
     }
 
     /// Gives back the room of a cell that once held many records (a dense slab, triangles
-    /// before they grew), which it would otherwise keep for good.
+    /// before they grew), which it would otherwise keep for good: past twice what it holds, down
+    /// to half as much again. (Past four times, down to twice: the lists' room grew from 200 k
+    /// to 670 k entries for 250-290 k held over bonsai upsampled to 511^3 at a 128 MiB budget,
+    /// whose peak RSS is 3.1 MiB lower this way, the same output and time within the noise.)
     fn trim(&mut self) {
         let n = self.recs.len();
-        if self.recs.capacity() >= 4 * n.max(4) {
-            self.keys.shrink_to(2 * n);
-            self.recs.shrink_to(2 * n);
+        if self.recs.capacity() >= 2 * n.max(4) + 4 {
+            self.keys.shrink_to(n + n / 2);
+            self.recs.shrink_to(n + n / 2);
         }
     }
 }
