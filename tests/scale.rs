@@ -219,6 +219,39 @@ fn a_slab_larger_than_the_budget_is_not_written_raw() {
     );
 }
 
+/// Slices too large for the budget to give two simplifier stages by their size alone: a
+/// counting pass finds the largest slab's surface, and two stages run where it is small (a
+/// sphere upsampled alike along every axis, whose slabs hold rings), one where a slab holds a
+/// whole cap (upsampled across the slices only). Both outputs valid; the summary says why.
+#[test]
+fn the_largest_slab_decides_the_stage_count_on_large_slices() {
+    let run = |upsample: &str| {
+        run_valid(&format!(
+            "[input]\nshape = \"sphere\"\nsize = [48, 48, 48]\nupsample = {upsample}\n\n\
+             [extract]\niso = 0.0\n\n[simplify]\nrate = 0.05\n\n[output]\npath = \"out.smb\"\n\n\
+             [pipeline]\nmemory_budget_mib = 20\n"
+        ))
+    };
+    let (rings, caps) = (run("[3, 3, 3]"), run("[3, 3, 1]"));
+    assert!(
+        rings.extract.max_slab_triangles > 0
+            && rings.extract.max_slab_triangles < caps.extract.max_slab_triangles,
+        "{:?} {:?}",
+        rings.extract,
+        caps.extract
+    );
+    assert!(rings.simplify_stages.is_some(), "two stages for rings");
+    assert!(caps.simplify_stages.is_none(), "one stage for a cap");
+    for s in [&rings, &caps] {
+        let target = s.target_faces.unwrap();
+        assert!(
+            s.faces_written.abs_diff(target) as f64 <= 0.02 * target as f64,
+            "{} faces for {target}",
+            s.faces_written
+        );
+    }
+}
+
 /// `isostream measure --volume` streams the full-resolution surface through the run's own
 /// extraction (parallel, empty space skipped): its distances equal those of the library's
 /// one-thread extraction of every voxel (`surface_distances`), for 1 and 2 threads.

@@ -129,6 +129,9 @@ pub struct ExtractStats {
     /// NaN or infinite voxels (treated as outside). Slice 0 is counted with slab 0 and every
     /// other slice as the upper slice of its slab, so a full sweep counts each voxel once.
     pub non_finite_voxels: u64,
+    /// The most triangles one slab had: the size of the sweep front a simplifier holds at once
+    /// (a flat face across the sweep puts a whole slice's worth of surface in one slab).
+    pub max_slab_triangles: u64,
 }
 
 /// What one slab added to an extractor's counters (`after - before`).
@@ -141,6 +144,8 @@ impl std::ops::Sub for ExtractStats {
             triangles: self.triangles - o.triangles,
             non_finite_voxels: self.non_finite_voxels - o.non_finite_voxels,
             skipped_cubes: self.skipped_cubes - o.skipped_cubes,
+            // One slab's own triangles are its largest slab.
+            max_slab_triangles: self.triangles - o.triangles,
         }
     }
 }
@@ -153,6 +158,7 @@ impl std::ops::AddAssign for ExtractStats {
         self.active_cubes += o.active_cubes;
         self.triangles += o.triangles;
         self.non_finite_voxels += o.non_finite_voxels;
+        self.max_slab_triangles = self.max_slab_triangles.max(o.max_slab_triangles);
     }
 }
 
@@ -324,6 +330,7 @@ impl Extractor {
         self.stats.cubes += nx.saturating_sub(1) * ny.saturating_sub(1);
 
         let cube_rows = ny.saturating_sub(1);
+        let triangles_before = self.stats.triangles;
         let mut batch = CubeBatch::with_capacity(z, self.batch_sizes);
         // The group's cubes and triangles in the batches already sent.
         let (mut group_cubes, mut group_triangles) = (0, 0);
@@ -374,6 +381,8 @@ impl Extractor {
             }
         }
         self.remember_sizes(&batch);
+        let slab_triangles = self.stats.triangles - triangles_before;
+        self.stats.max_slab_triangles = self.stats.max_slab_triangles.max(slab_triangles);
         batch.end_of_slab = true;
         batch.ends_group = true;
         emit(batch)
@@ -563,7 +572,8 @@ mod tests {
                 skipped_cubes: 0,
                 active_cubes: 8,
                 triangles: 8,
-                non_finite_voxels: 0
+                non_finite_voxels: 0,
+                max_slab_triangles: 4,
             }
         );
         for (z, b) in batches.iter().enumerate() {
@@ -736,6 +746,46 @@ mod tests {
         }
         assert!(made.stats().triangles > 1000);
         assert_eq!(made.stats(), counted.stats());
+    }
+
+    /// The largest slab's triangles, kept across slabs and across the extractors of one stream
+    /// (the largest of theirs); a slab's own counters (`after - before`) are its own largest.
+    #[test]
+    fn the_largest_slab_is_counted() {
+        let grid = Grid::new([9, 9, 6], [1.0; 3], [0.0; 3]).unwrap();
+        // A ball whose radius shrinks with z: the first slabs hold the most triangles.
+        let data: Vec<f32> = (0..grid.voxel_count())
+            .map(|i| {
+                let (x, y, z) = (i % 9, i / 9 % 9, i / 81);
+                let d = |c: u64| (c as f32 - 4.0).powi(2);
+                d(x) + d(y) - (12.0 - 2.0 * z as f32)
+            })
+            .collect();
+        let n = grid.slice_len();
+        let mut ex = Extractor::new(grid, 0.0);
+        let mut per_slab = Vec::new();
+        for z in 0..5 {
+            let before = ex.stats();
+            let (lo, up) = (&data[z * n..][..n], &data[(z + 1) * n..][..n]);
+            ex.extract_slab(z as u64, lo, up, 40, |_| Ok::<_, ()>(()))
+                .unwrap();
+            let slab = ex.stats() - before;
+            assert_eq!(slab.max_slab_triangles, slab.triangles);
+            per_slab.push(slab.triangles);
+        }
+        let largest = *per_slab.iter().max().unwrap();
+        assert!(
+            largest > 0 && per_slab.iter().any(|&t| t < largest),
+            "{per_slab:?}"
+        );
+        assert_eq!(ex.stats().max_slab_triangles, largest);
+        let mut sum = ExtractStats::default();
+        sum += ex.stats();
+        sum += ExtractStats {
+            max_slab_triangles: largest - 1,
+            ..ExtractStats::default()
+        };
+        assert_eq!(sum.max_slab_triangles, largest, "the largest of both");
     }
 
     #[test]

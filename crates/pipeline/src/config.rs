@@ -448,6 +448,17 @@ const SLICE_BYTES_PER_CUBE: u64 = 12;
 /// slab) are valid and within 64 MiB at every rate measured (docs/performance.md, "Fifth
 /// session"; the bound was 2 cubes per face of 1150 bytes, the same slab size).
 const CASCADE_CUBES_PER_FACE: f64 = 1.2;
+/// Largest slab, as a share of the cascade's face budget, that gets two simplifier stages by
+/// default where the slices are larger than [`CASCADE_CUBES_PER_FACE`] allows (a counting pass
+/// measures it first): what spoils a cascade is a slab whose surface fills the first stage's
+/// band, not the slice's size. Volumes upsampled to 511^2-voxel slices at the default budget
+/// (72 k faces; two stages against one, `isostream measure --volume`): bonsai (largest slab 16.1
+/// k faces), mni152 (12.1 k) and aneurism (6.0 k) ran 1.3-1.7x faster at 0.98-1.03x one stage's
+/// RMS distance and 0.96-1.03x its 99.9 % distance, in at most 61.7 MiB; mean_head (22.3 k),
+/// cthead (28.5 k), stent upsampled 4x (37.1 k) and engine (138 k: a flat face across the sweep)
+/// came out 1.06-1.35x one stage's RMS and 1.19-2.7x its 99.9 % distance, some of them over 64
+/// MiB (docs/performance.md, "Thirty-eighth session").
+const CASCADE_SLAB_SHARE: u64 = 4;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
 const FIXED_MIB: u64 = 16;
@@ -737,21 +748,52 @@ impl JobConfig {
     }
 
     /// Whether the simplification of a volume of `dims` voxels runs as a cascade of two stages:
-    /// `[pipeline] simplify_stages`, by default wherever a cascade is possible and a slab has at
-    /// most [`CASCADE_CUBES_PER_FACE`] cubes per face of the budget. There it is faster (two
-    /// cores: 0.56-0.75x the wall time of one stage), at least as accurate (0.89-0.98x one
-    /// stage's RMS distance), as valid, and within the default budget since the guard's cells
-    /// shrank (docs/performance.md, "Fifth session").
-    pub fn cascade(&self, dims: [u64; 3]) -> bool {
+    /// `[pipeline] simplify_stages`, by default wherever a cascade is possible and either a slab
+    /// has at most [`CASCADE_CUBES_PER_FACE`] cubes per face of the budget or the largest slab's
+    /// surface (`largest_slab` faces, from a counting pass: see
+    /// [`JobConfig::counts_slabs_for_stages`]) is at most [`CASCADE_SLAB_SHARE`] of it. There it
+    /// is faster (two cores: 0.56-0.75x the wall time of one stage), at least as accurate
+    /// (0.89-0.98x one stage's RMS distance), as valid, and within the default budget since the
+    /// guard's cells shrank (docs/performance.md, "Fifth session" and "Thirty-eighth session").
+    pub fn cascade(&self, dims: [u64; 3], largest_slab: Option<u64>) -> bool {
         match self.pipeline.simplify_stages {
             Some(n) => n == 2,
             None => {
                 self.cascade_possible()
-                    && slice_cubes(dims) as f64
-                        <= CASCADE_CUBES_PER_FACE
-                            * self.faces_held(BYTES_PER_FACE_CASCADE, 0) as f64
+                    && (self.small_slices(dims)
+                        || largest_slab.is_some_and(|faces| {
+                            faces * CASCADE_SLAB_SHARE <= self.cascade_faces(dims) as u64
+                        }))
             }
         }
+    }
+
+    /// Whether the stage count waits for the largest slab's face count (a counting pass before
+    /// the run): by default, where two stages are possible but the slices are too large for
+    /// [`JobConfig::cascade`] to decide by their size. The pass costs an extraction without
+    /// triangles (bonsai upsampled to 511 x 511 x 256: 0.53 s, which the second core pays back
+    /// many times: 8.7 s with two stages against 14.0 s with one at R = 0.2).
+    pub fn counts_slabs_for_stages(&self, dims: [u64; 3]) -> bool {
+        self.pipeline.simplify_stages.is_none()
+            && self.cascade_possible()
+            && !self.small_slices(dims)
+    }
+
+    /// A cascade's faces: on slices larger than [`JobConfig::small_slices`] the slices' share
+    /// is set aside first, as for one stage alone ([`SLICE_BYTES_PER_CUBE`]; 3 MiB on 511^2
+    /// slices: bonsai upsampled so peaked at 60.9-63.6 MiB without it).
+    fn cascade_faces(&self, dims: [u64; 3]) -> usize {
+        let set_aside = match self.small_slices(dims) {
+            true => 0,
+            false => slice_cubes(dims).saturating_mul(SLICE_BYTES_PER_CUBE),
+        };
+        self.faces_held(BYTES_PER_FACE_CASCADE, set_aside)
+    }
+
+    /// Slices small enough for two stages whatever their surface.
+    fn small_slices(&self, dims: [u64; 3]) -> bool {
+        slice_cubes(dims) as f64
+            <= CASCADE_CUBES_PER_FACE * self.faces_held(BYTES_PER_FACE_CASCADE, 0) as f64
     }
 
     fn cascade_possible(&self) -> bool {
@@ -768,25 +810,29 @@ impl JobConfig {
     /// no room behind its own, it writes faces before it has seen the rest of the surface and
     /// the rest is squeezed: hydrogen at 4033^3 and 96 MiB came out 20 % over its face target
     /// at 500 times the RMS distance (docs/scale.md, "Two stages at 64x once more").
-    pub fn one_stage_hint(&self, dims: [u64; 3]) -> Option<String> {
-        (self.pipeline.simplify_stages.is_none() && self.cascade_possible() && !self.cascade(dims))
-            .then(|| {
-                format!(
-                    "one simplifier stage: slices of {} x {} voxels are large for two within \
-                     [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for \
-                     more memory (bonsai at 511^3: 25.9 s against 38.3 s, 63 MiB against 60), \
-                     and is less accurate where its fronts leave the budget no room (the run \
-                     then warns that faces were written before the target was reached)",
-                    dims[0], dims[1], self.pipeline.memory_budget_mib
-                )
-            })
+    pub fn one_stage_hint(&self, dims: [u64; 3], largest_slab: Option<u64>) -> Option<String> {
+        (self.pipeline.simplify_stages.is_none()
+            && self.cascade_possible()
+            && !self.cascade(dims, largest_slab))
+        .then(|| {
+            let slab =
+                largest_slab.map_or(String::new(), |f| format!(" (its largest slab: {f} faces)"));
+            format!(
+                "one simplifier stage: slices of {} x {} voxels{slab} are large for two within \
+                 [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for \
+                 more memory (bonsai at 511^3: 25.9 s against 38.3 s, 63 MiB against 60), \
+                 and is less accurate where its fronts leave the budget no room (the run \
+                 then warns that faces were written before the target was reached)",
+                dims[0], dims[1], self.pipeline.memory_budget_mib
+            )
+        })
     }
 
     /// The simplifiers' resident-face budget on a volume of `dims` voxels, derived from
     /// `pipeline.memory_budget_mib` (shared by the two stages of a cascade).
-    pub fn max_resident_faces(&self, dims: [u64; 3]) -> usize {
-        if self.cascade(dims) {
-            self.faces_held(BYTES_PER_FACE_CASCADE, 0)
+    pub fn max_resident_faces(&self, dims: [u64; 3], largest_slab: Option<u64>) -> usize {
+        if self.cascade(dims, largest_slab) {
+            self.cascade_faces(dims)
         } else {
             self.faces_held(
                 BYTES_PER_FACE_ALONE,
@@ -1020,15 +1066,23 @@ mod tests {
     fn simplify_stages_are_one_or_two_and_two_only_where_supported() {
         let small = [256, 256, 256];
         let job = parse(MINIMAL).unwrap();
-        assert!(job.cascade(small), "two stages by default in mode rate");
         assert!(
-            !job.cascade([1024, 1024, 64]),
+            job.cascade(small, None),
+            "two stages by default in mode rate"
+        );
+        assert!(
+            !job.cascade([1024, 1024, 64], None),
             "one stage by default on slabs too large for the first stage's band"
         );
         let one = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n");
-        assert!(!parse(&one).unwrap().cascade(small));
+        assert!(!parse(&one).unwrap().cascade(small, None));
         let two = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 2\n");
-        assert!(parse(&two).unwrap().cascade([1024, 1024, 64]), "asked for");
+        assert!(
+            parse(&two)
+                .unwrap()
+                .cascade([1024, 1024, 64], Some(1 << 40)),
+            "asked for"
+        );
         let three = format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 3\n");
         let err = parse(&three).unwrap_err().to_string();
         assert!(
@@ -1037,7 +1091,7 @@ mod tests {
         );
         let none = format!("{MINIMAL}\n[simplify]\nmode = \"none\"\n");
         assert!(
-            !parse(&none).unwrap().cascade(small),
+            !parse(&none).unwrap().cascade(small, None),
             "one stage where two are not possible"
         );
         let two = format!("{none}\n[pipeline]\nsimplify_stages = 2\n");
@@ -1045,12 +1099,43 @@ mod tests {
         assert!(err.contains("mode = \"rate\""), "{err}");
     }
 
+    /// On slices too large to decide by their size, the largest slab's surface decides: two
+    /// stages where it is at most a quarter of the cascade's faces (the slices' share set aside),
+    /// one where a flat face across the sweep fills the first stage's band. Only the default
+    /// asks for that count.
+    #[test]
+    fn the_largest_slab_decides_the_stages_on_large_slices() {
+        let job = parse(MINIMAL).unwrap();
+        let (large, small) = ([1024, 1024, 64], [256, 256, 64]);
+        assert!(job.counts_slabs_for_stages(large));
+        assert!(!job.counts_slabs_for_stages(small), "decided by the slices");
+        let mib = 1024 * 1024;
+        let faces = (48 * mib - 1023 * 1023 * SLICE_BYTES_PER_CUBE) / BYTES_PER_FACE_CASCADE;
+        assert!(job.cascade(large, Some(faces / CASCADE_SLAB_SHARE)));
+        assert!(!job.cascade(large, Some(faces / CASCADE_SLAB_SHARE + 1)));
+        assert!(!job.cascade(large, None), "not counted: one stage");
+        assert_eq!(
+            job.max_resident_faces(large, Some(1000)),
+            faces as usize,
+            "the slices' share set aside"
+        );
+        let hint = job.one_stage_hint(large, Some(1 << 20)).unwrap();
+        assert!(hint.contains("largest slab: 1048576 faces"), "{hint}");
+        for fixed in [
+            "[pipeline]\nsimplify_stages = 1",
+            "[simplify]\nmode = \"none\"",
+        ] {
+            let job = parse(&format!("{MINIMAL}\n{fixed}\n")).unwrap();
+            assert!(!job.counts_slabs_for_stages(large), "{fixed}");
+        }
+    }
+
     /// One stage alone sets its slices' share aside (their slabs in flight grow with them), up to
     /// a quarter of the budget, and leaves a quarter of it to the faces whatever the budget.
     #[test]
     fn one_stage_sets_the_slices_share_aside_from_its_faces() {
         let one = parse(&format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n")).unwrap();
-        let faces = |side: u64| one.max_resident_faces([side, side, 64]);
+        let faces = |side: u64| one.max_resident_faces([side, side, 64], None);
         let mib = 1024 * 1024;
         let held = |set_aside: u64| ((48 * mib - set_aside) / BYTES_PER_FACE_ALONE) as usize;
         assert_eq!(faces(2), held(SLICE_BYTES_PER_CUBE));
@@ -1067,13 +1152,13 @@ mod tests {
         ))
         .unwrap();
         assert_eq!(
-            tight.max_resident_faces([511, 511, 64]),
+            tight.max_resident_faces([511, 511, 64], None),
             (5 * mib / BYTES_PER_FACE_ALONE) as usize,
             "a quarter of the budget left to the faces at least"
         );
         let two = parse(MINIMAL).unwrap();
         assert_eq!(
-            two.max_resident_faces([256, 256, 64]),
+            two.max_resident_faces([256, 256, 64], None),
             (48 * mib / BYTES_PER_FACE_CASCADE) as usize,
             "a cascade's bytes per face were measured with its slices"
         );
@@ -1083,11 +1168,11 @@ mod tests {
     fn a_job_left_on_one_stage_by_its_slabs_is_told_how_to_use_both_cores() {
         let job = parse(MINIMAL).unwrap();
         assert_eq!(
-            job.one_stage_hint([256, 256, 256]),
+            job.one_stage_hint([256, 256, 256], None),
             None,
             "two stages already"
         );
-        let hint = job.one_stage_hint([1024, 1024, 64]).unwrap();
+        let hint = job.one_stage_hint([1024, 1024, 64], None).unwrap();
         assert!(
             hint.contains("1024 x 1024")
                 && hint.contains("memory_budget_mib = 64")
@@ -1097,13 +1182,13 @@ mod tests {
         );
         let one = parse(&format!("{MINIMAL}\n[pipeline]\nsimplify_stages = 1\n")).unwrap();
         assert_eq!(
-            one.one_stage_hint([1024, 1024, 64]),
+            one.one_stage_hint([1024, 1024, 64], None),
             None,
             "the user's choice"
         );
         let none = parse(&format!("{MINIMAL}\n[simplify]\nmode = \"none\"\n")).unwrap();
         assert_eq!(
-            none.one_stage_hint([1024, 1024, 64]),
+            none.one_stage_hint([1024, 1024, 64], None),
             None,
             "two are not possible"
         );

@@ -200,17 +200,25 @@ fn run_job(
         index_limit::vertex_bound(job, grid.voxel_count(), rate),
     )?;
     let prune = NonZeroU64::new(job.simplify.min_component_faces);
-    // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts.
-    let pass = match job.output.faces.is_some() || (prune.is_some() && saved.is_none()) {
+    // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts,
+    // and the stage count on large slices the largest slab's (a resumed run counts again and
+    // decides as the interrupted one did).
+    let counted = job.output.faces.is_some()
+        || (prune.is_some() && saved.is_none())
+        || job.counts_slabs_for_stages(grid.dims);
+    let pass = match counted {
         true => Some(first_pass(job, prune, cancel)?),
         false => None,
     };
+    let largest_slab = pass.as_ref().map(|p| p.largest_slab);
     let rate = match (job.output.faces, &pass) {
         // R applies to the faces kept: `faces` is what the simplifier is asked to write.
         (Some(faces), Some(pass)) => (faces as f64 / pass.kept().max(1) as f64).min(1.0),
         _ => rate,
     };
-    let (config, second_config) = simplifier_configs(job, grid, rate);
+    let (config, second_config) = simplifier_configs(job, grid, rate, largest_slab);
+    // The faces of the whole budget: a cascade's second stage has it all, less what the first holds.
+    let budget_faces = second_config.as_ref().unwrap_or(&config).max_resident_faces;
     let mut filter = pass
         .and_then(|p| p.small)
         .filter(|_| saved.is_none())
@@ -376,7 +384,7 @@ fn run_job(
             )
         })
         .into_iter()
-        .chain(front_stretched(job, grid.dims, &outputs.simplify))
+        .chain(front_stretched(job, budget_faces, &outputs.simplify))
         .collect();
     if let Some(p) = &outputs.prune {
         info!(
@@ -423,9 +431,11 @@ fn run_job(
     Ok(summary)
 }
 
-/// What the first pass found: the extracted faces and, when the job prunes, the small pieces.
+/// What the first pass found: the extracted faces, the most one slab had, and, when the job
+/// prunes, the small pieces.
 struct FirstPass {
     extracted: u64,
+    largest_slab: u64,
     small: Option<SmallPieces>,
 }
 
@@ -472,14 +482,16 @@ fn first_pass(
     });
     let pass = FirstPass {
         extracted: counted.triangles,
+        largest_slab: counted.max_slab_triangles,
         small,
     };
     info!(
         extracted = pass.extracted,
+        largest_slab = pass.largest_slab,
         kept = pass.kept(),
         small_components = pass.small.as_ref().map(|s| s.stats.components_pruned),
         seconds = started.elapsed().as_secs_f64(),
-        "first pass (output.faces, simplify.min_component_faces)"
+        "first pass (output.faces, simplify.min_component_faces, the stage count)"
     );
     Ok(pass)
 }
@@ -551,13 +563,14 @@ fn simplifier_configs(
     job: &JobConfig,
     grid: isostream_volume::Grid,
     rate: f64,
+    largest_slab: Option<u64>,
 ) -> (SimplifierConfig, Option<SimplifierConfig>) {
-    let single = simplifier_config(job, grid, rate);
+    let single = simplifier_config(job, grid, rate, largest_slab);
     let Policy::Rate { initial_rate, .. } = single.policy else {
         return (single, None);
     };
-    if !job.cascade(grid.dims) {
-        if let Some(hint) = job.one_stage_hint(grid.dims) {
+    if !job.cascade(grid.dims, largest_slab) {
+        if let Some(hint) = job.one_stage_hint(grid.dims, largest_slab) {
             info!("{hint}");
         }
         return (single, None);
@@ -584,7 +597,12 @@ fn simplifier_configs(
 
 /// The simplifier's whole configuration: policy, priority, budget, attributes, and the sweep
 /// along z (marching cubes' slabs), in-core for `classical`.
-fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -> SimplifierConfig {
+fn simplifier_config(
+    job: &JobConfig,
+    grid: isostream_volume::Grid,
+    rate: f64,
+    largest_slab: Option<u64>,
+) -> SimplifierConfig {
     let s = &job.simplify;
     SimplifierConfig {
         priority: attributes::priority(job),
@@ -614,7 +632,7 @@ fn simplifier_config(job: &JobConfig, grid: isostream_volume::Grid, rate: f64) -
             },
         },
         retire_lag: s.retire_lag,
-        max_resident_faces: job.max_resident_faces(grid.dims),
+        max_resident_faces: job.max_resident_faces(grid.dims, largest_slab),
         attributes: job.attributes.len(),
         cascade: Cascade::Single,
         boundary: match s.boundary() {
@@ -685,7 +703,7 @@ fn rate_missed(
 /// within it (cthead at R = 0.2: 58 of 64 MiB), an info line.
 fn front_stretched(
     job: &JobConfig,
-    dims: [u64; 3],
+    faces: usize,
     stats: &isostream_simplify::SimplifyStats,
 ) -> Option<String> {
     let stretch = stats.front_stretch_faces;
@@ -693,7 +711,6 @@ fn front_stretched(
         return None;
     }
     let mib = job.pipeline.memory_budget_mib;
-    let faces = job.max_resident_faces(dims);
     let need = (mib as f64 * (faces + stretch) as f64 / faces.max(1) as f64).ceil();
     let peak_mib = peak_rss_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
     if peak_mib.is_some_and(|p| p <= mib as f64) {
