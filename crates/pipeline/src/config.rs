@@ -803,8 +803,9 @@ impl JobConfig {
     /// When the default left a job that could run two simplifier stages on one because its
     /// slabs are large for the budget: a line saying how to use both cores, and at what cost.
     /// Two stages at such sizes cost memory (the second holds the first's output above its
-    /// rear) and save time (bonsai upsampled to 511^3 at the default 64 MiB: 25.9 s with two
-    /// stages against 38.3 s with one, at 63.4 MiB against 60.2; hydrogen upsampled to 2017^3
+    /// rear) and save time (mean_head upsampled to 351 x 511 x 256, whose largest slab of 22 k
+    /// faces keeps it on one stage, at R = 0.2: 7.2 s against 11.7 s, 55.5 MiB against 52.6,
+    /// but 1.07x one stage's RMS distance and 1.33x its 99.9 % distance; hydrogen upsampled to 2017^3
     /// at 128 MiB: 59.8 s against 89.0 s, as accurate; at 4033^3 and 128 MiB: 298 s against
     /// 463 s, as accurate, at 252 MiB against 183). Where the stages' fronts leave the second
     /// no room behind its own, it writes faces before it has seen the rest of the surface and
@@ -820,7 +821,7 @@ impl JobConfig {
             format!(
                 "one simplifier stage: slices of {} x {} voxels{slab} are large for two within \
                  [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for \
-                 more memory (bonsai at 511^3: 25.9 s against 38.3 s, 63 MiB against 60), \
+                 more memory (mean_head at 351 x 511: 7.2 s against 11.7 s, 56 MiB against 53), \
                  and is less accurate where its fronts leave the budget no room (the run \
                  then warns that faces were written before the target was reached)",
                 dims[0], dims[1], self.pipeline.memory_budget_mib
