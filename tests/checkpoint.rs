@@ -159,6 +159,42 @@ proptest! {
     }
 }
 
+/// Slices too large to decide the stage count by their size: the counting pass decides it,
+/// and runs it again on resume, so the resumed job has the same two stages and writes the
+/// bytes of one that went through.
+#[test]
+fn a_cascade_decided_by_the_largest_slab_resumes_to_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = |out: &str, pipeline: &str| {
+        format!(
+            "[input]\nshape = \"sphere\"\nsize = [48, 48, 48]\nupsample = [3, 3, 3]\n\n\
+             [extract]\niso = 0.0\n\n[simplify]\nrate = 0.05\n\n[output]\npath = \"{out}\"\n\n\
+             [pipeline]\nmemory_budget_mib = 20\n{pipeline}\n"
+        )
+    };
+    let reference = load(dir.path(), "ref.toml", &text("ref.smb", ""));
+    let summary = run(&reference, Start::Fresh, None).unwrap();
+    assert!(summary.simplify_stages.is_some(), "{summary:?}");
+    let expected = std::fs::read(dir.path().join("ref.smb")).unwrap();
+    let job = load(
+        dir.path(),
+        "job.toml",
+        &text("out.smb", "checkpoint = { every_slabs = 10 }"),
+    );
+    match run(&job, Start::Fresh, Some(70)) {
+        Err(RunError::Cancelled | RunError::Interrupted { .. }) => {}
+        other => panic!("not stopped: {other:?}"),
+    }
+    let resumed = run(&job, Start::Resume, None).unwrap();
+    assert_eq!(
+        resumed.resumed_at_slab.map(|z| z >= 60),
+        Some(true),
+        "{resumed:?}"
+    );
+    assert!(resumed.simplify_stages.is_some(), "{resumed:?}");
+    assert!(std::fs::read(dir.path().join("out.smb")).unwrap() == expected);
+}
+
 /// A real volume (when `../shared/data` is present): stopped twice, resumed, same bytes.
 /// Two simplifier stages (`simplify_stages = 2`): both stages' states ride the cut, so a run
 /// stopped at any of several slabs resumes to the bytes of an uninterrupted one; the output is
