@@ -10,7 +10,8 @@ One command runs everything and prints markdown tables (and writes all raw numbe
 
 What is measured (every number is the median of --runs runs, default 3):
 
-1. Real volumes (engine, bonsai, cthead from ../shared/data), one target for every tool: the face
+1. Real volumes (engine, bonsai, cthead from ../shared/data; `bonsai-ct`, bonsai upsampled to
+   511 x 511 x 256 as the brief's 512^2-slice CT class), one target for every tool: the face
    count T = round(R * F), R = 0.2 and F = the full-resolution face count of isostream's own marching
    cubes (`faces_extracted` of its run). Tools:
    * `isostream`: the release binary on a generated job (mode rate, rate R), one process per run;
@@ -72,6 +73,12 @@ VOLUMES = {
                    dtype="u8", spacing=[1.0, 1.0, 2.0], iso=52.0),
     "stent": dict(path="stent/stent_128x128x256_int16.raw", dims=[128, 128, 256], dtype="i16",
                   spacing=[1.0, 1.0, 1.0], iso=180.0),
+    # The brief's job class (a CT of 512^2 slices, about 2.6 M faces): bonsai seen at twice its
+    # resolution across the slices, written once as f32 by trilinear interpolation (the values
+    # `[input] upsample = [2, 2, 1]` computes, exact in f32 for u8 input) so that every tool
+    # reads the same voxels.
+    "bonsai-ct": dict(upsample_of="bonsai", factors=[2, 2, 1], dims=[511, 511, 256],
+                      dtype="f32", spacing=[0.5, 0.5, 1.0], iso=40.0),
 }
 NUMPY_DTYPE = {"u8": "<u1", "i8": "<i1", "u16": "<u2", "i16": "<i2", "u32": "<u4", "i32": "<i4",
                "f32": "<f4", "f64": "<f8"}
@@ -305,10 +312,36 @@ def run_child(argv, log):
     return wall, kib / 1024.0
 
 
+def upsampled(vol, factors):
+    """`vol` (z, y, x) at `factors` (x, y, z) times its resolution by trilinear interpolation,
+    dims (n - 1) k + 1 per axis: each axis in turn, since trilinear is linear along each."""
+    out = vol.astype(np.float32)
+    for axis, k in zip((2, 1, 0), factors):
+        n = out.shape[axis]
+        pos = np.arange((n - 1) * k + 1) / k
+        lo = np.minimum(np.floor(pos).astype(int), n - 2)
+        t = (pos - lo).astype(np.float32)
+        shape = [1, 1, 1]
+        shape[axis] = -1
+        t = t.reshape(shape)
+        a, b = np.take(out, lo, axis=axis), np.take(out, lo + 1, axis=axis)
+        out = a + (b - a) * t
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
 def prepare_raw(name, work):
     spec = VOLUMES[name]
     if "path" in spec:
         return DATA / spec["path"]
+    if "upsample_of" in spec:
+        raw = work / f"{name}_{'x'.join(map(str, spec['dims']))}_f32.raw"
+        if not raw.exists():
+            src = VOLUMES[spec["upsample_of"]]
+            vol = load_volume(prepare_raw(spec["upsample_of"], work), src["dims"], src["dtype"])
+            up = upsampled(vol, spec["factors"])
+            assert list(up.shape[::-1]) == spec["dims"], up.shape
+            up.astype("<f4").tofile(raw)
+        return raw
     raw = work / f"{name}_{'x'.join(map(str, spec['dims']))}_{spec['dtype']}.raw"
     if not raw.exists():
         import vtk
