@@ -453,7 +453,7 @@ const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// measures it first): what spoils a cascade is a slab whose surface fills the first stage's
 /// band, not the slice's size. Volumes upsampled to 511^2-voxel slices at the default budget
 /// (72 k faces; two stages against one, `isostream measure --volume`): bonsai (largest slab 16.1
-/// k faces), mni152 (12.1 k) and aneurism (6.0 k) ran 1.3-1.7x faster at 0.98-1.03x one stage's
+/// k faces), mni152 (12.1 k) and aneurism (6.0 k) ran 1.3-1.8x faster at 0.98-1.05x one stage's
 /// RMS distance and 0.96-1.03x its 99.9 % distance, in at most 61.7 MiB; mean_head (22.3 k),
 /// cthead (28.5 k), stent upsampled 4x (37.1 k) and engine (138 k: a flat face across the sweep)
 /// came out 1.06-1.35x one stage's RMS and 1.19-2.7x its 99.9 % distance, some of them over 64
