@@ -456,8 +456,9 @@ const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// k faces), mni152 (12.1 k) and aneurism (6.0 k) ran 1.3-1.8x faster at 0.98-1.05x one stage's
 /// RMS distance and 0.96-1.03x its 99.9 % distance, in at most 61.7 MiB; mean_head (22.3 k),
 /// cthead (28.5 k), stent upsampled 4x (37.1 k) and engine (138 k: a flat face across the sweep)
-/// came out 1.06-1.35x one stage's RMS and 1.19-2.7x its 99.9 % distance, some of them over 64
-/// MiB (docs/performance.md, "Thirty-eighth session").
+/// came out 1.06-1.35x one stage's RMS and 1.19-2.7x its 99.9 % distance at R = 0.2 (stent 1.98x
+/// the RMS at R = 0.01), some of them over 64 MiB (docs/performance.md, "Thirty-eighth
+/// session").
 const CASCADE_SLAB_SHARE: u64 = 4;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
