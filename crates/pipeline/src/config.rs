@@ -786,8 +786,7 @@ impl JobConfig {
     /// 60.9-63.6 MiB without it). A job that asks for two stages keeps the budget it was
     /// measured with (the bundled 64x job: 168 k faces at 128 MiB, not 120 k).
     fn cascade_faces(&self, dims: [u64; 3]) -> usize {
-        let chosen = self.pipeline.simplify_stages.is_none();
-        let set_aside = match chosen && !self.small_slices(dims) {
+        let set_aside = match self.counts_slabs_for_stages(dims) {
             true => slice_cubes(dims).saturating_mul(SLICE_BYTES_PER_CUBE),
             false => 0,
         };
@@ -816,10 +815,7 @@ impl JobConfig {
     /// the rest is squeezed: hydrogen at 4033^3 and 96 MiB came out 20 % over its face target
     /// at 500 times the RMS distance (docs/scale.md, "Two stages at 64x once more").
     pub fn one_stage_hint(&self, dims: [u64; 3], largest_slab: Option<u64>) -> Option<String> {
-        (self.pipeline.simplify_stages.is_none()
-            && self.cascade_possible()
-            && !self.cascade(dims, largest_slab))
-        .then(|| {
+        (self.counts_slabs_for_stages(dims) && !self.cascade(dims, largest_slab)).then(|| {
             let slab =
                 largest_slab.map_or(String::new(), |f| format!(" (its largest slab: {f} faces)"));
             format!(
