@@ -104,6 +104,7 @@ fn simplify_stream(grid: Grid, deltas: &[MeshDelta]) -> isostream_simplify::Simp
             direction: glam::DVec3::Z,
             origin: grid.origin[2],
             spacing: grid.spacing[2],
+            rows: None,
         }),
         ..SimplifyConfig::new(Policy::Rate {
             rate: 0.2,

@@ -158,13 +158,15 @@ fn extreme_rates_meet_their_target() {
     );
 }
 
-/// Slices large against the memory budget: the sweep front (faces not modifiable yet) takes
-/// most of it, the budget stretches to hold it with half of itself behind it, and the last two
-/// slabs are never retired for memory, so the surface behind the front is still simplified.
-/// Before, this gyroid (128^2 slices) at 16 MiB wrote 32,860 faces for a target of 4,239 (faces
-/// retired raw as soon as they became modifiable), where 512 MiB writes 5,676 (its topology's
-/// floor); bonsai upsampled to 2041^3 wrote 9 M of its first 22 M faces raw. The run summary
-/// says by how much the budget stretched, and a warning when memory went over it.
+/// Slices large against the memory budget. The front moves row by row within each slab (the
+/// extraction's groups of rows), so the faces it holds unmodifiable are a few rows, not the
+/// slab: this gyroid (128^2 slices, 9.2 k faces a slab) at 16 MiB held up to 10.7 k faces there
+/// while its slabs came in groups, the budget stretched by 7.2 k faces to hold them, and 2.8 k
+/// now; it writes what 512 MiB writes. (Before the budget stretched for the front, the same job
+/// wrote 32,860 faces for a target of 4,239, faces retired raw as soon as they became
+/// modifiable; bonsai upsampled to 2041^3 wrote 9 M of its first 22 M faces raw. Where the
+/// front still takes more than half of the budget it stretches, and the run summary says so:
+/// `Stage::budget`.)
 #[test]
 fn a_front_larger_than_the_budget_still_gets_simplified() {
     let run = |mib: u64| {
@@ -175,29 +177,23 @@ fn a_front_larger_than_the_budget_still_gets_simplified() {
         ))
     };
     let (tight, roomy) = (run(16), run(512));
-    assert!(
-        tight.simplify.front_stretch_faces > 0,
+    assert!(tight.simplify_stages.is_none(), "one stage at 16 MiB");
+    assert_eq!(
+        tight.simplify.front_stretch_faces, 0,
         "{:?}",
         tight.simplify
     );
-    assert_eq!(
-        roomy.simplify.front_stretch_faces, 0,
-        "{:?}",
-        roomy.simplify
+    assert!(
+        3 * tight.simplify.peak_front_faces < tight.extract.max_slab_triangles as usize,
+        "{} front faces, {} in the largest slab",
+        tight.simplify.peak_front_faces,
+        tight.extract.max_slab_triangles
     );
     assert!(
-        tight.faces_written as f64 <= 1.25 * roomy.faces_written as f64,
+        tight.faces_written as f64 <= 1.05 * roomy.faces_written as f64,
         "{} faces in 16 MiB, {} in 512 MiB",
         tight.faces_written,
         roomy.faces_written
-    );
-    assert!(
-        tight
-            .warnings
-            .iter()
-            .any(|w| w.contains("sweep front") && w.contains("memory_budget_mib = 16")),
-        "{:?}",
-        tight.warnings
     );
 }
 

@@ -45,6 +45,9 @@ pub struct MeshDelta {
     pub modifiable: Vec<u64>,
     /// Number of slabs completely extracted after this delta.
     pub front: u32,
+    /// Rows of cubes of the next slab (slab `front`) extracted after this delta: 0 at the end of
+    /// a slab (`CubeBatch::rows_done`).
+    pub rows: u32,
 }
 
 impl MeshDelta {
@@ -54,6 +57,7 @@ impl MeshDelta {
         self.triangles.clear();
         self.modifiable.clear();
         self.front = 0;
+        self.rows = 0;
     }
 }
 
@@ -207,6 +211,10 @@ impl Detector {
         self.stats.vertices = self.next_id;
         self.stats.triangles += batch.triangles.len() as u64;
         out.front = u32::try_from(batch.slab + u64::from(batch.end_of_slab)).unwrap_or(u32::MAX);
+        out.rows = match batch.end_of_slab {
+            true => 0,
+            false => u32::try_from(batch.rows_done).unwrap_or(u32::MAX),
+        };
     }
 
     /// End of the stream: every vertex still waiting becomes modifiable, appended to `out`

@@ -58,6 +58,10 @@ pub struct CubeBatch {
     /// wants the group (the pipeline's detector makes one delta of each) closes it here. Always
     /// set with `end_of_slab`; set on every batch of an extractor that is not chunked.
     pub ends_group: bool,
+    /// Rows of cubes of the slab extracted with this batch, counted from the slab's first (all
+    /// of them with `end_of_slab`): what follows lies in later rows or slabs, which lets the
+    /// simplifier's front move within a slab (`isostream_simplify::Front`).
+    pub rows_done: u64,
 }
 
 impl CubeBatch {
@@ -70,6 +74,7 @@ impl CubeBatch {
         self.attrs.clear();
         self.end_of_slab = false;
         self.ends_group = false;
+        self.rows_done = 0;
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -108,6 +113,7 @@ impl CubeBatch {
             attrs: Vec::new(),
             end_of_slab: false,
             ends_group: false,
+            rows_done: 0,
         }
     }
 
@@ -377,6 +383,7 @@ impl Extractor {
                 self.remember_sizes(&batch);
                 let next = CubeBatch::with_capacity(z, self.batch_sizes);
                 batch.ends_group = ends_group;
+                batch.rows_done = y + 1;
                 emit(std::mem::replace(&mut batch, next))?;
             }
         }
@@ -385,6 +392,7 @@ impl Extractor {
         self.stats.max_slab_triangles = self.stats.max_slab_triangles.max(slab_triangles);
         batch.end_of_slab = true;
         batch.ends_group = true;
+        batch.rows_done = cube_rows;
         emit(batch)
     }
 

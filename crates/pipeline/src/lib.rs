@@ -587,9 +587,13 @@ fn simplifier_configs(
         cascade: Cascade::First,
         ..single.clone()
     };
-    // The second stage is given the whole budget: what the first holds counts against it.
+    // The second stage is given the whole budget: what the first holds counts against it. Its
+    // front is the first stage's rear, a plane: it has no rows.
     let second = SimplifierConfig {
         cascade: Cascade::Second,
+        sweep: single
+            .sweep
+            .map(|w| isostream_simplify::Sweep { rows: None, ..w }),
         ..single
     };
     (first, Some(second))
@@ -610,6 +614,13 @@ fn simplifier_config(
             direction: glam::DVec3::Z,
             origin: grid.origin[2],
             spacing: grid.spacing[2],
+            // The extraction reports the rows of each slab it has done (`MeshDelta::rows`).
+            rows: Some(isostream_simplify::Rows {
+                direction: glam::DVec3::Y,
+                origin: grid.origin[1],
+                spacing: grid.spacing[1],
+                count: u32::try_from(grid.dims[1].saturating_sub(1).max(1)).unwrap_or(u32::MAX),
+            }),
         }),
         in_core: s.mode == Mode::Classical,
         policy: match s.mode {

@@ -13,7 +13,7 @@ use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_prune::{Filter, PruneStats};
-use isostream_simplify::{OutBatch, Simplifier, SimplifyStats};
+use isostream_simplify::{Front, OutBatch, Simplifier, SimplifyStats};
 use tracing::{debug, info};
 
 use crate::attributes::SliceReader;
@@ -610,7 +610,7 @@ struct SimplifyStep<'a> {
     /// simplifier's state (`checkpoint::Partial`).
     checkpoint: Option<&'a std::path::Path>,
     /// The front of the delta added last, whose batch is still open.
-    front: Option<u32>,
+    front: Option<Front>,
     last_front: u32,
     slabs_total: u64,
     log_every: u64,
@@ -684,7 +684,7 @@ impl Step for SimplifyStep<'_> {
         if let Some(front) = self.front.take() {
             let mut out = OutBatch::default();
             self.simplifier.end_batch(front, &mut out);
-            self.emit(out, front, tx)?;
+            self.emit(out, front.slabs, tx)?;
         }
         let stride = delta
             .attrs
@@ -701,7 +701,10 @@ impl Step for SimplifyStep<'_> {
         for &id in &delta.modifiable {
             self.simplifier.set_modifiable(id);
         }
-        self.front = Some(delta.front);
+        self.front = Some(Front {
+            slabs: delta.front,
+            rows: delta.rows,
+        });
         Ok(())
     }
 
@@ -711,7 +714,7 @@ impl Step for SimplifyStep<'_> {
         if let Some(front) = self.front.take() {
             let mut out = OutBatch::default();
             self.simplifier.end_batch(front, &mut out);
-            self.emit(out, front, tx)?;
+            self.emit(out, front.slabs, tx)?;
         }
         if let Some(path) = self.checkpoint {
             let t = Instant::now();

@@ -51,9 +51,11 @@ impl Filter {
             triangles,
             modifiable,
             front,
+            rows,
         } = delta;
         let mut out = MeshDelta {
             front,
+            rows,
             ..MeshDelta::default()
         };
         out.triangles.reserve(triangles.len());

@@ -21,6 +21,7 @@ fn delta(vertices: &[u64], triangles: &[[u64; 3]], modifiable: &[u64], front: u3
         triangles: triangles.to_vec(),
         modifiable: modifiable.to_vec(),
         front,
+        rows: 0,
     }
 }
 

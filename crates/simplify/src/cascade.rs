@@ -142,6 +142,7 @@ mod tests {
             direction: DVec3::Z,
             origin: 1.0,
             spacing: 0.5,
+            rows: None,
         };
         let pts = [DVec3::new(0.0, 0.0, 4.2), DVec3::new(9.0, 0.0, 2.3)];
         assert_eq!(rear_of(&sweep, pts.into_iter()), Some(2)); // (2.3 - 1) / 0.5 = 2.6

@@ -41,10 +41,18 @@ impl Until {
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct At<'a> {
     pub(crate) config: &'a SimplifyConfig,
-    /// Rank of the front, `+inf` after the end of the volume.
+    /// The front's key (`Sweep::front_key`), `+inf` after the end of the volume.
     pub(crate) front: f64,
     /// First stage of a cascade: the rear it announced last (no vertex is placed below it).
     pub(crate) rear: u32,
+}
+
+impl At<'_> {
+    /// The front key the time-lag waits for, for a contraction reaching rank `reach`
+    /// (`Sweep::key_of_rank`).
+    fn lag_key(&self, reach: f64) -> f64 {
+        self.config.sweep.map_or(reach, |w| w.key_of_rank(reach))
+    }
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -205,8 +213,9 @@ impl Decimator {
                 b,
                 stamps,
             };
-            if self.time_lag && eval.reach > at.front {
-                self.candidates.delay(c, eval.reach);
+            let reach = at.lag_key(eval.reach);
+            if self.time_lag && reach > at.front {
+                self.candidates.delay(c, reach);
             } else {
                 self.candidates.push(c);
             }
@@ -255,7 +264,7 @@ impl Decimator {
         eval: Eval,
     ) {
         let (gone, keep, pos) = (a, b, eval.pos);
-        if self.time_lag && eval.reach > at.front {
+        if self.time_lag && at.lag_key(eval.reach) > at.front {
             stats.lag_violations += 1;
         }
         let merged = priority::merged_data(&band.store, at.config, patch, gone, keep, pos);
@@ -332,18 +341,14 @@ impl Decimator {
     }
 }
 
-/// The rank the front must reach before contracting to `pos` is safe from the triangles still
-/// to come, when that is beyond the current front: the farthest rank of the corners of the new
-/// fan and of the `patch` it replaces (the fan lies in the convex hull of its corners; see
-/// [`crate::Sweep`]).
+/// The front the extraction must reach before contracting to `pos` is safe from the triangles
+/// still to come, when that is beyond the current front: the key (`Sweep::key_of`) of the
+/// corners of the new fan and of the `patch` it replaces (the fan lies in the convex hull of
+/// its corners; see [`crate::Sweep`]).
 fn beyond_front(at: &At, patch: &Patch, pos: DVec3) -> Option<f64> {
     let sweep = at.config.sweep?;
-    let top = patch
-        .tris
-        .iter()
-        .flat_map(|pt| pt.p)
-        .fold(sweep.height(pos), |top, p| top.max(sweep.height(p)));
-    let far = sweep.rank_at(top);
+    let corners = patch.tris.iter().flat_map(|pt| pt.p);
+    let far = sweep.key_of(std::iter::once(pos).chain(corners))?;
     (far > at.front).then_some(far)
 }
 

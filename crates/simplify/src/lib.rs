@@ -17,6 +17,8 @@
 //! Modules, by role:
 //! * `stage`: the detector's protocol, when and how far to decimate, what the front holds
 //!   back, the memory budget (its share in a cascade);
+//! * `sweep`: the sweep's rank planes and the front, which may move by rows within a slab
+//!   ([`Sweep`], [`Front`]);
 //! * `band`: the resident mesh and the two indexes that follow its every change;
 //! * `quadric`: symmetric 4x4 quadrics (Garland and Heckbert 1997);
 //! * `store`: the resident mesh band (vertices by `id - base`, triangle slab);
@@ -73,6 +75,8 @@
 //!   maximum (shape error 16 voxels on engine). A cascade's second stage holds slabs of input
 //!   beyond its front (see `cascade`), and a single stage fed a slab in several batches holds the
 //!   rest of that slab: either way a vertex's own ranks say nothing of whether it can contract.
+//!   With rows the front moves within the slab too, and a vertex is let in once the rows past its
+//!   star are extracted (`sweep`).
 //! * **Coincident vertices** (marching cubes at value == iso): their edges sort before all
 //!   others and are contracted even past the rate target, so zero-area triangles only survive
 //!   where the link condition forbids the merge.
@@ -107,6 +111,7 @@ mod quadric;
 mod retire;
 mod stage;
 mod store;
+mod sweep;
 mod topology;
 
 use glam::DVec3;
@@ -116,6 +121,7 @@ pub use cascade::{Cascade, Handoff, VertexState};
 pub use intersect::GuardWork;
 pub use policy::Policy;
 pub use priority::Priority;
+pub use sweep::{Front, Rows, Sweep};
 pub use topology::Boundary;
 
 use passthrough::PassThrough;
@@ -160,12 +166,7 @@ impl SimplifyConfig {
         if self.max_resident_faces == 0 {
             return Err(SimplifyError::ZeroFaceBudget);
         }
-        if let Some(w) = self.sweep
-            && !(w.spacing > 0.0
-                && w.spacing.is_finite()
-                && w.origin.is_finite()
-                && w.direction.is_finite())
-        {
+        if self.sweep.is_some_and(|w| !w.is_valid()) {
             return Err(SimplifyError::InvalidSweep);
         }
         if self.cascade != Cascade::Single
@@ -209,45 +210,13 @@ impl SimplifyConfig {
     }
 }
 
-/// The sweep's rank planes: rank `r` is the plane `p . direction = origin + r * spacing` (for
-/// marching cubes along z: `direction = Z`, the grid's z origin and spacing).
-///
-/// `spacing` converts lengths into ranks for the time-lag radius (which adds edge lengths to
-/// heights). The planes also keep contractions behind the front: triangles still to come lie
-/// beyond it (a marching-cubes triangle stays in its cube), so a contraction whose new fan
-/// reaches past the front waits (like a time-lag DELAY) until the front has passed the fan;
-/// otherwise a later triangle could cross it, and no check would see that.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Sweep {
-    pub direction: DVec3,
-    pub origin: f64,
-    pub spacing: f64,
-}
-
-impl Sweep {
-    /// The (fractional) rank of the plane through `p`.
-    pub(crate) fn rank_of(&self, p: DVec3) -> f64 {
-        self.rank_at(self.height(p))
-    }
-
-    /// How far along the sweep `p` lies (the rank is monotonic in it).
-    pub(crate) fn height(&self, p: DVec3) -> f64 {
-        p.dot(self.direction)
-    }
-
-    /// The rank at height `h`.
-    pub(crate) fn rank_at(&self, h: f64) -> f64 {
-        (h - self.origin) / self.spacing
-    }
-}
-
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SimplifyError {
     #[error("invalid simplification policy: {0}")]
     InvalidPolicy(String),
     #[error("max_resident_faces must be at least 1")]
     ZeroFaceBudget,
-    #[error("the sweep needs a finite direction and origin and a positive spacing")]
+    #[error("the sweep needs finite directions and origins, positive spacings and rows")]
     InvalidSweep,
     #[error("the saved simplifier state was made with another configuration")]
     ConfigChanged,
@@ -474,11 +443,12 @@ impl Simplifier {
     }
 
     /// After each batch: decimate as the policy says, retire what is behind the front, append
-    /// finished output.
-    pub fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
+    /// finished output. `front` is where the extraction stands: a number of whole slabs, or a
+    /// [`Front`] with the rows of the next slab done as well (counted only with `Sweep::rows`).
+    pub fn end_batch(&mut self, front: impl Into<Front>, out: &mut OutBatch) {
         match &mut self.engine {
             Engine::PassThrough(p) => p.flush(out),
-            Engine::Stage(s) => s.end_batch(front, out),
+            Engine::Stage(s) => s.end_batch(front.into(), out),
         }
     }
 
@@ -560,6 +530,7 @@ mod tests {
                 direction: DVec3::Z,
                 origin: 0.0,
                 spacing: 0.0,
+                rows: None,
             }),
             ..config(Policy::None)
         };
@@ -666,6 +637,7 @@ mod tests {
                 direction: DVec3::Z,
                 origin: 0.0,
                 spacing: 1.0,
+                rows: None,
             }),
             ..SimplifyConfig::new(Policy::Rate {
                 rate: 0.5,

@@ -16,9 +16,10 @@ use crate::policy::{FaceCounts, Schedule};
 use crate::quadric::Quadric;
 use crate::retire::Retirer;
 use crate::store::{Tri, Vertex};
+use crate::sweep::Key;
 use crate::{
-    Cascade, Handoff, OutBatch, OutElement, Policy, SimplifyConfig, SimplifyStats, Sweep, cascade,
-    priority, topology,
+    Cascade, Front, Handoff, OutBatch, OutElement, Policy, SimplifyConfig, SimplifyStats, Sweep,
+    cascade, priority, topology,
 };
 
 /// A cascade's second stage keeps at least `1 / SECOND_STAGE_FLOOR` of the shared budget
@@ -51,9 +52,11 @@ pub(crate) struct Stage {
     /// candidates.
     decimator: Option<Decimator>,
     retirer: Retirer,
-    /// Modifiable by the detector's word but beyond the front, by rank (`set_modifiable`).
-    beyond_front: std::collections::BinaryHeap<std::cmp::Reverse<(u32, u64)>>,
-    /// Rank of the front, `+inf` after `finish`.
+    /// Modifiable by the detector's word but beyond the front, by the key of their star
+    /// (`set_modifiable`; [`Key`]).
+    beyond_front: std::collections::BinaryHeap<std::cmp::Reverse<(Key, u64)>>,
+    /// The front's key (`Sweep::front_key`: its rank, or with rows its rank and rows), `+inf`
+    /// after `finish`. Its floor is the number of whole slabs.
     front: f64,
     /// First stage of a cascade: the rear announced last (no vertex is placed below it).
     rear: u32,
@@ -170,13 +173,10 @@ impl Stage {
             return;
         }
         if let Some(sweep) = &self.config.sweep {
-            let star = self.star_reach(sweep, slot);
-            let reach = match self.config.cascade {
-                Cascade::Second => star,
-                _ => star.max(rank_max),
-            };
-            if f64::from(reach) > self.front {
-                self.beyond_front.push(std::cmp::Reverse((reach, slot)));
+            let reach = self.star_reach(sweep, slot, rank_max);
+            if reach > self.front {
+                self.beyond_front
+                    .push(std::cmp::Reverse((Key::of(reach), slot)));
                 return;
             }
         }
@@ -198,22 +198,33 @@ impl Stage {
     ///   reach into the slab (bonsai upsampled to 511^3, one stage: 3.18 M delays for 1.73 M
     ///   contractions, 38.3 s, against 13 k and 34.4 s gated by the star; hydrogen at 4033^3:
     ///   17.97 M delays for 18.95 M contractions).
-    fn star_reach(&self, sweep: &Sweep, slot: u64) -> u32 {
+    ///
+    /// With rows (`Sweep::rows`) that is the star's key (`Sweep::key_of`): a vertex of a slab
+    /// crowded by a flat face across the sweep moves as soon as the rows past its star are
+    /// extracted, not when the whole slab is. (The preimage's rank adds nothing there: the
+    /// detector's vertices are their own preimage, a corner of their star.)
+    fn star_reach(&self, sweep: &Sweep, slot: u64, rank_max: u32) -> f64 {
         let store = &self.band.store;
-        let far = store
+        let corners = store
             .vertex(slot)
             .map_or(&[][..], |v| &v.tris[..])
             .iter()
-            .flat_map(|&t| store.corners(store.tri(t)))
-            .map(|p| sweep.rank_of(p))
-            .fold(0.0, f64::max);
-        far.ceil().clamp(0.0, f64::from(u32::MAX)) as u32
+            .flat_map(|&t| store.corners(store.tri(t)));
+        if sweep.rows.is_some() {
+            return sweep.key_of(corners).unwrap_or(0.0);
+        }
+        let far = corners.map(|p| sweep.rank_of(p)).fold(0.0, f64::max);
+        let star = far.ceil().clamp(0.0, f64::from(u32::MAX));
+        match self.config.cascade {
+            Cascade::Second => star,
+            _ => star.max(f64::from(rank_max)),
+        }
     }
 
     /// The vertices held by [`Stage::set_modifiable`] that the front has reached.
     fn release_reached(&mut self) {
-        while let Some(&std::cmp::Reverse((rank, id))) = self.beyond_front.peek() {
-            if f64::from(rank) > self.front {
+        while let Some(&std::cmp::Reverse((key, id))) = self.beyond_front.peek() {
+            if key.value() > self.front {
                 break;
             }
             self.beyond_front.pop();
@@ -291,8 +302,12 @@ impl Stage {
     }
 
     /// See [`crate::Simplifier::end_batch`].
-    pub(crate) fn end_batch(&mut self, front: u32, out: &mut OutBatch) {
-        self.front = f64::from(front);
+    pub(crate) fn end_batch(&mut self, at: Front, out: &mut OutBatch) {
+        let front = at.slabs;
+        self.front = self
+            .config
+            .sweep
+            .map_or(f64::from(front), |w| w.front_key(at));
         self.release_reached();
         if self.config.in_core {
             return;
@@ -649,7 +664,7 @@ mod tests {
         };
         let mut out = OutBatch::default();
         let rear = s.ingest(&batch);
-        s.end_batch(rear, &mut out);
+        s.end_batch(Front::from(rear), &mut out);
         assert_eq!(
             s.stats().faces_unmodifiable,
             1,
@@ -659,7 +674,7 @@ mod tests {
             handoff: Some(handoff(4)),
             ..OutBatch::default()
         });
-        s.end_batch(rear, &mut out);
+        s.end_batch(Front::from(rear), &mut out);
         assert_eq!(s.stats().faces_unmodifiable, 0);
     }
 
@@ -679,14 +694,14 @@ mod tests {
             s.set_modifiable(v);
         }
         let mut out = OutBatch::default();
-        s.end_batch(1, &mut out);
+        s.end_batch(Front::from(1), &mut out);
         assert_eq!(
             s.stats().faces_unmodifiable,
             2,
             "0 and 1 are at rank 1, yet their stars reach rank 1.5, past the front 1"
         );
         s.set_modifiable(2);
-        s.end_batch(2, &mut out);
+        s.end_batch(Front::from(2), &mut out);
         assert_eq!(s.stats().faces_unmodifiable, 0);
     }
 
@@ -738,7 +753,7 @@ mod tests {
         let mut s2 = Stage::new(s.config.clone());
         fan(&mut s2, 12);
         assert_eq!(s2.budget(), 12 + 5);
-        s2.end_batch(0, &mut OutBatch::default());
+        s2.end_batch(Front::from(0), &mut OutBatch::default());
         assert_eq!(s2.stats().front_stretch_faces, 7);
         assert_eq!(s2.stats().peak_front_faces, 12);
     }
@@ -786,7 +801,7 @@ mod tests {
         // the rate target (400 * 0.1 + 150 = 190) fits.
         assert_eq!(s.budget(), 200);
         let mut out = OutBatch::default();
-        s.end_batch(9, &mut out);
+        s.end_batch(Front::from(9), &mut out);
         let written = out
             .elements
             .iter()

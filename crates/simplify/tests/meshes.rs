@@ -546,3 +546,49 @@ fn a_cascade_keeps_thin_shells_apart_and_meets_the_rate() {
         assert_rate_met(&input, &run, rate);
     }
 }
+
+/// A thin flat box across the sweep (two sheets 1.2 apart, both in one slab: a crowded slab, as
+/// a flat face of engine is): with fronts within the slab (rows) its sheets are simplified as
+/// the rows pass, holding a fraction of the slab unmodifiable, and the guard still keeps the
+/// sheets apart.
+#[test]
+fn a_crowded_slab_is_simplified_row_by_row() {
+    let c = DVec3::new(10.0, 10.0, 10.0);
+    let input = marching_tetrahedra([20, 20, 20], 0.0, |p| {
+        let d = (p - c).abs() - DVec3::new(7.3, 7.3, 0.6);
+        d.max_element()
+    });
+    let input_pos: Vec<[f64; 3]> = input.pos.iter().map(|p| p.to_array()).collect();
+    assert_eq!(
+        isostream_meshcheck::self_intersections(&input_pos, &input.tris),
+        0
+    );
+    let sweep = |rows| Sweep {
+        slab: 4.0,
+        batches_per_slab: 8,
+        rows,
+        ..Sweep::default()
+    };
+    // One row thicker than the box: fronts between slabs only, computed as exactly as the rows'.
+    let by_slabs = run(
+        &input,
+        config(common::rate(0.05, 200), 2),
+        &sweep(Some(1e3)),
+    );
+    let by_rows = run(
+        &input,
+        config(common::rate(0.05, 200), 2),
+        &sweep(Some(1.0)),
+    );
+    assert_same_topology(&input, &by_rows);
+    let pos: Vec<[f64; 3]> = by_rows.mesh.pos.iter().map(|p| p.to_array()).collect();
+    let crossing = isostream_meshcheck::self_intersections(&pos, &by_rows.mesh.tris);
+    assert_eq!(crossing, 0, "{:?}", by_rows.stats);
+    assert!(
+        2 * by_rows.stats.peak_front_faces < by_slabs.stats.peak_front_faces,
+        "{} front faces by rows, {} by slabs",
+        by_rows.stats.peak_front_faces,
+        by_slabs.stats.peak_front_faces
+    );
+    assert_rate_met(&input, &by_rows, 0.05);
+}

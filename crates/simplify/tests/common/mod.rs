@@ -6,7 +6,9 @@ use std::collections::HashMap;
 
 use glam::DVec3;
 use isostream_meshcheck::Report;
-use isostream_simplify::{OutBatch, OutElement, Policy, Simplifier, SimplifyConfig, SimplifyStats};
+use isostream_simplify::{
+    Front, OutBatch, OutElement, Policy, Simplifier, SimplifyConfig, SimplifyStats,
+};
 
 #[derive(Debug, Clone, Default)]
 pub struct Mesh {
@@ -197,13 +199,16 @@ pub fn sphere(levels: u32, radius: f64, center: DVec3) -> Mesh {
 }
 
 /// How the mesh is fed: sweep axis and direction, slab thickness (rank = floor(coord / slab)),
-/// and how many batches each slab is split into.
+/// and how many batches each slab is split into; with `rows` (a row's thickness along the next
+/// axis), each slab's triangles come in the order of their farthest corner along that axis and
+/// every batch closes with a front within the slab (`isostream_simplify::Front`).
 #[derive(Debug, Clone)]
 pub struct Sweep {
     pub axis: usize,
     pub reverse: bool,
     pub slab: f64,
     pub batches_per_slab: usize,
+    pub rows: Option<f64>,
 }
 
 impl Default for Sweep {
@@ -213,6 +218,7 @@ impl Default for Sweep {
             reverse: false,
             slab: 1.0,
             batches_per_slab: 1,
+            rows: None,
         }
     }
 }
@@ -335,14 +341,39 @@ fn feed_stages(
     // count no crossings, and the memory-budget tests measure what the band holds at `k`.
     let mut direction = DVec3::ZERO;
     direction[sweep.axis] = if sweep.reverse { -1.0 } else { 1.0 };
+    let row_axis = (sweep.axis + 1) % 3;
+    let row_min = mesh
+        .pos
+        .iter()
+        .map(|p| p[row_axis])
+        .fold(f64::INFINITY, f64::min);
+    let rows = sweep.rows.map(|thickness| {
+        let far = mesh
+            .pos
+            .iter()
+            .map(|p| p[row_axis])
+            .fold(f64::NEG_INFINITY, f64::max);
+        let mut direction = DVec3::ZERO;
+        direction[row_axis] = 1.0;
+        isostream_simplify::Rows {
+            direction,
+            origin: row_min,
+            spacing: thickness,
+            count: ((far - row_min) / thickness).floor() as u32 + 2,
+        }
+    });
     config.sweep = Some(isostream_simplify::Sweep {
         direction,
         origin: min,
         spacing: sweep.slab,
+        rows,
     });
+    // A second stage's front is the first's rear, a plane.
     let mut second = second.map(|c| {
         Simplifier::new(SimplifyConfig {
-            sweep: config.sweep,
+            sweep: config
+                .sweep
+                .map(|w| isostream_simplify::Sweep { rows: None, ..w }),
             ..c
         })
         .expect("valid second stage")
@@ -356,6 +387,17 @@ fn feed_stages(
         tris_by_slab[r as usize].push(*t);
         for &v in t {
             remaining[v as usize] += 1;
+        }
+    }
+    // With rows, a slab's triangles by their farthest corner across, as rows are extracted.
+    let across = |t: &[u32; 3]| {
+        t.iter()
+            .map(|&v| mesh.pos[v as usize][row_axis])
+            .fold(f64::NEG_INFINITY, f64::max)
+    };
+    if sweep.rows.is_some() {
+        for tris in &mut tris_by_slab {
+            tris.sort_by(|a, b| across(a).total_cmp(&across(b)));
         }
     }
     // Each slab in `batches_per_slab` batches (an empty slab still closes one).
@@ -373,6 +415,13 @@ fn feed_stages(
         let next = batches[i + 1].1.iter().flatten().map(|&v| rank[v as usize]);
         still_to_come[i] = next.fold(still_to_come[i + 1], u32::min);
     }
+    // With rows, the front after each batch is the farthest the triangles still to come allow
+    // (`row_fronts`).
+    let row_fronts = rows.map(|r| {
+        let rank = |p: DVec3| (coord(p) - min) / sweep.slab;
+        let row = |p: DVec3| (p[row_axis] - row_min) / r.spacing;
+        row_fronts(mesh, &batches, r.count, rank, row)
+    });
     let mut out = OutBatch::default();
     let mut trace = Vec::new();
     let mut next_vertex = 0;
@@ -397,10 +446,18 @@ fn feed_stages(
             s.set_modifiable(v);
         }
         let mut batch = OutBatch::default();
-        let front = if second.is_some() {
-            (k as u32).min(still_to_come[i].saturating_sub(1))
-        } else {
-            k as u32
+        let front = match &row_fronts {
+            Some(fronts) => {
+                let f = fronts[i];
+                Front {
+                    slabs: f.slabs.min(k as u32),
+                    rows: f.rows,
+                }
+            }
+            None if second.is_some() => {
+                Front::from((k as u32).min(still_to_come[i].saturating_sub(1)))
+            }
+            None => Front::from(k as u32),
         };
         s.end_batch(front, &mut batch);
         pass_on(batch, second.as_mut(), false, &mut out);
@@ -427,6 +484,37 @@ fn feed_stages(
         out,
         trace,
     }
+}
+
+/// The front after each of `batches`: every triangle still to come lies outside both of its
+/// boxes (`rank <= slabs`, and `rank <= slabs + 1` with `row <= rows`), as the extraction's
+/// cubes do: `slabs` the lowest rank of their corners (rounded down), `rows` the lowest row of
+/// the corners of those that reach below `slabs + 1` (rounded down, at most `count - 1`).
+fn row_fronts(
+    mesh: &Mesh,
+    batches: &[(usize, &[[u32; 3]])],
+    count: u32,
+    rank: impl Fn(DVec3) -> f64,
+    row: impl Fn(DVec3) -> f64,
+) -> Vec<Front> {
+    let low = |t: &[u32; 3], f: &dyn Fn(DVec3) -> f64| {
+        t.iter()
+            .map(|&v| f(mesh.pos[v as usize]))
+            .fold(f64::INFINITY, f64::min)
+    };
+    (0..batches.len())
+        .map(|i| {
+            let later = || batches[i + 1..].iter().flat_map(|b| b.1.iter());
+            let z = later().map(|t| low(t, &rank)).fold(f64::INFINITY, f64::min);
+            let slabs = z.floor().clamp(0.0, f64::from(u32::MAX)) as u32;
+            let y = later()
+                .filter(|t| low(t, &rank) < f64::from(slabs) + 1.0)
+                .map(|t| low(t, &row))
+                .fold(f64::INFINITY, f64::min);
+            let rows = y.floor().clamp(0.0, f64::from(count - 1)) as u32;
+            Front { slabs, rows }
+        })
+        .collect()
 }
 
 /// A batch of the (first) simplifier: appended to the output, or taken by the second stage,

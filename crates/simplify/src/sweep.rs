@@ -1,0 +1,226 @@
+//! Where the extraction stands: the sweep's rank planes, and a front that may also move row by
+//! row within a slab.
+//!
+//! Every contraction must keep its new fan where the extraction is complete, since the triangles
+//! still to come are checked by no one (a marching-cubes triangle stays in its cube, so what is
+//! still to come lies in cubes not yet extracted). With slabs alone the complete region is the
+//! half-space below the front's plane, and a slab's surface waits, unmodifiable, until the whole
+//! slab is extracted: a slab crowded by a flat face across the sweep (engine's, 128 k faces
+//! upsampled to 511^2 slices) was held whole at full resolution, past the memory budget.
+//!
+//! With rows ([`Rows`]), a front `(slabs, rows)` also has the first `rows` rows of cubes of the
+//! next slab: the complete region is the union of two boxes, `B1 = {rank <= slabs}` and
+//! `B2 = {rank <= slabs + 1, row <= rows}`. A union of boxes is not convex, and a triangle with
+//! its corners in both could leave it, so a point set is taken as behind the front only when it
+//! lies in one of the two: then so does its convex hull, which holds every fan over those
+//! points. For a set whose highest rank is `z` and farthest row `y`, with `k = ceil(z)`: it lies
+//! in `B1` once `slabs >= k`, and in `B2` once `slabs = k - 1` and `rows >= ceil(y)`. Ordered as
+//! the front moves, those are one number: the front's key is `slabs + rows / count`, the set's
+//! `k - 1 + ceil(y) / count` (at most `k`), and the set is behind the front exactly when its key
+//! is at most the front's ([`Sweep::key_of`]). Without rows both are plain ranks, as before.
+
+use glam::DVec3;
+
+/// The sweep's rank planes: rank `r` is the plane `p . direction = origin + r * spacing` (for
+/// marching cubes along z: `direction = Z`, the grid's z origin and spacing).
+///
+/// `spacing` converts lengths into ranks for the time-lag radius (which adds edge lengths to
+/// heights). The planes also keep contractions behind the front: triangles still to come lie
+/// beyond it (a marching-cubes triangle stays in its cube), so a contraction whose new fan
+/// reaches past the front waits (like a time-lag DELAY) until the front has passed the fan;
+/// otherwise a later triangle could cross it, and no check would see that.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Sweep {
+    pub direction: DVec3,
+    pub origin: f64,
+    pub spacing: f64,
+    /// The rows of cubes within a slab, when the extraction reports fronts within slabs
+    /// ([`Front::rows`]); `None`: the front moves slab by slab.
+    pub rows: Option<Rows>,
+}
+
+/// Rows of cubes across the sweep: row `j` lies between the planes
+/// `p . direction = origin + j * spacing` and `origin + (j + 1) * spacing`, `count` of them in
+/// a slab (marching cubes along z: `direction = Y`, the grid's y origin and spacing, `dims[1] -
+/// 1` rows).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Rows {
+    pub direction: DVec3,
+    pub origin: f64,
+    pub spacing: f64,
+    pub count: u32,
+}
+
+/// How far the extraction has come: `slabs` whole slabs, and the first `rows` rows of cubes of
+/// the next one (0 between slabs). Without [`Sweep::rows`] only `slabs` counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Front {
+    pub slabs: u32,
+    pub rows: u32,
+}
+
+impl From<u32> for Front {
+    /// A front between slabs.
+    fn from(slabs: u32) -> Self {
+        Front { slabs, rows: 0 }
+    }
+}
+
+impl Sweep {
+    /// The (fractional) rank of the plane through `p`.
+    pub(crate) fn rank_of(&self, p: DVec3) -> f64 {
+        self.rank_at(self.height(p))
+    }
+
+    /// How far along the sweep `p` lies (the rank is monotonic in it).
+    pub(crate) fn height(&self, p: DVec3) -> f64 {
+        p.dot(self.direction)
+    }
+
+    /// The rank at height `h`.
+    pub(crate) fn rank_at(&self, h: f64) -> f64 {
+        (h - self.origin) / self.spacing
+    }
+
+    /// Whether the configuration is usable: finite, with positive spacings and rows.
+    pub(crate) fn is_valid(&self) -> bool {
+        let plane =
+            |d: DVec3, o: f64, s: f64| s > 0.0 && s.is_finite() && o.is_finite() && d.is_finite();
+        plane(self.direction, self.origin, self.spacing)
+            && self
+                .rows
+                .is_none_or(|r| r.count > 0 && plane(r.direction, r.origin, r.spacing))
+    }
+
+    /// The front as one number ordered as the extraction moves (see the module documentation):
+    /// `slabs + rows / count`, or `slabs` without rows. Its floor is always `slabs`.
+    pub(crate) fn front_key(&self, front: Front) -> f64 {
+        let slabs = f64::from(front.slabs);
+        match self.rows {
+            Some(r) if front.rows > 0 => {
+                slabs + f64::from(front.rows.min(r.count - 1)) / f64::from(r.count)
+            }
+            _ => slabs,
+        }
+    }
+
+    /// The front key at which the front's plane reaches rank `rank`: the rank itself without
+    /// rows (fronts are whole then), its ceiling with them (the Tandem time-lag's reach is a
+    /// rank, and no row of a slab brings its plane nearer).
+    pub(crate) fn key_of_rank(&self, rank: f64) -> f64 {
+        match self.rows {
+            Some(_) => rank.ceil(),
+            None => rank,
+        }
+    }
+
+    /// The least front key at which every point of `points` lies where the extraction is
+    /// complete (so that any fan over them does too): without rows, the highest rank, as a
+    /// fraction (a front is a whole number of slabs then, so that is the same test as its
+    /// ceiling); with rows, `k - 1 + ceil(y) / count` for the highest rank `z`, `k = ceil(z)`,
+    /// and the farthest row coordinate `y`, at least 0. `None` for no points.
+    pub(crate) fn key_of(&self, points: impl IntoIterator<Item = DVec3>) -> Option<f64> {
+        let mut points = points.into_iter();
+        let first = points.next()?;
+        match self.rows {
+            None => {
+                let top = points.fold(self.height(first), |top, p| top.max(self.height(p)));
+                Some(self.rank_at(top))
+            }
+            Some(r) => {
+                let across = |p: DVec3| p.dot(r.direction);
+                let (top, far) = points.fold((self.height(first), across(first)), |(t, f), p| {
+                    (t.max(self.height(p)), f.max(across(p)))
+                });
+                let k = self.rank_at(top).ceil();
+                let row = ((far - r.origin) / r.spacing).ceil();
+                let count = f64::from(r.count);
+                let key = if row >= count {
+                    k
+                } else {
+                    k - 1.0 + row.max(0.0) / count
+                };
+                Some(key.max(0.0))
+            }
+        }
+    }
+}
+
+/// A key (front or star) in a heap: non-negative, and ordered as its value (the bits of a
+/// non-negative `f64` are).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+pub(crate) struct Key(u64);
+
+impl Key {
+    pub(crate) fn of(value: f64) -> Self {
+        Key(value.max(0.0).to_bits())
+    }
+
+    pub(crate) fn value(self) -> f64 {
+        f64::from_bits(self.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn swept(count: Option<u32>) -> Sweep {
+        Sweep {
+            direction: DVec3::Z,
+            origin: 0.0,
+            spacing: 1.0,
+            rows: count.map(|count| Rows {
+                direction: DVec3::Y,
+                origin: 0.0,
+                spacing: 1.0,
+                count,
+            }),
+        }
+    }
+
+    /// A set is behind the front exactly when it lies in one of the front's two boxes.
+    #[test]
+    fn a_set_is_behind_the_front_when_one_box_holds_it() {
+        let s = swept(Some(10));
+        let key = |pts: &[[f64; 3]]| {
+            s.key_of(pts.iter().map(|&p| DVec3::from_array(p)))
+                .expect("points")
+        };
+        let front = |slabs, rows| s.front_key(Front { slabs, rows });
+        let behind = |pts: &[[f64; 3]], f: Front| key(pts) <= s.front_key(f);
+        // Within slab 3 (ranks 3..4), rows up to 4.5: in B2 of (3, 5), not of (3, 4).
+        let set = [[0.0, 1.0, 3.2], [5.0, 4.5, 3.9]];
+        assert!(behind(&set, Front { slabs: 3, rows: 5 }));
+        assert!(!behind(&set, Front { slabs: 3, rows: 4 }));
+        assert!(behind(&set, Front { slabs: 4, rows: 0 }));
+        assert!(!behind(&set, Front { slabs: 2, rows: 9 }));
+        // Reaching below the front's plane far across and into its slab near: in neither box
+        // until the slab is done, whatever rows of it are.
+        let both = [[0.0, 9.5, 2.5], [0.0, 0.5, 3.5]];
+        assert!(!behind(&both, Front { slabs: 3, rows: 9 }));
+        assert!(behind(&both, Front { slabs: 4, rows: 0 }));
+        // At or below the plane of a whole slab: behind it at any row.
+        assert!(behind(&[[0.0, 9.5, 3.0]], Front { slabs: 3, rows: 0 }));
+        // Keys order as fronts do.
+        assert!(front(3, 9) < front(4, 0));
+        assert!(front(3, 0) < front(3, 1));
+        assert_eq!(front(3, 0), 3.0);
+        assert!(Key::of(front(3, 9)) < Key::of(front(4, 0)));
+        assert_eq!(Key::of(2.5).value(), 2.5);
+    }
+
+    /// Without rows, keys are the highest rank, as they always were.
+    #[test]
+    fn without_rows_the_key_is_the_highest_rank() {
+        let s = swept(None);
+        let k = s
+            .key_of([DVec3::new(0.0, 7.0, 2.25), DVec3::new(0.0, 0.0, 1.0)])
+            .expect("points");
+        assert_eq!(k, 2.25);
+        assert_eq!(s.front_key(Front { slabs: 2, rows: 5 }), 2.0);
+        assert!(s.key_of(std::iter::empty()).is_none());
+    }
+}
