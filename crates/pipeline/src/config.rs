@@ -450,15 +450,18 @@ const SLICE_BYTES_PER_CUBE: u64 = 12;
 const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// Largest slab, as a share of the cascade's face budget, that gets two simplifier stages by
 /// default where the slices are larger than [`CASCADE_CUBES_PER_FACE`] allows (a counting pass
-/// measures it first): what spoils a cascade is a slab whose surface fills the first stage's
-/// band, not the slice's size. Volumes upsampled to 511^2-voxel slices at the default budget
-/// (72 k faces; two stages against one, `isostream measure --volume`): bonsai (largest slab 16.1
-/// k faces), mni152 (12.1 k) and aneurism (6.0 k) ran 1.3-1.8x faster at 0.98-1.05x one stage's
-/// RMS distance and 0.96-1.03x its 99.9 % distance, in at most 61.7 MiB; mean_head (22.3 k),
-/// cthead (28.5 k), stent upsampled 4x (37.1 k) and engine (138 k: a flat face across the sweep)
-/// came out 1.06-1.35x one stage's RMS and 1.19-2.7x its 99.9 % distance at R = 0.2 (stent 1.98x
-/// the RMS at R = 0.01), some of them over 64 MiB (docs/performance.md, "Thirty-eighth
-/// session").
+/// measures it first): what spoils a cascade is a slab crowded with surface, not the slice's
+/// size. Volumes upsampled to 511^2-voxel slices at the default budget (72 k faces; two stages
+/// against one, `isostream measure --volume`): bonsai (largest slab 16.1 k faces), mni152 (12.1
+/// k) and aneurism (6.0 k) ran 1.3-1.8x faster at 0.98-1.05x one stage's RMS distance and
+/// 0.96-1.03x its 99.9 % distance, in at most 61.7 MiB (docs/performance.md, "Thirty-eighth
+/// session"). The crowded ones, mean_head (22.3 k), cthead (28.5 k), stent upsampled 4x (37.1 k)
+/// and engine (128 k: a flat face across the sweep), came out 1.06-1.35x one stage's RMS while
+/// the front moved by whole slabs; since it moves by rows within a slab they are as accurate
+/// with two (0.98-0.99x its RMS at R = 0.2) and 1.2-1.7x faster, but the second stage holds the
+/// first's output of the crowded slab beyond its front (a plane, the first stage's rear): 59-72
+/// MiB against 52-60, cthead and engine over the 64 (docs/performance.md, "Thirty-ninth
+/// session"). So the share stays, now for the memory.
 const CASCADE_SLAB_SHARE: u64 = 4;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
@@ -807,10 +810,10 @@ impl JobConfig {
     /// slabs are large for the budget: a line saying how to use both cores, and at what cost.
     /// Two stages at such sizes cost memory (the second holds the first's output above its
     /// rear) and save time (mean_head upsampled to 351 x 511 x 256, whose largest slab of 22 k
-    /// faces keeps it on one stage, at R = 0.2: 7.2 s against 11.7 s, 55.5 MiB against 52.6,
-    /// but 1.07x one stage's RMS distance and 1.33x its 99.9 % distance; hydrogen upsampled to 2017^3
-    /// at 128 MiB: 59.8 s against 89.0 s, as accurate; at 4033^3 and 128 MiB: 298 s against
-    /// 463 s, as accurate, at 252 MiB against 183). Where the stages' fronts leave the second
+    /// faces keeps it on one stage, at R = 0.2: 9.6 s against 11.9 s, 59.1 MiB against 52.4,
+    /// 0.99x one stage's RMS distance; hydrogen upsampled to 2017^3 at 128 MiB: 59.8 s against
+    /// 89.0 s, as accurate; at 4033^3 and 128 MiB: 298 s against 463 s, as accurate, at 252
+    /// MiB against 183, before the front moved by rows). Where the stages' fronts leave the second
     /// no room behind its own, it writes faces before it has seen the rest of the surface and
     /// the rest is squeezed: hydrogen at 4033^3 and 96 MiB came out 20 % over its face target
     /// at 500 times the RMS distance (docs/scale.md, "Two stages at 64x once more").
@@ -821,9 +824,9 @@ impl JobConfig {
             format!(
                 "one simplifier stage: slices of {} x {} voxels{slab} are large for two within \
                  [pipeline] memory_budget_mib = {}; simplify_stages = 2 uses both cores for \
-                 more memory (mean_head at 351 x 511: 7.2 s against 11.7 s, 56 MiB against 53), \
-                 and is less accurate where its fronts leave the budget no room (the run \
-                 then warns that faces were written before the target was reached)",
+                 more memory (mean_head at 351 x 511: 9.6 s against 11.9 s, 59 MiB against 52, \
+                 as accurate), and is less accurate where its fronts leave the budget no room \
+                 (the run then warns that faces were written before the target was reached)",
                 dims[0], dims[1], self.pipeline.memory_budget_mib
             )
         })
