@@ -302,12 +302,12 @@ impl Stage {
     }
 
     /// See [`crate::Simplifier::end_batch`].
-    pub(crate) fn end_batch(&mut self, at: Front, out: &mut OutBatch) {
-        let front = at.slabs;
+    pub(crate) fn end_batch(&mut self, front: Front, out: &mut OutBatch) {
+        let slabs = front.slabs;
         self.front = self
             .config
             .sweep
-            .map_or(f64::from(front), |w| w.front_key(at));
+            .map_or(f64::from(slabs), |w| w.front_key(front));
         self.release_reached();
         if self.config.in_core {
             return;
@@ -352,7 +352,7 @@ impl Stage {
         if self.config.lag_retirement()
             && (until.is_some() || matches!(self.schedule, Schedule::Off))
         {
-            let limit = front.saturating_sub(self.config.retire_lag);
+            let limit = slabs.saturating_sub(self.config.retire_lag);
             self.retirer
                 .retire_below(&mut self.band, limit, out, &mut self.stats);
         }
