@@ -39,8 +39,9 @@ const FRONT_ROOM_SHARE: usize = 2;
 const BOUNDARY_WEIGHT: f64 = 10.0;
 
 /// Slabs behind the front that retirement for memory leaves resident (see
-/// [`Stage::retire_for_memory`]): the front's own slab is not modifiable yet, and the one behind
-/// it is mostly held back by the front (its vertices' stars reach into the front's slab).
+/// [`Stage::retire_for_memory`]): the front's own slab is modifiable only as far as its rows
+/// are extracted (`crate::Front`), and the one behind it is partly held back by the front (its
+/// vertices' stars reach into the front's slab).
 const BAND_SLABS: u32 = 2;
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -503,8 +504,10 @@ impl Stage {
     /// faces a slab against 43.7 k) the front alone filled it, every face that became
     /// modifiable was retired before it could be contracted, and the job wrote 9 of its first 22
     /// M faces unsimplified. Memory then follows the front, as the mission says (`[pipeline]
-    /// memory_budget_mib` bounds the rest; the run summary says by how much it stretched). A
-    /// cascade's first stage holds its share plus its band by design (its band is counted in
+    /// memory_budget_mib` bounds the rest; the run summary says by how much it stretched). Since
+    /// the front moves by rows within a slab (`crate::Front`) it holds a few groups of rows and
+    /// seldom stretches anything (that job: by 700 faces, against about 50 k with whole slabs).
+    /// A cascade's first stage holds its share plus its band by design (its band is counted in
     /// the second stage's share), so it does not stretch.
     pub(crate) fn budget(&self) -> usize {
         let share = self.share();
