@@ -588,12 +588,9 @@ fn simplifier_configs(
         ..single.clone()
     };
     // The second stage is given the whole budget: what the first holds counts against it. Its
-    // front is the first stage's rear, a plane: it has no rows.
+    // front is the first stage's rear, which moves by rows as the extraction's front does.
     let second = SimplifierConfig {
         cascade: Cascade::Second,
-        sweep: single
-            .sweep
-            .map(|w| isostream_simplify::Sweep { rows: None, ..w }),
         ..single
     };
     (first, Some(second))

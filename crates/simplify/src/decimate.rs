@@ -13,7 +13,7 @@ use crate::cost::{COINCIDENT, Eval, Evaluator};
 use crate::intersect::Verdict;
 use crate::store::Store;
 use crate::topology::{self, Patch};
-use crate::{Cascade, Priority, SimplifyConfig, SimplifyStats, data_dependent, priority};
+use crate::{Cascade, Front, Priority, SimplifyConfig, SimplifyStats, data_dependent, priority};
 
 /// How far below its preimage's lowest rank a cascade's first stage may place a vertex (see
 /// `outside_first_stage_room`): a slab, so most quadric optima pass.
@@ -43,8 +43,8 @@ pub(crate) struct At<'a> {
     pub(crate) config: &'a SimplifyConfig,
     /// The front's key (`Sweep::front_key`), `+inf` after the end of the volume.
     pub(crate) front: f64,
-    /// First stage of a cascade: the rear it announced last (no vertex is placed below it).
-    pub(crate) rear: u32,
+    /// First stage of a cascade: the rear it announced last (its new fans stay clear of it).
+    pub(crate) rear: Front,
 }
 
 impl At<'_> {
@@ -147,6 +147,8 @@ impl Decimator {
             if let Some(reach) = beyond_front(at, &patch, eval.pos) {
                 stats.delayed_front += 1;
                 self.candidates.delay(c, reach);
+            } else if crosses_rear(at, &patch, c.a, c.b, eval.pos) {
+                stats.rejected_other += 1;
             } else if !topology::link_ok(&band.store, c.a, c.b) {
                 stats.rejected_link += 1;
             } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
@@ -372,7 +374,33 @@ fn outside_first_stage_room(store: &Store, at: &At, a: u64, b: u64, pos: DVec3) 
         .filter_map(|&x| store.vertex(x))
         .map(|v| v.rank_min)
         .min();
-    rank < f64::from(at.rear) || preimage.is_some_and(|low| rank < f64::from(low) - PREIMAGE_SLACK)
+    rank < f64::from(at.rear.slabs)
+        || preimage.is_some_and(|low| rank < f64::from(low) - PREIMAGE_SLACK)
+}
+
+/// With rows, a cascade's first stage also keeps each triangle of a new fan clear of its rear
+/// (`Sweep::clear_of`): its ring vertices are each clear of it through their own triangles,
+/// but a fan triangle joining a corner beyond the rear's rows to one above its next slab may
+/// cut through the rows the second stage edits. (Without rows the rear is a plane, and the new
+/// vertex at or above it, `outside_first_stage_room`, is enough.)
+fn crosses_rear(at: &At, patch: &Patch, a: u64, b: u64, pos: DVec3) -> bool {
+    if at.config.cascade != Cascade::First {
+        return false;
+    }
+    let Some(sweep) = at.config.sweep.filter(|w| w.rows.is_some()) else {
+        return false;
+    };
+    patch
+        .tris
+        .iter()
+        .filter(|pt| !(pt.v.contains(&a) && pt.v.contains(&b)))
+        .any(|pt| {
+            let mut p = pt.p;
+            if let Some(i) = pt.v.iter().position(|&x| x == a || x == b) {
+                p[i] = pos;
+            }
+            !sweep.clear_of(at.rear, &p)
+        })
 }
 
 /// Both endpoints unchanged since the candidate was evaluated, and still free to move.
@@ -406,7 +434,7 @@ mod tests {
         let first = At {
             config: &config,
             front: 7.0,
-            rear: 0,
+            rear: Front::default(),
         };
         assert!(
             !outside_first_stage_room(&store, &first, a, b, at(4.5)),
@@ -420,8 +448,53 @@ mod tests {
         let single = At {
             config: &config,
             front: 7.0,
-            rear: 0,
+            rear: Front::default(),
         };
         assert!(!outside_first_stage_room(&store, &single, a, b, at(3.5)));
+    }
+    /// With rows, each triangle of a first stage's new fan stays clear of the rear: the new
+    /// vertex above the rear's plane is not enough when a fan triangle reaches down into the
+    /// rows the second stage may edit.
+    #[test]
+    fn a_first_stage_keeps_its_fans_clear_of_the_rows_of_its_rear() {
+        let mut config = crate::tests::swept(Cascade::First, usize::MAX);
+        let rows = crate::Rows {
+            direction: DVec3::Y,
+            origin: 0.0,
+            spacing: 1.0,
+            count: 10,
+        };
+        config.sweep = config.sweep.map(|w| crate::Sweep {
+            rows: Some(rows),
+            ..w
+        });
+        // The rear: slabs 0..5 and rows up to 4 of slab 5 (ranks 5..6).
+        let at = At {
+            config: &config,
+            front: 8.0,
+            rear: Front { slabs: 5, rows: 4 },
+        };
+        let p = |x, y, z| DVec3::new(x, y, z);
+        // Triangle [a, b, c]: `a` at rank 6.5 row 4.5, `b` at rank 5.5 row 6, `c` at rank 6.5
+        // row 6: clear of the rear (all at row 4 or beyond).
+        let mut patch = Patch::default();
+        patch.tris.push(crate::topology::PatchTri {
+            v: [0, 1, 2],
+            p: [p(0.0, 4.5, 6.5), p(0.0, 6.0, 5.5), p(1.0, 6.0, 6.5)],
+        });
+        // Contracting `c` (with some `d` outside the triangle) beyond row 4 keeps it clear; to
+        // row 3 of slab 5 does not, though that point is above the rear's plane (rank 5).
+        assert!(!crosses_rear(&at, &patch, 2, 3, p(1.0, 6.0, 6.2)));
+        assert!(crosses_rear(&at, &patch, 2, 3, p(1.0, 3.0, 5.8)));
+        // Contracting `a` to row 2 above slab 5 (rank 6.2): the new vertex is clear of both
+        // boxes, but its edge to `b` (rank 5.5) cuts the rows of slab 5 below 4.
+        assert!(crosses_rear(&at, &patch, 0, 3, p(0.0, 2.0, 6.2)));
+        // Other stages, or no rows: no such test.
+        let single = crate::tests::swept(Cascade::Single, usize::MAX);
+        let at_single = At {
+            config: &single,
+            ..at
+        };
+        assert!(!crosses_rear(&at_single, &patch, 2, 3, p(1.0, 3.0, 5.8)));
     }
 }

@@ -256,7 +256,8 @@ pub struct SimplifyStats {
     /// [`Sweep`]).
     pub delayed_front: u64,
     /// Candidates refused on re-evaluation (boundary rule, threshold; in a cascade's first
-    /// stage, a placement below its rear or more than a slab below the preimage).
+    /// stage, a placement below its rear or more than a slab below the preimage, or a new fan
+    /// not clear of the rear's rows).
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
     pub forced_retirements: u64,
@@ -454,11 +455,12 @@ impl Simplifier {
 
     /// Second stage of a cascade: takes one batch of the first stage's output (vertices with
     /// their states, triangles, and the end of each vertex as its modifiable notice) and
-    /// returns the front to close it with (the first stage's rear).
+    /// returns the front to close it with (the first stage's rear, with rows when the sweep has
+    /// them).
     ///
     /// # Panics
     /// If this simplifier is not a second stage, or the batch is not a first stage's.
-    pub fn ingest(&mut self, batch: &OutBatch) -> u32 {
+    pub fn ingest(&mut self, batch: &OutBatch) -> Front {
         match &mut self.engine {
             Engine::PassThrough(_) => panic!("ingest is for a second stage"),
             Engine::Stage(s) => s.ingest(batch),

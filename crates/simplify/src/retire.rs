@@ -164,6 +164,19 @@ impl Retirer {
         }
     }
 
+    /// Retires vertices `ids` (those not modifiable yet are deferred, as always).
+    pub(crate) fn retire_vertices(
+        &mut self,
+        band: &mut Band,
+        ids: Vec<u64>,
+        out: &mut OutBatch,
+        stats: &mut SimplifyStats,
+    ) {
+        for id in ids {
+            self.try_retire(band, id, out, stats);
+        }
+    }
+
     fn retire_deferred(&mut self, band: &mut Band, out: &mut OutBatch, stats: &mut SimplifyStats) {
         for id in std::mem::take(&mut self.deferred) {
             self.try_retire(band, id, out, stats);

@@ -15,7 +15,7 @@ use crate::decimate::{At, Decimator, Until};
 use crate::policy::{FaceCounts, Schedule};
 use crate::quadric::Quadric;
 use crate::retire::Retirer;
-use crate::store::{Tri, Vertex};
+use crate::store::{Store, Tri, Vertex};
 use crate::sweep::Key;
 use crate::{
     Cascade, Front, Handoff, OutBatch, OutElement, Policy, SimplifyConfig, SimplifyStats, Sweep,
@@ -44,6 +44,21 @@ const BOUNDARY_WEIGHT: f64 = 10.0;
 /// vertices' stars reach into the front's slab).
 const BAND_SLABS: u32 = 2;
 
+/// How far (in slabs, as front keys) a cascade's first stage keeps its rear behind its front
+/// ([`Stage::catch_up`]).
+const CATCH_UP: f64 = 2.0;
+
+/// The corners of every triangle held in `store` (each once per corner it has there).
+fn held_triangles(store: &Store) -> impl Iterator<Item = [DVec3; 3]> + '_ {
+    store.ids().flat_map(move |id| {
+        store
+            .vertex(id)
+            .map_or(&[][..], |v| &v.tris[..])
+            .iter()
+            .map(move |&t| store.corners(store.tri(t)))
+    })
+}
+
 #[derive(serde::Serialize, serde::Deserialize)]
 pub(crate) struct Stage {
     config: SimplifyConfig,
@@ -59,8 +74,8 @@ pub(crate) struct Stage {
     /// The front's key (`Sweep::front_key`: its rank, or with rows its rank and rows), `+inf`
     /// after `finish`. Its floor is the number of whole slabs.
     front: f64,
-    /// First stage of a cascade: the rear announced last (no vertex is placed below it).
-    rear: u32,
+    /// First stage of a cascade: the rear announced last (its triangles stay clear of it).
+    rear: Front,
     /// Second stage of a cascade: the faces the first stage held at its last hand-off.
     first_resident: usize,
     stats: SimplifyStats,
@@ -89,7 +104,7 @@ impl Stage {
             band: Band::new(extras),
             beyond_front: std::collections::BinaryHeap::new(),
             front: 0.0,
-            rear: 0,
+            rear: Front::default(),
             first_resident: 0,
             stats: SimplifyStats::default(),
         }
@@ -318,6 +333,7 @@ impl Stage {
         }
         let counts = self.face_counts();
         let budget = self.budget();
+
         self.stats.peak_front_faces = self.stats.peak_front_faces.max(counts.unmodifiable);
         self.note_stretch(budget);
         // Over the memory budget, a pass runs before anything is retired for it, so that what
@@ -326,11 +342,14 @@ impl Stage {
         // faces must leave, and it goes on to the rate target first (without the initial phase:
         // `RateSchedule::standard_target`), so that they leave at the density the whole output
         // will have.
+        // A cascade's first stage whose rear lags runs a pass too, so that what it then writes
+        // has been offered to the heap (`Stage::catch_up`).
+        let lagging = !self.catch_up_due().is_empty();
         let mut squeeze = None;
         let until = match &mut self.schedule {
             Schedule::Off => None,
             Schedule::Rate(rate) => {
-                (rate.due(counts.generated) || counts.resident > budget).then(|| {
+                (rate.due(counts.generated) || counts.resident > budget || lagging).then(|| {
                     let target = rate.resident_target(counts);
                     squeeze = Some(Until::Resident(rate.standard_target(counts)));
                     Until::Resident(target.max(rate.kept(budget)))
@@ -358,6 +377,11 @@ impl Stage {
                 .retire_below(&mut self.band, limit, out, &mut self.stats);
         }
         self.retire_for_memory(out);
+        if until.is_some() {
+            let due = self.catch_up_due();
+            self.retirer
+                .retire_vertices(&mut self.band, due, out, &mut self.stats);
+        }
         if let Some(d) = &mut self.decimator {
             d.compact(&self.band);
         }
@@ -411,20 +435,21 @@ impl Stage {
         }
     }
 
-    /// First stage of a cascade: announces the rear (see `cascade`) with the batch. The rear
-    /// only rises: every vertex held lies at or above the last one announced, and so does every
-    /// vertex still to come (new ones start at the front's slab, contractions below the rear are
-    /// refused).
+    /// First stage of a cascade: announces the rear (see `cascade`) with the batch, after
+    /// writing what held it back ([`Stage::catch_up`]). The rear only rises: every triangle held
+    /// is clear of the last one announced, and so is every triangle still to come (extracted
+    /// ones lie beyond the front, at least a slab above the rear; contractions whose new fan
+    /// is not clear of it are refused, `decimate::crosses_rear`).
     fn hand_off(&mut self, out: &mut OutBatch, end: bool) {
         if self.config.cascade != Cascade::First {
             return;
         }
         if end {
-            self.rear = u32::MAX;
-        } else if let Some(sweep) = &self.config.sweep {
+            self.rear = Front::from(u32::MAX);
+        } else if let Some(sweep) = self.config.sweep {
             let store = &self.band.store;
-            let held = cascade::rear_of(sweep, store.ids().map(|id| store.pos(id)));
-            let next = (self.front as u32).saturating_sub(1);
+            let held = cascade::rear_of(&sweep, held_triangles(store));
+            let next = sweep.front_at(self.front);
             self.rear = self.rear.max(held.map_or(next, |h| h.min(next)));
         }
         let rate = match self.config.policy {
@@ -440,8 +465,49 @@ impl Stage {
         });
     }
 
+    /// First stage of a cascade: the vertices of every triangle held that is not clear of the
+    /// front [`CATCH_UP`] slabs back (empty elsewhere). They are retired after the batch's pass
+    /// (a pass runs when there are any), so that the rear follows the front. The rear is held by
+    /// the lowest triangle the first stage still holds: one whose other corners are young (a
+    /// vertex contracted up the sweep, or not retired by the lag yet) kept it 5 to 6 slabs
+    /// behind the front on bonsai upsampled to 511^3 while retirement by memory had written
+    /// nearly everything below 3, and the second stage holds what the first wrote above the
+    /// rear, unmodifiable (its front: 41 k faces there, 12 k of them past its budget). Where no
+    /// face came (above the surface's top) no pass was due, nothing retired, and the first
+    /// stage kept its last slabs to the end: engine upsampled to 511 x 511 x 255 held the 10.8
+    /// k faces of its crowded slab for the 40 slabs above it. Vertices not modifiable yet are
+    /// deferred by the retirer as always.
+    fn catch_up_due(&self) -> Vec<u64> {
+        let Some(sweep) = self
+            .config
+            .sweep
+            .filter(|_| self.config.cascade == Cascade::First)
+        else {
+            return Vec::new();
+        };
+        let key = self.front - CATCH_UP;
+        if key <= 0.0 || !key.is_finite() {
+            return Vec::new();
+        }
+        let target = sweep.front_at(key);
+        let store = &self.band.store;
+        let mut due = Vec::new();
+        for id in store.ids() {
+            if sweep.rank_of(store.pos(id)) >= f64::from(target.slabs) + 1.0 {
+                continue;
+            }
+            for &t in store.vertex(id).map_or(&[][..], |v| &v.tris[..]) {
+                let tri = store.tri(t);
+                if !sweep.clear_of(target, &store.corners(tri)) {
+                    due.extend(tri.v.iter().filter(|&&x| !store.is_retired(x)));
+                }
+            }
+        }
+        due
+    }
+
     /// See [`crate::Simplifier::ingest`].
-    pub(crate) fn ingest(&mut self, batch: &OutBatch) -> u32 {
+    pub(crate) fn ingest(&mut self, batch: &OutBatch) -> Front {
         assert_eq!(
             self.config.cascade,
             Cascade::Second,
@@ -662,23 +728,48 @@ mod tests {
                 },
             ],
             states: vec![state; 3],
-            handoff: Some(handoff(1)),
+            handoff: Some(handoff(Front::from(1))),
             ..OutBatch::default()
         };
         let mut out = OutBatch::default();
         let rear = s.ingest(&batch);
-        s.end_batch(Front::from(rear), &mut out);
+        s.end_batch(rear, &mut out);
         assert_eq!(
             s.stats().faces_unmodifiable,
             1,
             "the star reaches rank 3.5, past the rear 1"
         );
         let rear = s.ingest(&OutBatch {
-            handoff: Some(handoff(4)),
+            handoff: Some(handoff(Front::from(4))),
             ..OutBatch::default()
         });
-        s.end_batch(Front::from(rear), &mut out);
+        s.end_batch(rear, &mut out);
         assert_eq!(s.stats().faces_unmodifiable, 0);
+    }
+
+    /// A cascade's first stage writes what holds its rear back: a low triangle (ranks 0.5 to 1)
+    /// one of whose corners has a preimage reaching rank 9 (contracted from up the sweep)
+    /// would be held, and the rear with it, until the lag retires that corner (front 9 + lag);
+    /// it goes out as soon as the corner is modifiable (front 9), and the rear is the front.
+    #[test]
+    fn a_first_stage_rear_follows_its_front() {
+        let mut s = swept(Cascade::First, usize::MAX);
+        assert!(s.config.retire_lag >= 1);
+        s.add_vertex(0, DVec3::new(0.0, 0.0, 0.5), 0, &[]);
+        s.add_vertex(1, DVec3::new(1.0, 0.0, 0.5), 0, &[]);
+        s.add_vertex(2, DVec3::new(0.0, 1.0, 1.0), 9, &[]);
+        s.add_triangle([0, 1, 2]);
+        for v in 0..3 {
+            s.set_modifiable(v);
+        }
+        let mut rears = Vec::new();
+        for front in 1..=10 {
+            let mut out = OutBatch::default();
+            s.end_batch(Front::from(front), &mut out);
+            rears.push(out.handoff.expect("a first stage hands off").rear.slabs);
+        }
+        assert_eq!(s.stats().faces_out, 1);
+        assert_eq!(rears, [0, 0, 0, 0, 0, 0, 0, 0, 9, 10]);
     }
 
     /// A single stage too lets a vertex in only once the front has passed its whole star, not
@@ -716,7 +807,7 @@ mod tests {
         assert_eq!(s.budget(), 900, "nothing reported yet");
         let handoff = |faces_resident| OutBatch {
             handoff: Some(Handoff {
-                rear: 0,
+                rear: Front::default(),
                 rate: 0.5,
                 faces_in: 0,
                 faces_out: 0,

@@ -52,8 +52,25 @@ pub struct Rows {
 }
 
 /// How far the extraction has come: `slabs` whole slabs, and the first `rows` rows of cubes of
-/// the next one (0 between slabs). Without [`Sweep::rows`] only `slabs` counts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// the next one (0 between slabs). Without [`Sweep::rows`] only `slabs` counts. Fronts order as
+/// the extraction moves (slabs first), which is also the order of their keys
+/// ([`Sweep::front_key`]) while `rows` stays below the slab's row count.
+///
+/// A cascade's first stage announces its rear as a front too ([`crate::Handoff::rear`]): the
+/// region the second stage may edit, which the first stage's triangles stay clear of
+/// ([`Sweep::clear_of`]).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    PartialOrd,
+    Ord,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+)]
 pub struct Front {
     pub slabs: u32,
     pub rows: u32,
@@ -101,6 +118,51 @@ impl Sweep {
                 slabs + f64::from(front.rows.min(r.count - 1)) / f64::from(r.count)
             }
             _ => slabs,
+        }
+    }
+
+    /// The (fractional) row of `p` across the sweep, `None` without rows.
+    pub(crate) fn row_of(&self, p: DVec3) -> Option<f64> {
+        self.rows
+            .map(|r| (p.dot(r.direction) - r.origin) / r.spacing)
+    }
+
+    /// Whether the convex hull of `points` stays clear of the complete region of `front` (see
+    /// the module documentation): all of them at rank `slabs` or beyond, and, with rows, all at
+    /// rank `slabs + 1` or beyond or all at row `rows` or beyond. The hull then meets the
+    /// region's two boxes at most on their walls, and a triangle there cannot strictly cross a
+    /// triangle inside them (the referee's predicate is strict): this is what keeps a cascade's
+    /// stages apart ([`crate::Handoff::rear`]).
+    pub(crate) fn clear_of(&self, front: Front, points: &[DVec3]) -> bool {
+        let low = points
+            .iter()
+            .map(|&p| self.rank_of(p))
+            .fold(f64::INFINITY, f64::min);
+        if low < f64::from(front.slabs) {
+            return false;
+        }
+        match self.rows {
+            None => true,
+            Some(_) => {
+                low >= f64::from(front.slabs) + 1.0
+                    || points
+                        .iter()
+                        .all(|&p| self.row_of(p).is_some_and(|y| y >= f64::from(front.rows)))
+            }
+        }
+    }
+
+    /// The front whose key is `key` (at least 0; rows rounded to the nearest): the inverse of
+    /// [`Sweep::front_key`].
+    pub(crate) fn front_at(&self, key: f64) -> Front {
+        let slabs = key.max(0.0).floor();
+        let rows = self.rows.map_or(0, |r| {
+            let rows = ((key - slabs) * f64::from(r.count)).round();
+            rows.min(f64::from(r.count - 1)) as u32
+        });
+        Front {
+            slabs: slabs.min(f64::from(u32::MAX)) as u32,
+            rows,
         }
     }
 

@@ -368,12 +368,10 @@ fn feed_stages(
         spacing: sweep.slab,
         rows,
     });
-    // A second stage's front is the first's rear, a plane.
+    // A second stage's front is the first's rear, with the same rows.
     let mut second = second.map(|c| {
         Simplifier::new(SimplifyConfig {
-            sweep: config
-                .sweep
-                .map(|w| isostream_simplify::Sweep { rows: None, ..w }),
+            sweep: config.sweep,
             ..c
         })
         .expect("valid second stage")
