@@ -459,9 +459,11 @@ const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// and engine (128 k: a flat face across the sweep), came out 1.06-1.35x one stage's RMS while
 /// the front moved by whole slabs; since it moves by rows within a slab they are as accurate
 /// with two (0.98-0.99x its RMS at R = 0.2) and 1.2-1.7x faster, but the second stage holds the
-/// first's output of the crowded slab beyond its front (a plane, the first stage's rear): 59-72
-/// MiB against 52-60, cthead and engine over the 64 (docs/performance.md, "Thirty-ninth
-/// session"). So the share stays, now for the memory.
+/// first's output of the crowded slab beyond its front (the first stage's rear): 59-72 MiB
+/// against 52-60, cthead and engine over the 64 (docs/performance.md, "Thirty-ninth
+/// session"). Since the rear moves by rows and follows the first stage's front within two
+/// slabs: 56-75 MiB, engine still at 75 (the rear stays two slabs behind the crowded slab while
+/// its 90 k faces pass; "Fortieth session"). So the share stays, for the memory.
 const CASCADE_SLAB_SHARE: u64 = 4;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).

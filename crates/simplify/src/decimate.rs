@@ -390,6 +390,16 @@ fn crosses_rear(at: &At, patch: &Patch, a: u64, b: u64, pos: DVec3) -> bool {
     let Some(sweep) = at.config.sweep.filter(|w| w.rows.is_some()) else {
         return false;
     };
+    // Most fans lie wholly above the rear's next slab (the first stage contracts near its
+    // front): one pass over the heights tells, before any fan triangle is formed.
+    let corners = patch.tris.iter().flat_map(|pt| pt.p);
+    let low = std::iter::once(pos)
+        .chain(corners)
+        .map(|p| sweep.height(p))
+        .fold(f64::INFINITY, f64::min);
+    if sweep.rank_at(low) >= f64::from(at.rear.slabs) + 1.0 {
+        return false;
+    }
     patch
         .tris
         .iter()

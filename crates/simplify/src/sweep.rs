@@ -133,23 +133,30 @@ impl Sweep {
     /// region's two boxes at most on their walls, and a triangle there cannot strictly cross a
     /// triangle inside them (the referee's predicate is strict): this is what keeps a cascade's
     /// stages apart ([`crate::Handoff::rear`]).
+    ///
+    /// The lowest rank is that of the lowest point (`rank_at` is monotonic, in floating point
+    /// too), so one division serves all points, and the same for rows.
     pub(crate) fn clear_of(&self, front: Front, points: &[DVec3]) -> bool {
-        let low = points
-            .iter()
-            .map(|&p| self.rank_of(p))
-            .fold(f64::INFINITY, f64::min);
+        let low = self.rank_at(self.lowest(points, self.direction));
         if low < f64::from(front.slabs) {
             return false;
         }
         match self.rows {
             None => true,
-            Some(_) => {
+            Some(r) => {
                 low >= f64::from(front.slabs) + 1.0
-                    || points
-                        .iter()
-                        .all(|&p| self.row_of(p).is_some_and(|y| y >= f64::from(front.rows)))
+                    || (self.lowest(points, r.direction) - r.origin) / r.spacing
+                        >= f64::from(front.rows)
             }
         }
+    }
+
+    /// The least `p . direction` over `points` (`+inf` for none).
+    fn lowest(&self, points: &[DVec3], direction: DVec3) -> f64 {
+        points
+            .iter()
+            .map(|p| p.dot(direction))
+            .fold(f64::INFINITY, f64::min)
     }
 
     /// The front whose key is `key` (at least 0; rows rounded to the nearest): the inverse of
