@@ -28,10 +28,10 @@
 //! the first stage keeps the last two short (`Decimator::span_ok`,
 //! `decimate::outside_first_stage_room`; quadric optima far below their preimage once kept it
 //! 15 to 20 slabs back on bonsai upsampled to 511^3, and the second stage's front held 1.8x
-//! the faces), and writes every triangle that reaches more than two slabs behind its front
-//! after each pass (`Stage::catch_up_due`): a corner with a young preimage kept such a
-//! triangle, and the rear, 5 to 6 slabs back. The rear then moves by rows as the extraction's
-//! front does.
+//! the faces), and once per slab of its front writes every triangle that reaches more than two
+//! slabs behind it, after a pass (`Stage::catch_up_due`): a corner with a young preimage kept
+//! such a triangle, and the rear, 5 to 6 slabs back. The rear, raised at every hand-off, then
+//! moves by rows as the extraction's front does.
 //!
 //! The second stage holds what the first wrote above the rear (two or three slabs) and lets a
 //! vertex move only once the rear has passed its whole star (as every stage now does): gated

@@ -45,7 +45,7 @@ const BOUNDARY_WEIGHT: f64 = 10.0;
 const BAND_SLABS: u32 = 2;
 
 /// How far (in slabs, as front keys) a cascade's first stage keeps its rear behind its front
-/// ([`Stage::catch_up`]).
+/// ([`Stage::catch_up_due`]).
 const CATCH_UP: f64 = 2.0;
 
 /// The corners of the triangles held in `store` that can hold a rear back
@@ -456,11 +456,12 @@ impl Stage {
         }
     }
 
-    /// First stage of a cascade: announces the rear (see `cascade`) with the batch, after
-    /// writing what held it back ([`Stage::catch_up`]). The rear only rises: every triangle held
-    /// is clear of the last one announced, and so is every triangle still to come (extracted
-    /// ones lie beyond the front, at least a slab above the rear; contractions whose new fan
-    /// is not clear of it are refused, `decimate::crosses_rear`).
+    /// First stage of a cascade: announces the rear (see `cascade`) with the batch, raised to
+    /// what its held triangles allow, at most its front (after the catch-up has written what
+    /// held it back, [`Stage::catch_up_due`]). The rear only rises: every triangle held is
+    /// clear of the last one announced, and so is every triangle still to come (extracted ones
+    /// lie beyond the front; contractions whose new fan is not clear of it are refused,
+    /// `decimate::crosses_rear`).
     fn hand_off(&mut self, out: &mut OutBatch, end: bool) {
         if self.config.cascade != Cascade::First {
             return;

@@ -54,11 +54,11 @@ pub struct Rows {
 /// How far the extraction has come: `slabs` whole slabs, and the first `rows` rows of cubes of
 /// the next one (0 between slabs). Without [`Sweep::rows`] only `slabs` counts. Fronts order as
 /// the extraction moves (slabs first), which is also the order of their keys
-/// ([`Sweep::front_key`]) while `rows` stays below the slab's row count.
+/// (`Sweep::front_key`) while `rows` stays below the slab's row count.
 ///
 /// A cascade's first stage announces its rear as a front too ([`crate::Handoff::rear`]): the
 /// region the second stage may edit, which the first stage's triangles stay clear of
-/// ([`Sweep::clear_of`]).
+/// (`Sweep::clear_of`).
 #[derive(
     Debug,
     Clone,
