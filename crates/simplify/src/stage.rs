@@ -57,8 +57,7 @@ const CATCH_UP: f64 = 2.0;
 /// only lower the rear.
 fn low_triangles(store: &Store, sweep: &Sweep) -> Vec<[DVec3; 3]> {
     // Positions only for the lowest (a vertex without triangles, if any, only lowers the rear):
-    // reading every vertex's record at every hand-off cost hydrogen upsampled to 4033^3 about
-    // 5 %.
+    // they are read at every hand-off, and a vertex's record is many times larger.
     let low = store
         .ids()
         .map(|id| sweep.rank_of(store.pos(id)))
@@ -350,7 +349,6 @@ impl Stage {
         }
         let counts = self.face_counts();
         let budget = self.budget();
-
         self.stats.peak_front_faces = self.stats.peak_front_faces.max(counts.unmodifiable);
         self.note_stretch(budget);
         // Over the memory budget, a pass runs before anything is retired for it, so that what
@@ -490,18 +488,16 @@ impl Stage {
     /// First stage of a cascade: the vertices of every triangle held that is not clear of the
     /// front [`CATCH_UP`] slabs back (empty elsewhere). They are retired after the pass of the
     /// first batch of each slab of the front (a pass runs then when there are any), so that the
-    /// rear follows the front. (After every batch, on slices that come in many groups of rows,
-    /// the scan and the passes it forced cost hydrogen upsampled to 4033^3 about 4 %: vertices
-    /// not modifiable yet stay due.) The rear is held by
-    /// the lowest triangle the first stage still holds: one whose other corners are young (a
-    /// vertex contracted up the sweep, or not retired by the lag yet) kept it 5 to 6 slabs
-    /// behind the front on bonsai upsampled to 511^3 while retirement by memory had written
-    /// nearly everything below 3, and the second stage holds what the first wrote above the
-    /// rear, unmodifiable (its front: 41 k faces there, 12 k of them past its budget). Where no
-    /// face came (above the surface's top) no pass was due, nothing retired, and the first
-    /// stage kept its last slabs to the end: engine upsampled to 511 x 511 x 255 held the 10.8
-    /// k faces of its crowded slab for the 40 slabs above it. Vertices not modifiable yet are
-    /// deferred by the retirer as always.
+    /// rear follows the front. Vertices not modifiable yet are deferred by the retirer as always.
+    ///
+    /// The rear is held by the lowest triangle the first stage still holds: one whose other
+    /// corners are young (a vertex contracted up the sweep, or not retired by the lag yet) kept
+    /// it 5 to 6 slabs behind the front on bonsai upsampled to 511^3 while retirement by memory
+    /// had written nearly everything below 3, and the second stage holds what the first wrote
+    /// above the rear, unmodifiable (its front: 41 k faces there, 12 k of them past its
+    /// budget). Where no face came (above the surface's top) no pass was due, nothing retired,
+    /// and the first stage kept its last slabs to the end: engine upsampled to 511 x 511 x 255
+    /// held the 10.8 k faces of its crowded slab for the 40 slabs above it.
     fn catch_up_due(&self) -> Vec<u64> {
         let Some(sweep) = self
             .config
@@ -516,8 +512,10 @@ impl Stage {
         }
         let target = sweep.front_at(key);
         // Every triangle held is clear of the rear announced last, and so of any front below
-        // it: nothing to scan (the scan reads every triangle of the vertices behind the
-        // target, and at every slab it cost hydrogen upsampled to 4033^3 about 8 %).
+        // it: nothing to scan. (The scan reads every triangle of the vertices behind the
+        // target; run at every slab, `perf` put it and its reads of corners at about a tenth of
+        // the first stage's samples on hydrogen upsampled to 4033^3, whose first stage holds
+        // many thin slabs.)
         if self.rear >= target {
             return Vec::new();
         }
