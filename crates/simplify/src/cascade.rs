@@ -145,7 +145,6 @@ pub(crate) fn rear_of(sweep: &Sweep, tris: impl Iterator<Item = [DVec3; 3]>) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::Rows;
 
     #[test]
     fn the_ratio_is_the_first_stage_rate_until_the_end_then_exact() {
@@ -167,17 +166,7 @@ mod tests {
     }
 
     fn sweep(rows: Option<u32>) -> Sweep {
-        Sweep {
-            direction: DVec3::Z,
-            origin: 1.0,
-            spacing: 0.5,
-            rows: rows.map(|count| Rows {
-                direction: DVec3::Y,
-                origin: 0.0,
-                spacing: 1.0,
-                count,
-            }),
-        }
+        crate::sweep::tests::along_z(1.0, 0.5, rows)
     }
 
     fn tri(p: [[f64; 3]; 3]) -> [DVec3; 3] {

@@ -468,16 +468,7 @@ mod tests {
     #[test]
     fn a_first_stage_keeps_its_fans_clear_of_the_rows_of_its_rear() {
         let mut config = crate::tests::swept(Cascade::First, usize::MAX);
-        let rows = crate::Rows {
-            direction: DVec3::Y,
-            origin: 0.0,
-            spacing: 1.0,
-            count: 10,
-        };
-        config.sweep = config.sweep.map(|w| crate::Sweep {
-            rows: Some(rows),
-            ..w
-        });
+        config.sweep = Some(crate::sweep::tests::along_z(0.0, 1.0, Some(10)));
         // The rear: slabs 0..5 and rows up to 4 of slab 5 (ranks 5..6).
         let at = At {
             config: &config,

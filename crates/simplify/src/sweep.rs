@@ -233,14 +233,16 @@ impl Key {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn swept(count: Option<u32>) -> Sweep {
+    /// A sweep along z with rank planes `origin + r * spacing`, and `count` rows of unit
+    /// thickness along y from 0 when given (for the tests of this crate).
+    pub(crate) fn along_z(origin: f64, spacing: f64, count: Option<u32>) -> Sweep {
         Sweep {
             direction: DVec3::Z,
-            origin: 0.0,
-            spacing: 1.0,
+            origin,
+            spacing,
             rows: count.map(|count| Rows {
                 direction: DVec3::Y,
                 origin: 0.0,
@@ -248,6 +250,10 @@ mod tests {
                 count,
             }),
         }
+    }
+
+    fn swept(count: Option<u32>) -> Sweep {
+        along_z(0.0, 1.0, count)
     }
 
     /// A set is behind the front exactly when it lies in one of the front's two boxes.
