@@ -59,14 +59,14 @@ fn low_triangles(store: &Store, sweep: &Sweep) -> Vec<[DVec3; 3]> {
     // Positions only for the lowest (a vertex without triangles, if any, only lowers the rear):
     // they are read at every hand-off, and a vertex's record is many times larger.
     let low = store
-        .ids()
-        .map(|id| sweep.rank_of(store.pos(id)))
+        .positions()
+        .map(|(_, p)| sweep.rank_of(p))
         .fold(f64::INFINITY, f64::min);
     let plane = low.floor() + 1.0;
     store
-        .ids()
-        .filter(|&id| sweep.rank_of(store.pos(id)) < plane)
-        .flat_map(|id| store.vertex(id).map_or(&[][..], |v| &v.tris[..]))
+        .positions()
+        .filter(|&(_, p)| sweep.rank_of(p) < plane)
+        .flat_map(|(id, _)| store.vertex(id).map_or(&[][..], |v| &v.tris[..]))
         .map(|&t| store.corners(store.tri(t)))
         .collect()
 }
@@ -530,8 +530,7 @@ impl Stage {
         let plane = f64::from(target.slabs);
         let mut seen = rustc_hash::FxHashSet::default();
         let mut due = Vec::new();
-        for id in store.ids() {
-            let pos = store.pos(id);
+        for (id, pos) in store.positions() {
             let rank = sweep.rank_of(pos);
             if rank >= plane + 1.0 {
                 continue;

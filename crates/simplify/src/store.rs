@@ -345,6 +345,8 @@ impl Store {
             *a = Box::default();
         }
         self.slots[slot].generation = self.slots[slot].generation.wrapping_add(1);
+        // A free slot's position is NaN (`Store::positions` skips it).
+        self.slots[slot].pos = Vec3::NAN;
         self.free_verts.push(slot);
         self.live_verts -= 1;
         Some(x)
@@ -471,6 +473,18 @@ impl Store {
         self.position(v).unwrap_or(DVec3::ZERO)
     }
 
+    /// Handles and positions of the live vertices, by slot: the dense scan for what needs only
+    /// where the vertices are (a cascade's rear and catch-up, at every hand-off). Walking
+    /// [`Store::ids`] reads every vertex record, many times larger than its slot: on hydrogen
+    /// upsampled to 4033^3 that walk was about 5 % of the first stage's samples.
+    pub(crate) fn positions(&self) -> impl Iterator<Item = (u64, DVec3)> + '_ {
+        self.slots
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| !s.pos.x.is_nan())
+            .map(|(slot, s)| (handle(slot, s.generation), s.pos.as_dvec3()))
+    }
+
     /// Moves vertex `v` to `pos`.
     pub(crate) fn set_pos(&mut self, v: u64, pos: DVec3) {
         if let Some(slot) = self.slot(v)
@@ -515,10 +529,20 @@ mod tests {
         assert_eq!(t, t2, "freed slot is reused");
         s.forget_id(10);
         assert_eq!(s.slot_of(10), None);
+        s.set_pos(2, DVec3::new(1.0, 2.0, 3.0));
         s.remove_vertex(0);
         assert_eq!(s.ids().collect::<Vec<_>>(), vec![1, 2]);
+        let dense: Vec<(u64, DVec3)> = s.positions().collect();
+        assert_eq!(
+            dense,
+            vec![(1, DVec3::ZERO), (2, DVec3::new(1.0, 2.0, 3.0))]
+        );
         assert!(s.vertex(0).is_none());
         let reused = s.insert_vertex(20, DVec3::ZERO, Vertex::new(0), &[]);
+        assert_eq!(
+            s.positions().map(|(h, _)| h).collect::<Vec<_>>(),
+            vec![reused, 1, 2]
+        );
         assert_eq!(reused & 0xffff_ffff, 0, "slot 0 is reused");
         assert_ne!(reused, 0, "under a new handle");
         assert!(s.vertex(0).is_none(), "the old handle names nothing");
