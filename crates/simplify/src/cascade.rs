@@ -111,57 +111,35 @@ impl Handoff {
     }
 }
 
-/// The highest rear a first stage holding triangles with corners `tris` can announce, at least
-/// `last` (its rear only rises): the lowest rank of their corners, rounded down (`slabs`), and
-/// with rows, the lowest row (rounded down) of those reaching below rank `slabs + 1` (at most
-/// the last row): every triangle is then clear of the rear's region ([`Sweep::clear_of`]).
-/// `None` when there are none.
-///
-/// One pass, which stops at the first triangle that holds the rear at or below `last`: on a
-/// slab crowded with surface the rear stays where it is for many hand-offs, and reading the
-/// corners of every triangle of that slab at each of them was the hand-off's cost on hydrogen
-/// upsampled to 4033^3.
-pub(crate) fn rear_of(
-    sweep: &Sweep,
-    tris: impl Iterator<Item = [DVec3; 3]>,
-    last: Front,
-) -> Option<Front> {
-    let rows_of = |row: f64| {
-        sweep
-            .rows
-            .map_or(0, |r| row.floor().clamp(0.0, f64::from(r.count - 1)) as u32)
-    };
-    let mut low: Option<(u32, f64)> = None;
-    for p in tris {
-        let rank = p
+/// The highest rear a first stage holding triangles with corners `tris` can announce: the
+/// lowest rank of their corners, rounded down (`slabs`), and with rows, the lowest row (rounded
+/// down) of those reaching below rank `slabs + 1` (at most the last row): every triangle is
+/// then clear of the rear's region ([`Sweep::clear_of`]). `None` when there are none.
+pub(crate) fn rear_of(sweep: &Sweep, tris: impl Iterator<Item = [DVec3; 3]>) -> Option<Front> {
+    let lows: Vec<(f64, f64)> = tris
+        .map(|p| {
+            let rank = p
+                .iter()
+                .map(|&x| sweep.rank_of(x))
+                .fold(f64::INFINITY, f64::min);
+            let row = p
+                .iter()
+                .map(|&x| sweep.row_of(x).unwrap_or(0.0))
+                .fold(f64::INFINITY, f64::min);
+            (rank, row)
+        })
+        .collect();
+    let low = lows.iter().map(|l| l.0).min_by(f64::total_cmp)?;
+    let slabs = low.floor().clamp(0.0, f64::from(u32::MAX)) as u32;
+    let rows = sweep.rows.map_or(0, |r| {
+        let row = lows
             .iter()
-            .map(|&x| sweep.rank_of(x))
+            .filter(|l| l.0 < f64::from(slabs) + 1.0)
+            .map(|l| l.1)
             .fold(f64::INFINITY, f64::min);
-        let row = p
-            .iter()
-            .map(|&x| sweep.row_of(x).unwrap_or(0.0))
-            .fold(f64::INFINITY, f64::min);
-        let slab = rank.floor().clamp(0.0, f64::from(u32::MAX)) as u32;
-        if (Front {
-            slabs: slab,
-            rows: rows_of(row),
-        }) <= last
-        {
-            return Some(last);
-        }
-        low = Some(match low {
-            Some((s, r)) if s < slab => (s, r),
-            Some((s, r)) if s == slab => (s, r.min(row)),
-            _ => (slab, row),
-        });
-    }
-    low.map(|(slabs, row)| {
-        Front {
-            slabs,
-            rows: rows_of(row),
-        }
-        .max(last)
-    })
+        row.floor().clamp(0.0, f64::from(r.count - 1)) as u32
+    });
+    Some(Front { slabs, rows })
 }
 
 #[cfg(test)]
@@ -201,16 +179,10 @@ mod tests {
         // Ranks (z - 1) / 0.5: 6.4, 2.6, and 0 or below (clamped).
         let high = tri([[0.0, 0.0, 4.2], [1.0, 0.0, 4.2], [0.0, 1.0, 4.2]]);
         let low = tri([[9.0, 0.0, 2.3], [9.0, 1.0, 4.2], [8.0, 0.0, 4.2]]);
-        assert_eq!(
-            rear_of(&s, [high, low].into_iter(), Front::default()),
-            Some(Front::from(2))
-        );
-        assert_eq!(rear_of(&s, std::iter::empty(), Front::default()), None);
+        assert_eq!(rear_of(&s, [high, low].into_iter()), Some(Front::from(2)));
+        assert_eq!(rear_of(&s, std::iter::empty()), None);
         let below = tri([[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
-        assert_eq!(
-            rear_of(&s, [below].into_iter(), Front::default()),
-            Some(Front::from(0))
-        );
+        assert_eq!(rear_of(&s, [below].into_iter()), Some(Front::from(0)));
     }
 
     /// With rows, the rear also has the rows below every triangle that reaches into the slab
@@ -222,7 +194,7 @@ mod tests {
         let near = tri([[0.0, 4.5, 2.3], [0.0, 9.0, 2.5], [1.0, 9.0, 2.5]]);
         let next = tri([[0.0, 1.5, 2.4], [0.0, 3.0, 3.0], [1.0, 3.0, 3.0]]);
         let far = tri([[0.0, 0.0, 3.5], [0.0, 0.0, 3.6], [1.0, 0.0, 3.5]]);
-        let rear = rear_of(&s, [near, next, far].into_iter(), Front::default()).expect("triangles");
+        let rear = rear_of(&s, [near, next, far].into_iter()).expect("triangles");
         assert_eq!(rear, Front { slabs: 2, rows: 1 });
         for t in [near, next, far] {
             assert!(s.clear_of(rear, &t), "{t:?}");
@@ -231,34 +203,12 @@ mod tests {
         assert!(s.clear_of(Front { slabs: 2, rows: 2 }, &far));
         assert!(!s.clear_of(Front { slabs: 3, rows: 0 }, &near));
         // Only the triangles reaching below the next slab's top count for rows.
-        let rear = rear_of(&s, [near, far].into_iter(), Front::default()).expect("triangles");
+        let rear = rear_of(&s, [near, far].into_iter()).expect("triangles");
         assert_eq!(rear, Front { slabs: 2, rows: 4 });
-        let rear = rear_of(&s, [far].into_iter(), Front::default()).expect("triangles");
+        let rear = rear_of(&s, [far].into_iter()).expect("triangles");
         assert_eq!(rear, Front { slabs: 5, rows: 0 });
         // Fronts order as their keys do.
         assert!(Front { slabs: 2, rows: 9 } < Front::from(3));
         assert!(s.front_key(Front { slabs: 2, rows: 9 }) < s.front_key(Front::from(3)));
-    }
-
-    /// The rear only rises: below the last one, the answer is the last one, found as soon as a
-    /// triangle holds the rear there (the triangles after it need not be read).
-    #[test]
-    fn the_rear_is_at_least_the_last_and_a_triangle_holding_it_there_ends_the_scan() {
-        let s = sweep(Some(10));
-        let near = tri([[0.0, 4.5, 2.3], [0.0, 9.0, 2.5], [1.0, 9.0, 2.5]]);
-        let next = tri([[0.0, 1.5, 2.4], [0.0, 3.0, 3.0], [1.0, 3.0, 3.0]]);
-        let far = tri([[0.0, 0.0, 3.5], [0.0, 0.0, 3.6], [1.0, 0.0, 3.5]]);
-        let last = Front { slabs: 2, rows: 3 };
-        assert_eq!(
-            rear_of(&s, [near, far].into_iter(), last),
-            Some(Front { slabs: 2, rows: 4 })
-        );
-        let mut read = 0;
-        let counted = [next, near, far].into_iter().inspect(|_| read += 1);
-        assert_eq!(rear_of(&s, counted, last), Some(last));
-        assert_eq!(read, 1, "the first triangle holds the rear at the last one");
-        let last = Front { slabs: 2, rows: 1 };
-        assert_eq!(rear_of(&s, [near, next, far].into_iter(), last), Some(last));
-        assert_eq!(rear_of(&s, std::iter::empty(), last), None);
     }
 }

@@ -53,9 +53,9 @@ const CATCH_UP: f64 = 2.0;
 /// vertex (each once per such corner). The others lie at or beyond that plane and count for
 /// neither the rear's slabs nor its rows; reading only these keeps the hand-off's cost with the
 /// few vertices near the rear (every held triangle read at every hand-off made the engine's
-/// bench job 5 % slower), and lazily: `rear_of` stops at the first that holds the rear where it
-/// is. A vertex without triangles is a lowest like the others: that can only lower the rear.
-fn low_triangles<'a>(store: &'a Store, sweep: &'a Sweep) -> impl Iterator<Item = [DVec3; 3]> + 'a {
+/// bench job 5 % slower). A vertex without triangles is a lowest like the others: that can
+/// only lower the rear.
+fn low_triangles(store: &Store, sweep: &Sweep) -> Vec<[DVec3; 3]> {
     // Positions only for the lowest (a vertex without triangles, if any, only lowers the rear):
     // they are read at every hand-off, and a vertex's record is many times larger.
     let low = store
@@ -65,9 +65,10 @@ fn low_triangles<'a>(store: &'a Store, sweep: &'a Sweep) -> impl Iterator<Item =
     let plane = low.floor() + 1.0;
     store
         .positions()
-        .filter(move |&(_, p)| sweep.rank_of(p) < plane)
+        .filter(|&(_, p)| sweep.rank_of(p) < plane)
         .flat_map(|(id, _)| store.vertex(id).map_or(&[][..], |v| &v.tris[..]))
         .map(|&t| store.corners(store.tri(t)))
+        .collect()
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -467,7 +468,7 @@ impl Stage {
             self.rear = Front::from(u32::MAX);
         } else if let Some(sweep) = self.config.sweep {
             let store = &self.band.store;
-            let held = cascade::rear_of(&sweep, low_triangles(store, &sweep), self.rear);
+            let held = cascade::rear_of(&sweep, low_triangles(store, &sweep).into_iter());
             let next = sweep.front_at(self.front);
             self.rear = self.rear.max(held.map_or(next, |h| h.min(next)));
         }
