@@ -492,7 +492,8 @@ impl Stage {
     /// then), and what came since lies beyond that front: so the rear lags behind this target
     /// exactly when some triangle held is not clear of it (unless the front has moved more
     /// than [`CATCH_UP`] slabs since, over empty slabs: then a pass runs that finds nothing to
-    /// write). Asking this instead of scanning for such triangles halved the catch-up's cost.
+    /// write). Asking this instead of scanning for such triangles removes one of the
+    /// catch-up's two scans per slab.
     fn catch_up_target(&self) -> Front {
         let key = self.front - CATCH_UP;
         match self.config.sweep {
