@@ -37,24 +37,43 @@ impl SlabBounds {
     /// If a slice does not hold `grid.slice_len()` values.
     pub fn from_slices(grid: &Grid, block: [u64; 2], lower: &[f32], upper: &[f32]) -> Self {
         let [nx, ny] = [grid.dims[0] as usize, grid.dims[1] as usize];
+        for slice in [lower, upper] {
+            assert_eq!(slice.len(), nx * ny, "slices must hold {} values", nx * ny);
+        }
         let block = block.map(|b| b.max(1));
         let [bx, by] = block.map(|b| b as usize);
         let count = [(nx - 1).div_ceil(bx), (ny - 1).div_ceil(by)];
         let mut bounds = Self::empty(block, count);
-        for slice in [lower, upper] {
-            assert_eq!(slice.len(), nx * ny, "slices must hold {} values", nx * ny);
-            for y in 0..ny {
-                let row = &slice[y * nx..(y + 1) * nx];
-                // The block row of this voxel row, and the one below when y is their border.
-                let below = (y % by == 0 && y > 0).then(|| y / by - 1);
-                let here = (y / by < count[1]).then_some(y / by);
-                for i in 0..count[0] {
-                    let segment = &row[i * bx..((i + 1) * bx + 1).min(nx)];
-                    let (lo, hi) = segment_bounds(segment);
-                    for j in [below, here].into_iter().flatten() {
-                        bounds.include(i + count[0] * j, lo, hi);
-                    }
+        // Each block row's voxel rows (its top border row included) are first reduced down the
+        // columns, element by element, which vectorizes; then each block takes the bounds of
+        // its columns (its right border column included). Bounds taken segment by segment along
+        // each row cost about 17 instructions a voxel, 583 M of the 5.49 G of aneurism's whole
+        // run at R = 0.2 by callgrind (segments of 17 values do not vectorize); this takes 5.
+        let mut lo = vec![f32::INFINITY; nx];
+        let mut hi = vec![f32::NEG_INFINITY; nx];
+        let mut nan = vec![0.0f32; nx];
+        for j in 0..count[1] {
+            lo.fill(f32::INFINITY);
+            hi.fill(f32::NEG_INFINITY);
+            nan.fill(0.0);
+            for slice in [lower, upper] {
+                for y in j * by..=((j + 1) * by).min(ny - 1) {
+                    let row = &slice[y * nx..(y + 1) * nx];
+                    column_bounds(row, &mut lo, &mut hi, &mut nan);
                 }
+            }
+            for i in 0..count[0] {
+                let columns = i * bx..=((i + 1) * bx).min(nx - 1);
+                let (l, h) = if nan[columns.clone()].iter().all(|n| *n == 0.0) {
+                    let l = lo[columns.clone()]
+                        .iter()
+                        .fold(f32::INFINITY, |a, &b| a.min(b));
+                    let h = hi[columns].iter().fold(f32::NEG_INFINITY, |a, &b| a.max(b));
+                    (l, h)
+                } else {
+                    (f32::NEG_INFINITY, f32::INFINITY)
+                };
+                bounds.include(i + count[0] * j, l, h);
             }
         }
         bounds
@@ -136,6 +155,19 @@ impl SlabBounds {
 }
 
 /// (min, max) of finite values; (-inf, +inf) when one is not finite.
+/// Widens `lo` and `hi` element by element to hold `row`, and makes `nan` NaN in the columns
+/// where `row` holds a non-finite value (`v * 0` is NaN for NaN and both infinities, and a NaN
+/// stays in a sum). Compare-and-select and arithmetic only, so that the loop vectorizes (four
+/// values in 16 instructions); a select per value for the non-finite ones instead cost a sixth
+/// more (callgrind on aneurism: 207 M instructions in `from_slices` against 176 M).
+fn column_bounds(row: &[f32], lo: &mut [f32], hi: &mut [f32], nan: &mut [f32]) {
+    for (((&v, l), h), n) in row.iter().zip(lo.iter_mut()).zip(hi.iter_mut()).zip(nan) {
+        *l = if v < *l { v } else { *l };
+        *h = if v > *h { v } else { *h };
+        *n += v * 0.0;
+    }
+}
+
 pub(crate) fn segment_bounds(values: &[f32]) -> (f32, f32) {
     let mut lo = f32::INFINITY;
     let mut hi = f32::NEG_INFINITY;
@@ -158,6 +190,7 @@ pub(crate) fn segment_bounds(values: &[f32]) -> (f32, f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     #[test]
     fn blocks_hold_their_voxels_borders_included() {
@@ -198,6 +231,57 @@ mod tests {
         assert!(b.row_may_cross(0, 100.0));
         let none = SlabBounds::empty([1, 1], [1, 1]);
         assert!(none.finite_range().0 > none.finite_range().1);
+    }
+
+    /// Every block's bounds voxel by voxel: the definition `from_slices` computes faster.
+    fn reference(grid: &Grid, block: [u64; 2], slices: [&[f32]; 2]) -> SlabBounds {
+        let [nx, ny] = [grid.dims[0] as usize, grid.dims[1] as usize];
+        let [bx, by] = block.map(|b| b.max(1) as usize);
+        let count = [(nx - 1).div_ceil(bx), (ny - 1).div_ceil(by)];
+        let mut b = SlabBounds::empty(block, count);
+        for j in 0..count[1] {
+            for i in 0..count[0] {
+                for slice in slices {
+                    for y in j * by..=((j + 1) * by).min(ny - 1) {
+                        for x in i * bx..=((i + 1) * bx).min(nx - 1) {
+                            let v = slice[y * nx + x];
+                            let (lo, hi) = match v.is_finite() {
+                                true => (v, v),
+                                false => (f32::NEG_INFINITY, f32::INFINITY),
+                            };
+                            b.include(i + count[0] * j, lo, hi);
+                        }
+                    }
+                }
+            }
+        }
+        b
+    }
+
+    fn voxel() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            20 => -100.0f32..100.0,
+            1 => Just(f32::NAN),
+            1 => Just(f32::INFINITY),
+            1 => Just(f32::NEG_INFINITY),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn bounds_are_those_of_the_blocks_voxels(
+            (nx, ny, lower, upper) in (2usize..40, 2usize..30).prop_flat_map(|(nx, ny)| (
+                Just(nx),
+                Just(ny),
+                proptest::collection::vec(voxel(), nx * ny),
+                proptest::collection::vec(voxel(), nx * ny),
+            )),
+            block in [0u64..20, 0u64..20],
+        ) {
+            let grid = Grid::new([nx as u64, ny as u64, 2], [1.0; 3], [0.0; 3]).unwrap();
+            let fast = SlabBounds::from_slices(&grid, block, &lower, &upper);
+            prop_assert_eq!(fast, reference(&grid, block, [&lower, &upper]));
+        }
     }
 
     #[test]
