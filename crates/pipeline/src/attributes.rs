@@ -11,9 +11,9 @@
 use std::path::{Path, PathBuf};
 
 use isostream_simplify::Priority;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
-use isostream_volume::{Dtype, Endian, Grid, OpenOptions, SliceRows, VolumeSource};
+use isostream_volume::{Dtype, Endian, Grid, OpenOptions, SlabBounds, SliceRows, VolumeSource};
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint;
@@ -234,9 +234,20 @@ pub struct Slices {
     /// The iso slice as rows computed on demand ([`SliceReader::rows_on_demand`]): it never
     /// exists whole, the extractor works on strips of it.
     pub(crate) rows: Option<Arc<dyn SliceRows>>,
+    /// The iso slice's value bounds per block ([`Slices::bounds`]), computed by the first of the
+    /// two slabs it belongs to and merged by both.
+    bounds: OnceLock<SlabBounds>,
 }
 
 impl Slices {
+    /// The iso slice's bounds in blocks of `block` cubes (`SlabBounds::of_slice`), computed once
+    /// (every caller asks with the same block). A slab's bounds are its two slices' merged:
+    /// computed for each slab from both slices, a stored volume paid for each slice twice.
+    pub(crate) fn bounds(&self, grid: &Grid, block: [u64; 2]) -> &SlabBounds {
+        self.bounds
+            .get_or_init(|| SlabBounds::of_slice(grid, block, &self.iso))
+    }
+
     /// Hash of the iso slice's values (`checkpoint::hash_slice`), row by row when it has rows.
     pub(crate) fn hash(&self, grid: &Grid) -> u64 {
         let Some(rows) = &self.rows else {
@@ -379,6 +390,7 @@ impl SliceReader {
                 iso: Vec::new(),
                 attrs: Vec::new(),
                 rows: Some(rows),
+                bounds: OnceLock::new(),
             }));
         }
         let cur = match self.ahead.take() {
@@ -429,6 +441,7 @@ impl SliceReader {
             iso: cur,
             attrs,
             rows: None,
+            bounds: OnceLock::new(),
         }))
     }
 }

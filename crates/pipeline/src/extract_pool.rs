@@ -272,12 +272,10 @@ impl WorkStep {
         let grid = self.extractor.grid();
         let bounds = self.skip_empty.then(|| {
             job.bounds.clone().unwrap_or_else(|| {
-                Arc::new(SlabBounds::from_slices(
-                    &grid,
-                    STORED_BLOCK,
-                    &lo.iso,
-                    &up.iso,
-                ))
+                Arc::new(
+                    lo.bounds(&grid, STORED_BLOCK)
+                        .merged(up.bounds(&grid, STORED_BLOCK)),
+                )
             })
         });
         // Slice 0 counts with slab 0, every other slice as the upper slice of its slab.

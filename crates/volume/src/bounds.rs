@@ -31,15 +31,24 @@ impl SlabBounds {
     }
 
     /// Bounds of slab (`lower`, `upper`) of a stored volume, from its voxels, in blocks of
-    /// `block` cubes.
+    /// `block` cubes: those of its two slices ([`SlabBounds::of_slice`]) merged.
     ///
     /// # Panics
     /// If a slice does not hold `grid.slice_len()` values.
     pub fn from_slices(grid: &Grid, block: [u64; 2], lower: &[f32], upper: &[f32]) -> Self {
+        Self::of_slice(grid, block, lower).merged(&Self::of_slice(grid, block, upper))
+    }
+
+    /// The bounds of one slice's voxels in each block of a slab it bounds (the block's
+    /// footprint, its border row and column included): half of a slab's bounds, which a
+    /// caller can compute once per slice and merge for the two slabs the slice belongs to
+    /// ([`SlabBounds::merged`]).
+    ///
+    /// # Panics
+    /// If `slice` does not hold `grid.slice_len()` values.
+    pub fn of_slice(grid: &Grid, block: [u64; 2], slice: &[f32]) -> Self {
         let [nx, ny] = [grid.dims[0] as usize, grid.dims[1] as usize];
-        for slice in [lower, upper] {
-            assert_eq!(slice.len(), nx * ny, "slices must hold {} values", nx * ny);
-        }
+        assert_eq!(slice.len(), nx * ny, "slices must hold {} values", nx * ny);
         let block = block.map(|b| b.max(1));
         let [bx, by] = block.map(|b| b as usize);
         let count = [(nx - 1).div_ceil(bx), (ny - 1).div_ceil(by)];
@@ -56,11 +65,8 @@ impl SlabBounds {
             lo.fill(f32::INFINITY);
             hi.fill(f32::NEG_INFINITY);
             nan.fill(0.0);
-            for slice in [lower, upper] {
-                for y in j * by..=((j + 1) * by).min(ny - 1) {
-                    let row = &slice[y * nx..(y + 1) * nx];
-                    column_bounds(row, &mut lo, &mut hi, &mut nan);
-                }
+            for y in j * by..=((j + 1) * by).min(ny - 1) {
+                column_bounds(&slice[y * nx..(y + 1) * nx], &mut lo, &mut hi, &mut nan);
             }
             for i in 0..count[0] {
                 let columns = i * bx..=((i + 1) * bx).min(nx - 1);
@@ -77,6 +83,22 @@ impl SlabBounds {
             }
         }
         bounds
+    }
+
+    /// The bounds holding both `self` and `other` block by block (same blocks).
+    ///
+    /// # Panics
+    /// If the two were made for different blocks.
+    pub fn merged(&self, other: &Self) -> Self {
+        assert!(
+            self.block == other.block && self.count == other.count,
+            "bounds of different blocks"
+        );
+        let mut out = self.clone();
+        for i in 0..out.min.len() {
+            out.include(i, other.min[i], other.max[i]);
+        }
+        out
     }
 
     /// Widens block `i` (x fastest) to hold [lo, hi]; a non-finite value makes it unbounded.
@@ -280,7 +302,9 @@ mod tests {
         ) {
             let grid = Grid::new([nx as u64, ny as u64, 2], [1.0; 3], [0.0; 3]).unwrap();
             let fast = SlabBounds::from_slices(&grid, block, &lower, &upper);
-            prop_assert_eq!(fast, reference(&grid, block, [&lower, &upper]));
+            prop_assert_eq!(&fast, &reference(&grid, block, [&lower, &upper]));
+            let one = SlabBounds::of_slice(&grid, block, &upper);
+            prop_assert_eq!(one, reference(&grid, block, [&upper, &upper]));
         }
     }
 
