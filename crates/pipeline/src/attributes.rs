@@ -241,8 +241,8 @@ pub struct Slices {
 
 impl Slices {
     /// The iso slice's bounds in blocks of `block` cubes (`SlabBounds::of_slice`), computed once
-    /// (every caller asks with the same block). A slab's bounds are its two slices' merged:
-    /// computed for each slab from both slices, a stored volume paid for each slice twice.
+    /// (every caller asks with the same block). A slab's bounds are its two slices' merged;
+    /// computing each slab's from both of its slices paid for every slice twice.
     pub(crate) fn bounds(&self, grid: &Grid, block: [u64; 2]) -> &SlabBounds {
         self.bounds
             .get_or_init(|| SlabBounds::of_slice(grid, block, &self.iso))

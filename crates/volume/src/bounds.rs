@@ -176,7 +176,6 @@ impl SlabBounds {
     }
 }
 
-/// (min, max) of finite values; (-inf, +inf) when one is not finite.
 /// Widens `lo` and `hi` element by element to hold `row`, and makes `nan` NaN in the columns
 /// where `row` holds a non-finite value (`v * 0` is NaN for NaN and both infinities, and a NaN
 /// stays in a sum). Compare-and-select and arithmetic only, so that the loop vectorizes (four
@@ -190,6 +189,7 @@ fn column_bounds(row: &[f32], lo: &mut [f32], hi: &mut [f32], nan: &mut [f32]) {
     }
 }
 
+/// (min, max) of finite values; (-inf, +inf) when one is not finite.
 pub(crate) fn segment_bounds(values: &[f32]) -> (f32, f32) {
     let mut lo = f32::INFINITY;
     let mut hi = f32::NEG_INFINITY;
