@@ -66,7 +66,7 @@ fn low_triangles(store: &Store, sweep: &Sweep) -> Vec<[DVec3; 3]> {
     store
         .positions()
         .filter(|&(_, p)| sweep.rank_of(p) < plane)
-        .flat_map(|(id, _)| store.vertex(id).map_or(&[][..], |v| &v.tris[..]))
+        .flat_map(|(id, _)| store.tris_of(id))
         .map(|&t| store.corners(store.tri(t)))
         .collect()
 }
@@ -238,8 +238,7 @@ impl Stage {
     fn star_reach(&self, sweep: &Sweep, slot: u64, rank_max: u32) -> f64 {
         let store = &self.band.store;
         let corners = store
-            .vertex(slot)
-            .map_or(&[][..], |v| &v.tris[..])
+            .tris_of(slot)
             .iter()
             .flat_map(|&t| store.corners(store.tri(t)));
         if sweep.rows.is_some() {
@@ -545,7 +544,7 @@ impl Stage {
                 || sweep
                     .row_of(pos)
                     .is_some_and(|r| r < f64::from(target.rows));
-            for &t in store.vertex(id).map_or(&[][..], |v| &v.tris[..]) {
+            for &t in store.tris_of(id) {
                 let tri = store.tri(t);
                 if all || !sweep.clear_of(target, &store.corners(tri)) {
                     due.extend(

@@ -473,6 +473,11 @@ impl Store {
         self.position(v).unwrap_or(DVec3::ZERO)
     }
 
+    /// The triangles of vertex `v` (none for a handle that names no vertex).
+    pub(crate) fn tris_of(&self, v: u64) -> &[TriId] {
+        self.vertex(v).map_or(&[], |x| &x.tris[..])
+    }
+
     /// Handles and positions of the live vertices, by slot: the dense scan for what needs only
     /// where the vertices are (a cascade's rear and catch-up, at every hand-off). Walking
     /// [`Store::ids`] reads every vertex record, many times larger than its slot: on hydrogen
