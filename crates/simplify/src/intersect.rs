@@ -371,6 +371,11 @@ pub(crate) struct TriIndex {
     unguarded: Option<Aabb>,
     live: usize,
     work: GuardWork,
+    /// The records a query's cells name, kept between queries so that gathering them is a
+    /// plain push into room already there (scratch, empty between queries: a checkpoint need
+    /// not hold it). As a `SmallVec` made afresh, each push checked where its items lived.
+    #[serde(skip)]
+    met: Vec<u32>,
 }
 
 /// What the guard's queries met, for the run summary: where its time goes is the records a
@@ -596,6 +601,9 @@ impl TriIndex {
             }
         }
         let (mut pairs, mut others) = (0, 0);
+        // Plain slices for the closure: a `SmallVec` checks where its items live at every
+        // access, and the closure runs once per record met.
+        let (fan, fan_boxes) = (&fan[..], &fan_boxes[..]);
         let mut hits = |r: u32| {
             let rec = &self.recs[r as usize];
             // The old patch's records (every triangle holding `a` or `b`): replaced, so no
@@ -635,7 +643,7 @@ impl TriIndex {
         };
         // The records to test are gathered first and read after: each is a cache miss, and
         // reads issued together overlap where a test per record waited for each in turn.
-        let mut met: SmallVec<[u32; 64]> = SmallVec::new();
+        let mut met = std::mem::take(&mut self.met);
         let mut meet = |r: u32| met.push(r);
         let mut lists: SmallVec<[(&CellList, u64); 32]> = SmallVec::new();
         for level in 0..LEVELS {
@@ -697,6 +705,8 @@ impl TriIndex {
             .fold(0, |acc, &r| acc ^ self.recs[r as usize].v[0]);
         std::hint::black_box(first_words);
         let crosses = met.iter().any(|&r| hits(r));
+        met.clear();
+        self.met = met;
         self.work.records += others;
         self.work.pairs += pairs;
         if crosses {
