@@ -26,9 +26,11 @@
 //!   A query gathers the records its cells name before it reads any, so that their cache misses
 //!   overlap (8 % of a one-stage run on bonsai at R = 0.2, same output).
 //! * **Large queries**: a query box spanning more cells of a level than that level has records
-//!   takes every record of the level instead, by the entry in its first cell. (A list of each
-//!   level's records, kept for that, cost a random write a record at every unfiling, and such
-//!   queries are rare: about 5 k of 446 k on bonsai at R = 0.2.)
+//!   takes every record of the level instead, by the entry in its first cell, in a pass over
+//!   that level's cells: each level has its own map for that. (With one map for all levels the
+//!   pass read every cell of every level, 430 a large query on bonsai upsampled to 511^3 and
+//!   3,400 with cells of 8 edges. A list of each level's records, kept for that, cost a random
+//!   write a record at every unfiling.)
 //! * **Emitted triangles** stay as obstacles ("ghosts") after they leave the store, since a
 //!   contraction just ahead of the retirement front could otherwise cross them. Ghosts lying
 //!   wholly below every resident triangle are dropped once they outnumber a quarter of the
@@ -74,7 +76,14 @@ const LEVEL_ROOM: f64 = 2.0;
 /// found); with 12 that run went about 20 % faster side by side with 6 (slab 421 at 276 s
 /// against slab 423 at 363 s), bonsai at R = 0.2 as fast within the noise, the same output
 /// bytes (the index only narrows what the exact test sees).
-const CELL_EDGES: f64 = 12.0;
+/// 8 since the forty-fourth session, once a large query read only its own level's cells: a
+/// query scanned about 485 entries of level-0 cells of 12 edges for 42 records met (bonsai at
+/// R = 0.2, one stage), 280 with 8. By callgrind, same output bytes everywhere: bonsai one
+/// stage 28.92 G against 29.45 G; two stages, the busier stage -0.8 % at R = 0.2 and -3.7 % at
+/// R = 0.01 (its second stage, 19.91 -> 19.17 G); engine at R = 0.01 +0.8 %, bonsai upsampled
+/// to 511^3 at 10 k faces +0.4 %. 10 gained less on bonsai (-0.3 %, -2.5 %); 6 scanned fewer
+/// entries but made more lookups and refilings (bonsai one stage 28.92 G, as 8).
+const CELL_EDGES: f64 = 8.0;
 /// A record is filed with its box grown by this share of its level's cell on every side, so
 /// that the updates a contraction makes to its neighbours' corners (about an edge; level-0
 /// cells are [`CELL_EDGES`] edges) leave most records where they are filed.
@@ -353,7 +362,9 @@ const NOT_FILED: Filed = Filed {
 pub(crate) struct TriIndex {
     /// Level-0 cell edge; 0 until fixed.
     cell: f64,
-    cells: FxHashMap<(u8, Cell), CellList>,
+    /// Each level's cells (a map per level: a large query reads every record of its level, by
+    /// a pass over that level's cells alone).
+    cells: Vec<FxHashMap<Cell, CellList>>,
     recs: Vec<Rec>,
     filed: Vec<Filed>,
     /// How many records are filed at each level.
@@ -658,12 +669,10 @@ impl TriIndex {
             let cells: i64 = (0..3)
                 .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
                 .product();
-            let l = level as u8;
             if cells as usize > count {
-                self.cells
-                    .iter()
-                    .filter(|((at, _), _)| *at == l)
-                    .flat_map(|(_, list)| list.keys.iter().zip(&list.recs))
+                self.cells[level]
+                    .values()
+                    .flat_map(|list| list.keys.iter().zip(&list.recs))
                     .filter(|&(&key, _)| key & FIRST_CELL == FIRST_CELL)
                     .for_each(|(_, &r)| meet(r));
                 continue;
@@ -673,7 +682,7 @@ impl TriIndex {
                 for y in clo[1]..=chi[1] {
                     for z in clo[2]..=chi[2] {
                         let c = [x, y, z];
-                        let Some(list) = self.cells.get(&(l, c)) else {
+                        let Some(list) = self.cells[level].get(&c) else {
                             continue;
                         };
                         // A record filed in several cells is tested in one: the cell holding
@@ -837,20 +846,21 @@ impl TriIndex {
         let room = self.room(level, &bx, lo, hi);
         let l = level as u8;
         let scaled = self.scaled(level, &room);
+        if self.per_level.len() <= level {
+            self.per_level.resize(level + 1, 0);
+            self.cells.resize_with(level + 1, FxHashMap::default);
+        }
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
                     let q = clip(&scaled, c);
-                    self.cells
-                        .entry((l, c))
+                    self.cells[level]
+                        .entry(c)
                         .or_default()
                         .push(r, &q, first_bits(lo, c));
                 }
             }
-        }
-        if self.per_level.len() <= level {
-            self.per_level.resize(level + 1, 0);
         }
         self.per_level[level] += 1;
         self.filed[r as usize] = Filed { level: l, room };
@@ -911,7 +921,7 @@ impl TriIndex {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
-                    if let Some(list) = self.cells.get_mut(&(f.level, c))
+                    if let Some(list) = self.cells[level].get_mut(&c)
                         && let Some(i) = list.find(r)
                     {
                         list.keys[i] = pack(&clip(&scaled, c), first_bits(lo, c));
@@ -928,17 +938,19 @@ impl TriIndex {
         if f.level == UNFILED {
             return;
         }
-        let (lo, hi) = self.cells_of(usize::from(f.level), &f.room);
+        let level = usize::from(f.level);
+        let (lo, hi) = self.cells_of(level, &f.room);
+        let cells = &mut self.cells[level];
         for x in lo[0]..=hi[0] {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
-                    let key = (f.level, [x, y, z]);
-                    if let Some(list) = self.cells.get_mut(&key) {
+                    let key = [x, y, z];
+                    if let Some(list) = cells.get_mut(&key) {
                         if let Some(i) = list.find(r) {
                             list.swap_remove(i);
                         }
                         if list.len() == 0 {
-                            self.cells.remove(&key);
+                            cells.remove(&key);
                         } else {
                             list.trim();
                         }
@@ -946,7 +958,7 @@ impl TriIndex {
                 }
             }
         }
-        self.per_level[usize::from(f.level)] -= 1;
+        self.per_level[level] -= 1;
         self.filed[r as usize] = NOT_FILED;
     }
 }
@@ -1179,7 +1191,9 @@ mod tests {
         ix.insert(0, [0, 1, 2], t);
         ix.fix_cell();
         let entries = |ix: &TriIndex| {
-            let mut e: Vec<_> = ix.cells.iter().map(|(k, l)| (*k, l.keys[0])).collect();
+            let mut e: Vec<_> = (ix.cells.iter().enumerate())
+                .flat_map(|(level, cells)| cells.iter().map(move |(c, l)| (level, *c, l.keys[0])))
+                .collect();
             e.sort_unstable();
             e
         };
@@ -1226,7 +1240,11 @@ mod tests {
     }
 
     fn filed(ix: &TriIndex) -> usize {
-        ix.cells.values().map(CellList::len).sum()
+        ix.cells
+            .iter()
+            .flat_map(|cells| cells.values())
+            .map(CellList::len)
+            .sum()
     }
 
     #[test]
@@ -1291,6 +1309,44 @@ mod tests {
         assert!(ix.filed[1].level > ix.filed[0].level);
         ix.remove(1);
         assert_eq!(ix.per_level.iter().sum::<usize>(), 1);
+    }
+
+    /// A fan whose box spans more cells of level 0 than the level has records reads that
+    /// level's records from its own cells, each once (a record straddling two cells too), and
+    /// still finds the one it pierces.
+    #[test]
+    fn a_query_wider_than_its_level_reads_each_record_of_the_level_once() {
+        let mut ix = TriIndex::default();
+        let n = 20;
+        row(&mut ix, 0, n, 0.0);
+        ix.fix_cell();
+        let far = right_triangle().map(|p| p * 100.0 - DVec3::Z * 500.0);
+        ix.insert(n, [900_000, 900_001, 900_002], far);
+        assert!(ix.filed[n as usize].level > 0);
+        assert!(
+            (0..n as usize).any(|r| ix.filed[r].room.lo.x < 16.0 && ix.filed[r].room.hi.x > 16.0),
+            "a record in two cells (cells of {})",
+            ix.cell
+        );
+        // A tall thin fan over the whole row, coming down through its last triangle or not.
+        let last = 3.0 * f64::from(n - 1);
+        let fan = |z: f64| {
+            let v = [1_000_000, 1_000_001, 1_000_002];
+            let p = [
+                DVec3::new(-1.0, 0.5, 0.0),
+                DVec3::new(last + 0.5, 0.4, z),
+                DVec3::new(last + 0.5, 0.6, z),
+            ];
+            (v, p)
+        };
+        let top = DVec3::new(-1.0, 0.5, 400.0);
+        let (v, p) = fan(0.5);
+        assert_eq!(move_corner(&mut ix, v, p, top), Verdict::Clear);
+        // The far record's level is read whole too (the fan's box spans more of its cells than
+        // it has records), and a record met is counted whether or not its box meets the fan's.
+        assert_eq!(ix.work().records, u64::from(n) + 1, "each record once");
+        let (v, p) = fan(-1.0);
+        assert_eq!(move_corner(&mut ix, v, p, top), Verdict::Crosses);
     }
 
     /// The plain test the packed [`meets`] replaces: two quantized boxes of a cell meet.
