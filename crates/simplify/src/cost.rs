@@ -166,7 +166,8 @@ impl Objective {
         let sites = topology::sites(store, a, b, rule)?;
         let h = va.quadric + vb.quadric;
         let w = va.area + vb.area;
-        let m = self.metric(store, a, b, h, w);
+        let isotropic = self.isotropy_metric(store, a, b, h, w);
+        let m = isotropic.unwrap_or(h);
         let (pos, value) = place(
             sites,
             store.pos(a),
@@ -175,12 +176,18 @@ impl Objective {
             |p| m.eval(p).max(0.0),
         )?;
         let (pa, pb) = (store.pos(a), store.pos(b));
-        let shape_error = shape_measure(&h, w, pos);
+        // Without isotropy the metric is `H_c` itself and `value` is `H_c(pos)` clamped: the
+        // shape measure and the cost come from it (the same bits as evaluating `H_c` again, two
+        // quadric evaluations a candidate fewer).
+        let shape_error = match isotropic {
+            None => root_per_area(value, w),
+            Some(_) => shape_measure(&h, w, pos),
+        };
         let cost = match *self {
             Objective::Shape { e0, .. } if shape_error > e0 => return None,
             _ if pa == pb => COINCIDENT,
             Objective::Quadric => value,
-            Objective::Shape { .. } => shape_measure(&m, w, pos),
+            Objective::Shape { .. } => isotropic.map_or(shape_error, |m| shape_measure(&m, w, pos)),
         };
         // Only the time-lag reads the reach, and only it keeps the patches' heights and radii.
         let (height, rad) = match (store.extra(a), store.extra(b)) {
@@ -195,32 +202,37 @@ impl Objective {
         })
     }
 
-    /// The quadric to minimise, scaled by `W_c` so that with `alpha = 0` it is `H_c` itself and
-    /// the placement is bit for bit the plain shape-measure (and Garland-Heckbert) placement.
-    fn metric(&self, store: &Store, a: u64, b: u64, h: Quadric, w: f64) -> Quadric {
+    /// The quadric to minimise when mesh isotropy weighs in (`alpha > 0`), scaled by `W_c`;
+    /// `None` when it is `H_c` itself, so that the placement is bit for bit the plain
+    /// shape-measure (and Garland-Heckbert) placement.
+    fn isotropy_metric(
+        &self,
+        store: &Store,
+        a: u64,
+        b: u64,
+        h: Quadric,
+        w: f64,
+    ) -> Option<Quadric> {
         match *self {
             Objective::Shape { e0, alpha } if alpha > 0.0 => {
                 let (g, area) = isotropy_quadric(store, a, b);
                 // W = 3 area(S_ab) W_c^(1/2) / E0 (seed 000, section 3, "Mesh isotropy").
                 let norm = 3.0 * area * w.sqrt() / e0;
-                if norm > 0.0 {
-                    h.scaled(1.0 - alpha) + g.scaled(alpha * w / norm)
-                } else {
-                    h
-                }
+                (norm > 0.0).then(|| h.scaled(1.0 - alpha) + g.scaled(alpha * w / norm))
             }
-            _ => h,
+            _ => None,
         }
     }
 }
 
 /// `sqrt(q(c) / W)`, 0 for a patch without area.
 fn shape_measure(q: &Quadric, w: f64, c: DVec3) -> f64 {
-    if w > 0.0 {
-        (q.eval(c).max(0.0) / w).sqrt()
-    } else {
-        0.0
-    }
+    root_per_area(q.eval(c).max(0.0), w)
+}
+
+/// `sqrt(value / W)`, 0 for a patch without area.
+fn root_per_area(value: f64, w: f64) -> f64 {
+    if w > 0.0 { (value / w).sqrt() } else { 0.0 }
 }
 
 /// `G_c = sum_{t in T_ab} w_t G_t`, `G_t(x) = |x - centroid(t)|^2 + avg(t)`,
