@@ -13,7 +13,7 @@ use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_prune::{Filter, PruneStats};
-use isostream_simplify::{Front, OutBatch, Simplifier, SimplifyStats};
+use isostream_simplify::{Front, Join, OutBatch, Serial, Simplifier, SimplifyStats};
 use tracing::{debug, info};
 
 use crate::attributes::SliceReader;
@@ -153,6 +153,10 @@ impl Stages<'_> {
         // With a cascade the first simplifier's batches go to the second, whose go to the writer.
         let (first_tx, second) = insert_stage(second, out_tx, capacity);
         let (order_tx, order_rx) = bounded::<Msg<Receiver<SlabReply>>>(threads);
+        // `[pipeline] threads = 1` keeps the whole job on one core, its final decimation too.
+        let last = &FinalWorkers {
+            threads: threads > 1,
+        };
         let depth = Depths {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
@@ -208,6 +212,7 @@ impl Stages<'_> {
                     log_every: (slabs_total / 20).max(1),
                     depth,
                     observer,
+                    last,
                 };
                 run("simplify", ctl, step, delta_rx, Outbox::new(ctl, first_tx))
             });
@@ -219,6 +224,7 @@ impl Stages<'_> {
                         slabs_total: grid.dims[2] - 1,
                         depth,
                         observer,
+                        last,
                     };
                     run("simplify2", ctl, step, rx, Outbox::new(ctl, tx))
                 })
@@ -465,6 +471,43 @@ fn join<T>(
     })
 }
 
+/// How the last simplifier runs its final decimation (`isostream_simplify::Join`): cut in two
+/// when it is large, whatever the machine, so that the output never depends on the thread
+/// count; the two workers then run on two threads (`[pipeline] threads` above 1: by then every
+/// other stage has finished and the second core is free) or one after the other.
+struct FinalWorkers {
+    threads: bool,
+}
+
+/// Fewest held faces for which the final decimation is cut in two. A cut costs a pass over
+/// the surface and the second worker's copies, and its rounds wait for the slower side: at the
+/// 60-70 k faces the default budget holds at the end (engine and bonsai at R = 0.01) the final
+/// decimation took as long cut as not (0.38-0.46 s against 0.41 s on engine), while in core it
+/// took engine's whole decimation from 6.05 to 3.13 s and mni152's from 2.71 to 1.69 s at
+/// R = 0.01 (docs/performance.md, "Forty-fifth session").
+const MIN_CUT_FACES: usize = 150_000;
+
+impl Join for FinalWorkers {
+    fn worth_cutting(&self, faces: usize) -> bool {
+        faces >= MIN_CUT_FACES
+    }
+
+    fn join(&self, a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
+        if !self.threads {
+            a();
+            b();
+            return;
+        }
+        std::thread::scope(|s| {
+            let helper = s.spawn(a);
+            b();
+            if let Err(panic) = helper.join() {
+                std::panic::resume_unwind(panic);
+            }
+        });
+    }
+}
+
 /// Deltas a channel from the detector may hold (at most `channel_capacity`). The detector
 /// is never the slow side (bonsai: 0.18 s of a 5 s run; 17 s of 3,090 s at 2041^3), so deeper
 /// queues only hold full-resolution faces the simplifier is not ready for: up to 8 batches of
@@ -616,6 +659,8 @@ struct SimplifyStep<'a> {
     log_every: u64,
     depth: &'a Depths,
     observer: &'a (dyn Fn(&Progress) + Sync),
+    /// How the last simplifier runs its final decimation (`isostream_simplify::Join`).
+    last: &'a dyn Join,
 }
 
 impl SimplifyStep<'_> {
@@ -731,7 +776,12 @@ impl Step for SimplifyStep<'_> {
 
     fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
         let mut out = OutBatch::default();
-        self.simplifier.finish(&mut out);
+        // A cascade's first stage ends while the second still works: no core is free.
+        let join: &dyn Join = match self.depth.second {
+            Some(_) => &Serial,
+            None => self.last,
+        };
+        self.simplifier.finish_with(&mut out, join);
         let front = u32::try_from(self.slabs_total).unwrap_or(u32::MAX);
         self.emit(out, front, tx)?;
         Ok(self.simplifier.stats())
@@ -746,6 +796,7 @@ struct SecondStep<'a> {
     slabs_total: u64,
     depth: &'a Depths,
     observer: &'a (dyn Fn(&Progress) + Sync),
+    last: &'a dyn Join,
 }
 
 impl Step for SecondStep<'_> {
@@ -790,7 +841,7 @@ impl Step for SecondStep<'_> {
     /// the written faces the run's totals.
     fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
         let mut out = OutBatch::default();
-        self.simplifier.finish(&mut out);
+        self.simplifier.finish_with(&mut out, self.last);
         if !out.elements.is_empty() {
             tx.send(out)?;
         }

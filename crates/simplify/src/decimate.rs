@@ -11,6 +11,7 @@ use crate::band::Band;
 use crate::candidates::{Candidate, Candidates};
 use crate::cost::{COINCIDENT, Eval, Evaluator};
 use crate::intersect::Verdict;
+use crate::seam::HalfSpace;
 use crate::store::Store;
 use crate::topology::{self, Patch};
 use crate::{Cascade, Front, Priority, SimplifyConfig, SimplifyStats, data_dependent, priority};
@@ -26,12 +27,19 @@ pub(crate) enum Until {
     Resident(usize),
     /// When no candidate is left (threshold policies: every queued edge passes the threshold).
     Exhausted,
+    /// When at most `resident` faces are held or the cheapest candidate costs more than `cost`:
+    /// a round of two workers either side of a cut (`seam`), which contract in the cost order
+    /// one queue would, up to the same cost.
+    Cheaper { cost: f64, resident: usize },
 }
 
 impl Until {
     pub(crate) fn reached(self, band: &Band) -> bool {
         match self {
-            Until::Resident(target) => band.resident() <= target,
+            Until::Resident(target)
+            | Until::Cheaper {
+                resident: target, ..
+            } => band.resident() <= target,
             Until::Exhausted => false,
         }
     }
@@ -45,6 +53,8 @@ pub(crate) struct At<'a> {
     pub(crate) front: f64,
     /// First stage of a cascade: the rear it announced last (its new fans stay clear of it).
     pub(crate) rear: Front,
+    /// One of two workers on either side of a cut (`seam`): its placements stay on its side.
+    pub(crate) half: Option<HalfSpace>,
 }
 
 impl At<'_> {
@@ -89,6 +99,25 @@ impl Decimator {
         }
     }
 
+    /// A decimator like this one with an empty queue: for a second worker (`seam`), and for a
+    /// queue built afresh after the workers' results are merged.
+    pub(crate) fn fresh(&self) -> Decimator {
+        Decimator {
+            evaluator: self.evaluator.clone(),
+            candidates: Candidates::default(),
+            time_lag: self.time_lag,
+            max_span: self.max_span,
+            patch: None,
+        }
+    }
+
+    /// Drops the queued candidates that name a vertex no longer free or changed since (the
+    /// other side of a cut, once its vertices are moved out).
+    pub(crate) fn drop_stale(&mut self, band: &Band) {
+        let store = &band.store;
+        self.candidates.retain(|c| is_current(store, c));
+    }
+
     /// The new front: delayed candidates it has passed come back.
     pub(crate) fn activate(&mut self, front: f64) {
         self.candidates.activate(front);
@@ -113,7 +142,7 @@ impl Decimator {
         stats: &mut SimplifyStats,
         until: Until,
     ) {
-        while !until.reached(band) || self.next_is_coincident() {
+        while !(until.reached(band) || self.next_costs_more(until)) || self.next_is_coincident() {
             let Some(c) = self.candidates.pop() else {
                 break;
             };
@@ -126,7 +155,9 @@ impl Decimator {
                 stats.rejected_other += 1;
                 continue;
             };
-            if outside_first_stage_room(&band.store, at, c.a, c.b, eval.pos) {
+            if outside_first_stage_room(&band.store, at, c.a, c.b, eval.pos)
+                || at.half.is_some_and(|h| !h.holds(eval.pos))
+            {
                 stats.rejected_other += 1;
                 continue;
             }
@@ -169,6 +200,19 @@ impl Decimator {
             self.patch = Some(patch);
         }
         self.candidates.trim();
+    }
+
+    /// Whether the cheapest candidate costs more than an [`Until::Cheaper`] allows.
+    fn next_costs_more(&mut self, until: Until) -> bool {
+        let Until::Cheaper { cost, .. } = until else {
+            return false;
+        };
+        self.candidates.peek().is_some_and(|c| c.cost > cost)
+    }
+
+    /// The cheapest queued candidate's cost (as queued: it may be stale).
+    pub(crate) fn cheapest(&mut self) -> Option<f64> {
+        self.candidates.peek().map(|c| c.cost)
     }
 
     /// Whether the cheapest candidate joins two coincident vertices (see [`COINCIDENT`]).
@@ -445,6 +489,7 @@ mod tests {
             config: &config,
             front: 7.0,
             rear: Front::default(),
+            half: None,
         };
         assert!(
             !outside_first_stage_room(&store, &first, a, b, at(4.5)),
@@ -459,6 +504,7 @@ mod tests {
             config: &config,
             front: 7.0,
             rear: Front::default(),
+            half: None,
         };
         assert!(!outside_first_stage_room(&store, &single, a, b, at(3.5)));
     }
@@ -474,6 +520,7 @@ mod tests {
             config: &config,
             front: 8.0,
             rear: Front { slabs: 5, rows: 4 },
+            half: None,
         };
         let p = |x, y, z| DVec3::new(x, y, z);
         // Triangle [a, b, c]: `a` at rank 6.5 row 4.5, `b` at rank 5.5 row 6, `c` at rank 6.5

@@ -55,7 +55,7 @@ use glam::{DVec3, Vec3, Vec3A};
 use rustc_hash::FxHashMap;
 use smallvec::SmallVec;
 
-use crate::store::TriId;
+use crate::store::{Store, TriId};
 use crate::topology::Patch;
 
 mod star;
@@ -448,6 +448,45 @@ impl TriIndex {
         if self.cell == 0.0 && self.recs.len() - self.free.len() >= SAMPLE {
             self.fix_cell();
         }
+    }
+
+    /// An index for a second worker on the other side of a cut (`seam`): the records of
+    /// triangles `moved` (taken out of this one, whose worker's fans cannot reach them), copies
+    /// of those of `shared` (the seam, which both workers' fans can meet) and of the ghosts,
+    /// the same cell size and the same region refused to new fans.
+    pub(crate) fn split_off(&mut self, moved: &[TriId], shared: &[TriId]) -> TriIndex {
+        let mut other = TriIndex {
+            cell: self.cell,
+            unguarded: self.unguarded,
+            ..TriIndex::default()
+        };
+        for &t in moved.iter().chain(shared) {
+            if let Some(&r) = self.of_tri.get(t as usize).filter(|&&r| r != NONE) {
+                let rec = self.recs[r as usize];
+                other.insert(t, rec.v, rec.p.map(Vec3::as_dvec3));
+            }
+        }
+        for &t in moved {
+            self.remove(t);
+        }
+        for &(r, top) in &self.ghosts {
+            let rec = self.recs[r as usize];
+            let g = other.new_rec(rec.v, rec.p.map(Vec3::as_dvec3));
+            other.ghosts.push_back((g, top));
+        }
+        other
+    }
+
+    /// Takes back the triangles [`TriIndex::split_off`] moved, those the other worker kept,
+    /// as `store` now has them, and counts the other's work as this index's.
+    pub(crate) fn absorb(&mut self, other: TriIndex, store: &Store, moved: &[TriId]) {
+        for &t in moved {
+            if other.of_tri.get(t as usize).is_some_and(|&r| r != NONE) {
+                let tri = store.tri(t);
+                self.insert(t, tri.v, store.corners(tri));
+            }
+        }
+        self.work = self.work + other.work;
     }
 
     /// Store triangle `t` collapsed away.

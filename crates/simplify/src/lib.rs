@@ -36,6 +36,8 @@
 //!   complete, without any of the contraction machinery.
 //! * `cascade`: what two simplifiers in series exchange (vertex states, the first stage's rear)
 //!   and why the pair is as safe as one.
+//! * `seam`: the final decimation on two workers either side of a cut, and why their results
+//!   merge exactly.
 //!
 //! Decisions (the why is at each item's definition):
 //! * **Surface boundary** (an iso-surface's boundary is where the volume's box cuts it):
@@ -109,6 +111,7 @@ mod policy;
 mod priority;
 mod quadric;
 mod retire;
+mod seam;
 mod stage;
 mod store;
 mod sweep;
@@ -121,6 +124,7 @@ pub use cascade::{Cascade, Handoff, VertexState};
 pub use intersect::GuardWork;
 pub use policy::Policy;
 pub use priority::Priority;
+pub use seam::{Join, Serial};
 pub use sweep::{Front, Rows, Sweep};
 pub use topology::Boundary;
 
@@ -278,9 +282,28 @@ pub struct SimplifyStats {
     pub lag_violations: u64,
     /// What the self-intersection guard's queries met.
     pub guard: GuardWork,
+    /// Faces held when the final decimation was cut between two workers (`seam`), 0 when it
+    /// was not.
+    #[serde(default)]
+    pub cut_faces: usize,
 }
 
 impl SimplifyStats {
+    /// Adds what a second worker on the same stage did (`seam`): its contractions, refusals
+    /// and largest cost and shape error.
+    pub(crate) fn add_worker(&mut self, w: &Self) {
+        self.contractions += w.contractions;
+        self.rejected_link += w.rejected_link;
+        self.rejected_flip += w.rejected_flip;
+        self.rejected_intersection += w.rejected_intersection;
+        self.rejected_unguarded += w.rejected_unguarded;
+        self.rejected_other += w.rejected_other;
+        self.delayed_front += w.delayed_front;
+        self.lag_violations += w.lag_violations;
+        self.max_cost = self.max_cost.max(w.max_cost);
+        self.max_shape_error = self.max_shape_error.max(w.max_shape_error);
+    }
+
     /// The counters of a cascade's two stages as one run's: faces and vertices in of the first,
     /// out of the second; work and refusals added up; resident and peak faces added (both stages
     /// hold their bands at the same time, so the sum bounds the peak); the largest cost and
@@ -310,6 +333,7 @@ impl SimplifyStats {
             candidates: first.candidates + second.candidates,
             lag_violations: first.lag_violations + second.lag_violations,
             guard: first.guard + second.guard,
+            cut_faces: first.cut_faces.max(second.cut_faces),
         }
     }
 }
@@ -469,9 +493,16 @@ impl Simplifier {
 
     /// End of volume: everything is modifiable; final decimation, retire all, emit all.
     pub fn finish(&mut self, out: &mut OutBatch) {
+        self.finish_with(out, &Serial);
+    }
+
+    /// [`Simplifier::finish`], with the first part of a large final decimation on two workers
+    /// either side of a cut that `join` may run at once (`seam`); the output does not depend on
+    /// how it runs them.
+    pub fn finish_with(&mut self, out: &mut OutBatch, join: &dyn Join) {
         match &mut self.engine {
             Engine::PassThrough(p) => p.finish(out),
-            Engine::Stage(s) => s.finish(out),
+            Engine::Stage(s) => s.finish(out, join),
         }
     }
 

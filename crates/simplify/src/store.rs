@@ -504,6 +504,81 @@ impl Store {
     pub(crate) fn corners(&self, tri: &Tri) -> [DVec3; 3] {
         tri.v.map(|id| self.pos(id))
     }
+
+    /// The slot handle `v` names (current or not): a store split from this one
+    /// ([`Store::split_off`]) has the same slots.
+    pub(crate) fn slot_index(v: u64) -> usize {
+        (v & u64::from(u32::MAX)) as usize
+    }
+
+    /// The handle of the vertex in `slot`, if one lives there.
+    pub(crate) fn handle_at(&self, slot: usize) -> Option<u64> {
+        let live = self.verts.get(slot)?.is_some();
+        live.then(|| handle(slot, self.slots[slot].generation))
+    }
+
+    /// Vertex `v` may not move until [`Store::thaw`] (a seam corner while two workers
+    /// decimate either side of it, `seam`): it reads as retired, so no candidate names it.
+    pub(crate) fn freeze(&mut self, v: u64) {
+        self.set_state(v, |s| s | RETIRED);
+    }
+
+    pub(crate) fn thaw(&mut self, v: u64) {
+        self.set_state(v, |s| s & !RETIRED);
+    }
+
+    /// Moves the vertices in `slots` and the triangles `tris` (the other side of a cut:
+    /// `seam`) into a store of the same slots and handles for a second worker, which then
+    /// holds the vertices' data and counts those triangles as its own. This store keeps the
+    /// slots, marked retired so that none of its candidates names them, and the triangles'
+    /// last values, until [`Store::absorb`] takes back what the other made of them. Positions,
+    /// slots and triangles are copied (the seam's corners and triangles are read on both
+    /// sides), the vertex records are moved: they are most of the memory.
+    pub(crate) fn split_off(&mut self, slots: &[usize], tris: &[TriId]) -> Store {
+        let mut other = Store {
+            verts: (0..self.verts.len()).map(|_| None).collect(),
+            slots: self.slots.clone(),
+            free_verts: Vec::new(),
+            handles: rustc_hash::FxHashMap::default(),
+            live_verts: slots.len(),
+            tris: self.tris.clone(),
+            free_tris: Vec::new(),
+            resident: tris.len(),
+            extras: self.extras.clone(),
+            keeps_extras: self.keeps_extras,
+            attrs: self.attrs.clone(),
+        };
+        for &slot in slots {
+            other.verts[slot] = self.verts[slot].take();
+            self.slots[slot].state |= RETIRED;
+        }
+        self.live_verts -= slots.len();
+        self.resident -= tris.len();
+        other
+    }
+
+    /// Takes back the vertices in `slots` and the triangles `tris` from the store
+    /// [`Store::split_off`] gave them to, as its worker left them (moved, merged away, freed):
+    /// that worker changed no other slot, and this store changed none of these.
+    pub(crate) fn absorb(&mut self, mut other: Store, slots: &[usize], tris: &[TriId]) {
+        for &slot in slots {
+            self.verts[slot] = other.verts[slot].take();
+            self.slots[slot] = other.slots[slot];
+            if let (Some(e), Some(mine)) = (other.extras.get(slot), self.extras.get_mut(slot)) {
+                *mine = e.clone();
+            }
+            if let (Some(a), Some(mine)) = (other.attrs.get_mut(slot), self.attrs.get_mut(slot)) {
+                *mine = std::mem::take(a);
+            }
+        }
+        for &t in tris {
+            self.tris[t as usize] = other.tris[t as usize];
+        }
+        self.free_verts.extend(other.free_verts);
+        self.free_tris.extend(other.free_tris);
+        self.live_verts += other.live_verts;
+        self.resident += other.resident;
+    }
 }
 
 #[cfg(test)]
