@@ -261,8 +261,10 @@ pub struct PipelineConfig {
     /// When to save a resumable state (`isostream run --resume`).
     #[serde(default)]
     pub checkpoint: CheckpointConfig,
-    /// Threads extracting slabs in parallel (default: one per core). The output does not
-    /// depend on it: slabs reach the detector in order.
+    /// Threads extracting slabs in parallel (default: one per core), and above 1 the last
+    /// simplifier's final decimation on two threads when it is cut in two (`stages.rs`,
+    /// `FinalWorkers`). The output does not depend on it: slabs reach the detector in order,
+    /// and whether a final decimation is cut depends on its faces only.
     pub threads: Option<usize>,
     /// Simplifiers in series, each on its own thread (a cascade, see
     /// `isostream_simplify::Cascade`): 2 uses two cores for one job (mode `rate` with the
