@@ -483,8 +483,8 @@ struct FinalWorkers {
 /// the surface and the second worker's copies, and its rounds wait for the slower side: at the
 /// 60-70 k faces the default budget holds at the end (engine and bonsai at R = 0.01) the final
 /// decimation took as long cut as not (0.38-0.46 s against 0.41 s on engine), while in core it
-/// took engine's whole decimation from 6.05 to 3.13 s and mni152's from 2.71 to 1.69 s at
-/// R = 0.01 (docs/performance.md, "Forty-fifth session").
+/// took engine's job at R = 0.01 from 6.05 to 3.02 s and mni152's from 2.71 to 1.73 s
+/// (docs/performance.md, "Forty-fifth session").
 const MIN_CUT_FACES: usize = 150_000;
 
 impl Join for FinalWorkers {
