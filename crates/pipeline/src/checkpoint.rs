@@ -458,7 +458,7 @@ fn write_error(path: &Path, e: &dyn std::fmt::Display) -> RunError {
 
 /// Reads and checks a checkpoint: magic, format, crate version, lengths, hash (streamed over the
 /// file), then decodes the rest; the simplifier's section is decoded later, from the file
-/// ([`decode_simplifier`]).
+/// ([`decode_section`]).
 pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
     let cannot = |e: std::io::Error| RunError::Checkpoint {
         path: path.to_path_buf(),
