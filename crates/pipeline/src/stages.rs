@@ -494,9 +494,7 @@ impl Join for FinalWorkers {
 
     fn join(&self, a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
         if !self.threads {
-            a();
-            b();
-            return;
+            return Serial.join(a, b);
         }
         std::thread::scope(|s| {
             let helper = s.spawn(a);

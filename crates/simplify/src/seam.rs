@@ -121,19 +121,25 @@ impl Cut {
             return None;
         }
         zs.sort_unstable_by(f32::total_cmp);
-        // Of the planes through the 40th to 60th percentile of the heights, the one crossing
-        // the fewest triangles (the median on a tie): the seam is what the workers leave whole.
+        // Each triangle's lowest and highest corner, once: a plane at `z0` crosses it when
+        // `lo < z0 <= hi`.
+        let spans: Vec<(f64, f64)> = store
+            .positions()
+            .flat_map(|(v, _)| store.tris_of(v).iter().map(move |&t| (v, t)))
+            .filter(|&(v, t)| store.tri(t).v[0] == v)
+            .map(|(_, t)| {
+                let z = store.tri(t).v.map(|x| store.pos(x).z);
+                (z[0].min(z[1]).min(z[2]), z[0].max(z[1]).max(z[2]))
+            })
+            .collect();
         let crossed = |z0: f64| {
-            store
-                .positions()
-                .flat_map(|(v, _)| store.tris_of(v).iter().map(move |&t| (v, t)))
-                .filter(|&(v, t)| {
-                    let tri = store.tri(t);
-                    let above = tri.v.map(|x| store.pos(x).z >= z0);
-                    tri.v[0] == v && above.contains(&true) && above.contains(&false)
-                })
+            spans
+                .iter()
+                .filter(|&&(lo, hi)| lo < z0 && z0 <= hi)
                 .count()
         };
+        // Of the planes through the 40th to 60th percentile of the heights, the one crossing
+        // the fewest triangles (the median on a tie): the seam is what the workers leave whole.
         let z0 = CANDIDATE_QUANTILES
             .iter()
             .map(|&q| f64::from(zs[((zs.len() - 1) as f64 * q) as usize]))

@@ -470,14 +470,10 @@ impl Stage {
         }
         cut.merge(&mut self.band, upper_band);
         self.stats.add_worker(&upper_stats);
-        *d = d.fresh();
-        let at = At {
-            config: &self.config,
-            front: self.front,
-            rear: self.rear,
-            half: None,
-        };
-        d.requeue_all(&self.band, &at);
+        self.with_decimator(|d, band, at, _| {
+            *d = d.fresh();
+            d.requeue_all(band, at);
+        });
     }
 
     /// Runs `f` on the decimator (if anything contracts) with the band, where the stage stands
