@@ -22,11 +22,11 @@
 //!   ([`crate::store::Store::absorb`]).
 //!
 //! The workers contract in rounds of rising cost ([`ROUND_FACTOR`]) and stop when the sides
-//! hold [`SLACK`] times their share of the target; the stage then finishes on the merged surface
-//! as before, over one queue again: the seam's edges, and the global cost order between the
-//! sides. The result is a deterministic function of the input, whatever runs
-//! the two workers ([`Join`]): the pipeline runs them on two threads, the tests one after the
-//! other, with the same output.
+//! hold a multiple of their share of the target ([`slack`]: more where the seam is large
+//! against the target); the stage then finishes on the merged surface as before, over one
+//! queue again: the seam's edges, and the global cost order between the sides. The result is a
+//! deterministic function of the input, whatever runs the two workers ([`Join`]): the pipeline
+//! runs them on two threads, the tests one after the other, with the same output.
 
 use glam::DVec3;
 
@@ -75,12 +75,28 @@ impl Join for Serial {
 /// [`Join::worth_cutting`]).
 const MIN_SIDE_FACES: usize = 1000;
 
-/// The workers stop once the sides hold this multiple of their share of the target, and the
-/// one queue does the rest on the merged surface. The seam is still at the density it had when
-/// the cut was made, and taking it down next to sides already near their final density cost
-/// accuracy: mni152 at R = 0.01 in core, cut at the median, RMS distance 0.45 % with 1.2,
-/// 0.22 % with 1.5, 0.173 % with 3 against 0.169 % uncut.
-pub(crate) const SLACK: f64 = 3.0;
+/// The workers stop once the sides hold [`slack`] times their share of the target, and the one
+/// queue does the rest on the merged surface. The seam is still at the density it had when the
+/// cut was made, and taking it down next to sides already near their final density costs
+/// accuracy where the seam is large against the target, and nowhere else. In core, one run
+/// each, RMS distance with a slack of 3 / 2 / 1.5 / 1.2: mni152 at R = 0.01 (2.0 k seam faces
+/// for a 3.3 k target) 0.468 / 0.476 / 0.522 / 0.819 voxels, engine at R = 0.01 (3.4 k for
+/// 5.9 k) 0.182 / 0.183 / 0.189 / 0.270; at R = 0.05 within 1 % of each other on both, at R =
+/// 0.2 within 0.3 % on engine, bonsai and mni152. A slack of 3 everywhere left two thirds of an
+/// R = 0.2 job to the one queue (bonsai in core 7.4 s, 5.9 s with 1.2), so the slack is
+/// [`SLACK_MIN`] plus [`SLACK_PER_SEAM_FACE`] per seam face per target face, at most
+/// [`SLACK_MAX`] (docs/performance.md, "Forty-sixth session").
+const SLACK_MIN: f64 = 1.2;
+/// See [`SLACK_MIN`]: mni152 gets 3 at R = 0.01, 1.57 at R = 0.05 and 1.29 at R = 0.2.
+const SLACK_PER_SEAM_FACE: f64 = 3.0;
+/// See [`SLACK_MIN`].
+const SLACK_MAX: f64 = 3.0;
+
+/// How many times their share of the `target` the sides hold when the workers stop, with a
+/// seam of `seam` faces (see [`SLACK_MIN`]).
+fn slack(seam: usize, target: usize) -> f64 {
+    (SLACK_MIN + SLACK_PER_SEAM_FACE * seam as f64 / target.max(1) as f64).min(SLACK_MAX)
+}
 
 /// Each round of the workers contracts up to this factor above the last round's cost (or the
 /// cheapest candidate's, if that is higher): the sides then share the contractions by cost, as
@@ -113,7 +129,7 @@ pub(crate) struct Cut {
 
 impl Cut {
     /// The cut (see [`CANDIDATE_QUANTILES`]), and how many faces the workers leave for a final
-    /// `target` ([`SLACK`]): `None` when a side would be too small, or the target leaves little
+    /// `target` ([`slack`]): `None` when a side would be too small, or the target leaves little
     /// to contract.
     pub(crate) fn plan(store: &Store, target: usize) -> Option<(Cut, usize)> {
         let mut zs: Vec<f32> = store.positions().map(|(_, p)| p.z as f32).collect();
@@ -185,7 +201,7 @@ impl Cut {
         // share of the target, or the sides are squeezed to make room for them (mni152 at
         // R = 0.01 in core, 2.5 k seam faces for a 3.3 k target: 14x the RMS distance).
         let total = lower + upper + seam;
-        let sides = target as f64 * SLACK * (lower + upper) as f64 / total as f64;
+        let sides = target as f64 * slack(seam, target) * (lower + upper) as f64 / total as f64;
         let goal = seam + sides.ceil() as usize;
         if lower.min(upper) < MIN_SIDE_FACES || goal >= total {
             return None;
@@ -265,6 +281,20 @@ mod tests {
         fn join(&self, a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
             super::Serial.join(a, b);
         }
+    }
+
+    #[test]
+    fn the_slack_grows_with_the_seam_against_the_target() {
+        use super::{SLACK_MAX, SLACK_MIN, slack};
+        assert_eq!(slack(0, 1000), SLACK_MIN);
+        // mni152 in core: 2.0 k seam faces against the targets of R = 0.01, 0.05 and 0.2.
+        assert_eq!(slack(2033, 3335), SLACK_MAX);
+        let (r005, r02) = (slack(2033, 16_675), slack(2033, 66_697));
+        assert!(
+            SLACK_MIN < r02 && r02 < r005 && r005 < SLACK_MAX,
+            "{r02} {r005}"
+        );
+        assert_eq!(slack(10, 0), SLACK_MAX);
     }
 
     /// A bumpy torus lying across z = 0 (so that the cut meets it in two loops), `nu` by `nv`
