@@ -81,9 +81,9 @@ const MIN_SIDE_FACES: usize = 1000;
 /// accuracy where the seam is large against the target, and nowhere else. In core, one run
 /// each, RMS distance with a slack of 3 / 2 / 1.5 / 1.2: mni152 at R = 0.01 (2.0 k seam faces
 /// for a 3.3 k target) 0.468 / 0.476 / 0.522 / 0.819 voxels, engine at R = 0.01 (3.4 k for
-/// 5.9 k) 0.182 / 0.183 / 0.189 / 0.270; at R = 0.05 within 1 % of each other on both, at R =
-/// 0.2 within 0.3 % on engine, bonsai and mni152. A slack of 3 everywhere left two thirds of an
-/// R = 0.2 job to the one queue (bonsai in core 7.4 s, 5.9 s with 1.2), so the slack is
+/// 5.9 k) 0.182 / 0.183 / 0.189 / 0.270; at R = 0.05 within 1.3 % of each other on both, at
+/// R = 0.2 within 0.3 % on engine, bonsai and mni152. A slack of 3 everywhere left two thirds of
+/// an R = 0.2 job to the one queue (bonsai in core 7.2 s, 6.3 s with this rule), so the slack is
 /// [`SLACK_MIN`] plus [`SLACK_PER_SEAM_FACE`] per seam face per target face, at most
 /// [`SLACK_MAX`] (docs/performance.md, "Forty-sixth session").
 const SLACK_MIN: f64 = 1.2;
