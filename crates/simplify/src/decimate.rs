@@ -392,6 +392,11 @@ impl Decimator {
 /// corners of the new fan and of the `patch` it replaces (the fan lies in the convex hull of
 /// its corners; see [`crate::Sweep`]).
 fn beyond_front(at: &At, patch: &Patch, pos: DVec3) -> Option<f64> {
+    // Past the end of the volume nothing is beyond the front, and the final decimation need not
+    // key every patch's corners (3 % of bonsai's at R = 0.01).
+    if at.front == f64::INFINITY {
+        return None;
+    }
     let sweep = at.config.sweep?;
     let corners = patch.tris.iter().flat_map(|pt| pt.p);
     let far = sweep.key_of(std::iter::once(pos).chain(corners))?;
