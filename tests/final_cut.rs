@@ -34,9 +34,9 @@ fn gyroid(
 
 /// 200 k faces held at the end: the final decimation is cut, at R = 0.02 (1.4 k seam faces
 /// against a 4 k target: the workers stop at 2.2x their share, `seam::slack`) and at R = 0.2
-/// (against 40 k: 1.3x). On two threads or one, the same bytes; the output
-/// closed, edge-manifold and oriented, with the full surface's Euler characteristics, no two
-/// triangles crossing by the referee, and the rate met.
+/// (against 40 k: 1.3x). On two threads or one, the same bytes; the output closed,
+/// edge-manifold and oriented, with the full surface's Euler characteristics, no two triangles
+/// crossing by the referee, and the rate met.
 #[test]
 fn a_cut_final_decimation_is_valid_and_independent_of_threads() {
     let dir = tempfile::tempdir().unwrap();
