@@ -77,6 +77,11 @@ def main():
     for b in bins:
         if not b.exists():
             sys.exit(f"{b}: no such binary; build it with `cargo build --release`")
+    unknown = [v for v in args.volumes.split(",") if v not in VOLUMES]
+    if unknown:
+        sys.exit(f"unknown volume {', '.join(unknown)}: use {', '.join(VOLUMES)}")
+    if not DATA.is_dir():
+        sys.exit(f"{DATA}: not found; the real volumes live in ../shared/data")
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     pipeline = args.pipeline.replace("; ", "\n")
