@@ -154,6 +154,9 @@ impl Accumulator {
     }
 
     fn add(&mut self, d: f64) {
+        // `f64::max` passes over NaN: a NaN distance would vanish from the maximum and the
+        // report's larger-of-both-directions while it spoiled the sums.
+        debug_assert!(!d.is_nan(), "a NaN distance");
         self.sum += d;
         self.sum_squares += d * d;
         self.max = self.max.max(d);
@@ -662,6 +665,35 @@ pub(crate) mod tests {
         assert_eq!(d.clipped_samples, 0);
         assert_eq!(d.full_resolution_triangles, 800);
         assert!((d.diagonal - (200.0f64 + 0.09).sqrt()).abs() < 1e-12);
+    }
+
+    /// Zero-area triangles with two coincident corners, as other tools leave them: needles
+    /// 0.1 below the full surface, over an output plane 0.3 below it. Their closest points were
+    /// 0 / 0 from one side; once such a needle was the nearest triangle, the next sample's bound
+    /// from it was NaN, and every later full -> output query read the whole hierarchy and
+    /// returned NaN, which the larger-of-both-directions then passed over.
+    #[test]
+    fn coincident_corners_in_the_output_are_measured() {
+        let (mut op, mut ot) = plane(10.0, 4, 0.0);
+        for k in 0..100u32 {
+            let (x, y) = (f64::from(k % 10) + 0.25, f64::from(k / 10) + 0.25);
+            let i = op.len() as u32;
+            op.extend([[x, y, 0.2], [x + 0.5, y, 0.2]]);
+            ot.extend([[i, i, i + 1], [i + 1, i, i], [i, i + 1, i + 1]]);
+        }
+        let (fp, ft) = plane(10.0, 20, 0.3);
+        let d = stream(
+            (&op, &ot),
+            &soup(&fp, &ft),
+            1.0,
+            &MeasureOptions::default(),
+            1.0,
+        );
+        let f2o = &d.full_to_output;
+        assert!(f2o.mean > 0.1 && f2o.mean < 0.3, "{f2o:?}");
+        assert!(f2o.rms > 0.1 && f2o.rms < 0.3, "{f2o:?}");
+        assert!((f2o.hausdorff - 0.3).abs() < 1e-12, "{f2o:?}");
+        assert!(d.rms >= f2o.rms, "{d:?}");
     }
 
     #[test]
