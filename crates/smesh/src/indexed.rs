@@ -19,12 +19,35 @@ pub struct IndexedMesh {
 /// In-memory load of a (small) mesh of any supported format: positions, triangles, per-vertex
 /// attributes. Streaming inputs are checked against the streaming rules on the way.
 pub fn read_indexed(path: &Path) -> Result<IndexedMesh, SmeshError> {
-    match Format::from_path(path)? {
-        Format::Sma | Format::Smb => read_stream(path),
+    let mesh = match Format::from_path(path)? {
+        Format::Sma | Format::Smb => return read_stream(path),
         Format::Ply => ply::read(path),
         Format::Obj => obj::read(path),
         Format::Stl => stl::read(path),
         Format::Glb => glb::read(path),
+    }?;
+    finite(path, mesh)
+}
+
+/// Refuses a foreign mesh with a NaN or infinite coordinate, as the streaming formats' check
+/// does: every distance, angle and box computed from it would be NaN (`measure` reported a NaN
+/// directional bias and carried on).
+fn finite(path: &Path, mesh: IndexedMesh) -> Result<IndexedMesh, SmeshError> {
+    match mesh
+        .positions
+        .iter()
+        .position(|p| !p.iter().all(|c| c.is_finite()))
+    {
+        None => Ok(mesh),
+        Some(i) => {
+            let [x, y, z] = mesh.positions[i];
+            Err(SmeshError::foreign(
+                path,
+                format!(
+                    "vertex {i} has a non-finite coordinate ({x}, {y}, {z}); the mesh is corrupt"
+                ),
+            ))
+        }
     }
 }
 

@@ -302,7 +302,9 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
                 let n = mesh.positions.len();
                 for (i, f) in faces.into_iter().enumerate() {
                     let list = f.0.ok_or_else(|| {
-                        bad(format!("face {i} has no integer list `vertex_indices`"))
+                        bad(format!(
+                            "face {i} has no list `vertex_indices` of non-negative integers"
+                        ))
                     })?;
                     if let Some(&v) = list.iter().find(|&&v| v as usize >= n) {
                         return Err(bad(format!(

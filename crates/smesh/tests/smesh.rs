@@ -911,3 +911,58 @@ fn foreign_ply_with_quads_and_doubles_is_read() {
     assert_eq!(stats.dropped_vertices, 1);
     assert_eq!((stats.written.vertices, stats.written.triangles), (4, 2));
 }
+
+/// A foreign mesh with a NaN or infinite coordinate is refused with the vertex named, as a
+/// streaming one is, by loading and by conversion (which then writes nothing); a negative index
+/// is named as such.
+#[test]
+fn foreign_meshes_with_non_finite_coordinates_or_negative_indices_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // Binary: the ASCII parser refuses `nan` as a number already.
+    let ply = |coord: f32, index: i32| {
+        let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n\
+                      property float y\nproperty float z\nelement face 1\n\
+                      property list uchar int vertex_indices\nend_header\n"
+            .to_vec();
+        for c in [0.0, 0.0, 0.0, 1.0, coord, 0.0, 0.0, 1.0, 0.0f32] {
+            b.extend(c.to_le_bytes());
+        }
+        b.push(3);
+        for i in [0, 1, index] {
+            b.extend(i.to_le_bytes());
+        }
+        b
+    };
+    let cases = [
+        (
+            "nan.ply",
+            ply(f32::NAN, 2),
+            "vertex 1 has a non-finite coordinate (1, NaN, 0); the mesh is corrupt",
+        ),
+        (
+            "inf.ply",
+            ply(f32::INFINITY, 2),
+            "vertex 1 has a non-finite coordinate (1, inf, 0); the mesh is corrupt",
+        ),
+        (
+            "nan.obj",
+            b"v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n".to_vec(),
+            "vertex 1 has a non-finite coordinate (1, 0, NaN); the mesh is corrupt",
+        ),
+        (
+            "neg.ply",
+            ply(0.0, -1),
+            "face 0 has no list `vertex_indices` of non-negative integers",
+        ),
+    ];
+    for (name, text, message) in cases {
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        let e = read_indexed(&p).unwrap_err().to_string();
+        assert_eq!(e, format!("{}: {message}", p.display()));
+        let out = dir.path().join("out.smb");
+        let e = convert(&p, &out).unwrap_err().to_string();
+        assert_eq!(e, format!("{}: {message}", p.display()));
+        assert!(!out.exists());
+    }
+}
