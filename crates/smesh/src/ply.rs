@@ -306,6 +306,13 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
                             "face {i} has no list `vertex_indices` of non-negative integers"
                         ))
                     })?;
+                    // Dropping it would lose part of the surface without a word.
+                    if list.len() < 3 {
+                        return Err(bad(format!(
+                            "face {i} has {} vertices; a face needs at least 3",
+                            list.len()
+                        )));
+                    }
                     if let Some(&v) = list.iter().find(|&&v| v as usize >= n) {
                         return Err(bad(format!(
                             "face {i} references vertex {v} but the file has {n} vertices before it"

@@ -914,9 +914,9 @@ fn foreign_ply_with_quads_and_doubles_is_read() {
 
 /// A foreign mesh with a NaN or infinite coordinate is refused with the vertex named, as a
 /// streaming one is, by loading and by conversion (which then writes nothing); a negative index
-/// is named as such.
+/// and a PLY face of fewer than three vertices are named as such.
 #[test]
-fn foreign_meshes_with_non_finite_coordinates_or_negative_indices_are_refused() {
+fn foreign_meshes_with_bad_coordinates_or_faces_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     // Binary: the ASCII parser refuses `nan` as a number already.
     let ply = |coord: f32, index: i32| {
@@ -953,6 +953,14 @@ fn foreign_meshes_with_non_finite_coordinates_or_negative_indices_are_refused() 
             "neg.ply",
             ply(0.0, -1),
             "face 0 has no list `vertex_indices` of non-negative integers",
+        ),
+        (
+            "two.ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+              property float z\nelement face 1\nproperty list uchar int vertex_indices\n\
+              end_header\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n"
+                .to_vec(),
+            "face 0 has 2 vertices; a face needs at least 3",
         ),
     ];
     for (name, text, message) in cases {
