@@ -640,17 +640,23 @@ pub(crate) mod tests {
         (v.iter().map(|p| (*p * radius).to_array()).collect(), f)
     }
 
-    #[test]
-    fn parallel_planes_are_offset_apart() {
-        let (op, ot) = plane(10.0, 4, 0.0);
+    /// `output` measured against a full-resolution plane `[0, 10]^2` at height 0.3 (20 x 20
+    /// cells), streamed in slabs of 1, search radius 1.
+    fn under_the_plane(output: (&[[f64; 3]], &[[u32; 3]])) -> Distances {
         let (fp, ft) = plane(10.0, 20, 0.3);
-        let d = stream(
-            (&op, &ot),
+        stream(
+            output,
             &soup(&fp, &ft),
             1.0,
             &MeasureOptions::default(),
             1.0,
-        );
+        )
+    }
+
+    #[test]
+    fn parallel_planes_are_offset_apart() {
+        let (op, ot) = plane(10.0, 4, 0.0);
+        let d = under_the_plane((&op, &ot));
         for dir in [&d.full_to_output, &d.output_to_full] {
             assert!((dir.mean - 0.3).abs() < 1e-12, "{dir:?}");
             assert!((dir.rms - 0.3).abs() < 1e-12);
@@ -681,14 +687,7 @@ pub(crate) mod tests {
             op.extend([[x, y, 0.2], [x + 0.5, y, 0.2]]);
             ot.extend([[i, i, i + 1], [i + 1, i, i], [i, i + 1, i + 1]]);
         }
-        let (fp, ft) = plane(10.0, 20, 0.3);
-        let d = stream(
-            (&op, &ot),
-            &soup(&fp, &ft),
-            1.0,
-            &MeasureOptions::default(),
-            1.0,
-        );
+        let d = under_the_plane((&op, &ot));
         let f2o = &d.full_to_output;
         assert!(f2o.mean > 0.1 && f2o.mean < 0.3, "{f2o:?}");
         assert!(f2o.rms > 0.1 && f2o.rms < 0.3, "{f2o:?}");
