@@ -41,6 +41,16 @@ pub const MIN_SAMPLES: f64 = 10_000.0;
 /// running time (one exact nearest-point query per sample; about 10 s for both directions of a
 /// 2-million-triangle surface on one core) and the memory of the output samples (24 bytes each).
 pub const MAX_SAMPLES: f64 = 4_000_000.0;
+/// Samples of the full-resolution surface past which its density falls: a quarter (each sample
+/// then counting four times) once the surface seen so far would take this many at the output's
+/// density, a sixteenth past twice that area, and so on, so that every later doubling of the
+/// area takes half the samples of the one before. The full surface is sampled at the output's
+/// density, about as many samples as the output gets when the two have about the same area; an
+/// output far smaller (another volume's mesh, or one in other units, whose density
+/// [`MIN_SAMPLES`] then raises) otherwise drew samples without bound: a unit tetrahedron against
+/// bonsai's surface took 1.6 billion of them and two minutes. Never reached when the full
+/// surface has less than four times the output's area.
+const FULL_SAMPLES_CAP: f64 = 4.0 * MAX_SAMPLES;
 /// Default search radius of the output -> full direction, in voxel diagonals. A simplified mesh
 /// within its error bound stays well inside a few voxels of the full-resolution surface.
 pub const DEFAULT_SEARCH_VOXEL_DIAGONALS: f64 = 4.0;
@@ -91,15 +101,19 @@ pub struct DirectedDistance {
     pub hausdorff: f64,
     /// The distance 99.9 % of the samples are within (from the 4096 bins the samples are
     /// counted in: at most one bin, `max_distance / 4096`, above the exact quantile, and never
-    /// above `hausdorff`). Why beside the Hausdorff distance: that is one sample's distance, and
+    /// above `hausdorff`; `hausdorff` itself when the quantile lies past `max_distance`, where
+    /// the bins end). Why beside the Hausdorff distance: that is one sample's distance, and
     /// small changes of the order of contractions move it by a factor of two or three (engine
     /// at R = 0.2 in core: 0.063 to 0.197 % of the diagonal, docs/performance.md "Twenty-seventh
     /// session"), while the 99.9th percentile follows the surface as a whole.
     pub p999: f64,
+    /// Samples drawn (full -> output: each counts `Distances::full_sample_weight` times or
+    /// less, see there).
     pub samples: u64,
-    /// `(bin start, samples)`: at most [`DISTANCE_BINS`] bins of equal width from 0 up to just
-    /// past the largest distance (the width a multiple of `max_distance / 4096`); distances past
-    /// `max_distance` (clipped output samples included) count in the last bin.
+    /// `(bin start, samples counted by their weight)`: at most [`DISTANCE_BINS`] bins of equal
+    /// width from 0 up to just past the largest distance (the width a multiple of `max_distance
+    /// / 4096`); distances past `max_distance` (clipped output samples included) count in the
+    /// last bin.
     pub histogram: Vec<(f64, u64)>,
 }
 
@@ -121,6 +135,10 @@ pub struct Distances {
     pub hausdorff_pct: f64,
     pub p999_pct: f64,
     pub full_resolution_triangles: u64,
+    /// How many times each of the last full-resolution samples counts: 1, or a power of four
+    /// once the full surface outgrew the output's sample budget (see `FULL_SAMPLES_CAP`), when
+    /// its later parts were sampled that much more sparsely.
+    pub full_sample_weight: u64,
     /// Output samples with no full-resolution point within `max_distance`: counted at
     /// `max_distance`, so output -> full is then a lower bound.
     pub clipped_samples: u64,
@@ -135,7 +153,10 @@ struct Accumulator {
     sum: f64,
     sum_squares: f64,
     max: f64,
+    /// Samples, each counted by its weight.
     count: u64,
+    /// Samples drawn.
+    samples: u64,
     bin_width: f64,
     bins: Vec<u64>,
 }
@@ -148,21 +169,25 @@ impl Accumulator {
             sum_squares: 0.0,
             max: 0.0,
             count: 0,
+            samples: 0,
             bin_width: radius / FINE_BINS as f64,
             bins: vec![0; FINE_BINS],
         }
     }
 
-    fn add(&mut self, d: f64) {
+    /// A distance standing for `weight` samples.
+    fn add(&mut self, d: f64, weight: u64) {
         // `f64::max` passes over NaN: a NaN distance would vanish from the maximum and the
         // report's larger-of-both-directions while it spoiled the sums.
         debug_assert!(!d.is_nan(), "a NaN distance");
-        self.sum += d;
-        self.sum_squares += d * d;
+        let w = weight as f64;
+        self.sum += w * d;
+        self.sum_squares += w * d * d;
         self.max = self.max.max(d);
-        self.count += 1;
+        self.count += weight;
+        self.samples += 1;
         let bin = (d / self.bin_width) as usize;
-        self.bins[bin.min(FINE_BINS - 1)] += 1;
+        self.bins[bin.min(FINE_BINS - 1)] += weight;
     }
 
     fn finish(&self) -> DirectedDistance {
@@ -172,13 +197,15 @@ impl Accumulator {
             rms: (self.sum_squares / n).sqrt(),
             hausdorff: self.max,
             p999: self.quantile(QUANTILE),
-            samples: self.count,
+            samples: self.samples,
             histogram: self.histogram(),
         }
     }
 
     /// The upper edge of the first fine bin by which a share `q` of the samples is counted,
-    /// capped by the largest distance.
+    /// capped by the largest distance; the largest distance when that is the last bin, which
+    /// also counts every distance past the radius (the radius was reported there, below most
+    /// of the samples of a mesh far from the surface).
     fn quantile(&self, q: f64) -> f64 {
         let need = ((q * self.count as f64).ceil() as u64).max(1);
         let mut seen = 0;
@@ -188,6 +215,7 @@ impl Accumulator {
                 seen += k;
                 seen >= need
             })
+            .filter(|&i| i + 1 < FINE_BINS)
             .map_or(self.max, |i| {
                 ((i + 1) as f64 * self.bin_width).min(self.max)
             })
@@ -222,6 +250,12 @@ pub(crate) struct DistanceStream {
     clipped_samples: u64,
     window: VecDeque<WindowBatch>,
     full_triangles: u64,
+    /// Area of the full-resolution triangles seen so far.
+    full_area: f64,
+    /// What each full-resolution sample counts for; the density over it is theirs.
+    full_weight: u64,
+    /// [`FULL_SAMPLES_CAP`] (smaller in tests).
+    full_cap: f64,
     bounds: (DVec3, DVec3),
 }
 
@@ -358,6 +392,9 @@ impl DistanceStream {
             clipped_samples: 0,
             window: VecDeque::new(),
             full_triangles: 0,
+            full_area: 0.0,
+            full_weight: 1,
+            full_cap: FULL_SAMPLES_CAP,
             bounds,
         })
     }
@@ -374,13 +411,23 @@ impl DistanceStream {
                     z_min = z_min.min(p.z);
                     z_max = z_max.max(p.z);
                 }
-                let (output, acc, hint) = (
+                self.full_area += area(t);
+                // Four times sparser each time the area doubles: the samples of each doubling
+                // halve, and all of them stay within one and a half times the cap.
+                while self.full_area * self.density
+                    > self.full_cap * (self.full_weight as f64).sqrt()
+                {
+                    self.full_weight *= 4;
+                }
+                let (output, acc, hint, weight) = (
                     &self.output,
                     &mut self.full_to_output,
                     &mut self.output_hint,
+                    self.full_weight,
                 );
-                sample_triangle(t, self.density, &mut self.rng, |p| {
-                    acc.add(output.nearest(p, hint));
+                let density = self.density / weight as f64;
+                sample_triangle(t, density, &mut self.rng, |p| {
+                    acc.add(output.nearest(p, hint), weight);
                 });
             }
             let reach = Reach::of(&self.samples[self.next..], z_min, z_max, self.radius);
@@ -425,7 +472,7 @@ impl DistanceStream {
                     }
                 }
             }
-            self.output_to_full.add(best);
+            self.output_to_full.add(best, 1);
             if best >= self.radius {
                 self.clipped_samples += 1;
             }
@@ -468,6 +515,7 @@ impl DistanceStream {
             p999,
             diagonal,
             full_resolution_triangles: self.full_triangles,
+            full_sample_weight: self.full_weight,
             clipped_samples: self.clipped_samples,
             max_distance: self.radius,
             samples_per_area: self.density,
@@ -553,7 +601,7 @@ pub(crate) mod tests {
     fn histogram_bins_follow_the_data() {
         let mut acc = Accumulator::new(100.0);
         for i in 0..1000 {
-            acc.add(i as f64 / 1000.0);
+            acc.add(i as f64 / 1000.0, 1);
         }
         let h = acc.histogram();
         assert!(h.len() >= DISTANCE_BINS / 2 && h.len() <= DISTANCE_BINS);
@@ -562,7 +610,7 @@ pub(crate) mod tests {
         let end = h.last().unwrap().0 + h[1].0;
         assert!((0.999..1.2).contains(&end), "{h:?}");
         // A distance past the radius counts in the last bin.
-        acc.add(250.0);
+        acc.add(250.0, 1);
         let h = acc.histogram();
         assert_eq!(h.len(), DISTANCE_BINS);
         assert_eq!(h.last().unwrap().1, 1);
@@ -574,16 +622,16 @@ pub(crate) mod tests {
         // distance, not the 99.9th percentile (the 9,991st smallest, 0.9990).
         let mut acc = Accumulator::new(4.096);
         for i in 0..10_000 {
-            acc.add(i as f64 * 1e-4);
+            acc.add(i as f64 * 1e-4, 1);
         }
-        acc.add(3.5);
+        acc.add(3.5, 1);
         let d = acc.finish();
         assert_eq!(d.hausdorff, 3.5);
         let width = 4.096 / FINE_BINS as f64;
         assert!((0.999..=0.999 + width).contains(&d.p999), "{}", d.p999);
         // All samples alike: capped by the largest.
         let mut flat = Accumulator::new(4.096);
-        (0..100).for_each(|_| flat.add(0.25));
+        (0..100).for_each(|_| flat.add(0.25, 1));
         assert_eq!(flat.finish().p999, 0.25);
     }
 
@@ -746,7 +794,7 @@ pub(crate) mod tests {
                 .iter()
                 .map(|t| closest_point(*p, t).distance(*p))
                 .fold(f64::INFINITY, f64::min);
-            acc.add(d.min(radius));
+            acc.add(d.min(radius), 1);
         }
         let brute = acc.finish();
         let o2f = &streamed.output_to_full;
@@ -790,6 +838,39 @@ pub(crate) mod tests {
         assert!(
             (a.output_to_full.mean - c.output_to_full.mean).abs() < 0.02 * a.output_to_full.mean
         );
+    }
+
+    /// Past the cap, the full surface is sampled ever more sparsely with weights: a small
+    /// output square at a corner of a large full plane keeps the samples within one and a half
+    /// times the cap, and the mean distance is the plane's (integrated on a fine grid here).
+    #[test]
+    fn a_full_surface_far_larger_than_the_output_is_thinned_without_bias() {
+        let (op, ot) = plane(0.1, 1, 0.0); // area 0.01: density raised to 10^6 per unit^2
+        let (fp, ft) = plane(10.0, 20, 0.0); // area 100: 10^8 samples at that density
+        let mut s = DistanceStream::new(&op, &ot, &MeasureOptions::default(), 1.0).unwrap();
+        s.full_cap = 20_000.0;
+        s.add_batch(soup(&fp, &ft), f64::INFINITY);
+        let d = s.finish().unwrap();
+        let f2o = &d.full_to_output;
+        assert!(f2o.samples <= 30_000, "{}", f2o.samples);
+        assert!(d.full_sample_weight >= 1 << 12, "{}", d.full_sample_weight);
+        let n = 2000;
+        let exact = (0..n * n)
+            .map(|k| {
+                let (x, y) = ((k % n) as f64 + 0.5, (k / n) as f64 + 0.5);
+                let (x, y) = (x * 10.0 / n as f64, y * 10.0 / n as f64);
+                (x - x.clamp(0.0, 0.1)).hypot(y - y.clamp(0.0, 0.1))
+            })
+            .sum::<f64>()
+            / (n * n) as f64;
+        assert!(
+            (f2o.mean - exact).abs() < 0.03 * exact,
+            "{} against {exact}",
+            f2o.mean
+        );
+        // The farthest samples are past the radius: 99.9 % are within the largest distance, not
+        // within the radius.
+        assert!(f2o.p999 > 10.0 && f2o.p999 <= f2o.hausdorff, "{f2o:?}");
     }
 
     #[test]

@@ -93,6 +93,13 @@ fn write_distances(s: &mut String, d: &Distances) {
         d.full_resolution_triangles, d.samples_per_area
     );
     s.push_str(&line("full -> output", &d.full_to_output));
+    if d.full_sample_weight > 1 {
+        let _ = writeln!(
+            s,
+            "  the full-resolution surface has over four times the output's area (is the mesh from this volume, in its units?): its later parts were sampled more sparsely, the last samples counting {} times each",
+            d.full_sample_weight
+        );
+    }
     s.push_str(&line("output -> full", &d.output_to_full));
     if d.clipped_samples > 0 {
         let _ = writeln!(
@@ -133,6 +140,10 @@ mod tests {
     }
 
     fn report(clipped: u64) -> MeasureReport {
+        report_weighted(clipped, 1)
+    }
+
+    fn report_weighted(clipped: u64, full_sample_weight: u64) -> MeasureReport {
         let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
         MeasureReport {
             quality: mesh_quality(&p, &[[0, 1, 2]]),
@@ -149,6 +160,7 @@ mod tests {
                 hausdorff_pct: 10.0,
                 p999_pct: 5.0,
                 full_resolution_triangles: 7,
+                full_sample_weight,
                 clipped_samples: clipped,
                 max_distance: 0.2,
                 samples_per_area: 100.0,
@@ -175,11 +187,16 @@ mod tests {
         ] {
             assert!(text.contains(needle), "{needle:?} missing from\n{text}");
         }
-        assert!(!text.contains("lower bound"));
+        assert!(!text.contains("lower bound") && !text.contains("sparsely"));
         assert!(
             report(3)
                 .to_text()
                 .contains("3 output samples had no full-resolution point")
+        );
+        assert!(
+            report_weighted(0, 16)
+                .to_text()
+                .contains("sampled more sparsely, the last samples counting 16 times each")
         );
     }
 
