@@ -60,6 +60,9 @@ pub const DISTANCE_BINS: usize = 20;
 /// distance is not known before the end), then merged into at most [`DISTANCE_BINS`] covering
 /// the distances seen: the bins follow the data even when it stays far inside the search radius.
 const FINE_BINS: usize = 4096;
+/// Distances past the search radius kept for the quantile (16 MiB at most); past that the
+/// quantile there is the largest distance.
+const BEYOND_KEPT: usize = 1 << 20;
 /// The share of the samples [`DirectedDistance::p999`] bounds.
 const QUANTILE: f64 = 0.999;
 /// Default seed: reports are reproducible unless a seed is asked for.
@@ -101,8 +104,8 @@ pub struct DirectedDistance {
     pub hausdorff: f64,
     /// The distance 99.9 % of the samples are within (from the 4096 bins the samples are
     /// counted in: at most one bin, `max_distance / 4096`, above the exact quantile, and never
-    /// above `hausdorff`; `hausdorff` itself when the quantile lies past `max_distance`, where
-    /// the bins end). Why beside the Hausdorff distance: that is one sample's distance, and
+    /// above `hausdorff`; past `max_distance`, where the bins end, the exact quantile of the
+    /// distances there, or `hausdorff` when over a million were). Why beside the Hausdorff distance: that is one sample's distance, and
     /// small changes of the order of contractions move it by a factor of two or three (engine
     /// at R = 0.2 in core: 0.063 to 0.197 % of the diagonal, docs/performance.md "Twenty-seventh
     /// session"), while the 99.9th percentile follows the surface as a whole.
@@ -159,6 +162,9 @@ struct Accumulator {
     samples: u64,
     bin_width: f64,
     bins: Vec<u64>,
+    /// The distances past the radius (which the last bin counts with the others) and their
+    /// weights, for the quantile when it lies there; `None` once more than [`BEYOND_KEPT`].
+    beyond: Option<Vec<(f64, u64)>>,
 }
 
 impl Accumulator {
@@ -172,6 +178,7 @@ impl Accumulator {
             samples: 0,
             bin_width: radius / FINE_BINS as f64,
             bins: vec![0; FINE_BINS],
+            beyond: Some(Vec::new()),
         }
     }
 
@@ -188,6 +195,15 @@ impl Accumulator {
         self.samples += 1;
         let bin = (d / self.bin_width) as usize;
         self.bins[bin.min(FINE_BINS - 1)] += weight;
+        if d > self.bin_width * FINE_BINS as f64
+            && let Some(beyond) = &mut self.beyond
+        {
+            if beyond.len() < BEYOND_KEPT {
+                beyond.push((d, weight));
+            } else {
+                self.beyond = None;
+            }
+        }
     }
 
     fn finish(&self) -> DirectedDistance {
@@ -203,22 +219,40 @@ impl Accumulator {
     }
 
     /// The upper edge of the first fine bin by which a share `q` of the samples is counted,
-    /// capped by the largest distance; the largest distance when that is the last bin, which
-    /// also counts every distance past the radius (the radius was reported there, below most
-    /// of the samples of a mesh far from the surface).
+    /// capped by the largest distance. Past the radius (the last bin also counts every
+    /// distance beyond it), the kept distances there, exactly, or the largest distance when
+    /// too many were past it to keep: the radius was reported before, below most of the
+    /// samples of a mesh far from the surface (meshoptimizer's bonsai output: 1.62 % of the
+    /// diagonal, where the largest distance is 6.22 %).
     fn quantile(&self, q: f64) -> f64 {
         let need = ((q * self.count as f64).ceil() as u64).max(1);
+        let last = FINE_BINS - 1;
         let mut seen = 0;
-        self.bins
-            .iter()
-            .position(|&k| {
-                seen += k;
-                seen >= need
-            })
-            .filter(|&i| i + 1 < FINE_BINS)
-            .map_or(self.max, |i| {
-                ((i + 1) as f64 * self.bin_width).min(self.max)
-            })
+        let bin = self.bins.iter().position(|&k| {
+            seen += k;
+            seen >= need
+        });
+        match (bin, &self.beyond) {
+            (Some(i), _) if i < last => ((i + 1) as f64 * self.bin_width).min(self.max),
+            (Some(_), Some(beyond)) => {
+                // Within the radius if the last bin's samples up to it suffice.
+                let past: u64 = beyond.iter().map(|&(_, w)| w).sum();
+                let mut seen = self.count - past;
+                if seen >= need {
+                    return (FINE_BINS as f64 * self.bin_width).min(self.max);
+                }
+                let mut sorted = beyond.clone();
+                sorted.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+                sorted
+                    .iter()
+                    .find(|&&(_, w)| {
+                        seen += w;
+                        seen >= need
+                    })
+                    .map_or(self.max, |&(d, _)| d)
+            }
+            _ => self.max,
+        }
     }
 
     /// The fine bins up to the last one used, merged into at most [`DISTANCE_BINS`].
@@ -614,6 +648,25 @@ pub(crate) mod tests {
         let h = acc.histogram();
         assert_eq!(h.len(), DISTANCE_BINS);
         assert_eq!(h.last().unwrap().1, 1);
+    }
+
+    /// Past the radius the quantile is exact from the distances kept there (weights counted),
+    /// and the largest distance once too many were past it to keep.
+    #[test]
+    fn the_quantile_past_the_radius_is_the_exact_one() {
+        let mut acc = Accumulator::new(1.0);
+        (0..10).for_each(|_| acc.add(0.5, 1));
+        for k in 1..=4995 {
+            acc.add(1.0 + f64::from(k) / 1000.0, 2);
+        }
+        // 10,000 samples with the weights: 0.999 of them are reached by the 10 within the radius
+        // and 4,990 distances of weight 2 past it, the last of which is 1 + 4,990 / 1,000.
+        assert_eq!(acc.quantile(0.999), 1.0 + 4990.0 / 1000.0);
+        assert_eq!(acc.finish().samples, 10 + 4995);
+        let mut acc = Accumulator::new(1.0);
+        (0..=BEYOND_KEPT).for_each(|k| acc.add(2.0 + k as f64 * 1e-6, 1));
+        assert!(acc.beyond.is_none());
+        assert_eq!(acc.quantile(0.999), acc.max);
     }
 
     #[test]
