@@ -6,7 +6,7 @@ use std::sync::atomic::AtomicBool;
 
 use anyhow::Context;
 use isostream_measure::{FullSurfaceDistances, MeasureOptions, MeasureReport, mesh_quality};
-use isostream_pipeline::{JobConfig, open_source, summary_path, visit_surface};
+use isostream_pipeline::{JobConfig, MeasureHalves, open_source, summary_path, visit_surface};
 
 pub fn measure(
     job_path: Option<&Path>,
@@ -29,9 +29,13 @@ pub fn measure(
                 ..defaults
             };
             let context = || format!("measuring {}", mesh_path.display());
+            let halves = MeasureHalves {
+                threads: job.pipeline.threads() > 1,
+            };
             let mut full =
                 FullSurfaceDistances::new(source.grid(), &mesh.positions, &mesh.triangles, &opts)
-                    .with_context(context)?;
+                    .with_context(context)?
+                    .with_halves(Box::new(halves));
             // The run's own extraction (parallel, empty space skipped): the full-resolution
             // surface of a large job has far more faces than fit in memory, and streaming it
             // on one thread through every voxel was most of the time.

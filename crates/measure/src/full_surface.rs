@@ -10,6 +10,7 @@ use isostream_extract::{CubeBatch, Extractor};
 use isostream_volume::{Grid, VolumeSource};
 
 use crate::distances::{DEFAULT_SEARCH_VOXEL_DIAGONALS, DistanceStream};
+use crate::halves::Halves;
 use crate::triangle::Triangle;
 use crate::{Distances, MeasureError, MeasureOptions};
 
@@ -79,6 +80,13 @@ impl FullSurfaceDistances {
             pending: Vec::new(),
             max_batch,
         })
+    }
+
+    /// Computes each batch's full -> output distances in two halves that `halves` runs (on two
+    /// threads, the caller's); the distances are the same as on one.
+    pub fn with_halves(mut self, halves: Box<dyn Halves>) -> Self {
+        self.stream.set_halves(halves);
+        self
     }
 
     /// The next batch of the full-resolution surface. Handed on at the end of its slab (later

@@ -12,7 +12,8 @@
 //!
 //! Modules: `triangle` (one triangle's geometry), `bvh` (nearest-point queries), `sampling`
 //! (seeded area-proportional samples), `anisotropy`, `bias`, `quality`, `distances` (the streamed
-//! two-way distance), `full_surface` (the volume -> slab stream), `report`.
+//! two-way distance), `full_surface` (the volume -> slab stream), `halves` (a batch's queries on
+//! two threads the caller lends), `report`.
 #![deny(unsafe_code)]
 
 mod anisotropy;
@@ -22,6 +23,7 @@ mod bvh;
 mod distances;
 mod error;
 mod full_surface;
+mod halves;
 mod quality;
 mod report;
 mod sampling;
@@ -34,5 +36,6 @@ pub use distances::{
 };
 pub use error::MeasureError;
 pub use full_surface::{FullSurfaceDistances, surface_distances};
+pub use halves::{Halves, InTurn};
 pub use quality::{MeshQuality, mesh_quality};
 pub use report::MeasureReport;
