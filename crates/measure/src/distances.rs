@@ -109,8 +109,8 @@ pub struct DirectedDistance {
     /// The distance 99.9 % of the samples are within (from the 4096 bins the samples are
     /// counted in: at most one bin, `max_distance / 4096`, above the exact quantile, and never
     /// above `hausdorff`; past `max_distance`, where the bins end, the exact quantile of the
-    /// distances there, or `hausdorff` when over a million were). Why beside the Hausdorff distance: that is one sample's distance, and
-    /// small changes of the order of contractions move it by a factor of two or three (engine
+    /// distances there, or `hausdorff` when over a million were). Why beside the Hausdorff
+    /// distance: that is one sample's distance, and small changes of the order of contractions move it by a factor of two or three (engine
     /// at R = 0.2 in core: 0.063 to 0.197 % of the diagonal, docs/performance.md "Twenty-seventh
     /// session"), while the 99.9th percentile follows the surface as a whole.
     pub p999: f64,
@@ -164,6 +164,7 @@ struct Accumulator {
     count: u64,
     /// Samples drawn.
     samples: u64,
+    radius: f64,
     bin_width: f64,
     bins: Vec<u64>,
     /// The distances past the radius (which the last bin counts with the others) and their
@@ -180,6 +181,7 @@ impl Accumulator {
             max: 0.0,
             count: 0,
             samples: 0,
+            radius,
             bin_width: radius / FINE_BINS as f64,
             bins: vec![0; FINE_BINS],
             beyond: Some(Vec::new()),
@@ -199,7 +201,8 @@ impl Accumulator {
         self.samples += 1;
         let bin = (d / self.bin_width) as usize;
         self.bins[bin.min(FINE_BINS - 1)] += weight;
-        if d > self.bin_width * FINE_BINS as f64
+        // Output samples clipped at the radius are not past it.
+        if d > self.radius
             && let Some(beyond) = &mut self.beyond
         {
             if beyond.len() < BEYOND_KEPT {
