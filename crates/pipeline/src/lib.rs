@@ -524,13 +524,7 @@ impl isostream_measure::Halves for MeasureHalves {
         if !self.threads {
             return isostream_measure::InTurn.both(a, b);
         }
-        std::thread::scope(|s| {
-            let helper = s.spawn(a);
-            b();
-            if let Err(panic) = helper.join() {
-                std::panic::resume_unwind(panic);
-            }
-        });
+        stages::on_two_threads(a, b);
     }
 }
 

@@ -496,14 +496,20 @@ impl Join for FinalWorkers {
         if !self.threads {
             return Serial.join(a, b);
         }
-        std::thread::scope(|s| {
-            let helper = s.spawn(a);
-            b();
-            if let Err(panic) = helper.join() {
-                std::panic::resume_unwind(panic);
-            }
-        });
+        on_two_threads(a, b);
     }
+}
+
+/// `a` on a helper thread while `b` runs on this one (a panic in either is this thread's):
+/// the final workers' join and `isostream measure`'s halves ([`crate::MeasureHalves`]).
+pub(crate) fn on_two_threads(a: &mut (dyn FnMut() + Send), b: &mut (dyn FnMut() + Send)) {
+    std::thread::scope(|s| {
+        let helper = s.spawn(a);
+        b();
+        if let Err(panic) = helper.join() {
+            std::panic::resume_unwind(panic);
+        }
+    });
 }
 
 /// Deltas a channel from the detector may hold (at most `channel_capacity`). The detector
