@@ -820,4 +820,22 @@ mod tests {
         );
         assert!(!budget.contains("allows no fewer"), "{budget}");
     }
+
+    /// With threads the halves run on two (one of them this one), without them both on this
+    /// one; either way both run once.
+    #[test]
+    fn measure_halves_run_both_on_two_threads_or_one() {
+        use isostream_measure::Halves;
+        for threads in [true, false] {
+            let here = std::thread::current().id();
+            let (mut ta, mut tb) = (None, None);
+            MeasureHalves { threads }
+                .both(&mut || ta = Some(std::thread::current().id()), &mut || {
+                    tb = Some(std::thread::current().id())
+                });
+            let (ta, tb) = (ta.unwrap(), tb.unwrap());
+            assert_eq!(tb, here);
+            assert_eq!(ta != here, threads, "threads = {threads}");
+        }
+    }
 }
