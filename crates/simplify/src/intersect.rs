@@ -513,8 +513,13 @@ impl TriIndex {
             return;
         }
         let floor = self.resident_floor();
-        let ghosts = std::mem::take(&mut self.ghosts);
-        for (r, top) in ghosts {
+        // Rotated through in place, the kept ones back in order: a deque taken out and filled
+        // again grew from nothing at every scan (-0.24 % of the first stage's instructions on
+        // bonsai at R = 0.2, `tools/instructions.py`, the same output).
+        for _ in 0..self.ghosts.len() {
+            let Some((r, top)) = self.ghosts.pop_front() else {
+                break;
+            };
             if top < floor {
                 self.forget(r);
             } else {
