@@ -75,6 +75,10 @@ def main():
     args = ap.parse_args()
     if args.volume not in VOLUMES:
         sys.exit(f"error: unknown volume {args.volume!r}; use one of {', '.join(VOLUMES)}")
+    if not DATA.is_dir():
+        sys.exit(f"error: {DATA}: not found; the real volumes live in ../shared/data")
+    if not Path(args.bin).exists():
+        sys.exit(f"error: {args.bin}: no such binary; build it with `cargo build --release`")
     binary = str(Path(args.bin).resolve())
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
