@@ -12,7 +12,7 @@ use glam::DVec3;
 use crate::band::Band;
 use crate::cost::Evaluator;
 use crate::decimate::{At, Decimator, Until};
-use crate::policy::{FaceCounts, Schedule};
+use crate::policy::{FaceCounts, HEDGE_BUDGET_SHARE, Schedule};
 use crate::quadric::Quadric;
 use crate::retire::Retirer;
 use crate::seam::{self, Cut, Join};
@@ -778,6 +778,10 @@ impl Stage {
             unmodifiable: self.stats.faces_unmodifiable,
             emitted: self.stats.faces_out,
             resident: self.band.resident(),
+            hedge: match self.config.cascade {
+                Cascade::First => 0,
+                _ => (self.budget() as f64 * HEDGE_BUDGET_SHARE) as u64,
+            },
         }
     }
 
