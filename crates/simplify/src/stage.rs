@@ -355,8 +355,8 @@ impl Stage {
         // leaves has been decimated (a huge `batch` otherwise emitted raw faces). It stops where
         // the budget has room again (`RateSchedule::kept`), unless that is still over it: then
         // faces must leave, and it goes on to the rate target first (without the initial phase:
-        // `RateSchedule::standard_target`), so that they leave at the density the whole output
-        // will have.
+        // `RateSchedule::standard_target`), so that they leave at about the density the whole
+        // output will have (a little more, `policy::HEDGE`, which the end takes back).
         // A cascade's first stage whose rear lags runs a pass too, once per slab of the front,
         // so that what it then writes has been offered to the heap (`Stage::catch_up_due`).
         let catching_up = self.config.cascade == Cascade::First && slabs > self.caught_up;
