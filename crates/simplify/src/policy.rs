@@ -219,8 +219,9 @@ impl RateSchedule {
 
     /// Hou and Chen's `F_t - emitted` without the initial phase, plus the [`HEDGE`]: what faces
     /// that must leave for the memory budget are decimated to first (`Stage::end_batch`), so
-    /// that they leave at about the density the whole output will have. The initial phase spares faces that stay resident;
-    /// applied to faces about to be written it fixed their density for good: hydrogen upsampled
+    /// that they leave at about the density the whole output will have. The initial phase
+    /// spares faces that stay resident; applied to faces about to be written it fixed their
+    /// density for good: hydrogen upsampled
     /// to 2017^3 (`[output] faces = 10000`) met a 108 k-face slab before anything was written,
     /// halved the band behind it and wrote 21.9 k faces of its first 2.9 M at once, and the rest
     /// of the surface (6.7 M faces) was then squeezed into 176.
