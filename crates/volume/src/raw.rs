@@ -155,52 +155,103 @@ fn drop_pages(map: &Mmap, from: usize, to: usize) -> usize {
     end
 }
 
-/// Maps a whole file read-only, for formats that parse a header and then read payload bytes at
-/// computed offsets (VTI). Sharing one map between reopened streams needs the `Arc`.
-pub(crate) fn map_file(path: &Path) -> Result<Arc<Mmap>, VolumeError> {
+/// A whole file mapped read-only, with what it takes to check its size again before reading
+/// further into it: the VTI reader parses a header and then reads payload bytes at computed
+/// offsets. Sharing one map between reopened streams needs the `Arc`.
+pub(crate) struct MappedFile {
+    map: Mmap,
+    file: File,
+    path: PathBuf,
+}
+
+impl std::ops::Deref for MappedFile {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        &self.map
+    }
+}
+
+/// Maps the file at `path` (see [`MappedFile`]).
+pub(crate) fn map_file(path: &Path) -> Result<Arc<MappedFile>, VolumeError> {
     let file = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
-    // SAFETY: as in `RawVolume::open_payload`: read-only map of an input treated as immutable.
+    // SAFETY: as in `RawVolume::open_payload`: read-only map of an input treated as immutable;
+    // `MapReader` checks the file's size before it reads each window of it.
     let map = unsafe { Mmap::map(&file) }.map_err(|e| VolumeError::io(path, "map", e))?;
-    Ok(Arc::new(map))
+    Ok(Arc::new(MappedFile {
+        map,
+        file,
+        path: path.to_path_buf(),
+    }))
 }
 
 /// A `BufRead` over a byte range of a shared map: streams start anywhere in a mapped file
-/// without copying it. The pages it has read past go back to the kernel in steps of
-/// [`MapReader::RELEASE_STEP`]: a compressed VTI is read once, front to back, and without that
-/// every page of it stayed resident to the end of the run (bonsai's 3.3 MB file: 0.1 -> 3.0 MiB
-/// of a run's RSS, growing with the file however large).
+/// without copying it.
+///
+/// It reads in windows of [`MapReader::WINDOW`] bytes. Before each window it checks that the
+/// file still holds it (one fstat): touching a page past the end of a file truncated while
+/// mapped is SIGBUS, which a long run reading an input being rewritten met as a crash instead
+/// of an error naming the file (the raw reader checks each slice likewise). After each window
+/// it hands the pages read back to the kernel: a compressed VTI is read once, front to back,
+/// and without that every page of it stayed resident to the end of the run (bonsai's 3.3 MB
+/// file: 0.1 -> 3.0 MiB of a run's RSS, growing with the file however large).
 pub(crate) struct MapReader {
-    map: Arc<Mmap>,
+    map: Arc<MappedFile>,
     pos: usize,
+    /// End of the window the file was last checked to hold.
+    checked: usize,
     /// Page-aligned start of the pages not yet handed back.
     released: usize,
 }
 
 impl MapReader {
-    /// Bytes read past before they are handed back: one madvise call per step.
-    const RELEASE_STEP: usize = 1 << 20;
+    /// Bytes checked and handed back at a time: one fstat and one madvise call per window.
+    const WINDOW: usize = 1 << 20;
 
     /// Reads from `pos` to the end of the map (an out-of-range `pos` reads nothing).
-    pub(crate) fn new(map: Arc<Mmap>, pos: usize) -> Self {
+    pub(crate) fn new(map: Arc<MappedFile>, pos: usize) -> Self {
         let pos = pos.min(map.len());
         MapReader {
             map,
             pos,
+            checked: pos,
             released: pos / 4096 * 4096,
         }
     }
 
+    /// The next window, once the file is known to still hold it.
+    fn check(&mut self) -> std::io::Result<()> {
+        let end = self.pos.saturating_add(Self::WINDOW).min(self.map.len());
+        let now = self.map.file.metadata()?.len();
+        if now < end as u64 {
+            return Err(std::io::Error::other(VolumeError::Format {
+                file: self.map.path.display().to_string(),
+                at: format!("byte {}", self.pos),
+                expected: format!(
+                    "at least {end} bytes (the file had {} when opened)",
+                    self.map.len()
+                ),
+                found: format!(
+                    "{now} bytes: the file was truncated while being read; rerun on a complete file"
+                ),
+            }));
+        }
+        self.checked = end;
+        Ok(())
+    }
+
     fn advance(&mut self, n: usize) {
-        self.pos = (self.pos + n).min(self.map.len());
-        if self.pos - self.released >= Self::RELEASE_STEP {
-            self.released = drop_pages(&self.map, self.released, self.pos);
+        self.pos = (self.pos + n).min(self.checked);
+        if self.pos - self.released >= Self::WINDOW {
+            self.released = drop_pages(&self.map.map, self.released, self.pos);
         }
     }
 }
 
 impl Read for MapReader {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = (&self.map[self.pos..]).read(buf)?;
+        let window = self.fill_buf()?;
+        let n = window.len().min(buf.len());
+        buf[..n].copy_from_slice(&window[..n]);
         self.advance(n);
         Ok(n)
     }
@@ -208,7 +259,10 @@ impl Read for MapReader {
 
 impl BufRead for MapReader {
     fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
-        Ok(&self.map[self.pos..])
+        if self.pos == self.checked && self.pos < self.map.len() {
+            self.check()?;
+        }
+        Ok(&self.map[self.pos..self.checked])
     }
     fn consume(&mut self, amt: usize) {
         self.advance(amt);
@@ -404,7 +458,7 @@ mod tests {
     #[cfg(target_os = "linux")]
     #[test]
     fn a_map_reader_releases_what_it_has_read() {
-        let len = 6 * MapReader::RELEASE_STEP + 12_345;
+        let len = 6 * MapReader::WINDOW + 12_345;
         let bytes: Vec<u8> = (0..len).map(|i| (i % 251) as u8).collect();
         let f = write(&bytes);
         let map = map_file(f.path()).unwrap();
@@ -421,7 +475,7 @@ mod tests {
         assert_eq!(seen, bytes[100..]);
         let resident = resident_kib(f.path());
         assert!(
-            resident * 1024 <= MapReader::RELEASE_STEP as u64 + 8192,
+            resident * 1024 <= MapReader::WINDOW as u64 + 8192,
             "{resident} KiB of a {} KiB file still resident",
             len / 1024
         );
@@ -437,6 +491,36 @@ mod tests {
             again.consume(n);
         }
         assert_eq!(all, bytes);
+    }
+
+    /// A mapped file truncated while a stream reads it: the stream stops at the end of the
+    /// window it checked and reports the truncation, naming the file, instead of faulting
+    /// (SIGBUS) on a page past the new end.
+    #[test]
+    fn a_map_reader_truncated_while_reading_reports_it() {
+        let len = 3 * MapReader::WINDOW;
+        let bytes: Vec<u8> = (0..len).map(|i| (i % 253) as u8).collect();
+        let f = write(&bytes);
+        let map = map_file(f.path()).unwrap();
+        let mut reader = MapReader::new(map, 0);
+        let mut head = vec![0u8; MapReader::WINDOW + MapReader::WINDOW / 2];
+        reader.read_exact(&mut head).unwrap();
+        assert_eq!(head, bytes[..head.len()]);
+        f.as_file().set_len(2 * MapReader::WINDOW as u64).unwrap();
+        let mut rest = Vec::new();
+        let e = reader.read_to_end(&mut rest).unwrap_err();
+        assert_eq!(
+            rest,
+            bytes[head.len()..2 * MapReader::WINDOW],
+            "up to the new end"
+        );
+        let inner = e.into_inner().unwrap().downcast::<VolumeError>().unwrap();
+        let text = inner.to_string();
+        assert!(
+            text.starts_with(&f.path().display().to_string())
+                && text.contains("truncated while being read"),
+            "{text}"
+        );
     }
 
     #[test]

@@ -7,11 +7,10 @@
 //! (VTK writes 32 KiB blocks) in memory. `Direction` is ignored: grids are axis-aligned.
 
 use crate::codec::{AsciiValues, Base64Reader, ZlibBlocks, ZlibLayout};
-use crate::raw::{MapReader, Payload, RawVolume, checked_payload, map_file};
+use crate::raw::{MapReader, MappedFile, Payload, RawVolume, checked_payload, map_file};
 use crate::stream::{Stream, StreamSpec, StreamVolume};
 use crate::xml::{Tag, Tags};
 use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
-use memmap2::Mmap;
 use std::io::Read;
 use std::path::Path;
 use std::sync::Arc;
@@ -201,7 +200,7 @@ fn array_form(
 fn check_header(
     path: &Path,
     at: &str,
-    map: &Arc<Mmap>,
+    map: &Arc<MappedFile>,
     layout: Layout,
     payload: u64,
 ) -> Result<usize, VolumeError> {
@@ -213,7 +212,7 @@ fn check_header(
 fn open_stream(
     path: &Path,
     at: &str,
-    map: &Arc<Mmap>,
+    map: &Arc<MappedFile>,
     l: Layout,
     payload: u64,
 ) -> Result<(Stream, usize), VolumeError> {

@@ -72,7 +72,17 @@ impl<R: Read> ZlibBlocks<R> {
         let got = ZlibDecoder::new(&mut raw)
             .take(want.saturating_add(1))
             .read_to_end(&mut self.block)
-            .map_err(|e| invalid(format!("zlib block {i}: {e}")))?;
+            .map_err(|e| {
+                // The file's own error (a map reader finding it truncated) goes out as it is,
+                // whole: wrapped in the block's message it was cut short.
+                if e.get_ref()
+                    .is_some_and(|inner| inner.is::<crate::VolumeError>())
+                {
+                    e
+                } else {
+                    invalid(format!("zlib block {i}: {e}"))
+                }
+            })?;
         if got as u64 != want {
             return Err(invalid(format!(
                 "zlib block {i} to inflate to {want} bytes, found {got}"
@@ -153,6 +163,36 @@ pub(crate) mod tests {
             .unwrap_err();
         assert_eq!(e.kind(), io::ErrorKind::InvalidData);
         assert!(e.to_string().starts_with("zlib block 1"), "{e}");
+    }
+
+    /// The file's own error from under the decoder (a mapped file truncated while read) comes
+    /// out whole, not cut short inside a block's message.
+    #[test]
+    fn the_files_own_error_passes_through() {
+        struct Truncated;
+        impl Read for Truncated {
+            fn read(&mut self, _: &mut [u8]) -> io::Result<usize> {
+                Err(io::Error::other(crate::VolumeError::Format {
+                    file: "v.vti".into(),
+                    at: "byte 7".into(),
+                    expected: "at least 9 bytes".into(),
+                    found: "7 bytes: the file was truncated while being read".into(),
+                }))
+            }
+        }
+        let (layout, _) = compress(&[5u8; 300], 100);
+        let e = ZlibBlocks::new(Truncated, layout)
+            .read_to_end(&mut Vec::new())
+            .unwrap_err();
+        let inner = e
+            .into_inner()
+            .unwrap()
+            .downcast::<crate::VolumeError>()
+            .unwrap();
+        assert!(
+            inner.to_string().contains("truncated while being read"),
+            "{inner}"
+        );
     }
 
     #[test]
