@@ -186,11 +186,16 @@ impl RateSchedule {
     /// as in core; where the output is larger than the budget the rate target is the larger and
     /// rules as before. With `batch` set (Hou and Chen's schedule) the target is theirs alone.
     pub(crate) fn kept(&self, budget: usize) -> usize {
-        if self.batch == u64::MAX {
-            (budget as f64 * BUDGET_KEPT) as usize
-        } else {
+        if self.hou_chen_batches() {
             0
+        } else {
+            (budget as f64 * BUDGET_KEPT) as usize
         }
+    }
+
+    /// Whether `batch` is set: Hou and Chen's schedule, whose targets are theirs alone.
+    fn hou_chen_batches(&self) -> bool {
+        self.batch != u64::MAX
     }
 
     /// Resident face count to decimate down to after a batch.
@@ -228,10 +233,10 @@ impl RateSchedule {
     pub(crate) fn standard_target(&self, c: FaceCounts) -> usize {
         let fu = c.unmodifiable as f64;
         let kept = (c.generated as f64 - fu) * self.input_rate();
-        // Hou and Chen's schedule (`batch` set) keeps their target alone.
-        let hedge = match self.batch {
-            u64::MAX => (kept * HEDGE).min(c.hedge as f64),
-            _ => 0.0,
+        let hedge = if self.hou_chen_batches() {
+            0.0
+        } else {
+            (kept * HEDGE).min(c.hedge as f64)
         };
         (kept + hedge + fu - c.emitted as f64).max(0.0).ceil() as usize
     }
