@@ -81,8 +81,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// 27: a cascade's second simplifier streamed into a section of its own; 28: vertex attributes
 /// beside the vertices; 29: the extraction's largest slab; 30: the sweep's rows and the
 /// simplifier's fronts within a slab; 31: a cascade's rear with rows; 32: a free vertex slot's
-/// position NaN, read by the dense scan of positions).
-const FORMAT: u32 = 32;
+/// position NaN, read by the dense scan of positions; 33: the guard's cell lists in blocks of
+/// one pool).
+const FORMAT: u32 = 33;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -58,8 +58,10 @@ use smallvec::SmallVec;
 use crate::store::{Store, TriId};
 use crate::topology::Patch;
 
+mod cells;
 mod star;
 
+use cells::{CellList, Pool};
 use star::Spoke;
 
 /// A triangle's level has cells at least this many times its extent. With 1 a decimated
@@ -203,68 +205,6 @@ impl Wide {
     }
 }
 
-/// The records filed in one cell, each with its box clipped to the cell and quantized inline
-/// (its key, see [`meets`]), so a query scans cells contiguously and fetches the box and corners
-/// only of the records whose clipped box meets the fan's. 12 bytes an entry: with the box and its
-/// low cell in `f32` and `i32` (40 bytes) the cells were the largest part of the index (12 MiB
-/// of a 47 MiB heap on engine at R = 0.2, heaptrack), and the largest that grew with the
-/// resident faces.
-///
-/// Keys and record numbers in two arrays rather than one of entries: a query reads the keys and
-/// only the matches' numbers, and unfiling a record scans the numbers alone for it (cells of
-/// [`CELL_EDGES`] edges hold about 350 records on bonsai, and that scan was 12 % of a run that
-/// made no contraction).
-#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
-struct CellList {
-    keys: Vec<u64>,
-    recs: Vec<u32>,
-}
-
-impl CellList {
-    fn push(&mut self, r: u32, q: &Quantized, first: u8) {
-        self.keys.push(pack(q, first));
-        self.recs.push(r);
-    }
-
-    fn len(&self) -> usize {
-        self.recs.len()
-    }
-
-    /// Where record `r` is in this list, searched from the end (records filed last are also
-    /// the likeliest to change again), eight numbers at a time: a compare over a chunk without
-    /// an early exit compiles to vector instructions, and the chunk holding `r` is rescanned.
-    fn find(&self, r: u32) -> Option<usize> {
-        const CHUNK: usize = 8;
-        let full = self.recs.len() / CHUNK * CHUNK;
-        if let Some(i) = self.recs[full..].iter().rposition(|&x| x == r) {
-            return Some(full + i);
-        }
-        (0..full / CHUNK).rev().find_map(|c| {
-            let chunk = &self.recs[c * CHUNK..(c + 1) * CHUNK];
-            let any = chunk.iter().fold(false, |m, &x| m | (x == r));
-            any.then(|| c * CHUNK + chunk.iter().rposition(|&x| x == r).unwrap_or(0))
-        })
-    }
-
-    fn swap_remove(&mut self, i: usize) {
-        self.keys.swap_remove(i);
-        self.recs.swap_remove(i);
-    }
-
-    /// Gives back the room of a cell that once held many records (a dense slab, triangles
-    /// before they grew), which it would otherwise keep for good: past twice what it holds, down
-    /// to half as much again. (Past four times, down to twice: the lists' room grew from 200 k
-    /// to 670 k entries for 250-290 k held over bonsai upsampled to 511^3 at a 128 MiB budget,
-    /// whose peak RSS is 3.1 MiB lower this way, the same output and time within the noise.)
-    fn trim(&mut self) {
-        let n = self.recs.len();
-        if self.recs.capacity() >= 2 * n.max(4) + 4 {
-            self.keys.shrink_to(n + n / 2);
-            self.recs.shrink_to(n + n / 2);
-        }
-    }
-}
-
 /// Lanes of an entry's key and of a query's probe, compared all at once by [`meets`]: the key
 /// holds `hi[k]`, `255 - lo[k]` (9-bit lanes) and the first-cell bit `k` (2-bit lanes); the
 /// probe holds the query's `lo[k]`, `255 - hi[k]` and the bits the one-cell rule needs. Every
@@ -373,6 +313,8 @@ pub(crate) struct TriIndex {
     cell: f64,
     /// Each level's cells and record count, from level 0 up to the highest used so far.
     levels: Vec<Level>,
+    /// The entries of every level's cells.
+    pool: Pool,
     recs: Vec<Rec>,
     filed: Vec<Filed>,
     free: Vec<u32>,
@@ -706,7 +648,7 @@ impl TriIndex {
         // reads issued together overlap where a test per record waited for each in turn.
         let mut met = std::mem::take(&mut self.met);
         let mut meet = |r: u32| met.push(r);
-        let mut lists: SmallVec<[(&CellList, u64); 32]> = SmallVec::new();
+        let mut lists: SmallVec<[(CellList, u64); 32]> = SmallVec::new();
         for level in 0..LEVELS {
             let count = self.levels.get(level).map_or(0, |l| l.records);
             if count == 0 {
@@ -720,12 +662,15 @@ impl TriIndex {
                 .map(|k| i64::from(chi[k]) - i64::from(clo[k]) + 1)
                 .product();
             if cells as usize > count {
-                self.levels[level]
-                    .cells
-                    .values()
-                    .flat_map(|list| list.keys.iter().zip(&list.recs))
-                    .filter(|&(&key, _)| key & FIRST_CELL == FIRST_CELL)
-                    .for_each(|(_, &r)| meet(r));
+                for list in self.levels[level].cells.values() {
+                    self.pool.scan(list, |keys, recs| {
+                        for (&key, &r) in keys.iter().zip(recs) {
+                            if key & FIRST_CELL == FIRST_CELL {
+                                meet(r);
+                            }
+                        }
+                    });
+                }
                 continue;
             }
             let scaled = self.scaled(level, &union);
@@ -742,23 +687,25 @@ impl TriIndex {
                         // query's first. (`key` is monotonic, so the cell of the larger corner
                         // is the larger of the two corners' cells.)
                         let need = !first_bits(clo, c) & 0b111;
-                        lists.push((list, probe(&clip(&scaled, c), need)));
+                        lists.push((*list, probe(&clip(&scaled, c), need)));
                     }
                 }
             }
         }
         // The cells' lists are found first and scanned after, for the same reason as the
         // records below: each list's first entries are a cache miss.
-        let first_keys = lists.iter().fold(0, |acc, (list, _)| {
-            acc ^ list.keys.first().copied().unwrap_or(0)
-        });
+        let first_keys = lists
+            .iter()
+            .fold(0, |acc, (list, _)| acc ^ self.pool.first_key(list));
         std::hint::black_box(first_keys);
         for (list, probe) in &lists {
-            for (&key, &r) in list.keys.iter().zip(&list.recs) {
-                if meets(key, *probe) {
-                    meet(r);
+            self.pool.scan(list, |keys, recs| {
+                for (&key, &r) in keys.iter().zip(recs) {
+                    if meets(key, *probe) {
+                        meet(r);
+                    }
                 }
-            }
+            });
         }
         let first_words = met
             .iter()
@@ -904,12 +851,9 @@ impl TriIndex {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
-                    let q = clip(&scaled, c);
-                    self.levels[level]
-                        .cells
-                        .entry(c)
-                        .or_default()
-                        .push(r, &q, first_bits(lo, c));
+                    let key = pack(&clip(&scaled, c), first_bits(lo, c));
+                    let list = self.levels[level].cells.entry(c).or_default();
+                    self.pool.push(list, key, r);
                 }
             }
         }
@@ -972,10 +916,11 @@ impl TriIndex {
             for y in lo[1]..=hi[1] {
                 for z in lo[2]..=hi[2] {
                     let c = [x, y, z];
-                    if let Some(list) = self.levels[level].cells.get_mut(&c)
-                        && let Some(i) = list.find(r)
+                    if let Some(list) = self.levels[level].cells.get(&c)
+                        && let Some(place) = self.pool.find(list, r)
                     {
-                        list.keys[i] = pack(&clip(&scaled, c), first_bits(lo, c));
+                        self.pool
+                            .set_key(place, pack(&clip(&scaled, c), first_bits(lo, c)));
                     }
                 }
             }
@@ -997,13 +942,11 @@ impl TriIndex {
                 for z in lo[2]..=hi[2] {
                     let key = [x, y, z];
                     if let Some(list) = cells.get_mut(&key) {
-                        if let Some(i) = list.find(r) {
-                            list.swap_remove(i);
+                        if let Some(place) = self.pool.find(list, r) {
+                            self.pool.swap_remove(list, place);
                         }
                         if list.len() == 0 {
                             cells.remove(&key);
-                        } else {
-                            list.trim();
                         }
                     }
                 }
@@ -1243,7 +1186,12 @@ mod tests {
         ix.fix_cell();
         let entries = |ix: &TriIndex| {
             let mut e: Vec<_> = (ix.levels.iter().enumerate())
-                .flat_map(|(i, level)| level.cells.iter().map(move |(c, l)| (i, *c, l.keys[0])))
+                .flat_map(|(i, level)| {
+                    level
+                        .cells
+                        .iter()
+                        .map(move |(c, l)| (i, *c, ix.pool.first_key(l)))
+                })
                 .collect();
             e.sort_unstable();
             e
@@ -1409,20 +1357,6 @@ mod tests {
     /// The plain test the packed [`meets`] replaces: two quantized boxes of a cell meet.
     fn quantized_meet(a: &Quantized, b: &Quantized) -> bool {
         (0..3).all(|k| a[k] <= b[k + 3] && a[k + 3] >= b[k])
-    }
-
-    proptest! {
-        #[test]
-        fn a_cell_list_finds_the_last_place_of_a_record(
-            recs in prop::collection::vec(0u32..40, 0..70),
-            r in 0u32..40,
-        ) {
-            let list = CellList {
-                keys: vec![0; recs.len()],
-                recs: recs.clone(),
-            };
-            prop_assert_eq!(list.find(r), recs.iter().rposition(|&x| x == r));
-        }
     }
 
     /// Points on a coarse lattice with a fine offset on one axis now and then: equal
