@@ -11,9 +11,10 @@ missing), prints one JSON line, appends it to `--results`, and plots every resul
     python3 tools/scale.py --factors 1,2,4 --faces 10000          # bonsai 256^3 .. 1021^3
     python3 tools/scale.py --factors 8 --faces 10000              # adds 2041^3 to the results
     python3 tools/scale.py --factors 1,2 --budget-mib 40          # [pipeline] memory_budget_mib
+    python3 tools/scale.py --factors 1,2,4,8 --stages 1           # [pipeline] simplify_stages
 
-The plot draws one whole-run curve per memory budget (a size run again replaces its earlier
-result on the curve).
+The plot draws one whole-run curve per memory budget and stage count asked for (a size run
+again replaces its earlier result on the curve).
 
     python3 tools/scale.py --factors 8,16 --count-only            # the front half alone
     python3 tools/scale.py --factors 1,2 --from-summaries --keep DIR --contended
@@ -43,9 +44,10 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def job_text(volume: Path, iso: float, k: int, faces: int, output: Path, threads: int,
-             budget_mib: int = 0) -> str:
+             budget_mib: int = 0, stages: int = 0) -> str:
     threads_line = f"threads = {threads}\n" if threads else ""
     threads_line += f"memory_budget_mib = {budget_mib}\n" if budget_mib else ""
+    threads_line += f"simplify_stages = {stages}\n" if stages else ""
     return (
         f'[input]\npath = "{volume}"\nupsample = [{k}, {k}, {k}]\n\n'
         f"[extract]\niso = {iso}\n\n"
@@ -56,21 +58,22 @@ def job_text(volume: Path, iso: float, k: int, faces: int, output: Path, threads
 
 
 def run_one(binary: Path, volume: Path, iso: float, k: int, faces: int, threads: int, keep: Path,
-            budget_mib: int):
+            budget_mib: int, stages: int):
     keep.mkdir(parents=True, exist_ok=True)
     output = keep / f"{volume.stem}_x{k}.smb"
     job = keep / f"{volume.stem}_x{k}.toml"
-    job.write_text(job_text(volume, iso, k, faces, output, threads, budget_mib))
+    job.write_text(job_text(volume, iso, k, faces, output, threads, budget_mib, stages))
     before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     started = time.monotonic()
     subprocess.run([str(binary), "run", str(job)], check=True, stderr=subprocess.DEVNULL)
     wall = time.monotonic() - started
     child_rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
-    return result(volume, k, faces, budget_mib, output, wall,
+    return result(volume, k, faces, budget_mib, stages, output, wall,
                   child_rss if child_rss > before * 1024 else None)
 
 
-def result(volume: Path, k: int, faces: int, budget_mib: int, output: Path, wall, child_rss) -> dict:
+def result(volume: Path, k: int, faces: int, budget_mib: int, stages: int, output: Path, wall,
+           child_rss) -> dict:
     """One result line from the run summary next to `output`; `wall` (seconds) and `child_rss`
     (bytes, the OS's peak) are the run's when this process made it, else None."""
     summary = json.loads(Path(str(output) + ".run.json").read_text())
@@ -84,6 +87,9 @@ def result(volume: Path, k: int, faces: int, budget_mib: int, output: Path, wall
         "gvoxels": gvox,
         "faces_target": faces,
         "memory_budget_mib": budget_mib or None,
+        # Asked for with --stages; None where the default chose (the summary says which).
+        "simplify_stages_asked": stages or None,
+        "simplify_stages": len(summary.get("simplify_stages") or [None]),
         "peak_resident_faces": summary.get("peak_resident_faces"),
         "faces_extracted": summary["faces_extracted"],
         "faces_written": summary["faces_written"],
@@ -153,24 +159,28 @@ def plot(results: list, counts: list, path: Path) -> None:
         cg = [r["gvoxels"] for r in counts]
         a.plot(cg, [r["peak_rss_mib"] for r in counts], "s--", label="first pass only (read, upsample, skip, extract)")
         b.plot(cg, [r["count_seconds"] / r["gvoxels"] for r in counts], "s--", label="first pass only")
-    # One curve per memory budget; a size run again replaces its earlier result. A row marked
-    # `"contended"` (its run shared the cores with other work) counts for memory, not for time.
+    # One curve per memory budget and stage count asked for; a size run again replaces its
+    # earlier result. A row marked `"contended"` (its run shared the cores with other work)
+    # counts for memory, not for time.
     def curves(rows):
-        by_budget = {}
+        by_job = {}
         for r in rows:
-            by_budget.setdefault(r.get("memory_budget_mib"), {})[r["factor"]] = r
-        return {k: sorted(v.values(), key=lambda r: r["gvoxels"]) for k, v in by_budget.items()}
+            job = (r.get("memory_budget_mib") or 0, r.get("simplify_stages_asked") or 0)
+            by_job.setdefault(job, {})[r["factor"]] = r
+        return {k: sorted(v.values(), key=lambda r: r["gvoxels"]) for k, v in by_job.items()}
 
-    def label(budget):
-        return f"whole run, budget {budget} MiB" if budget else "whole run, default budget"
+    def label(job):
+        budget, stages = job
+        text = f"whole run, budget {budget} MiB" if budget else "whole run, default budget"
+        return text + (f", {stages} stage{'s' if stages > 1 else ''}" if stages else "")
 
-    for budget, runs in sorted(curves(results).items(), key=lambda c: c[0] or 0):
+    for budget, runs in sorted(curves(results).items()):
         a.plot([r["gvoxels"] for r in runs], [r["peak_rss_mib"] for r in runs], "o-", label=label(budget))
         for r in runs:
             a.annotate("x".join(str(d) for d in r["dims"]), (r["gvoxels"], r["peak_rss_mib"]),
                        fontsize=7, textcoords="offset points", xytext=(4, 4))
     timed = [r for r in results if not r.get("contended")]
-    for budget, runs in sorted(curves(timed).items(), key=lambda c: c[0] or 0):
+    for budget, runs in sorted(curves(timed).items()):
         b.plot([r["gvoxels"] for r in runs], [r["seconds_per_gvoxel"] for r in runs], "o-",
                label=f"{label(budget)} (both passes)")
     a.set_xscale("log")
@@ -202,6 +212,8 @@ def main() -> int:
     p.add_argument("--threads", type=int, default=0, help="[pipeline] threads (0: all cores)")
     p.add_argument("--budget-mib", type=int, default=0,
                    help="[pipeline] memory_budget_mib of the whole runs (0: the default)")
+    p.add_argument("--stages", type=int, default=0,
+                   help="[pipeline] simplify_stages of the whole runs (0: the default's choice)")
     p.add_argument("--binary", type=Path, default=ROOT / "target/release/isostream")
     p.add_argument("--keep", type=Path, default=Path(tempfile.gettempdir()) / "isostream-scale")
     p.add_argument("--results", type=Path, default=ROOT / "docs/scale.jsonl")
@@ -219,9 +231,10 @@ def main() -> int:
             r, to = count_only(a.binary, a.volume, a.iso, k, a.threads, a.keep), a.count_results
         elif a.from_summaries:
             output = a.keep / f"{a.volume.stem}_x{k}.smb"
-            r, to = result(a.volume, k, a.faces, a.budget_mib, output, None, None), a.results
+            r, to = result(a.volume, k, a.faces, a.budget_mib, a.stages, output, None, None), a.results
         else:
-            r, to = run_one(a.binary, a.volume, a.iso, k, a.faces, a.threads, a.keep, a.budget_mib), a.results
+            r, to = (run_one(a.binary, a.volume, a.iso, k, a.faces, a.threads, a.keep, a.budget_mib,
+                             a.stages), a.results)
         if a.contended:
             r["contended"] = True
         print(json.dumps(r), flush=True)
