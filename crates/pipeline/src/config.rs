@@ -441,6 +441,15 @@ const BYTES_PER_FACE_ALONE: u64 = 600;
 /// it at 62.0. (The cascade's [`BYTES_PER_FACE_CASCADE`] was measured on the slices it runs on,
 /// at most about 294^2 voxels, where this would be under 1 MiB.)
 const SLICE_BYTES_PER_CUBE: u64 = 12;
+/// The same for a cascade that the default put on slices larger than about 294^2 voxels
+/// ([`JobConfig::cascade_faces`]). Beside the slices it has the first stage's ghosts, which
+/// grow with the slab (17.5 k at 511^2 against 8.6 k at 256^2), and on an upsampled input the
+/// source's cell bounds (about 2 MB); with 12 bytes, bonsai upsampled to 511^3 peaked 19 % above
+/// its own 256^3 (56.1 against 47.2 MiB at `faces = 10000`), the only point of the scale curve
+/// that runs two stages. With 36: 50.9-51.6 MiB; at R = 0.2 57.8 -> 53.1 MiB with the same RMS
+/// distance (0.0263 voxels) and the 99.9 % distance +0.6 %; at R = 0.02 60.1 -> 54.0 MiB, RMS and
+/// 99.9 % distance +2 % and +3 % (docs/scale.md, "The guard's cells in a pool").
+const CASCADE_SLICE_BYTES_PER_CUBE: u64 = 36;
 /// Largest slab, in cubes per face of the memory budget, that gets two simplifier stages by
 /// default (about 294^2 voxels at the default budget). The first stage keeps a band of a few
 /// slabs within its share of the budget; past about this size its band no longer fits and it
@@ -789,12 +798,12 @@ impl JobConfig {
 
     /// A cascade's faces: where the default chose two stages on slices larger than
     /// [`JobConfig::small_slices`], the slices' share is set aside first, as for one stage alone
-    /// ([`SLICE_BYTES_PER_CUBE`]; 3 MiB on 511^2 slices: bonsai upsampled so peaked at
-    /// 60.9-63.6 MiB without it). A job that asks for two stages keeps the budget it was
-    /// measured with (the bundled 64x job: 168 k faces at 128 MiB, not 120 k).
+    /// ([`CASCADE_SLICE_BYTES_PER_CUBE`]; 9 MiB on 511^2 slices: bonsai upsampled so peaked at
+    /// 60.9-63.6 MiB without a share, 56-58 with 3 MiB). A job that asks for two stages keeps
+    /// the budget it was measured with (the bundled 64x job: 168 k faces at 128 MiB, not 120 k).
     fn cascade_faces(&self, dims: [u64; 3]) -> usize {
         let set_aside = match self.counts_slabs_for_stages(dims) {
-            true => slice_cubes(dims).saturating_mul(SLICE_BYTES_PER_CUBE),
+            true => slice_cubes(dims).saturating_mul(CASCADE_SLICE_BYTES_PER_CUBE),
             false => 0,
         };
         self.faces_held(BYTES_PER_FACE_CASCADE, set_aside)
@@ -1118,7 +1127,8 @@ mod tests {
         assert!(job.counts_slabs_for_stages(large));
         assert!(!job.counts_slabs_for_stages(small), "decided by the slices");
         let mib = 1024 * 1024;
-        let faces = (48 * mib - 1023 * 1023 * SLICE_BYTES_PER_CUBE) / BYTES_PER_FACE_CASCADE;
+        let set_aside = (1023 * 1023 * CASCADE_SLICE_BYTES_PER_CUBE).min(16 * mib);
+        let faces = (48 * mib - set_aside) / BYTES_PER_FACE_CASCADE;
         assert!(job.cascade(large, Some(faces / CASCADE_SLAB_SHARE)));
         assert!(!job.cascade(large, Some(faces / CASCADE_SLAB_SHARE + 1)));
         assert!(!job.cascade(large, None), "not counted: one stage");
