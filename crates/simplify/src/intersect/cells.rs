@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 /// about 1,000 cells on bonsai upsampled to 511^3), and a query hops from block to block. With
 /// 16 the guard cost 0.4 % and 1.4 % more instructions than with a `Vec` per cell in bonsai's
 /// two stages at R = 0.2, with 32 0.3 % and 0.8 % (`tools/instructions.py`, the same output).
-pub(super) const BLOCK: usize = 32;
+const BLOCK: usize = 32;
 const NONE: u32 = u32::MAX;
 
 /// Entries of one list: each record's box clipped to the cell and quantized inline (its key,
