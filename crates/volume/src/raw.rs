@@ -134,11 +134,26 @@ impl RawVolume {
     }
 }
 
+/// The error for a mapped file found shorter than `need` bytes at `at` (it had `opened` when
+/// mapped, `now` now): reading on would touch pages past its end, which is SIGBUS.
+fn truncated(path: &Path, at: String, need: u64, opened: usize, now: u64) -> VolumeError {
+    VolumeError::Format {
+        file: path.display().to_string(),
+        at,
+        expected: format!("at least {need} bytes (the file had {opened} when opened)"),
+        found: format!(
+            "{now} bytes: the file was truncated while being read; rerun on a complete file"
+        ),
+    }
+}
+
+/// The page size `madvise` works in.
+const PAGE: usize = 4096;
+
 /// Hands the whole pages of `map` between byte `from` (page-aligned, what an earlier call
 /// returned) and byte `to` back to the kernel; returns the new page-aligned start. Only whole
 /// pages go (madvise rounds), and a re-read simply faults a page back in from the file.
 fn drop_pages(map: &Mmap, from: usize, to: usize) -> usize {
-    const PAGE: usize = 4096;
     let end = to.min(map.len()) / PAGE * PAGE;
     if end <= from {
         return from;
@@ -214,7 +229,7 @@ impl MapReader {
             map,
             pos,
             checked: pos,
-            released: pos / 4096 * 4096,
+            released: pos / PAGE * PAGE,
         }
     }
 
@@ -223,17 +238,13 @@ impl MapReader {
         let end = self.pos.saturating_add(Self::WINDOW).min(self.map.len());
         let now = self.map.file.metadata()?.len();
         if now < end as u64 {
-            return Err(std::io::Error::other(VolumeError::Format {
-                file: self.map.path.display().to_string(),
-                at: format!("byte {}", self.pos),
-                expected: format!(
-                    "at least {end} bytes (the file had {} when opened)",
-                    self.map.len()
-                ),
-                found: format!(
-                    "{now} bytes: the file was truncated while being read; rerun on a complete file"
-                ),
-            }));
+            return Err(std::io::Error::other(truncated(
+                &self.map.path,
+                format!("byte {}", self.pos),
+                end as u64,
+                self.map.len(),
+                now,
+            )));
         }
         self.checked = end;
         Ok(())
@@ -318,17 +329,13 @@ impl VolumeSource for RawVolume {
             .len();
         let need = (start + self.slice_bytes) as u64;
         if now < need {
-            return Err(VolumeError::Format {
-                file: self.path.display().to_string(),
-                at: format!("slice {z}"),
-                expected: format!(
-                    "at least {need} bytes (the file had {} when opened)",
-                    self.map.len()
-                ),
-                found: format!(
-                    "{now} bytes: the file was truncated while being read; rerun on a complete file"
-                ),
-            });
+            return Err(truncated(
+                &self.path,
+                format!("slice {z}"),
+                need,
+                self.map.len(),
+                now,
+            ));
         }
         decode(
             self.dtype,
