@@ -180,7 +180,7 @@ impl Decimator {
                 self.candidates.delay(c, reach);
             } else if crosses_rear(at, &patch, c.a, c.b, eval.pos) {
                 stats.rejected_other += 1;
-            } else if !topology::link_ok(&band.store, c.a, c.b) {
+            } else if !topology::link_ok(&patch, c.a, c.b) {
                 stats.rejected_link += 1;
             } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
                 stats.rejected_flip += 1;

@@ -135,15 +135,6 @@ impl Tri {
     pub(crate) fn contains(&self, id: u64) -> bool {
         self.v.contains(&id)
     }
-
-    /// The vertex that is neither `a` nor `b`.
-    pub(crate) fn third(&self, a: u64, b: u64) -> u64 {
-        self.v
-            .iter()
-            .copied()
-            .find(|&x| x != a && x != b)
-            .unwrap_or(a)
-    }
 }
 
 /// A vertex handle: slot in the low 32 bits, the slot's generation in the high ones, so that a
