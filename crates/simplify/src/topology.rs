@@ -435,64 +435,7 @@ pub(crate) fn complete(store: &mut Store) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::store::Tri;
-
-    /// The link condition on the patch of `a` and `b`, checked against its definition on the
-    /// two rings read from the store.
-    fn link(s: &Store, a: u64, b: u64) -> bool {
-        let ok = link_ok(&Patch::gather(s, a, b), a, b);
-        assert_eq!(ok, link_by_rings(s, a, b), "edge {a}{b}");
-        ok
-    }
-
-    /// The link condition as the rings of `a` and `b` in the store define it (see [`link_ok`]).
-    fn link_by_rings(s: &Store, a: u64, b: u64) -> bool {
-        let fan = |v: u64| s.vertex(v).map(|x| x.tris.to_vec()).unwrap_or_default();
-        let on_edge: Vec<_> = fan(a)
-            .into_iter()
-            .map(|t| *s.tri(t))
-            .filter(|t| t.contains(b))
-            .collect();
-        if on_edge.is_empty() || on_edge.len() > 2 {
-            return false;
-        }
-        let mut opposite: Vec<u64> = on_edge.iter().map(|t| third(t.v, a, b)).collect();
-        opposite.sort_unstable();
-        let (ra, rb) = (ring(s, a), ring(s, b));
-        let common: Vec<(u64, u8, u8)> = ra
-            .iter()
-            .filter_map(|&(x, na)| rb.iter().find(|(y, _)| *y == x).map(|&(_, nb)| (x, na, nb)))
-            .collect();
-        if !common.iter().map(|c| c.0).eq(opposite.iter().copied()) {
-            return false;
-        }
-        let with = |v: u64, x: u64, y: u64| {
-            fan(v)
-                .iter()
-                .any(|&t| s.tri(t).contains(x) && s.tri(t).contains(y))
-        };
-        if on_edge.len() == 2 {
-            let (x, y) = (opposite[0], opposite[1]);
-            !((is_boundary(&ra) && is_boundary(&rb)) || (with(a, x, y) && with(b, x, y)))
-        } else {
-            !common.iter().any(|&(_, na, nb)| na == 1 && nb == 1)
-        }
-    }
-
-    #[test]
-    fn the_patch_link_is_the_rings_link_for_every_pair() {
-        for s in [tetrahedron(), octahedron(), grid()] {
-            let ids: Vec<u64> = s.ids().collect();
-            for &a in &ids {
-                for &b in &ids {
-                    if a != b {
-                        link(&s, a, b);
-                    }
-                }
-            }
-        }
-    }
-    use crate::store::Vertex;
+    use crate::store::{Tri, Vertex};
 
     fn store(pos: &[[f64; 3]], tris: &[[u64; 3]]) -> Store {
         let mut s = Store::default();
@@ -553,6 +496,62 @@ mod tests {
             }
         }
         store(&p, &t)
+    }
+
+    /// The link condition on the patch of `a` and `b`, checked against its definition on the
+    /// two rings read from the store.
+    fn link(s: &Store, a: u64, b: u64) -> bool {
+        let ok = link_ok(&Patch::gather(s, a, b), a, b);
+        assert_eq!(ok, link_by_rings(s, a, b), "edge {a}{b}");
+        ok
+    }
+
+    /// The link condition as the rings of `a` and `b` in the store define it (see [`link_ok`]).
+    fn link_by_rings(s: &Store, a: u64, b: u64) -> bool {
+        let fan = |v: u64| s.vertex(v).map(|x| x.tris.to_vec()).unwrap_or_default();
+        let on_edge: Vec<_> = fan(a)
+            .into_iter()
+            .map(|t| *s.tri(t))
+            .filter(|t| t.contains(b))
+            .collect();
+        if on_edge.is_empty() || on_edge.len() > 2 {
+            return false;
+        }
+        let mut opposite: Vec<u64> = on_edge.iter().map(|t| third(t.v, a, b)).collect();
+        opposite.sort_unstable();
+        let (ra, rb) = (ring(s, a), ring(s, b));
+        let common: Vec<(u64, u8, u8)> = ra
+            .iter()
+            .filter_map(|&(x, na)| rb.iter().find(|(y, _)| *y == x).map(|&(_, nb)| (x, na, nb)))
+            .collect();
+        if !common.iter().map(|c| c.0).eq(opposite.iter().copied()) {
+            return false;
+        }
+        let with = |v: u64, x: u64, y: u64| {
+            fan(v)
+                .iter()
+                .any(|&t| s.tri(t).contains(x) && s.tri(t).contains(y))
+        };
+        if on_edge.len() == 2 {
+            let (x, y) = (opposite[0], opposite[1]);
+            !((is_boundary(&ra) && is_boundary(&rb)) || (with(a, x, y) && with(b, x, y)))
+        } else {
+            !common.iter().any(|&(_, na, nb)| na == 1 && nb == 1)
+        }
+    }
+
+    #[test]
+    fn the_patch_link_is_the_rings_link_for_every_pair() {
+        for s in [tetrahedron(), octahedron(), grid()] {
+            let ids: Vec<u64> = s.ids().collect();
+            for &a in &ids {
+                for &b in &ids {
+                    if a != b {
+                        link(&s, a, b);
+                    }
+                }
+            }
+        }
     }
 
     #[test]
