@@ -48,12 +48,8 @@ pub(crate) fn ring(store: &Store, v: u64) -> Ring {
         // list of corners first.
         for &t in &vx.tris {
             for x in store.tri(t).v {
-                if x == v {
-                    continue;
-                }
-                match ring.iter_mut().find(|(y, _)| *y == x) {
-                    Some((_, n)) => *n = n.saturating_add(1),
-                    None => ring.push((x, 1)),
+                if x != v {
+                    count(&mut ring, x);
                 }
             }
         }
@@ -76,6 +72,16 @@ pub(crate) fn ring(store: &Store, v: u64) -> Ring {
         }
     }
     ring
+}
+
+/// One more triangle of the fan on the edge to `x`: `x`'s count in `ring` up by one (a linear
+/// search: fans are small, see [`SMALL_FAN`]).
+#[inline]
+fn count(ring: &mut Ring, x: u64) {
+    match ring.iter_mut().find(|(y, _)| *y == x) {
+        Some((_, n)) => *n = n.saturating_add(1),
+        None => ring.push((x, 1)),
+    }
 }
 
 fn boundary_neighbours(ring: &[(u64, u8)]) -> impl Iterator<Item = u64> + '_ {
@@ -114,10 +120,6 @@ pub(crate) fn link_ok(patch: &Patch, a: u64, b: u64) -> bool {
     let mut ra: Ring = Ring::new();
     let mut rb: Ring = Ring::new();
     let mut opposite: SmallVec<[u64; 2]> = SmallVec::new();
-    let count = |ring: &mut Ring, x: u64| match ring.iter_mut().find(|(y, _)| *y == x) {
-        Some((_, n)) => *n = n.saturating_add(1),
-        None => ring.push((x, 1)),
-    };
     for t in &patch.tris {
         let (has_a, has_b) = (t.v.contains(&a), t.v.contains(&b));
         if has_a && has_b {
