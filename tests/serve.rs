@@ -1,7 +1,8 @@
 //! `isostream serve` end to end: the built binary as a child process on an ephemeral loopback
 //! port, driven by a real HTTP client. Every server is killed when its `Server` is dropped.
 
-use std::io::{BufRead, BufReader, Read};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::mpsc;
@@ -375,6 +376,10 @@ fn bad_jobs_and_foreign_inputs_are_refused() {
     let too_big = "#".repeat((1 << 20) + 1);
     let (code, body) = send(agent().post(&s.url("/jobs")), Some(&too_big));
     assert_eq!(code, 413, "{body}");
+    // Three times the limit, written whole by the client before it reads: still the 413 (the
+    // server reads and drops such a body), not a reset connection.
+    let (code, body) = send(agent().post(&s.url("/jobs")), Some(&too_big.repeat(3)));
+    assert_eq!(code, 413, "{body}");
     let (code, _) = send(
         agent().get(&s.url("/jobs/0123456789abcdef0123456789abcdef")),
         None,
@@ -394,6 +399,71 @@ fn bad_jobs_and_foreign_inputs_are_refused() {
     assert_eq!(
         files_in(&dir.path().join("state/jobs")),
         Vec::<String>::new()
+    );
+}
+
+/// Writes `bytes` on a new connection to `s` and reads until the server answers and closes, or
+/// closes without an answer: what came back, and when.
+fn raw_exchange(s: &Server, bytes: &[u8]) -> (String, Duration) {
+    let address = s.base.trim_start_matches("http://");
+    let mut stream = TcpStream::connect(address).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    let started = Instant::now();
+    stream.write_all(bytes).unwrap();
+    let mut answer = Vec::new();
+    let _ = stream.read_to_end(&mut answer);
+    (
+        String::from_utf8_lossy(&answer).into_owned(),
+        started.elapsed(),
+    )
+}
+
+/// A client that stops halfway through its request holds nothing for long: a head not
+/// complete within 10 s loses its connection, a body not complete within 10 s of the head gets
+/// a 408, and a body declared far past the limit gets its 413 before any of it is sent.
+#[test]
+fn stalled_and_oversized_requests_are_cut_off() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("state"), &[]);
+    let (head, body) = std::thread::scope(|scope| {
+        let head = scope.spawn(|| raw_exchange(&s, b"POST /jobs HTTP/1.1\r\nHost: x\r\n"));
+        let body = scope.spawn(|| {
+            raw_exchange(
+                &s,
+                b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n[input]\n",
+            )
+        });
+        // Meanwhile the service answers everyone else.
+        let (code, _) = send(agent().get(&s.url("/healthz")), None);
+        assert_eq!(code, 200);
+        (head.join().unwrap(), body.join().unwrap())
+    });
+    assert_eq!(head.0, "", "a head never completed gets no answer");
+    assert!(
+        (Duration::from_secs(9)..Duration::from_secs(30)).contains(&head.1),
+        "{head:?}"
+    );
+    assert!(body.0.starts_with("HTTP/1.1 408"), "{body:?}");
+    assert!(body.0.contains("send the whole job file"), "{body:?}");
+    assert!(
+        (Duration::from_secs(9)..Duration::from_secs(30)).contains(&body.1),
+        "{body:?}"
+    );
+
+    let (answer, took) = raw_exchange(
+        &s,
+        b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 1000000000\r\n\r\n",
+    );
+    assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
+    assert!(answer.contains("at most 1048576 bytes"), "{answer}");
+    assert!(took < Duration::from_secs(5), "{took:?}");
+
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert!(
+        metrics.contains("isostream_errors_total{kind=\"too_large\"} 1"),
+        "{metrics}"
     );
 }
 

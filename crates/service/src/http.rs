@@ -2,7 +2,7 @@
 //!
 //! Every refusal is a JSON object `{"error": "<one line>"}` with the status saying what kind it
 //! is (400 bad job, 401 no or wrong token, 403 input outside the allowed folders, 404 unknown id,
-//! 409 not possible in the job's state, 413 body too large).
+//! 408 body not sent in time, 409 not possible in the job's state, 413 body too large).
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -11,7 +11,7 @@ use axum::Json;
 use axum::Router;
 use axum::body::Body;
 use axum::extract::rejection::StringRejection;
-use axum::extract::{DefaultBodyLimit, Path, Request, State};
+use axum::extract::{DefaultBodyLimit, FromRequest, Path, Request, State};
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::sse::{Event, KeepAlive, Sse};
@@ -30,6 +30,13 @@ use crate::store::JobState;
 
 /// A job file is a few hundred bytes; anything near this is not one.
 const MAX_BODY: usize = 1 << 20;
+
+/// Largest body read (and dropped) to answer 413 (see `job_text`).
+const DRAIN_MAX: u64 = 16 << 20;
+
+/// Time a submission's body has once its head arrived (the head's own deadline is
+/// `listen::HEAD_DEADLINE`): a megabyte in 10 s is 100 kB/s.
+const BODY_DEADLINE: std::time::Duration = std::time::Duration::from_secs(10);
 
 #[derive(Clone)]
 pub(crate) struct AppState {
@@ -133,11 +140,8 @@ async fn show(
         .ok_or_else(|| ApiError::not_found(&id))
 }
 
-async fn submit(
-    State(s): State<AppState>,
-    body: Result<String, StringRejection>,
-) -> Result<Response, ApiError> {
-    let text = body.map_err(|r| ApiError::new(r.status(), r.body_text()))?;
+async fn submit(State(s): State<AppState>, req: Request) -> Result<Response, ApiError> {
+    let text = job_text(req).await?;
     let id = new_id()?;
     let queue = Arc::clone(&s.queue);
     let roots = Arc::clone(&s.roots);
@@ -157,6 +161,49 @@ async fn submit(
         body,
     )
         .into_response())
+}
+
+/// The job file a submission carries. A body that does not arrive within [`BODY_DEADLINE`]
+/// is refused then: without a deadline, a client sending less than its `Content-Length` held
+/// the request open forever. A body declared larger than [`MAX_BODY`] is read and dropped
+/// before the 413, so that a client that writes its whole body before reading (most do) gets
+/// the answer rather than a reset connection; one declared larger than [`DRAIN_MAX`] is
+/// refused before any of it is read.
+async fn job_text(req: Request) -> Result<String, ApiError> {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok()?.parse::<u64>().ok());
+    let too_large = |n: u64| {
+        ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!("a body of {n} bytes: a job file is at most {MAX_BODY} bytes"),
+        )
+    };
+    if let Some(n) = declared.filter(|&n| n > DRAIN_MAX) {
+        return Err(too_large(n));
+    }
+    let read = async {
+        if let Some(n) = declared.filter(|&n| n > MAX_BODY as u64) {
+            let mut body = req.into_body().into_data_stream();
+            while let Some(Ok(_)) = body.next().await {}
+            return Err(too_large(n));
+        }
+        String::from_request(req, &())
+            .await
+            .map_err(|r: StringRejection| ApiError::new(r.status(), r.body_text()))
+    };
+    tokio::time::timeout(BODY_DEADLINE, read)
+        .await
+        .map_err(|_| {
+            ApiError::new(
+                StatusCode::REQUEST_TIMEOUT,
+                format!(
+                    "the job did not arrive within {} s of its headers; send the whole job file",
+                    BODY_DEADLINE.as_secs()
+                ),
+            )
+        })?
 }
 
 async fn cancel(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {

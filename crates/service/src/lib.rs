@@ -15,6 +15,7 @@ mod config;
 mod error;
 mod http;
 mod joblog;
+mod listen;
 mod metrics;
 mod queue;
 mod store;
@@ -92,9 +93,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
         });
         info!(%addr, state = %config.state_dir.display(), "listening");
         ready(addr);
-        let served = axum::serve(listener, app)
-            .with_graceful_shutdown(shutdown.clone().cancelled_owned())
-            .await;
+        let served = listen::serve(listener, app, shutdown.clone()).await;
         queue.drain().await;
         served.map_err(ServiceError::Serve)
     })
