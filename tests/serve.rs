@@ -493,13 +493,42 @@ fn jobs_are_cancelled_queued_or_running() {
     assert_eq!(last["state"], "cancelled", "{last}");
     let (code, body) = send(agent().get(&s.url(&format!("/jobs/{first}/output"))), None);
     assert_eq!(code, 409, "{body}");
-    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
-    assert_eq!(code, 409);
     // Nothing half-written kept; the log stays.
     assert_eq!(
         files_in(&state.join("jobs").join(&first)),
         ["job.log", "job.toml", "state.json"]
     );
+
+    // A finished job is removed by a second DELETE, folder and all, and stays removed.
+    let (code, body) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
+    assert_eq!((code, json(&body)["removed"].as_bool()), (200, Some(true)));
+    assert!(!state.join("jobs").join(&first).exists());
+    let (code, _) = send(agent().get(&s.url(&format!("/jobs/{first}"))), None);
+    assert_eq!(code, 404);
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
+    assert_eq!(code, 404);
+    let done = submit(&s, SPHERE);
+    let last = follow(&s, &done).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}");
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{done}"))), None);
+    assert_eq!(code, 200);
+    let (_, list) = send(agent().get(&s.url("/jobs")), None);
+    let listed: Vec<String> = json(&list)["jobs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|j| j["id"].as_str().unwrap().to_owned())
+        .collect();
+    assert_eq!(
+        listed,
+        [second.clone()],
+        "only the cancelled queued job is left"
+    );
+    drop(s);
+    let s = Server::start(&state, &[]);
+    let (code, _) = send(agent().get(&s.url(&format!("/jobs/{done}"))), None);
+    assert_eq!(code, 404, "removed for good");
+    assert_eq!(files_in(&state.join("jobs")), [second.clone()]);
 }
 
 #[test]
@@ -581,13 +610,26 @@ fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
     let mut s = Server::start(&state, &[]);
     let id = submit(&s, &long_job("g.smb"));
     wait_for(&s, &id, "running", |v| v["state"] == "running");
+    // A client stalled halfway through a request head does not hold the stopping service (it
+    // did for as long as the client kept its connection).
+    let mut stalled = TcpStream::connect(s.base.trim_start_matches("http://")).unwrap();
+    stalled
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        .unwrap();
     let term = Command::new("kill")
         .args(["-TERM", &s.child.id().to_string()])
         .status()
         .unwrap();
     assert!(term.success());
+    let stopping = Instant::now();
     let status = s.child.wait().unwrap();
     assert!(status.success(), "{status:?}\n{}", s.log());
+    assert!(
+        stopping.elapsed() < Duration::from_secs(25),
+        "{:?}",
+        stopping.elapsed()
+    );
+    drop(stalled);
     let job_dir = state.join("jobs").join(&id);
     assert_eq!(
         files_in(&job_dir),

@@ -25,7 +25,7 @@ use tokio_util::sync::CancellationToken;
 use crate::admission::{self, Roots};
 use crate::error::{ApiError, request_error_kind};
 use crate::metrics::Metrics;
-use crate::queue::{CancelOutcome, JobView, Queue};
+use crate::queue::{DeleteOutcome, JobView, Queue};
 use crate::store::JobState;
 
 /// A job file is a few hundred bytes; anything near this is not one.
@@ -53,7 +53,7 @@ pub(crate) fn router(state: AppState) -> Router {
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
         .route("/jobs", get(list).post(submit))
-        .route("/jobs/{id}", get(show).delete(cancel))
+        .route("/jobs/{id}", get(show).delete(delete))
         .route("/jobs/{id}/events", get(events))
         .route("/jobs/{id}/output", get(output))
         .route("/jobs/{id}/report", get(report))
@@ -206,21 +206,24 @@ async fn job_text(req: Request) -> Result<String, ApiError> {
         })?
 }
 
-async fn cancel(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+/// Cancels a queued or running job; removes a finished one with its output (see
+/// [`Queue::delete`]).
+async fn delete(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
     let queue = Arc::clone(&s.queue);
     let job = id.clone();
-    let outcome = tokio::task::spawn_blocking(move || queue.cancel(&job))
+    let outcome = tokio::task::spawn_blocking(move || queue.delete(&job))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))?
-        .map_err(|e| ApiError::internal(format!("cannot write the job state: {e}")))?;
+        .map_err(|e| ApiError::internal(format!("cannot change the job's folder: {e}")))?;
     match outcome {
-        CancelOutcome::Cancelled(view) => Ok((StatusCode::OK, Json(view)).into_response()),
-        CancelOutcome::Stopping(view) => Ok((StatusCode::ACCEPTED, Json(view)).into_response()),
-        CancelOutcome::AlreadyFinished(state) => Err(ApiError::new(
-            StatusCode::CONFLICT,
-            format!("job {id} is already {}", state.name()),
-        )),
-        CancelOutcome::NotFound => Err(ApiError::not_found(&id)),
+        DeleteOutcome::Cancelled(view) => Ok((StatusCode::OK, Json(view)).into_response()),
+        DeleteOutcome::Stopping(view) => Ok((StatusCode::ACCEPTED, Json(view)).into_response()),
+        DeleteOutcome::Removed => Ok((
+            StatusCode::OK,
+            Json(serde_json::json!({ "id": id, "removed": true })),
+        )
+            .into_response()),
+        DeleteOutcome::NotFound => Err(ApiError::not_found(&id)),
     }
 }
 

@@ -93,8 +93,13 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
         });
         info!(%addr, state = %config.state_dir.display(), "listening");
         ready(addr);
-        let served = listen::serve(listener, app, shutdown.clone()).await;
-        queue.drain().await;
+        // Running jobs are interrupted as soon as the service stops, while the requests in
+        // flight get their grace (`listen::serve`), not after it.
+        let stopping = shutdown.clone();
+        let (served, ()) = tokio::join!(listen::serve(listener, app, shutdown), async {
+            stopping.cancelled().await;
+            queue.drain().await;
+        });
         served.map_err(ServiceError::Serve)
     })
 }

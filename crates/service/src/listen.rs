@@ -4,9 +4,11 @@
 //! that opened a connection and sent half a request head held it, and a task, for as long as it
 //! liked (measured: still open after 90 s), so a few thousand such connections would exhaust
 //! the service's file descriptors. Here every connection gets hyper's own header deadline
-//! ([`HEAD_DEADLINE`]); the body's deadline is the handler's (`http::submit`), since only it
+//! ([`HEAD_DEADLINE`]); the body's deadline is the handler's (`http::job_text`), since only it
 //! knows a request has one. A response being streamed (an event stream, an output file) has
-//! no deadline: it ends with its job or with the service.
+//! no deadline: it ends with its job, or with the service after its shutdown grace
+//! ([`SHUTDOWN_GRACE`]; before, a client stalled mid-request held a stopping service for as
+//! long as it kept its connection).
 
 use std::io;
 use std::time::Duration;
@@ -24,7 +26,13 @@ use tracing::{debug, warn};
 /// connection is open or its previous response is sent. A head is a few hundred bytes.
 pub(crate) const HEAD_DEADLINE: Duration = Duration::from_secs(10);
 
-/// Serves `app` on `listener` until `shutdown`, then lets the requests in flight finish.
+/// Time the requests in flight get to finish once the service stops (a download of a large
+/// output, a head still arriving): the jobs are on disk whatever happens to them, and a client
+/// can ask again once the service is back.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(10);
+
+/// Serves `app` on `listener` until `shutdown`, then lets the requests in flight finish for
+/// at most [`SHUTDOWN_GRACE`].
 pub(crate) async fn serve(
     listener: TcpListener,
     app: Router,
@@ -54,7 +62,12 @@ pub(crate) async fn serve(
             }
         });
     }
-    graceful.shutdown().await;
+    if tokio::time::timeout(SHUTDOWN_GRACE, graceful.shutdown())
+        .await
+        .is_err()
+    {
+        warn!("requests still in flight after {SHUTDOWN_GRACE:?} of shutdown: closed");
+    }
     Ok(())
 }
 

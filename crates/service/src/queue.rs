@@ -112,12 +112,14 @@ struct Table {
 }
 
 /// What `DELETE /jobs/{id}` did.
-pub(crate) enum CancelOutcome {
+pub(crate) enum DeleteOutcome {
     /// The job was queued and is now cancelled.
     Cancelled(JobView),
     /// The job is running; its run stops at the next slice and it then becomes `cancelled`.
     Stopping(JobView),
-    AlreadyFinished(JobState),
+    /// The job had finished (done, failed or cancelled): it and its folder, output included,
+    /// are gone.
+    Removed,
     NotFound,
 }
 
@@ -261,10 +263,13 @@ impl Queue {
         }
     }
 
-    pub fn cancel(&self, id: &str) -> std::io::Result<CancelOutcome> {
+    /// `DELETE /jobs/{id}`: cancels a queued or running job, removes a finished one. Without
+    /// removal a long-running service kept every output it ever made, and only deleting job
+    /// folders by hand behind its back (which a running service does not notice) freed the disk.
+    pub fn delete(&self, id: &str) -> std::io::Result<DeleteOutcome> {
         let mut t = self.lock();
         let Some(job) = t.jobs.get_mut(id) else {
-            return Ok(CancelOutcome::NotFound);
+            return Ok(DeleteOutcome::NotFound);
         };
         match job.record.state {
             JobState::Queued => {
@@ -274,15 +279,24 @@ impl Queue {
                 self.store.save(&job.record)?;
                 job.publish();
                 info!(%id, "queued job cancelled");
-                Ok(CancelOutcome::Cancelled(job.view()))
+                Ok(DeleteOutcome::Cancelled(job.view()))
             }
             JobState::Running => {
                 job.cancelled_by_user = true;
                 job.cancel.store(true, Ordering::Relaxed);
                 info!(%id, "cancelling a running job");
-                Ok(CancelOutcome::Stopping(job.view()))
+                Ok(DeleteOutcome::Stopping(job.view()))
             }
-            s => Ok(CancelOutcome::AlreadyFinished(s)),
+            JobState::Done | JobState::Failed | JobState::Cancelled => {
+                // Its run has ended (the state turns final under this lock, once the run has
+                // returned), so nothing writes in the folder any more. Forgotten first: the
+                // event streams following it end as its sender goes.
+                t.jobs.remove(id);
+                t.order.retain(|x| x != id);
+                self.store.remove(id)?;
+                info!(%id, "finished job removed");
+                Ok(DeleteOutcome::Removed)
+            }
         }
     }
 

@@ -136,6 +136,15 @@ impl Store {
         write_atomic(&self.job_dir(&record.id).join(STATE_FILE), &bytes)
     }
 
+    /// Removes the job's folder. Its state goes first: a folder without one is an incomplete
+    /// submission, which [`Store::load_all`] removes at the next start, so a crash in the
+    /// middle of the removal never brings the job back.
+    pub fn remove(&self, id: &str) -> std::io::Result<()> {
+        let dir = self.job_dir(id);
+        std::fs::remove_file(dir.join(STATE_FILE))?;
+        std::fs::remove_dir_all(dir)
+    }
+
     /// Removes everything but the job file, the state, the log and `keep` (a checkpoint and its
     /// files, which the next run resumes from): the output, its summary and any temporary file a
     /// killed run left behind.
