@@ -24,10 +24,13 @@ mod tests {
     #[test]
     #[cfg(target_os = "linux")]
     fn reads_plausible_values() {
-        // Now first: the peak, read after it, cannot be lower whatever other threads allocate.
+        // Now first, then the peak. The kernel sums RSS from per-CPU counters that lag by a
+        // batch of pages, so with other test threads allocating and freeing in between, the
+        // peak read second once came out 126 KiB below the current value read first (a clean
+        // clone's `.ci/run`): a slack of a few MiB, far below any run's memory.
         let now = super::current_rss_bytes().expect("VmRSS on Linux");
         let peak = super::peak_rss_bytes().expect("VmHWM on Linux");
         assert!(now > 1024 * 1024, "{now}");
-        assert!(peak >= now, "{peak} < {now}");
+        assert!(peak + 4 * 1024 * 1024 >= now, "{peak} < {now}");
     }
 }
