@@ -106,6 +106,10 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 _ => 1,
             };
         }
+        // measure: a job other than the one that made the mesh is bad input.
+        if cause.downcast_ref::<measure_cmd::OtherJob>().is_some() {
+            return 2;
+        }
         if let Some(e) = cause.downcast_ref::<isostream_measure::MeasureError>() {
             return match e {
                 isostream_measure::MeasureError::Volume(_)

@@ -22,6 +22,19 @@ pub fn measure(
         Some(job_path) => {
             let job = JobConfig::load(job_path)?;
             let source = open_source(&job.input)?;
+            if let Some(run) = run_summary(mesh_path) {
+                let read = Made {
+                    input: source.describe(),
+                    dims: source.grid().dims,
+                    iso: job.extract.iso,
+                };
+                check_made_by(&run, &read).map_err(|made| OtherJob {
+                    mesh: mesh_path.display().to_string(),
+                    made,
+                    job: job_path.display().to_string(),
+                    read,
+                })?;
+            }
             let defaults = MeasureOptions::default();
             let opts = MeasureOptions {
                 samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),
@@ -67,9 +80,78 @@ pub fn measure(
 /// The shape error `max eps0` is only known to the run that simplified; it is in the run
 /// summary next to the mesh when that run bounded it (mode = "error").
 fn shape_error_from_run(mesh: &Path) -> Option<f64> {
+    run_summary(mesh)?.get("shape_error")?.as_f64()
+}
+
+/// The run summary `isostream run` wrote next to `mesh`, when there is one.
+fn run_summary(mesh: &Path) -> Option<serde_json::Value> {
     let text = std::fs::read_to_string(summary_path(mesh)).ok()?;
-    let summary: serde_json::Value = serde_json::from_str(&text).ok()?;
-    summary.get("shape_error")?.as_f64()
+    serde_json::from_str(&text).ok()
+}
+
+/// What a surface is made from: the input as the run names it, its dims (after upsampling)
+/// and the iso value.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Made {
+    input: String,
+    dims: [u64; 3],
+    iso: f64,
+}
+
+impl std::fmt::Display for Made {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [x, y, z] = self.dims;
+        write!(f, "{} ({x}x{y}x{z}) at iso {}", self.input, self.iso)
+    }
+}
+
+/// `--volume` names a job whose surface is not the one the mesh was made from (by the mesh's
+/// run summary): every distance would be measured to another surface. Bonsai's output
+/// measured against engine's job reported a Hausdorff distance of 18.9 % of the diagonal and
+/// no error.
+#[derive(Debug)]
+pub struct OtherJob {
+    mesh: String,
+    made: Made,
+    job: String,
+    read: Made,
+}
+
+impl std::fmt::Display for OtherJob {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} was made from {} (its run summary), but {} reads {}; measure it against the job that made it",
+            self.mesh, self.made, self.job, self.read
+        )
+    }
+}
+
+impl std::error::Error for OtherJob {}
+
+/// The run summary's input, dims and iso against the job's (`read`): the inputs compared by
+/// file name, since a job file and the service's copy of it name one file by different paths.
+fn check_made_by(run: &serde_json::Value, read: &Made) -> Result<(), Made> {
+    let (Some(input), Some(iso)) = (run["input"].as_str(), run["iso"].as_f64()) else {
+        return Ok(());
+    };
+    let dims: Option<Vec<u64>> = run["dims"]
+        .as_array()
+        .map(|d| d.iter().filter_map(serde_json::Value::as_u64).collect());
+    let Some(Ok(dims)) = dims.map(<[u64; 3]>::try_from) else {
+        return Ok(());
+    };
+    let made = Made {
+        input: input.to_owned(),
+        dims,
+        iso,
+    };
+    let name = |s: &str| Path::new(s).file_name().map(|n| n.to_owned());
+    if name(&made.input) == name(&read.input) && made.dims == read.dims && made.iso == read.iso {
+        Ok(())
+    } else {
+        Err(made)
+    }
 }
 
 /// Attribute errors against the job's full-resolution surface, for the attributes the mesh and

@@ -194,6 +194,14 @@ fn bad_files_give_one_line_and_no_page() {
     let summary = run(dir.path());
     let run_json = dir.path().join("gyroid.smb.run.json");
     assert!(summary["series"].is_object());
+    // The mesh itself given by mistake: binary, so "not a run summary", not a failed read.
+    let mesh = dir.path().join("gyroid.smb");
+    let o = isostream(&["report", &mesh.to_string_lossy(), "-o", &out]);
+    assert_one_line_error(
+        &o,
+        2,
+        &["gyroid.smb", "not an isostream run summary", "run.json"],
+    );
     let o = isostream(&[
         "report",
         &run_json.to_string_lossy(),

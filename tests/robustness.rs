@@ -495,6 +495,56 @@ fn check_rejects_empty_truncated_and_non_finite_meshes() {
     assert_one_line_error(&o, 2, &["non-finite"]);
 }
 
+/// `measure --volume` with a job other than the one that made the mesh (by the mesh's run
+/// summary: another input, size or iso value) refuses instead of measuring distances to
+/// another surface; the job that made it, or a copy of the mesh without a summary, is measured.
+#[test]
+fn measure_refuses_a_job_that_did_not_make_the_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = sphere_job(dir.path(), "m.smb", "");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mesh = dir.path().join("m.smb").to_string_lossy().into_owned();
+    let o = bin()
+        .args(["measure", "--volume", &job, &mesh])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    for (other, needle) in [
+        ("iso = 0.0", "iso = 0.25"),
+        ("size = [12, 12, 12]", "size = [12, 12, 13]"),
+        ("shape = \"sphere\"", "shape = \"gyroid\""),
+    ] {
+        let text = std::fs::read_to_string(&job)
+            .unwrap()
+            .replace(other, needle);
+        let other_job = dir.path().join("other.toml");
+        std::fs::write(&other_job, text).unwrap();
+        let o = bin()
+            .args(["measure", "--volume", other_job.to_str().unwrap(), &mesh])
+            .output()
+            .unwrap();
+        assert_one_line_error(
+            &o,
+            2,
+            &[
+                "m.smb was made from",
+                "other.toml reads",
+                "the job that made it",
+            ],
+        );
+    }
+    // Without its run summary nothing says which job made the mesh.
+    std::fs::remove_file(dir.path().join("m.smb.run.json")).unwrap();
+    let other_job = dir.path().join("other.toml");
+    let o = bin()
+        .args(["measure", "--volume", other_job.to_str().unwrap(), &mesh])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
 /// `check` and `convert` speak sentences, or JSON with `--json`; logs carry no colour codes when
 /// stderr is not a terminal; the done line's path is normalised; bad output extensions list the
 /// six accepted ones.

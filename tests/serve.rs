@@ -521,14 +521,14 @@ fn jobs_are_cancelled_queued_or_running() {
         .collect();
     assert_eq!(
         listed,
-        [second.clone()],
+        [second.as_str()],
         "only the cancelled queued job is left"
     );
     drop(s);
     let s = Server::start(&state, &[]);
     let (code, _) = send(agent().get(&s.url(&format!("/jobs/{done}"))), None);
     assert_eq!(code, 404, "removed for good");
-    assert_eq!(files_in(&state.join("jobs")), [second.clone()]);
+    assert_eq!(files_in(&state.join("jobs")), [second.as_str()]);
 }
 
 #[test]

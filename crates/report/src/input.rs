@@ -94,8 +94,7 @@ pub struct Directed {
 impl Run {
     /// Reads `<output>.run.json`.
     pub fn load(path: &Path) -> Result<Run, ReportError> {
-        let text = read(path)?;
-        serde_json::from_str(&text).map_err(|e| ReportError::NotRun {
+        serde_json::from_slice(&read(path)?).map_err(|e| ReportError::NotRun {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })
@@ -105,16 +104,17 @@ impl Run {
 impl Measure {
     /// Reads the output of `isostream measure --json`.
     pub fn load(path: &Path) -> Result<Measure, ReportError> {
-        let text = read(path)?;
-        serde_json::from_str(&text).map_err(|e| ReportError::NotMeasure {
+        serde_json::from_slice(&read(path)?).map_err(|e| ReportError::NotMeasure {
             path: path.to_path_buf(),
             reason: e.to_string(),
         })
     }
 }
 
-fn read(path: &Path) -> Result<String, ReportError> {
-    std::fs::read_to_string(path).map_err(|source| ReportError::Read {
+/// The file's bytes: a file that is not text (a mesh given by mistake) is then told apart as
+/// "not a run summary" by the parser, not as a failed read.
+fn read(path: &Path) -> Result<Vec<u8>, ReportError> {
+    std::fs::read(path).map_err(|source| ReportError::Read {
         path: path.to_path_buf(),
         source,
     })
