@@ -91,7 +91,7 @@ fn run_summary(mesh: &Path) -> Option<serde_json::Value> {
 
 /// What a surface is made from: the input as the run names it, its dims (after upsampling)
 /// and the iso value.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug)]
 pub struct Made {
     input: String,
     dims: [u64; 3],
