@@ -545,6 +545,27 @@ fn measure_refuses_a_job_that_did_not_make_the_mesh() {
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
+/// `check` verifies streaming meshes only: another format is named, with the command that
+/// makes one of it.
+#[test]
+fn check_names_a_format_it_does_not_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = sphere_job(dir.path(), "m.stl", "");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mesh = dir.path().join("m.stl").to_string_lossy().into_owned();
+    let o = bin().args(["check", &mesh]).output().unwrap();
+    assert_one_line_error(
+        &o,
+        2,
+        &[
+            "m.stl",
+            "STL is not a streaming mesh format",
+            "isostream convert",
+        ],
+    );
+}
+
 /// `check` and `convert` speak sentences, or JSON with `--json`; logs carry no colour codes when
 /// stderr is not a terminal; the done line's path is normalised; bad output extensions list the
 /// six accepted ones.

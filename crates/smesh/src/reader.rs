@@ -70,10 +70,11 @@ impl StreamReader {
         let format = match Format::from_path(path) {
             Ok(f @ (Format::Sma | Format::Smb)) => f,
             Ok(other) => {
+                let name = format!("{other:?}").to_uppercase();
                 return Err(SmeshError::Unsupported {
                     path: path.to_path_buf(),
                     message: format!(
-                        "{other:?} is not a streaming mesh format (expected SMA or SMB)"
+                        "{name} is not a streaming mesh format (SMA or SMB); `isostream convert` makes one"
                     ),
                 });
             }
