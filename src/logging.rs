@@ -1,6 +1,7 @@
 //! tracing setup: text or JSON lines on stderr, filter from RUST_LOG or the job's `[log] level`.
 
 use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use isostream_pipeline::{LogConfig, LogFormat};
 use isostream_service::JobLogLayer;
@@ -20,8 +21,34 @@ pub fn init(log: &LogConfig, jobs: Option<JobLogLayer>) {
         .with_ansi(std::io::stderr().is_terminal())
         .with_target(false);
     // A second init (tests, repeated calls) is harmless: keep the first subscriber.
-    let _ = match log.format {
+    let installed = match log.format {
         LogFormat::Text => builder.finish().with(jobs).try_init(),
         LogFormat::Json => builder.json().finish().with(jobs).try_init(),
     };
+    if installed.is_ok() {
+        JSON_LINES.store(log.format == LogFormat::Json, Ordering::Relaxed);
+    }
+}
+
+/// Whether stderr carries JSON lines (`[log] format = "json"` once the job was read).
+static JSON_LINES: AtomicBool = AtomicBool::new(false);
+
+/// The line a failed command ends with: `error: ...`, or with JSON logs an object shaped like
+/// the log lines before it (level `ERROR`, the message and the exit code among its fields), so
+/// that a log pipeline reading one JSON object per line reads the error too. Printed whatever
+/// the log level: the error is the command's answer, not a log line a filter may drop.
+pub fn error_line(message: &str, exit_code: u8) -> String {
+    if !JSON_LINES.load(Ordering::Relaxed) {
+        return format!("error: {message}");
+    }
+    use tracing_subscriber::fmt::format::Writer;
+    use tracing_subscriber::fmt::time::{FormatTime, SystemTime};
+    let mut timestamp = String::new();
+    let _ = SystemTime.format_time(&mut Writer::new(&mut timestamp));
+    serde_json::json!({
+        "timestamp": timestamp,
+        "level": "ERROR",
+        "fields": { "message": message, "exit_code": exit_code },
+    })
+    .to_string()
 }

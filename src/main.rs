@@ -42,8 +42,9 @@ fn main() -> ExitCode {
     match cli.command.execute() {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {}", one_line(&err));
-            ExitCode::from(exit_code(&err))
+            let code = exit_code(&err);
+            eprintln!("{}", logging::error_line(&one_line(&err), code));
+            ExitCode::from(code)
         }
     }
 }

@@ -545,6 +545,37 @@ fn measure_refuses_a_job_that_did_not_make_the_mesh() {
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
+/// With `[log] format = "json"` every line on stderr is a JSON object, the error that ends a
+/// failed run included (level `ERROR`, its exit code among the fields), whatever the log level.
+#[test]
+fn json_logs_end_a_failed_run_with_a_json_error() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("v.raw"), [0u8; 64]).unwrap();
+    for level in ["info", "off"] {
+        let job = write_job(
+            dir.path(),
+            &format!(
+                "[input]\npath = \"v.raw\"\ndims = [4, 4, 5]\ndtype = \"u8\"\n[extract]\niso = 0.5\n\
+                 [output]\npath = \"m.smb\"\n[log]\nformat = \"json\"\nlevel = \"{level}\"\n"
+            ),
+        );
+        let o = bin().args(["run", &job]).output().unwrap();
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        let lines: Vec<serde_json::Value> = stderr(&o)
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+            .collect();
+        let last = lines.last().expect("an error line");
+        assert_eq!(last["level"], "ERROR", "{last}");
+        assert_eq!(last["fields"]["exit_code"], 2, "{last}");
+        let message = last["fields"]["message"].as_str().unwrap();
+        assert!(
+            message.contains("v.raw") && message.contains("dims"),
+            "{message}"
+        );
+    }
+}
+
 /// `check` verifies streaming meshes only: another format is named, with the command that
 /// makes one of it.
 #[test]
