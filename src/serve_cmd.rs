@@ -10,11 +10,15 @@ use isostream_pipeline::{LogConfig, LogFormat};
 use isostream_service::ServeFile;
 
 const DEFAULT_LISTEN: &str = "127.0.0.1:8440";
+/// Jobs waiting at once by default: far more than a day of real jobs, far fewer than would fill
+/// a disk with job files of up to 1 MiB.
+const DEFAULT_MAX_QUEUED: usize = 1000;
 
 #[derive(Debug, clap::Args)]
 pub struct ServeArgs {
     /// A TOML file with any of the keys below (state, listen, allow_input, token_file,
-    /// max_parallel_jobs, log_format); flags given here win. Example: config/serve.toml.
+    /// max_parallel_jobs, max_queued_jobs, log_format); flags given here win. Example:
+    /// config/serve.toml.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Folder holding the jobs (default: $STATE_DIRECTORY under systemd, else ./isostream-state).
@@ -37,6 +41,9 @@ pub struct ServeArgs {
     /// pool busy).
     #[arg(long)]
     pub max_parallel_jobs: Option<usize>,
+    /// Jobs waiting to run at once (default 1000); a submission past it is refused with 429.
+    #[arg(long)]
+    pub max_queued_jobs: Option<usize>,
     /// Log lines as `text` (default) or `json` (one object per line, the job id in its span).
     #[arg(long, value_parser = ["text", "json"])]
     pub log_format: Option<String>,
@@ -93,6 +100,10 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
             .max_parallel_jobs
             .or(file.max_parallel_jobs)
             .unwrap_or(1),
+        max_queued_jobs: args
+            .max_queued_jobs
+            .or(file.max_queued_jobs)
+            .unwrap_or(DEFAULT_MAX_QUEUED),
     };
     isostream_service::serve(config, |addr| {
         // One line on stdout that scripts (and the tests) wait for; logs go to stderr.

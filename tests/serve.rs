@@ -548,6 +548,36 @@ fn at_most_max_parallel_jobs_run_at_once() {
     );
 }
 
+/// Past `--max-queued-jobs` waiting jobs a submission is refused with 429 and nothing is
+/// stored; once one has left the queue, submissions are taken again.
+#[test]
+fn a_full_queue_refuses_submissions() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &["--max-queued-jobs", "1"]);
+    let running = submit(&s, &long_job("a.smb"));
+    wait_for(&s, &running, "running", |v| v["state"] == "running");
+    let waiting = submit(&s, SPHERE);
+    let (code, body) = send(agent().post(&s.url("/jobs")), Some(SPHERE));
+    assert_eq!(code, 429, "{body}");
+    assert!(
+        json(&body)["error"]
+            .as_str()
+            .unwrap()
+            .contains("--max-queued-jobs"),
+        "{body}"
+    );
+    assert_eq!(files_in(&state.join("jobs")).len(), 2, "nothing stored");
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert!(
+        metrics.contains("isostream_errors_total{kind=\"queue_full\"} 1"),
+        "{metrics}"
+    );
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{waiting}"))), None);
+    assert_eq!(code, 200);
+    submit(&s, SPHERE);
+}
+
 #[test]
 fn an_open_address_without_token_is_refused() {
     let dir = tempfile::tempdir().unwrap();

@@ -25,6 +25,8 @@ pub struct ServeFile {
     pub token_file: Option<PathBuf>,
     /// `--max-parallel-jobs`.
     pub max_parallel_jobs: Option<usize>,
+    /// `--max-queued-jobs`.
+    pub max_queued_jobs: Option<usize>,
     /// `--log-format`: `text` or `json`.
     pub log_format: Option<LogFormat>,
 }
@@ -65,7 +67,7 @@ mod tests {
         let path = dir.path().join("serve.toml");
         std::fs::write(
             &path,
-            "state = \"state\"\nlisten = \"127.0.0.1:9000\"\nallow_input = [\"/data\", \"more\"]\nmax_parallel_jobs = 2\nlog_format = \"json\"\n",
+            "state = \"state\"\nlisten = \"127.0.0.1:9000\"\nallow_input = [\"/data\", \"more\"]\nmax_parallel_jobs = 2\nmax_queued_jobs = 7\nlog_format = \"json\"\n",
         )
         .unwrap();
         let f = ServeFile::load(&path).unwrap();
@@ -76,8 +78,8 @@ mod tests {
             [PathBuf::from("/data"), dir.path().join("more")]
         );
         assert_eq!(
-            (f.max_parallel_jobs, f.log_format),
-            (Some(2), Some(LogFormat::Json))
+            (f.max_parallel_jobs, f.max_queued_jobs, f.log_format),
+            (Some(2), Some(7), Some(LogFormat::Json))
         );
     }
 

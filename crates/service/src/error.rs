@@ -22,6 +22,8 @@ pub enum ServiceError {
     EmptyToken,
     #[error("--max-parallel-jobs must be at least 1")]
     NoParallelism,
+    #[error("--max-queued-jobs must be at least 1")]
+    NoQueue,
     #[error("--allow-input {}: {reason}", path.display())]
     AllowInput { path: PathBuf, reason: String },
     #[error("state folder {}: {reason}; choose a writable --state folder", path.display())]
@@ -47,6 +49,7 @@ impl ServiceError {
             ServiceError::ExposedWithoutToken { .. }
                 | ServiceError::EmptyToken
                 | ServiceError::NoParallelism
+                | ServiceError::NoQueue
                 | ServiceError::AllowInput { .. }
                 | ServiceError::Config { .. }
         )
@@ -90,6 +93,7 @@ pub(crate) fn request_error_kind(status: StatusCode) -> Option<&'static str> {
         StatusCode::NOT_FOUND => "not_found",
         StatusCode::CONFLICT => "conflict",
         StatusCode::PAYLOAD_TOO_LARGE => "too_large",
+        StatusCode::TOO_MANY_REQUESTS => "queue_full",
         s if s.is_client_error() => "bad_request",
         s if s.is_server_error() => "internal",
         _ => return None,

@@ -2,7 +2,8 @@
 //!
 //! Every refusal is a JSON object `{"error": "<one line>"}` with the status saying what kind it
 //! is (400 bad job, 401 no or wrong token, 403 input outside the allowed folders, 404 unknown id,
-//! 408 body not sent in time, 409 not possible in the job's state, 413 body too large).
+//! 408 body not sent in time, 409 not possible in the job's state, 413 body too large, 429 the
+//! queue is full).
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -25,7 +26,7 @@ use tokio_util::sync::CancellationToken;
 use crate::admission::{self, Roots};
 use crate::error::{ApiError, request_error_kind};
 use crate::metrics::Metrics;
-use crate::queue::{DeleteOutcome, JobView, Queue};
+use crate::queue::{DeleteOutcome, JobView, Queue, SubmitError};
 use crate::store::JobState;
 
 /// A job file is a few hundred bytes; anything near this is not one.
@@ -148,9 +149,16 @@ async fn submit(State(s): State<AppState>, req: Request) -> Result<Response, Api
     // Admission opens the input (file headers) and storing fsyncs: both block.
     let view = tokio::task::spawn_blocking(move || {
         let admitted = admission::admit(&text, &queue.job_dir(&id), &roots)?;
-        queue
-            .submit(id, admitted)
-            .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))
+        queue.submit(id, admitted).map_err(|e| match e {
+            SubmitError::Full(waiting) => ApiError::new(
+                StatusCode::TOO_MANY_REQUESTS,
+                format!(
+                    "{waiting} jobs are waiting already (--max-queued-jobs); submit again once \
+                     some have started, or cancel some"
+                ),
+            ),
+            SubmitError::Io(e) => ApiError::internal(format!("cannot store the job: {e}")),
+        })
     })
     .await
     .map_err(|e| ApiError::internal(e.to_string()))??;

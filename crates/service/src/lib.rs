@@ -44,6 +44,8 @@ pub struct ServeConfig {
     pub token: Option<String>,
     /// Jobs running at once; each one already keeps its stage threads and extraction pool busy.
     pub max_parallel_jobs: usize,
+    /// Jobs waiting to run at once: a submission past it is refused (429) rather than stored.
+    pub max_queued_jobs: usize,
 }
 
 /// Runs the service until Ctrl-C or SIGTERM. `ready` is called with the bound address (port 0
@@ -55,6 +57,9 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
     check_exposure(&config)?;
     if config.max_parallel_jobs == 0 {
         return Err(ServiceError::NoParallelism);
+    }
+    if config.max_queued_jobs == 0 {
+        return Err(ServiceError::NoQueue);
     }
     let roots = admission::Roots::new(&config.allow_input)?;
     let store = store::Store::open(&config.state_dir)?;
@@ -78,7 +83,10 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
         let metrics = Arc::new(metrics::Metrics::new());
         let queue = queue::Queue::recover(
             store,
-            config.max_parallel_jobs,
+            queue::Limits {
+                running: config.max_parallel_jobs,
+                queued: config.max_queued_jobs,
+            },
             Arc::clone(&metrics),
             shutdown.clone(),
         );
@@ -151,6 +159,7 @@ mod tests {
             allow_input: Vec::new(),
             token: token.map(String::from),
             max_parallel_jobs: 1,
+            max_queued_jobs: 1,
         }
     }
 

@@ -123,11 +123,26 @@ pub(crate) enum DeleteOutcome {
     NotFound,
 }
 
+/// How many jobs may run, and wait, at once.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Limits {
+    pub running: usize,
+    pub queued: usize,
+}
+
+/// Why a submission was not stored.
+#[derive(Debug)]
+pub(crate) enum SubmitError {
+    /// [`Limits::queued`] jobs are waiting already.
+    Full(usize),
+    Io(std::io::Error),
+}
+
 pub(crate) struct Queue {
     table: Mutex<Table>,
     store: Store,
     wake: Notify,
-    max_parallel: usize,
+    limits: Limits,
     metrics: Arc<Metrics>,
     shutdown: CancellationToken,
     runs: TaskTracker,
@@ -138,7 +153,7 @@ impl Queue {
     /// partial output removed), finished ones are kept for clients to read.
     pub fn recover(
         store: Store,
-        max_parallel: usize,
+        limits: Limits,
         metrics: Arc<Metrics>,
         shutdown: CancellationToken,
     ) -> Arc<Self> {
@@ -182,7 +197,7 @@ impl Queue {
             table: Mutex::new(table),
             store,
             wake: Notify::new(),
-            max_parallel,
+            limits,
             metrics,
             shutdown,
             runs: TaskTracker::new(),
@@ -199,7 +214,9 @@ impl Queue {
     }
 
     /// Stores and queues an admitted job under a fresh id.
-    pub fn submit(&self, id: String, admitted: Admitted) -> std::io::Result<JobView> {
+    /// Stores and queues an admitted job, unless [`Limits::queued`] jobs are waiting already
+    /// (a queue without bound let any client that may submit fill the state folder's disk).
+    pub fn submit(&self, id: String, admitted: Admitted) -> Result<JobView, SubmitError> {
         let output = admitted
             .job
             .output
@@ -208,6 +225,14 @@ impl Queue {
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         let mut t = self.lock();
+        let waiting = t
+            .jobs
+            .values()
+            .filter(|j| j.record.state == JobState::Queued)
+            .count();
+        if waiting >= self.limits.queued {
+            return Err(SubmitError::Full(waiting));
+        }
         let record = JobRecord {
             id: id.clone(),
             seq: t.next_seq,
@@ -220,7 +245,9 @@ impl Queue {
             error: None,
             summary: None,
         };
-        self.store.create(&record, &admitted.toml)?;
+        self.store
+            .create(&record, &admitted.toml)
+            .map_err(SubmitError::Io)?;
         t.next_seq += 1;
         let job = Job::new(record, Some(Arc::new(admitted.job)));
         let view = job.view();
@@ -314,7 +341,7 @@ impl Queue {
 
     fn start_ready(self: &Arc<Self>) {
         let mut t = self.lock();
-        while t.running < self.max_parallel && !self.shutdown.is_cancelled() {
+        while t.running < self.limits.running && !self.shutdown.is_cancelled() {
             let next = t
                 .order
                 .iter()
