@@ -391,6 +391,14 @@ fn sphere_job(dir: &Path, output: &str, extra: &str) -> String {
     )
 }
 
+/// The sphere job's mesh `name` in `dir`, made: the job's path and the mesh's.
+fn sphere_mesh(dir: &Path, name: &str) -> (String, String) {
+    let job = sphere_job(dir, name, "");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    (job, dir.join(name).to_string_lossy().into_owned())
+}
+
 /// `validate` fails when the output cannot be created: its folder is a file, or the path is a
 /// folder; and when an attribute file is missing or on another grid.
 #[test]
@@ -501,10 +509,7 @@ fn check_rejects_empty_truncated_and_non_finite_meshes() {
 #[test]
 fn measure_refuses_a_job_that_did_not_make_the_mesh() {
     let dir = tempfile::tempdir().unwrap();
-    let job = sphere_job(dir.path(), "m.smb", "");
-    let o = bin().args(["run", &job]).output().unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
-    let mesh = dir.path().join("m.smb").to_string_lossy().into_owned();
+    let (job, mesh) = sphere_mesh(dir.path(), "m.smb");
     let o = bin()
         .args(["measure", "--volume", &job, &mesh])
         .output()
@@ -581,10 +586,7 @@ fn json_logs_end_a_failed_run_with_a_json_error() {
 #[test]
 fn check_names_a_format_it_does_not_read() {
     let dir = tempfile::tempdir().unwrap();
-    let job = sphere_job(dir.path(), "m.stl", "");
-    let o = bin().args(["run", &job]).output().unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
-    let mesh = dir.path().join("m.stl").to_string_lossy().into_owned();
+    let (_, mesh) = sphere_mesh(dir.path(), "m.stl");
     let o = bin().args(["check", &mesh]).output().unwrap();
     assert_one_line_error(
         &o,

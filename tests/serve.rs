@@ -106,6 +106,11 @@ fn json(body: &str) -> Value {
     serde_json::from_str(body).unwrap_or_else(|e| panic!("{e}: {body}"))
 }
 
+/// The reason of a refusal (`{"error": ...}`).
+fn error_of(body: &str) -> String {
+    json(body)["error"].as_str().unwrap_or_default().to_owned()
+}
+
 fn submit(s: &Server, job: &str) -> String {
     let (code, body) = send(agent().post(&s.url("/jobs")), Some(job));
     assert_eq!(code, 201, "{body}\n{}", s.log());
@@ -342,13 +347,7 @@ fn bad_jobs_and_foreign_inputs_are_refused() {
     );
     assert_eq!(code, 400, "{body}");
     // A wrong type is reported with the line of the job, as `isostream validate` does.
-    assert!(
-        json(&body)["error"]
-            .as_str()
-            .unwrap()
-            .starts_with("job.toml:6:"),
-        "{body}"
-    );
+    assert!(error_of(&body).starts_with("job.toml:6:"), "{body}");
 
     let raw = |path: &str| {
         format!(
@@ -560,13 +559,7 @@ fn a_full_queue_refuses_submissions() {
     let waiting = submit(&s, SPHERE);
     let (code, body) = send(agent().post(&s.url("/jobs")), Some(SPHERE));
     assert_eq!(code, 429, "{body}");
-    assert!(
-        json(&body)["error"]
-            .as_str()
-            .unwrap()
-            .contains("--max-queued-jobs"),
-        "{body}"
-    );
+    assert!(error_of(&body).contains("--max-queued-jobs"), "{body}");
     assert_eq!(files_in(&state.join("jobs")).len(), 2, "nothing stored");
     let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
     assert!(
