@@ -85,6 +85,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
         // write the converted file is not (1).
         if let Some(e) = cause.downcast_ref::<isostream_smesh::SmeshError>() {
             return match e {
+                isostream_smesh::SmeshError::Interrupted { .. } => 130,
                 isostream_smesh::SmeshError::Io { source, .. }
                     if source.kind() != std::io::ErrorKind::NotFound =>
                 {

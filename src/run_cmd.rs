@@ -148,7 +148,16 @@ pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow:
 }
 
 pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
-    let stats = isostream_smesh::convert(input, output)?;
+    // Ctrl-C, SIGTERM and SIGHUP stop a conversion as they stop a run: its temporary file
+    // removed, exit code 130 (killed by the signal, it was left behind).
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
+            .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
+    }
+    let options = isostream_smesh::ConvertOptions::default();
+    let stats = isostream_smesh::convert_until(input, output, &options, &stop)?;
     let w = &stats.written;
     if json {
         let v = serde_json::json!({

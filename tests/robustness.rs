@@ -144,6 +144,41 @@ fn term_and_hup_stop_like_ctrl_c() {
     }
 }
 
+/// `convert` stops on SIGTERM (and Ctrl-C, SIGHUP) like a run: exit 130, one line, and neither
+/// the output nor its temporary file left behind (killed by the signal, it left the latter).
+#[cfg(unix)]
+#[test]
+fn convert_stops_on_a_signal_and_leaves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"gyroid\"\nsize = [240, 240, 240]\n[extract]\niso = 0.0\n\
+         [simplify]\nmode = \"none\"\n[output]\npath = \"full.smb\"\n",
+    );
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let inputs = ["full.smb", "full.smb.run.json"];
+    let full = dir.path().join("full.smb").to_string_lossy().into_owned();
+    let obj = dir.path().join("full.obj").to_string_lossy().into_owned();
+    let child = bin().args(["convert", &full, &obj]).spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !leftovers(dir.path(), &inputs)
+        .iter()
+        .any(|n| n.ends_with(".tmp"))
+    {
+        assert!(Instant::now() < deadline, "no temporary output appeared");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    kill(&child, "TERM");
+    let o = wait_at_most(child, 30);
+    assert_one_line_error(&o, 130, &["full.obj", "interrupted"]);
+    assert!(
+        leftovers(dir.path(), &inputs).is_empty(),
+        "{:?}",
+        leftovers(dir.path(), &inputs)
+    );
+}
+
 fn small_job(dir: &Path, output: &str) -> String {
     write_job(
         dir,

@@ -6,6 +6,7 @@
 //! and re-emitted in compact pre-order.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::SinkState;
 
@@ -83,6 +84,30 @@ pub fn convert_with(
     output: &Path,
     options: &ConvertOptions,
 ) -> Result<ConvertStats, SmeshError> {
+    convert_until(input, output, options, &AtomicBool::new(false))
+}
+
+/// Elements converted between two looks at the stop flag.
+const STOP_EVERY: u64 = 1 << 16;
+
+/// `convert_with` that gives up once `stop` is raised (a signal handler's flag): the sink is
+/// dropped unfinished, which removes its temporary file, and the answer is
+/// [`SmeshError::Interrupted`]. Killed by the signal instead, a conversion left its temporary
+/// file behind.
+pub fn convert_until(
+    input: &Path,
+    output: &Path,
+    options: &ConvertOptions,
+    stop: &AtomicBool,
+) -> Result<ConvertStats, SmeshError> {
+    let stopped = || -> Result<(), SmeshError> {
+        match stop.load(Ordering::Relaxed) {
+            true => Err(SmeshError::Interrupted {
+                path: output.to_path_buf(),
+            }),
+            false => Ok(()),
+        }
+    };
     let input_format = Format::from_path(input)?;
     let output_format = Format::from_path(output)?;
     let (written, dropped_vertices) = if input_format.is_streaming() {
@@ -92,23 +117,31 @@ pub fn convert_with(
             attribute_names: stream.header().attribute_names.clone(),
         };
         let mut sink = create_sink(output, &header, options)?;
+        let mut elements = 0u64;
         while let Some(e) = stream.next_element() {
             match e? {
                 Element::Vertex { pos, attrs } => sink.vertex(pos, &attrs)?,
                 Element::Triangle { v, finalized } => sink.triangle(v, finalized)?,
                 Element::Finalize(v) => sink.finalize(v)?,
             }
+            elements += 1;
+            if elements % STOP_EVERY == 0 {
+                stopped()?;
+            }
         }
         stream.finish()?;
+        stopped()?;
         (sink.finish()?, 0)
     } else {
         let mesh = read_indexed(input)?;
+        stopped()?;
         let header = Header {
             comments: Vec::new(),
             attribute_names: mesh.attribute_names.clone(),
         };
         let mut sink = create_sink(output, &header, options)?;
         let dropped = mesh.stream_into(sink.as_mut())?;
+        stopped()?;
         (sink.finish()?, dropped)
     };
     Ok(ConvertStats {

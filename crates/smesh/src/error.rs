@@ -125,6 +125,9 @@ pub enum SmeshError {
     Unsupported { path: PathBuf, message: String },
     #[error("{}: {message}", path.display())]
     Foreign { path: PathBuf, message: String },
+    /// The caller's stop flag was raised (Ctrl-C): the output was not written.
+    #[error("{}: interrupted: no output was written (the partial file was removed)", path.display())]
+    Interrupted { path: PathBuf },
 }
 
 /// A full disk or a file-size limit gets the fix in its message (and loses the temporary file's

@@ -36,7 +36,9 @@ mod writer;
 
 pub use atomic::FileMark;
 pub use atomic::output_builder;
-pub use convert::{ConvertOptions, ConvertStats, convert, convert_with, create_sink, resume_sink};
+pub use convert::{
+    ConvertOptions, ConvertStats, convert, convert_until, convert_with, create_sink, resume_sink,
+};
 pub use error::{Place, SmeshError, StreamFault, Subject};
 pub use format::Format;
 pub use glb::GlbSink;
