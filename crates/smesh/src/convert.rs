@@ -125,7 +125,7 @@ pub fn convert_until(
                 Element::Finalize(v) => sink.finalize(v)?,
             }
             elements += 1;
-            if elements % STOP_EVERY == 0 {
+            if elements.is_multiple_of(STOP_EVERY) {
                 stopped()?;
             }
         }
