@@ -87,7 +87,10 @@ fn exit_code(err: &anyhow::Error) -> u8 {
             return match e {
                 isostream_smesh::SmeshError::Interrupted { .. } => 130,
                 isostream_smesh::SmeshError::Io { source, .. }
-                    if source.kind() != std::io::ErrorKind::NotFound =>
+                    if !matches!(
+                        source.kind(),
+                        std::io::ErrorKind::NotFound | std::io::ErrorKind::IsADirectory
+                    ) =>
                 {
                     1
                 }

@@ -616,6 +616,19 @@ fn json_logs_end_a_failed_run_with_a_json_error() {
     }
 }
 
+/// `convert` to a path that is a folder is refused before any work (it failed at the rename
+/// once everything was written, with "rename the temporary file to: Is a directory").
+#[test]
+fn convert_to_a_folder_is_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, mesh) = sphere_mesh(dir.path(), "m.smb");
+    std::fs::create_dir(dir.path().join("d.obj")).unwrap();
+    let folder = dir.path().join("d.obj").to_string_lossy().into_owned();
+    let o = bin().args(["convert", &mesh, &folder]).output().unwrap();
+    assert_one_line_error(&o, 2, &["d.obj", "it is a folder"]);
+    assert!(leftovers(dir.path(), &["m.smb", "m.smb.run.json", "d.obj"]).is_empty());
+}
+
 /// `check` verifies streaming meshes only: another format is named, with the command that
 /// makes one of it.
 #[test]

@@ -137,6 +137,14 @@ pub(crate) struct AtomicFile {
 
 impl AtomicFile {
     pub(crate) fn create(path: &Path) -> Result<AtomicFile, SmeshError> {
+        // Found now rather than when the finished file is renamed over it, after all the work.
+        if path.is_dir() {
+            let folder = io::Error::new(
+                io::ErrorKind::IsADirectory,
+                "it is a folder; name a file (in it, or beside it)",
+            );
+            return Err(SmeshError::io(path, "write the output", folder));
+        }
         let tmp = TempFile::create(path).map_err(|e| {
             SmeshError::io(
                 path,
@@ -225,7 +233,7 @@ impl AtomicFile {
     pub(crate) fn finish(self) -> Result<u64, SmeshError> {
         let path = self.path;
         let bytes = self.tmp.persist(&path).map_err(|e| {
-            SmeshError::io(&path, "flush, fsync and rename the temporary file to", e)
+            SmeshError::io(&path, "flush, fsync and rename the temporary file to it", e)
         })?;
         // Make the rename itself durable. Best effort: not every platform can open a directory.
         #[cfg(unix)]
