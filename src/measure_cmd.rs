@@ -16,19 +16,20 @@ pub fn measure(
     seed: Option<u64>,
 ) -> anyhow::Result<()> {
     let mesh = isostream_smesh::read_indexed(mesh_path)?;
+    let run = run_summary(mesh_path);
     let quality = mesh_quality(&mesh.positions, &mesh.triangles);
     let distances = match job_path {
         None => None,
         Some(job_path) => {
             let job = JobConfig::load(job_path)?;
             let source = open_source(&job.input)?;
-            if let Some(run) = run_summary(mesh_path) {
+            if let Some(run) = &run {
                 let read = Made {
                     input: source.describe(),
                     dims: source.grid().dims,
                     iso: job.extract.iso,
                 };
-                check_made_by(&run, &read).map_err(|made| OtherJob {
+                check_made_by(run, &read).map_err(|made| OtherJob {
                     mesh: mesh_path.display().to_string(),
                     made,
                     job: job_path.display().to_string(),
@@ -66,7 +67,9 @@ pub fn measure(
     let report = MeasureReport {
         quality,
         distances,
-        shape_error: shape_error_from_run(mesh_path),
+        // The shape error `max eps0` is only known to the run that simplified; it is in the
+        // run summary when that run bounded it (mode = "error").
+        shape_error: run.as_ref().and_then(|r| r.get("shape_error")?.as_f64()),
         attributes,
     };
     if json {
@@ -75,12 +78,6 @@ pub fn measure(
         print!("{}", report.to_text());
     }
     Ok(())
-}
-
-/// The shape error `max eps0` is only known to the run that simplified; it is in the run
-/// summary next to the mesh when that run bounded it (mode = "error").
-fn shape_error_from_run(mesh: &Path) -> Option<f64> {
-    run_summary(mesh)?.get("shape_error")?.as_f64()
 }
 
 /// The run summary `isostream run` wrote next to `mesh`, when there is one.
