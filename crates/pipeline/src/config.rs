@@ -569,8 +569,34 @@ impl JobConfig {
                         format!("{size:?}"),
                     ));
                 }
+                // A file's layout keys would be ignored by a shape: refused rather than
+                // silently dropped, as every other impossible value is.
+                let file_keys = [
+                    ("dims", i.dims.is_some()),
+                    ("dtype", i.dtype.is_some()),
+                    ("endian", i.endian.is_some()),
+                    ("header_bytes", i.header_bytes.is_some()),
+                    ("array", i.array.is_some()),
+                ];
+                if let Some((key, _)) = file_keys.iter().find(|(_, set)| *set) {
+                    return Err(bad(
+                        &format!("input.{key}"),
+                        "absent with a procedural `shape` (its grid is `size`; `dims`, `dtype`, \
+                         `endian`, `header_bytes` and `array` describe a file)",
+                        "a value".into(),
+                    ));
+                }
             }
-            (Some(_), None) => {}
+            (Some(_), None) => {
+                if let Some(size) = i.size {
+                    return Err(bad(
+                        "input.size",
+                        "absent with a file `path` (its grid is its header's, or `dims` for a \
+                         raw file; `size` is a procedural shape's)",
+                        format!("{size:?}"),
+                    ));
+                }
+            }
         }
         if let Some(sp) = i
             .spacing

@@ -6,8 +6,9 @@
 //!
 //! Everything a job is lives in `STATE/jobs/{id}/` (the rewritten job file, `state.json`, the
 //! output and its run summary), so a restarted service picks up where the last one stopped: queued
-//! jobs stay queued and a job that was running starts again from scratch (the pipeline is
-//! deterministic, so the bytes are the same as an uninterrupted run's).
+//! jobs stay queued and a job that was running starts again, from its last checkpoint when it
+//! saved one, else from the beginning (the pipeline is deterministic, so the bytes are the same
+//! as an uninterrupted run's).
 #![deny(unsafe_code)]
 
 mod admission;
@@ -52,7 +53,7 @@ pub struct ServeConfig {
 /// picks a free one) once requests can be accepted.
 ///
 /// On shutdown, running jobs are interrupted and stay `running` on disk, so the next start runs
-/// them again from the beginning.
+/// them again, from their last checkpoint when they saved one.
 pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), ServiceError> {
     check_exposure(&config)?;
     if config.max_parallel_jobs == 0 {

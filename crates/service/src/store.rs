@@ -105,16 +105,17 @@ impl Store {
             .write(true)
             .open(state_dir.join("lock"))
             .map_err(fail)?;
-        // fs4 rather than std's `File::try_lock`, which is newer than the workspace's rust-version.
-        match fs4::FileExt::try_lock(&lock) {
+        // `flock` (std's `File::try_lock`, as the run's output lock): the OS drops it when the
+        // process dies, even by `kill -9`.
+        match lock.try_lock() {
             Ok(()) => {}
-            Err(fs4::TryLockError::WouldBlock) => {
+            Err(std::fs::TryLockError::WouldBlock) => {
                 return Err(ServiceError::State {
                     path: state_dir.to_path_buf(),
                     reason: "another isostream serve is using it".into(),
                 });
             }
-            Err(fs4::TryLockError::Error(e)) => return Err(fail(e)),
+            Err(std::fs::TryLockError::Error(e)) => return Err(fail(e)),
         }
         Ok(Self { jobs, _lock: lock })
     }

@@ -225,7 +225,7 @@ fn sinks_can_move_to_another_thread() {
 
 #[test]
 fn golden_smb_matches_the_spec_layout() {
-    // Built field by field from DESIGN.md section 3, independently of the fixture script.
+    // Built field by field from ../shared/DESIGN.md section 3, independently of the fixture script.
     let mut b = vec![0u8, 0, 0, 0];
     b.extend(1i32.to_le_bytes());
     b.extend(11i32.to_le_bytes());
