@@ -434,6 +434,45 @@ fn sphere_mesh(dir: &Path, name: &str) -> (String, String) {
     (job, dir.join(name).to_string_lossy().into_owned())
 }
 
+/// A face count above the surface's is met by writing it whole, and the run says so (log and
+/// run summary); pruning every component is that key's error, not an empty surface's, and with
+/// `allow_empty` an empty mesh.
+#[test]
+fn face_counts_past_the_surface_and_pruning_everything() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = sphere_job(dir.path(), "m.smb", "faces = 100000000\n");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("written whole, unsimplified"), "{}", stderr(&o));
+    let summary: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("m.smb.run.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(summary["faces_written"], summary["faces_extracted"]);
+    let warnings = summary["warnings"].as_array().unwrap();
+    assert!(warnings.iter().any(|w| w.as_str().unwrap().contains("100000000")));
+
+    let prune = "[simplify]\nmin_component_faces = 100000\n";
+    let job = write_job(
+        dir.path(),
+        &format!("[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n{prune}[output]\npath = \"p.smb\"\n"),
+    );
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert_one_line_error(
+        &o,
+        2,
+        &["simplify.min_component_faces", "1 component(s)", "allow_empty"],
+    );
+    assert!(!dir.path().join("p.smb").exists());
+    let job = write_job(
+        dir.path(),
+        &format!("[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n{prune}[output]\npath = \"p.smb\"\nallow_empty = true\n"),
+    );
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("p.smb").exists());
+}
+
 /// `validate` fails when the output cannot be created: its folder is a file, or the path is a
 /// folder; and when an attribute file is missing or on another grid.
 #[test]

@@ -210,6 +210,9 @@ fn run_job(
         true => Some(first_pass(job, prune, cancel)?),
         false => None,
     };
+    if let Some(p) = pass.as_ref().filter(|_| !job.output.allow_empty) {
+        p.check_something_kept(job, job_path)?;
+    }
     let largest_slab = pass.as_ref().map(|p| p.largest_slab);
     let rate = match (job.output.faces, &pass) {
         // R applies to the faces kept: `faces` is what the simplifier is asked to write.
@@ -385,6 +388,7 @@ fn run_job(
         })
         .into_iter()
         .chain(front_stretched(job, budget_faces, &outputs.simplify))
+        .chain(faces_past_the_surface(job, faces_kept))
         .collect();
     if let Some(p) = &outputs.prune {
         info!(
@@ -443,6 +447,28 @@ impl FirstPass {
     /// The faces the simplifier will receive.
     fn kept(&self) -> u64 {
         self.extracted - self.small.as_ref().map_or(0, |s| s.stats.faces_pruned)
+    }
+
+    /// A surface whose every component `min_component_faces` drops is that key's error, not an
+    /// empty surface's (whose message points at the iso value, which is right).
+    fn check_something_kept(&self, job: &JobConfig, job_path: &Path) -> Result<(), RunError> {
+        let Some(small) = self.small.as_ref().filter(|_| self.kept() == 0) else {
+            return Ok(());
+        };
+        if self.extracted == 0 {
+            return Ok(());
+        }
+        let s = &small.stats;
+        Err(RunError::Config(ConfigError::Invalid {
+            path: job_path.to_path_buf(),
+            key: "simplify.min_component_faces".into(),
+            expected: format!(
+                "at most the largest component's faces, or nothing is kept (the surface's {} \
+                 component(s) hold {} faces in all); lower it, or set [output] allow_empty = true",
+                s.components_pruned, s.faces_pruned
+            ),
+            got: job.simplify.min_component_faces.to_string(),
+        }))
     }
 }
 
@@ -721,6 +747,16 @@ fn rate_missed(
             stats.rejected_unguarded,
         )
     })
+}
+
+/// `[output] faces` asked for more faces than the surface has: it is written whole, which the
+/// user may not expect of a job that names a face count.
+fn faces_past_the_surface(job: &JobConfig, faces_kept: u64) -> Option<String> {
+    let asked = job.output.faces.filter(|&f| f > faces_kept)?;
+    Some(format!(
+        "output.faces = {asked} is more than the {faces_kept} faces of the full-resolution \
+         surface: it was written whole, unsimplified"
+    ))
 }
 
 /// The sweep front took more than half of the memory budget, which then stretched to hold it
