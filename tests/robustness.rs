@@ -434,6 +434,22 @@ fn sphere_mesh(dir: &Path, name: &str) -> (String, String) {
     (job, dir.join(name).to_string_lossy().into_owned())
 }
 
+/// A run without a summary removes the one an earlier run of the same output left: it described
+/// the mesh this run replaced, and `measure` trusts it to name the job that made the mesh.
+#[test]
+fn a_run_without_a_summary_leaves_no_stale_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = sphere_job(dir.path(), "m.smb", "");
+    assert!(bin().args(["run", &job]).output().unwrap().status.success());
+    let summary = dir.path().join("m.smb.run.json");
+    assert!(summary.exists());
+    let job = sphere_job(dir.path(), "m.smb", "summary = false\n");
+    let o = bin().args(["run", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("m.smb").exists());
+    assert!(!summary.exists(), "the earlier run's summary is left");
+}
+
 /// A face count above the surface's is met by writing it whole, and the run says so (log and
 /// run summary); pruning every component is that key's error, not an empty surface's, and with
 /// `allow_empty` an empty mesh.

@@ -31,7 +31,11 @@ pub enum RunError {
     Volume(#[from] isostream_volume::VolumeError),
     #[error(transparent)]
     Output(#[from] isostream_smesh::SmeshError),
-    #[error("{}: cannot write run summary: {reason}", path.display())]
+    /// The mesh is complete under its final name when this happens (the summary comes after).
+    #[error(
+        "{}: cannot write run summary: {reason} (the mesh itself was written complete; free space or fix permissions, or set [output] summary = false)",
+        path.display()
+    )]
     Summary { path: PathBuf, reason: String },
     #[error(
         "simplify.mode = \"classical\" keeps the whole surface in memory and it outgrew pipeline.memory_budget_mib ({faces} faces resident, no output written): raise pipeline.memory_budget_mib or use mode = \"error\""

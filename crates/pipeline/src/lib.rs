@@ -429,8 +429,20 @@ fn run_job(
         warnings,
         series,
     };
+    // A summary left by an earlier run describes the mesh this run replaced: gone whether or
+    // not this run writes one (`measure` trusts it to name the job that made the mesh).
+    let summary_file = summary_path(&job.output.path);
+    match std::fs::remove_file(&summary_file) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(RunError::Summary {
+                path: summary_file,
+                reason: format!("cannot remove the earlier run's: {e}"),
+            });
+        }
+        _ => {}
+    }
     if job.output.summary {
-        write_summary(&summary, &summary_path(&job.output.path))?;
+        write_summary(&summary, &summary_file)?;
     }
     Ok(summary)
 }

@@ -77,6 +77,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
                 })?;
                 Ok(s)
             }),
+            exact_end: false,
         })?)
     } else {
         Box::new(raw(path, &h, grid)?)

@@ -179,6 +179,9 @@ fn streamed(
         stored: h.dtype,
         endian,
         open,
+        // `sizes` describe the whole payload: more data means they are wrong (the raw
+        // encoding's file size is checked at open).
+        exact_end: true,
     })
 }
 

@@ -27,6 +27,8 @@ pub(crate) struct StreamVolume {
     stored: Dtype,
     endian: Endian,
     open: Opener,
+    /// The payload must end with the last slice (NRRD: its `sizes` describe all of it).
+    exact_end: bool,
     reader: Option<Stream>,
     /// Slice index the reader is positioned at.
     next_z: u64,
@@ -44,6 +46,9 @@ pub(crate) struct StreamSpec {
     pub stored: Dtype,
     pub endian: Endian,
     pub open: Opener,
+    /// Data past the last slice is an error (formats whose header describes the whole payload;
+    /// not NIfTI or VTK, whose files may go on past the volume).
+    pub exact_end: bool,
 }
 
 impl StreamVolume {
@@ -72,6 +77,7 @@ impl StreamVolume {
             stored: spec.stored,
             endian: spec.endian,
             open: spec.open,
+            exact_end: spec.exact_end,
             reader: None,
             next_z: 0,
             bytes: Vec::new(),
@@ -128,6 +134,46 @@ impl StreamVolume {
             });
         }
         self.next_z += 1;
+        if self.exact_end && self.next_z == self.grid.dims[2] {
+            self.check_end()?;
+        }
+        Ok(())
+    }
+
+    /// After the last slice: the payload must be over (one byte more means the header's dims do
+    /// not describe the data).
+    fn check_end(&mut self) -> Result<(), VolumeError> {
+        let Some(reader) = self.reader.as_mut() else {
+            return Ok(());
+        };
+        let mut byte = [0u8; 1];
+        let more = loop {
+            match reader.read(&mut byte) {
+                Ok(n) => break n > 0,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) => {
+                    return Err(VolumeError::format(
+                        &self.path,
+                        format!("{} after the last slice", self.what),
+                        "the end of the data",
+                        format!("more bytes, not decodable: {e}"),
+                    ));
+                }
+            }
+        };
+        if more {
+            return Err(VolumeError::format(
+                &self.path,
+                format!("{} after the last slice", self.what),
+                format!(
+                    "the end of the data for dims {} ({} voxels of {})",
+                    dims_text(self.grid.dims),
+                    self.grid.voxel_count(),
+                    self.stored
+                ),
+                "more data (check the header's sizes)",
+            ));
+        }
         Ok(())
     }
 }
@@ -237,6 +283,7 @@ mod tests {
                 counter.fetch_add(1, Ordering::SeqCst);
                 Ok(Box::new(io::Cursor::new(bytes.as_ref().clone())) as Stream)
             }),
+            exact_end: false,
         })
         .unwrap();
         (v, opens)
@@ -277,6 +324,7 @@ mod tests {
             stored: Dtype::U8,
             endian: Endian::Little,
             open: Box::new(|| Ok(Box::new(io::Cursor::new(vec![0u8; 92])) as Stream)),
+            exact_end: false,
         })
         .err()
         .unwrap()

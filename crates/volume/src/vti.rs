@@ -85,6 +85,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             endian
         },
         open: Box::new(move || open_stream(&owned, &at, &map, layout, payload).map(|(s, _)| s)),
+        exact_end: false,
     })?))
 }
 

@@ -56,6 +56,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             let (_, r) = locate(&owned, want.as_deref())?;
             Ok(Box::new(AsciiValues::new(r, None)) as Stream)
         }),
+        exact_end: false,
     })?))
 }
 

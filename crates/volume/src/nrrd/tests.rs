@@ -199,6 +199,14 @@ fn bad_files_give_one_line_errors() {
             "DIR/bad.nrrd: gzip NRRD payload voxel 0 (slice 0): expected valid encoded data, found \"corrupt deflate stream\"",
         ),
         (
+            with_data(ok("\n", "gzip"), &gzip(&[0; 29])),
+            "DIR/bad.nrrd: gzip NRRD payload after the last slice: expected the end of the data for dims 3x2x4 (24 voxels of u8), found \"more data (check the header's sizes)\"",
+        ),
+        (
+            with_data(ok("\n", "gzip"), &[gzip(&[0; 24]), b"garbage".to_vec()].concat()),
+            "DIR/bad.nrrd: gzip NRRD payload after the last slice: expected the end of the data, found \"more bytes, not decodable: unexpected end of file\"",
+        ),
+        (
             with_data(ok("\n", "ascii"), b"1 2 3 x"),
             "DIR/bad.nrrd: ascii NRRD payload voxel 3 (slice 0): expected valid encoded data, found \"a number as value 3, found \\\"x\\\"\"",
         ),
