@@ -115,11 +115,29 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
         }
     }
     let s = &job.simplify;
-    if !(0.0..=1.0).contains(&s.lambda) {
+    if let Some(lambda) = s.lambda {
+        if s.priority != PriorityKind::DataDependent {
+            return Err(bad(
+                "simplify.lambda".into(),
+                "absent unless priority = \"data-dependent\" (it would be ignored: remove it or \
+                 set the priority)",
+                lambda.to_string(),
+            ));
+        }
+        if !(0.0..=1.0).contains(&lambda) {
+            return Err(bad(
+                "simplify.lambda".into(),
+                "a value in [0, 1]",
+                lambda.to_string(),
+            ));
+        }
+    }
+    if s.attribute_weights.is_some() && s.priority != PriorityKind::AttributeQuadric {
         return Err(bad(
-            "simplify.lambda".into(),
-            "a value in [0, 1]",
-            s.lambda.to_string(),
+            "simplify.attribute_weights".into(),
+            "absent unless priority = \"attribute-quadric\" (they would be ignored: remove them \
+             or set the priority)",
+            format!("{:?}", s.attribute_weights.as_deref().unwrap_or_default()),
         ));
     }
     if let Some(w) = &s.attribute_weights {
@@ -157,7 +175,9 @@ pub(crate) fn priority(job: &JobConfig) -> Priority {
     let s = &job.simplify;
     match s.priority {
         PriorityKind::Geometric => Priority::Geometric,
-        PriorityKind::DataDependent => Priority::DataDependent { lambda: s.lambda },
+        PriorityKind::DataDependent => Priority::DataDependent {
+            lambda: s.lambda.unwrap_or(crate::config::DEFAULT_LAMBDA),
+        },
         PriorityKind::AttributeQuadric => Priority::AttributeQuadric {
             weights: s
                 .attribute_weights

@@ -136,9 +136,9 @@ pub struct SimplifyConfig {
     /// quadrics over position and attributes.
     #[serde(default)]
     pub priority: PriorityKind,
-    /// `priority = "data-dependent"`: weight of curvature against the attribute gradient.
-    #[serde(default = "default_lambda")]
-    pub lambda: f64,
+    /// `priority = "data-dependent"`: weight of curvature against the attribute gradient
+    /// ([`DEFAULT_LAMBDA`] when not given).
+    pub lambda: Option<f64>,
     /// `priority = "attribute-quadric"`: one weight per `[[attributes]]` entry (default 1 each).
     pub attribute_weights: Option<Vec<f64>>,
     /// Drop every connected component of fewer full-resolution faces than this, before
@@ -170,9 +170,8 @@ pub enum PriorityKind {
     AttributeQuadric,
 }
 
-fn default_lambda() -> f64 {
-    0.5
-}
+/// `simplify.lambda` when a data-dependent job does not give it.
+pub(crate) const DEFAULT_LAMBDA: f64 = 0.5;
 
 /// R when neither `rate` nor `[output] faces` is given.
 const DEFAULT_RATE: f64 = 0.2;
@@ -213,7 +212,7 @@ impl Default for SimplifyConfig {
             time_lag: true,
             isotropy: 0.0,
             priority: PriorityKind::default(),
-            lambda: default_lambda(),
+            lambda: None,
             attribute_weights: None,
             min_component_faces: 0,
             boundary: None,
@@ -668,6 +667,14 @@ impl JobConfig {
                     ));
                 }
             }
+        }
+        if let (Mode::Error | Mode::Classical | Mode::None, Some(rate)) = (s.mode, s.rate) {
+            return Err(bad(
+                "simplify.rate",
+                "absent unless mode = \"rate\" (this mode would ignore it: remove the key or set \
+                 mode = \"rate\")",
+                rate.to_string(),
+            ));
         }
         if let (Mode::Rate | Mode::None, Some(e)) = (s.mode, s.error) {
             return Err(bad(
