@@ -107,7 +107,8 @@ fn exit_code(err: &anyhow::Error) -> u8 {
             return match e {
                 isostream_report::ReportError::Read { .. }
                 | isostream_report::ReportError::NotRun { .. }
-                | isostream_report::ReportError::NotMeasure { .. } => 2,
+                | isostream_report::ReportError::NotMeasure { .. }
+                | isostream_report::ReportError::OverInput { .. } => 2,
                 _ => 1,
             };
         }
@@ -118,7 +119,9 @@ fn exit_code(err: &anyhow::Error) -> u8 {
         if let Some(e) = cause.downcast_ref::<isostream_measure::MeasureError>() {
             return match e {
                 isostream_measure::MeasureError::Volume(_)
-                | isostream_measure::MeasureError::VertexIndex { .. } => 2,
+                | isostream_measure::MeasureError::VertexIndex { .. }
+                | isostream_measure::MeasureError::EmptyOutput
+                | isostream_measure::MeasureError::EmptySurface => 2,
                 _ => 1,
             };
         }

@@ -134,6 +134,13 @@ fn report(s: &RunSummary) {
 
 /// `isostream report`: the run summary (and a measure report) as one HTML page.
 pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow::Result<()> {
+    let same = |input: &Path| isostream_pipeline::one_file(input, output);
+    if same(run) || measure.is_some_and(same) {
+        return Err(isostream_report::ReportError::OverInput {
+            path: output.to_path_buf(),
+        }
+        .into());
+    }
     let summary = isostream_report::Run::load(run)?;
     let measure = measure.map(isostream_report::Measure::load).transpose()?;
     let page = isostream_report::html(&summary, measure.as_ref())?;
@@ -155,6 +162,11 @@ pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
         let stop = Arc::clone(&stop);
         ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
             .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
+    }
+    // The output's folder is created when missing, as `run` creates its output's.
+    if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty() && !d.exists()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
     }
     let options = isostream_smesh::ConvertOptions::default();
     let stats = isostream_smesh::convert_until(input, output, &options, &stop)?;

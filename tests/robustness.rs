@@ -784,3 +784,42 @@ fn ignored_keys_are_config_errors() {
     }
     assert!(leftovers(dir.path(), &[]).is_empty());
 }
+
+/// A job or report that would replace the file it reads is refused before any work, and
+/// `measure` on a mesh without area is bad input (exit 2) like any unreadable mesh.
+#[test]
+fn outputs_never_replace_their_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    // A raw volume may carry any extension, `.stl` included.
+    std::fs::write(dir.path().join("v.stl"), (0..64).collect::<Vec<u8>>()).unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\npath = \"v.stl\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 30\n[output]\npath = \"v.stl\"\n",
+    );
+    for cmd in ["validate", "run"] {
+        let o = bin().args([cmd, &job]).output().unwrap();
+        assert_one_line_error(&o, 2, &["output.path", "v.stl is also [input] path"]);
+    }
+    assert_eq!(
+        std::fs::read(dir.path().join("v.stl")).unwrap(),
+        (0..64).collect::<Vec<u8>>()
+    );
+
+    let (_, mesh) = sphere_mesh(dir.path(), "m.smb");
+    let summary = format!("{mesh}.run.json");
+    let before = std::fs::read(&summary).unwrap();
+    let o = bin()
+        .args(["report", &summary, "-o", &summary])
+        .output()
+        .unwrap();
+    assert_one_line_error(&o, 2, &["m.smb.run.json", "would replace a file it is made from"]);
+    assert_eq!(std::fs::read(&summary).unwrap(), before);
+
+    let empty = raw_u8_job(dir.path(), &[0; 64], 100.0, "allow_empty = true\n");
+    assert!(bin().args(["run", &empty]).output().unwrap().status.success());
+    let o = bin()
+        .args(["measure", "--volume", &empty, dir.path().join("o.smb").to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}

@@ -794,6 +794,21 @@ impl JobConfig {
                 reason,
             )
         })?;
+        // The run would replace a volume it reads (a raw file may carry any extension).
+        let inputs = self.input.path.iter().map(|p| ("[input] path", p)).chain(
+            self.attributes
+                .iter()
+                .filter_map(|a| a.path.as_ref().map(|p| ("an [[attributes]] path", p))),
+        );
+        for (what, input) in inputs {
+            if crate::output::one_file(input, &self.output.path) {
+                return Err(bad(
+                    "output.path",
+                    "a file other than the volumes the job reads",
+                    format!("{} is also {what}", self.output.path.display()),
+                ));
+            }
+        }
         Ok(())
     }
 

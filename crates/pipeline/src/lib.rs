@@ -45,7 +45,7 @@ pub use config::{
 };
 pub use error::{ConfigError, RunError};
 pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
-pub use output::{OutputLock, lock_output, lock_path, stale_temp_files};
+pub use output::{OutputLock, lock_output, lock_path, one_file, stale_temp_files};
 pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
 pub use source::open_source;

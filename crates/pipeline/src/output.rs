@@ -57,6 +57,15 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
     })
 }
 
+/// Whether `a` and `b` name one existing file (by their canonical paths: links and `..` seen
+/// through); a path that does not exist is no other file.
+pub fn one_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    }
+}
+
 /// Creates the output's folder when it does not exist yet.
 pub fn create_output_dir(path: &Path) -> std::io::Result<()> {
     match path.parent() {

@@ -31,13 +31,20 @@ pub enum ReportError {
     Plot { plot: &'static str, reason: String },
     #[error("{}: cannot write the report: {reason}", path.display())]
     Write { path: PathBuf, reason: String },
+    #[error("{}: the report would replace a file it is made from; choose another -o", path.display())]
+    OverInput { path: PathBuf },
 }
 
 /// Writes the page under a temporary name in the same folder and renames it: a failure leaves
 /// no half-written report under the final name.
+/// Its folder is created when missing, as `isostream run` creates its output's.
 pub fn write(path: &Path, html: &str) -> Result<(), ReportError> {
-    isostream_pipeline::write_atomically(path, html.as_bytes()).map_err(|e| ReportError::Write {
+    let fail = |e: std::io::Error| ReportError::Write {
         path: path.to_path_buf(),
         reason: e.to_string(),
-    })
+    };
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(fail)?;
+    }
+    isostream_pipeline::write_atomically(path, html.as_bytes()).map_err(fail)
 }

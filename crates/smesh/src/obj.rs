@@ -76,6 +76,7 @@ impl MeshSink for ObjSink {
 /// indices ignored), all objects and groups concatenated. `tobj` numbers the vertices of each
 /// object in order of first use by a face and leaves out unused ones.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
+    check_lines(path)?;
     let options = tobj::LoadOptions {
         triangulate: true,
         single_index: false,
@@ -101,4 +102,38 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         );
     }
     Ok(mesh)
+}
+
+/// What `tobj` passes over silently or reports without a line: a vertex without three
+/// coordinates, and a face of fewer than three corners (which it reads as a line and drops: a
+/// file cut in the middle of its last face lost that face without a word).
+fn check_lines(path: &Path) -> Result<(), SmeshError> {
+    use std::io::BufRead;
+    let file = std::fs::File::open(path).map_err(|e| SmeshError::io(path, "read", e))?;
+    for (n, line) in std::io::BufReader::new(file).split(b'\n').enumerate() {
+        let line = line.map_err(|e| SmeshError::io(path, "read", e))?;
+        let text = String::from_utf8_lossy(&line);
+        let text = text.split('#').next().unwrap_or_default();
+        let mut words = text.split_whitespace();
+        let bad = match words.next() {
+            Some("v") => {
+                let xyz: Vec<&str> = words.take(3).collect();
+                (xyz.len() < 3 || xyz.iter().any(|w| w.parse::<f64>().is_err()))
+                    .then_some("a vertex of three numbers")
+            }
+            Some("f") => (words.count() < 3).then_some("a face of at least three corners"),
+            _ => None,
+        };
+        if let Some(expected) = bad {
+            return Err(SmeshError::foreign(
+                path,
+                format!(
+                    "invalid OBJ at line {}: expected {expected}, found {:?} (truncated file?)",
+                    n + 1,
+                    text.trim()
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
