@@ -213,11 +213,17 @@ fn bad_files_give_one_line_and_no_page() {
     assert_one_line_error(&o, 2, &["gyroid.smb.run.json", "not a measure report"]);
     assert!(!page.exists());
 
+    // A missing folder is made, as `run` makes its output's; one that cannot be (a file stands
+    // in its way) is a write error.
+    let nested = dir.path().join("no/such/folder/r.html");
+    let o = isostream(&["report", &run_json.to_string_lossy(), "-o", &nested.to_string_lossy()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(nested.exists());
     let o = isostream(&[
         "report",
         &run_json.to_string_lossy(),
         "-o",
-        &dir.path().join("no/such/folder/r.html").to_string_lossy(),
+        &mesh.join("r.html").to_string_lossy(),
     ]);
     assert_one_line_error(&o, 1, &["r.html", "cannot write the report"]);
 }
