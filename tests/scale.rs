@@ -299,7 +299,15 @@ fn measure_through_the_pool_equals_one_thread_over_every_voxel() {
             ("hausdorff", expected.hausdorff),
             ("p999", expected.p999),
         ] {
-            assert_eq!(d[key].as_f64(), Some(want), "{key} with {threads} threads");
+            // Equal up to rounding: a sample nearest to an edge two triangles share gets its
+            // distance from whichever of them the search meets first, and the batches the pool
+            // hands on (hence each search's starting hint) are not the one-thread extractor's;
+            // the two computations of that one point differ in the last bits (2 ulp seen).
+            let got = d[key].as_f64().unwrap();
+            assert!(
+                (got - want).abs() <= 1e-12 * want.abs(),
+                "{key} with {threads} threads: {got} against {want}"
+            );
         }
     }
 }

@@ -339,7 +339,8 @@ mod tests {
             assert_eq!(e.pos, gh.pos, "edge {a}-{b}");
             assert_eq!(e.cost, e.shape_error);
             let w = s.vertex(a).unwrap().area + s.vertex(b).unwrap().area;
-            assert!((e.cost * e.cost * w - gh.cost).abs() <= 1e-9 * (1.0 + gh.cost));
+            let tie = TIE_BREAK * w * (s.pos(a) - s.pos(b)).length_squared();
+            assert!((e.cost * e.cost * w + tie - gh.cost).abs() <= 1e-9 * (1.0 + gh.cost));
             compared += 1;
         }
         assert!(compared > 20, "{compared}");
