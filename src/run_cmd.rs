@@ -164,7 +164,10 @@ pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
             .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
     }
     // The output's folder is created when missing, as `run` creates its output's.
-    if let Some(dir) = output.parent().filter(|d| !d.as_os_str().is_empty() && !d.exists()) {
+    if let Some(dir) = output
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty() && !d.exists())
+    {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
     }

@@ -42,6 +42,9 @@ fn a_tight_budget_never_crosses_written_triangles() {
 /// pairs a query: tube 5,568, plane 4,522; the run grew with the square of the length: a
 /// 12 x 12 x 2,100 tube took 241 s, a 300 x 300 plane 96 s). Counts, not time: the same on any
 /// machine. Valid and crossing-free as ever.
+/// A generated volume's value at voxel `(x, y, z)`.
+type Field = dyn Fn(u64, u64, u64) -> f32;
+
 #[test]
 fn planar_surfaces_are_decimated_without_slivers() {
     let tube = |x: u64, y: u64, _z: u64| {
@@ -49,8 +52,10 @@ fn planar_surfaces_are_decimated_without_slivers() {
         4.0 - (dx * dx + dy * dy).sqrt()
     };
     let plane = |_x: u64, _y: u64, z: u64| z as f32 - 3.3;
-    let cases: [(&str, [u64; 3], &dyn Fn(u64, u64, u64) -> f32); 2] =
-        [("tube", [12, 12, 300], &tube), ("plane", [120, 120, 8], &plane)];
+    let cases: [(&str, [u64; 3], &Field); 2] = [
+        ("tube", [12, 12, 300], &tube),
+        ("plane", [120, 120, 8], &plane),
+    ];
     for (name, dims, field) in cases {
         let mut data = Vec::with_capacity((dims[0] * dims[1] * dims[2]) as usize);
         for z in 0..dims[2] {
@@ -74,10 +79,18 @@ fn planar_surfaces_are_decimated_without_slivers() {
             .map_or_else(|| vec![summary.simplify.clone()], |s| s.to_vec());
         for s in &stages {
             let per_query = s.guard.pairs as f64 / s.guard.queries.max(1) as f64;
-            assert!(per_query < 1000.0, "{name}: {per_query} pairs a query: {:?}", s.guard);
+            assert!(
+                per_query < 1000.0,
+                "{name}: {per_query} pairs a query: {:?}",
+                s.guard
+            );
         }
         let mesh = common::Mesh::read(&dir.path().join("out.smb"));
-        assert!(mesh.check().is_valid_manifold(), "{name}: {:?}", mesh.check());
+        assert!(
+            mesh.check().is_valid_manifold(),
+            "{name}: {:?}",
+            mesh.check()
+        );
         assert_eq!(mesh.self_intersections(), 0, "{name}");
         if name == "tube" {
             // Triangles across one height of the tube: 1,274 at most in queue order, 118 now.
@@ -92,7 +105,10 @@ fn planar_surfaces_are_decimated_without_slivers() {
                 })
                 .max()
                 .unwrap_or(0);
-            assert!(across < 400, "{across} triangles across one height of the tube");
+            assert!(
+                across < 400,
+                "{across} triangles across one height of the tube"
+            );
         }
     }
 }

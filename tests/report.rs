@@ -216,7 +216,12 @@ fn bad_files_give_one_line_and_no_page() {
     // A missing folder is made, as `run` makes its output's; one that cannot be (a file stands
     // in its way) is a write error.
     let nested = dir.path().join("no/such/folder/r.html");
-    let o = isostream(&["report", &run_json.to_string_lossy(), "-o", &nested.to_string_lossy()]);
+    let o = isostream(&[
+        "report",
+        &run_json.to_string_lossy(),
+        "-o",
+        &nested.to_string_lossy(),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(nested.exists());
     let o = isostream(&[

@@ -459,30 +459,44 @@ fn face_counts_past_the_surface_and_pruning_everything() {
     let job = sphere_job(dir.path(), "m.smb", "faces = 100000000\n");
     let o = bin().args(["run", &job]).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("written whole, unsimplified"), "{}", stderr(&o));
-    let summary: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(dir.path().join("m.smb.run.json")).unwrap(),
-    )
-    .unwrap();
+    assert!(
+        stderr(&o).contains("written whole, unsimplified"),
+        "{}",
+        stderr(&o)
+    );
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("m.smb.run.json")).unwrap()).unwrap();
     assert_eq!(summary["faces_written"], summary["faces_extracted"]);
     let warnings = summary["warnings"].as_array().unwrap();
-    assert!(warnings.iter().any(|w| w.as_str().unwrap().contains("100000000")));
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("100000000"))
+    );
 
     let prune = "[simplify]\nmin_component_faces = 100000\n";
     let job = write_job(
         dir.path(),
-        &format!("[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n{prune}[output]\npath = \"p.smb\"\n"),
+        &format!(
+            "[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n{prune}[output]\npath = \"p.smb\"\n"
+        ),
     );
     let o = bin().args(["run", &job]).output().unwrap();
     assert_one_line_error(
         &o,
         2,
-        &["simplify.min_component_faces", "1 component(s)", "allow_empty"],
+        &[
+            "simplify.min_component_faces",
+            "1 component(s)",
+            "allow_empty",
+        ],
     );
     assert!(!dir.path().join("p.smb").exists());
     let job = write_job(
         dir.path(),
-        &format!("[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n{prune}[output]\npath = \"p.smb\"\nallow_empty = true\n"),
+        &format!(
+            "[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n{prune}[output]\npath = \"p.smb\"\nallow_empty = true\n"
+        ),
     );
     let o = bin().args(["run", &job]).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
@@ -812,13 +826,29 @@ fn outputs_never_replace_their_inputs() {
         .args(["report", &summary, "-o", &summary])
         .output()
         .unwrap();
-    assert_one_line_error(&o, 2, &["m.smb.run.json", "would replace a file it is made from"]);
+    assert_one_line_error(
+        &o,
+        2,
+        &["m.smb.run.json", "would replace a file it is made from"],
+    );
     assert_eq!(std::fs::read(&summary).unwrap(), before);
 
     let empty = raw_u8_job(dir.path(), &[0; 64], 100.0, "allow_empty = true\n");
-    assert!(bin().args(["run", &empty]).output().unwrap().status.success());
+    assert!(
+        bin()
+            .args(["run", &empty])
+            .output()
+            .unwrap()
+            .status
+            .success()
+    );
     let o = bin()
-        .args(["measure", "--volume", &empty, dir.path().join("o.smb").to_str().unwrap()])
+        .args([
+            "measure",
+            "--volume",
+            &empty,
+            dir.path().join("o.smb").to_str().unwrap(),
+        ])
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));

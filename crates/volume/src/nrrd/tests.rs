@@ -203,7 +203,10 @@ fn bad_files_give_one_line_errors() {
             "DIR/bad.nrrd: gzip NRRD payload after the last slice: expected the end of the data for dims 3x2x4 (24 voxels of u8), found \"more data (check the header's sizes)\"",
         ),
         (
-            with_data(ok("\n", "gzip"), &[gzip(&[0; 24]), b"garbage".to_vec()].concat()),
+            with_data(
+                ok("\n", "gzip"),
+                &[gzip(&[0; 24]), b"garbage".to_vec()].concat(),
+            ),
             "DIR/bad.nrrd: gzip NRRD payload after the last slice: expected the end of the data, found \"more bytes, not decodable: unexpected end of file\"",
         ),
         (
