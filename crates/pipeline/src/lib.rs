@@ -800,8 +800,8 @@ fn front_stretched(
         "the sweep front held up to {} faces, more than half of the {faces} that [pipeline] \
          memory_budget_mib = {mib} holds for this volume: the budget stretched by up to {stretch} \
          faces so that the surface behind the front could still be simplified{rss}, since memory \
-         follows the front and these slices are large; memory_budget_mib = {need} or more holds \
-         the front without stretching",
+         follows the front and these slabs hold much surface (large slices or a dense surface); \
+         memory_budget_mib = {need} or more holds the front without stretching",
         stats.peak_front_faces,
     ))
 }
