@@ -36,8 +36,8 @@ pub enum ReportError {
 }
 
 /// Writes the page under a temporary name in the same folder and renames it: a failure leaves
-/// no half-written report under the final name.
-/// Its folder is created when missing, as `isostream run` creates its output's.
+/// no half-written report under the final name. Its folder is created when missing, as
+/// `isostream run` creates its output's.
 pub fn write(path: &Path, html: &str) -> Result<(), ReportError> {
     let fail = |e: std::io::Error| ReportError::Write {
         path: path.to_path_buf(),

@@ -233,9 +233,9 @@ impl Objective {
 /// height: every guard query along the tube met them (15,600 fan/record pairs a query, 4.6 s;
 /// 2,100 voxels long: 241 s and 176 MiB; a plane across a 300 x 300 x 16 volume: 96 s). With
 /// 1e-6 on the 300-voxel tube: 118 across one height (1e-9: 598; 1e-4: 56), 121 pairs a query;
-/// the 2,100-voxel tube 0.9 s and 37 MiB, the plane 0.44 s. On the real volumes, RMS distance against
-/// none at R = 0.2 within 0.3 % (1e-4: +2.4 % on engine, -5 % on mni152), at R = 0.01 -7 % to
-/// +2.8 % (1e-4: up to +17 %), the spread any change of contraction order gives there
+/// the 2,100-voxel tube 0.9 s and 37 MiB, the plane 0.44 s. On the real volumes, RMS distance
+/// against none at R = 0.2 within 0.3 % (1e-4: +2.4 % on engine, -5 % on mni152), at R = 0.01
+/// -7 % to +2.8 % (1e-4: up to +17 %), the spread any change of contraction order gives there
 /// (docs/performance.md, "Fifty-second session").
 const TIE_BREAK: f64 = 1e-6;
 
