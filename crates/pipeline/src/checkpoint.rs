@@ -82,8 +82,8 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// beside the vertices; 29: the extraction's largest slab; 30: the sweep's rows and the
 /// simplifier's fronts within a slab; 31: a cascade's rear with rows; 32: a free vertex slot's
 /// position NaN, read by the dense scan of positions; 33: the guard's cell lists in blocks of
-/// one pool; 34: the quadric cost's tie-break by edge length, so the queued costs of a 33 are
-/// not this build's).
+/// one pool; 34: the costs' tie-break by edge length, so the queued costs of a 33 are not this
+/// build's).
 const FORMAT: u32 = 34;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
