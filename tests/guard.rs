@@ -39,7 +39,7 @@ type Field = dyn Fn(u64, u64, u64) -> f32;
 
 /// Volumes whose surface is planar, or made of planar strips, where every contraction costs
 /// nothing: a straight tube along z (a prism) and a plane across the sweep, in mode rate and in
-/// core by the shape measure (`classical`). Decimated shortest edge first among (nearly) equal
+/// core by the shape measure (`classical`), and by the attribute quadric. Decimated shortest edge first among (nearly) equal
 /// costs they stay made of short triangles, so the guard's queries meet a few neighbours each.
 /// In queue order they became slivers spanning the tube's length or the plane's width, and each
 /// query met thousands of them (fan/record pairs a query: tube 5,568 and plane 4,522 in the
@@ -53,7 +53,7 @@ fn planar_surfaces_are_decimated_without_slivers() {
         4.0 - (dx * dx + dy * dy).sqrt()
     };
     let plane = |_x: u64, _y: u64, z: u64| z as f32 - 3.3;
-    let cases: [(&str, [u64; 3], &Field, &str); 3] = [
+    let cases: [(&str, [u64; 3], &Field, &str); 4] = [
         ("tube", [12, 12, 300], &tube, "rate = 0.2"),
         ("plane", [120, 120, 8], &plane, "rate = 0.2"),
         // The shape measure's tie-break (6,619 pairs a query without it).
@@ -62,6 +62,13 @@ fn planar_surfaces_are_decimated_without_slivers() {
             [120, 120, 8],
             &plane,
             "mode = \"classical\"\nerror = 0.5",
+        ),
+        // The attribute quadric's (4,615 without it).
+        (
+            "plane, attribute quadric",
+            [120, 120, 8],
+            &plane,
+            "priority = \"attribute-quadric\"\n[[attributes]]\nname = \"g\"\nderive = \"gradient_magnitude\"",
         ),
     ];
     for (name, dims, field, simplify) in cases {

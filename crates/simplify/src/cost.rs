@@ -144,7 +144,10 @@ impl Evaluator {
                     return None;
                 }
                 eval.pos = pos;
-                eval.cost = cost;
+                // The quadric's tie-break: on a plane with an even attribute every contraction
+                // costs nothing here too (a 120 x 120 plane: 4,615 guard pairs a query without).
+                let w = store.vertex(a)?.area + store.vertex(b)?.area;
+                eval.cost = cost + TIE_BREAK * w * (store.pos(a) - store.pos(b)).length_squared();
                 eval.shape_error = shape;
             }
         }
@@ -242,7 +245,8 @@ impl Objective {
 /// -7 % to +2.8 % (1e-4: up to +17 %), the spread any change of contraction order gives there
 /// (docs/performance.md, "Fifty-second session"). The shape measure of modes `error` and
 /// `classical` gets the same share under its root, `sqrt(eps0^2 + 1e-6 |a - b|^2)`: `classical`
-/// took a plane across a 300 x 300 x 16 volume to 2 faces in 73 s, now 0.68 s.
+/// took a plane across a 300 x 300 x 16 volume to 2 faces in 73 s, now 0.68 s. The attribute
+/// quadric's cost gets it as the quadric does.
 const TIE_BREAK: f64 = 1e-6;
 
 /// `sqrt(q(c) / W)`, 0 for a patch without area.
