@@ -151,7 +151,12 @@ fn lambda_one_without_attributes_is_purely_curvature_driven() {
 }
 
 /// A step in the attribute across a flat plane: the data-dependent priority keeps vertices near
-/// the step, the geometric one does not care; the attribute quadric keeps the step too.
+/// the step, the geometric one does not care; the attribute quadric keeps the step sharp: the
+/// area of triangles whose corners straddle it (where interpolation smears it) is far smaller.
+/// (It used to count the attribute quadric's vertices near the step too, but a straight step is
+/// kept with few: moving along it costs nothing, and with the cost's tie-break by edge length
+/// it keeps 0.13 of its vertices there, against 0.10 for the uniform geometric result; the
+/// smeared area is 10 against 42.5.)
 #[test]
 fn data_dependent_priority_keeps_detail_at_an_attribute_step() {
     let plane = height_field(40, 40, 20.0, |_, _| 0.0);
@@ -159,8 +164,21 @@ fn data_dependent_priority_keeps_detail_at_an_attribute_step() {
     let near = |out: &Mesh| {
         out.pos.iter().filter(|p| (p.x - 10.3).abs() < 1.0).count() as f64 / out.pos.len() as f64
     };
+    let smeared = |out: &Mesh, attrs: &[f32]| -> f64 {
+        out.tris
+            .iter()
+            .filter(|t| {
+                let a = t.map(|i| attrs[i as usize]);
+                a.iter().any(|&x| x < 0.5) && a.iter().any(|&x| x > 0.5)
+            })
+            .map(|t| {
+                let [p, q, r] = t.map(|i| out.pos[i as usize]);
+                0.5 * (q - p).cross(r - p).length()
+            })
+            .sum()
+    };
     let policy = rate(0.1, 400);
-    let (geo, _) = run_with(&plane, policy.clone(), Priority::Geometric, 1, step);
+    let (geo, geo_attrs) = run_with(&plane, policy.clone(), Priority::Geometric, 1, step);
     let (dd, _) = run_with(
         &plane,
         policy.clone(),
@@ -168,14 +186,18 @@ fn data_dependent_priority_keeps_detail_at_an_attribute_step() {
         1,
         step,
     );
-    let (aq, _) = run_with(
+    let (aq, aq_attrs) = run_with(
         &plane,
         policy,
         Priority::AttributeQuadric { weights: vec![1.0] },
         1,
         step,
     );
-    let (g, d, a) = (near(&geo), near(&dd), near(&aq));
+    let (g, d) = (near(&geo), near(&dd));
     assert!(d > 1.5 * g, "data-dependent {d} vs geometric {g}");
-    assert!(a > 1.5 * g, "attribute quadric {a} vs geometric {g}");
+    let (sg, sa) = (smeared(&geo, &geo_attrs), smeared(&aq, &aq_attrs));
+    assert!(
+        sa < sg / 1.5,
+        "smeared area: attribute quadric {sa} vs geometric {sg}"
+    );
 }
