@@ -41,11 +41,11 @@ type Field = dyn Fn(u64, u64, u64) -> f32;
 /// nothing: a straight tube along z (a prism) and a plane across the sweep, in mode rate, in
 /// core by the shape measure (`classical`) and by the attribute quadric. Decimated shortest
 /// edge first among (nearly) equal costs they stay made of short triangles, so the guard's
-/// queries meet a few neighbours each. In queue order they became slivers spanning the tube's length or the plane's width, and each
-/// query met thousands of them (fan/record pairs a query: tube 5,568 and plane 4,522 in the
-/// second stage, plane 6,619 in core; the run grew with the square of the length: a 12 x 12 x
-/// 2,100 tube took 241 s, a 300 x 300 plane 96 s, 73 s in core). Counts, not time: the same on
-/// any machine. Valid and crossing-free as ever.
+/// queries meet a few neighbours each. In queue order they became slivers spanning the tube's
+/// length or the plane's width, and each query met thousands of them (fan/record pairs a
+/// query: tube 5,568 and plane 4,522 in the second stage, plane 6,619 in core; the run grew
+/// with the square of the length: a 12 x 12 x 2,100 tube took 241 s, a 300 x 300 plane 96 s,
+/// 73 s in core). Counts, not time: the same on any machine. Valid and crossing-free as ever.
 #[test]
 fn planar_surfaces_are_decimated_without_slivers() {
     let tube = |x: u64, y: u64, _z: u64| {
