@@ -743,7 +743,9 @@ fn rate_missed(
             format!(
                 "the memory budget retired {forced} vertices before the target was reached, so \
                  part of the surface was written less simplified: a larger [pipeline] \
-                 memory_budget_mib gets closer; the topology refused the rest"
+                 memory_budget_mib may get closer, unless the topology floor is what is left \
+                 (every closed component stays at least a tetrahedron); the topology refused \
+                 the rest"
             )
         };
         format!(
