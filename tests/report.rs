@@ -72,6 +72,16 @@ fn run(dir: &Path) -> Value {
     serde_json::from_str(&summary).unwrap()
 }
 
+/// `isostream report RUN -o OUT`.
+fn report(run: &Path, out: &Path) -> std::process::Output {
+    isostream(&[
+        "report",
+        &run.to_string_lossy(),
+        "-o",
+        &out.to_string_lossy(),
+    ])
+}
+
 #[test]
 fn a_run_and_its_measure_make_one_page_of_plots() {
     let dir = tempfile::tempdir().unwrap();
@@ -216,20 +226,10 @@ fn bad_files_give_one_line_and_no_page() {
     // A missing folder is made, as `run` makes its output's; one that cannot be (a file stands
     // in its way) is a write error.
     let nested = dir.path().join("no/such/folder/r.html");
-    let o = isostream(&[
-        "report",
-        &run_json.to_string_lossy(),
-        "-o",
-        &nested.to_string_lossy(),
-    ]);
+    let o = report(&run_json, &nested);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(nested.exists());
-    let o = isostream(&[
-        "report",
-        &run_json.to_string_lossy(),
-        "-o",
-        &mesh.join("r.html").to_string_lossy(),
-    ]);
+    let o = report(&run_json, &mesh.join("r.html"));
     assert_one_line_error(&o, 1, &["r.html", "cannot write the report"]);
 }
 
@@ -263,12 +263,7 @@ fn a_long_sweep_keeps_a_bounded_series_that_still_ends_on_the_totals() {
     assert_eq!(last["faces_out"], summary["faces_written"]);
 
     let page = dir.path().join("long.html");
-    let o = isostream(&[
-        "report",
-        &run.to_string_lossy(),
-        "-o",
-        &page.to_string_lossy(),
-    ]);
+    let o = report(&run, &page);
     assert!(o.status.success(), "{}", stderr(&o));
     let page = std::fs::read_to_string(&page).unwrap();
     let memory = figure(&page, "memory");
