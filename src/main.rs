@@ -71,7 +71,8 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | RunError::Volume(_)
                 | RunError::EmptySurface { .. }
                 | RunError::ClassicalOverBudget { .. }
-                | RunError::IndexLimit { .. } => 2,
+                | RunError::IndexLimit { .. }
+                | RunError::SliceMemory { .. } => 2,
                 _ => 1,
             };
         }

@@ -628,6 +628,19 @@ fn with_a_token_every_request_needs_it() {
 #[cfg(unix)]
 #[test]
 fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
+    stop_with_a_signal_and_restart("-TERM");
+}
+
+/// SIGHUP (the terminal closed) killed the service on the spot, leaving its running job's
+/// temporary output behind; it now stops as SIGTERM does.
+#[cfg(unix)]
+#[test]
+fn sighup_stops_the_service_as_sigterm_does() {
+    stop_with_a_signal_and_restart("-HUP");
+}
+
+#[cfg(unix)]
+fn stop_with_a_signal_and_restart(signal: &str) {
     let dir = tempfile::tempdir().unwrap();
     let state = dir.path().join("state");
     let mut s = Server::start(&state, &[]);
@@ -640,7 +653,7 @@ fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
         .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
         .unwrap();
     let term = Command::new("kill")
-        .args(["-TERM", &s.child.id().to_string()])
+        .args([signal, &s.child.id().to_string()])
         .status()
         .unwrap();
     assert!(term.success());
@@ -698,6 +711,47 @@ fn a_job_killed_with_the_service_restarts_and_gives_the_same_bytes() {
     let served = output_bytes(&s, &id);
 
     assert_same_as_a_direct_run(dir.path(), &job_text, "gyroid.smb", &served);
+}
+
+/// A job the service keeps dying in (a run that aborts the process would) is failed once the
+/// service has died in it three times, rather than run again at every start with every job
+/// behind it stuck; the jobs behind it run.
+#[test]
+fn a_job_the_service_keeps_dying_in_is_failed_not_run_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let (id, behind) = {
+        let s = Server::start(&state, &[]);
+        let id = submit(&s, &long_job("g.smb"));
+        wait_for(&s, &id, "running", |v| v["state"] == "running");
+        let behind = submit(&s, SPHERE);
+        // Drop sends SIGKILL.
+        drop(s);
+        (id, behind)
+    };
+    let job_dir = state.join("jobs").join(&id);
+    let stored_path = job_dir.join("state.json");
+    let mut stored = json(&std::fs::read_to_string(&stored_path).unwrap());
+    assert_eq!(stored["state"], "running", "{stored}");
+    assert_eq!(stored["crashes"], 0, "{stored}");
+    // Two earlier deaths, as starts that died in this job again would have counted them.
+    stored["crashes"] = 2.into();
+    std::fs::write(&stored_path, stored.to_string()).unwrap();
+
+    let s = Server::start(&state, &[]);
+    let failed = job(&s, &id);
+    assert_eq!(failed["state"], "failed", "{failed}");
+    let error = failed["error"].as_str().unwrap_or_default();
+    assert!(
+        error.contains("during 3 runs") && error.contains("resubmit"),
+        "{error}"
+    );
+    assert_eq!(
+        files_in(&job_dir),
+        ["job.log", "job.toml", "state.json"],
+        "no partial output"
+    );
+    wait_for(&s, &behind, "done", |v| v["state"] == "done");
 }
 
 /// Runs `job_text` with `isostream run` in `dir` and compares its output `name` with `served`.

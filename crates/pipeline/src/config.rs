@@ -241,6 +241,15 @@ fn yes() -> bool {
     true
 }
 
+/// The most batches a link between two stages may hold: a bounded channel allocates its room
+/// when it is made, and `channel_capacity = 1000000000` asked for 128 GB and aborted the process
+/// (the service with it). Past a few dozen batches a deeper link only holds more memory.
+const MAX_CHANNEL_CAPACITY: usize = 4096;
+
+/// The most extraction threads a job may ask for: each holds a slab's slices and buffers, and
+/// `threads = 100000` failed to spawn its threads and aborted the process.
+const MAX_THREADS: usize = 256;
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PipelineConfig {
@@ -702,11 +711,13 @@ impl JobConfig {
             ));
         }
         let p = &self.pipeline;
-        if p.channel_capacity == 0 {
+        if !(1..=MAX_CHANNEL_CAPACITY).contains(&p.channel_capacity) {
             return Err(bad(
                 "pipeline.channel_capacity",
-                "at least 1 batch",
-                "0".into(),
+                &format!(
+                    "1 to {MAX_CHANNEL_CAPACITY} batches (each link allocates its room up front)"
+                ),
+                p.channel_capacity.to_string(),
             ));
         }
         if p.memory_budget_mib < 16 {
@@ -750,11 +761,11 @@ impl JobConfig {
                 "0".into(),
             ));
         }
-        if p.threads == Some(0) {
+        if let Some(n) = p.threads.filter(|n| !(1..=MAX_THREADS).contains(n)) {
             return Err(bad(
                 "pipeline.threads",
-                "at least 1 (or leave it out for one per core)",
-                "0".into(),
+                &format!("1 to {MAX_THREADS} (or leave it out for one per core)"),
+                n.to_string(),
             ));
         }
         match p.simplify_stages {
@@ -1267,10 +1278,22 @@ mod tests {
     }
 
     #[test]
-    fn zero_threads_are_refused() {
+    fn thread_and_channel_limits_are_checked() {
         let text = format!("{MINIMAL}\n[pipeline]\nthreads = 0\n");
         let err = parse(&text).unwrap_err().to_string();
         assert!(err.contains("pipeline.threads"), "{err}");
+        for (key, value) in [
+            ("threads", 100_000),
+            ("channel_capacity", 1_000_000_000),
+            ("channel_capacity", 0),
+        ] {
+            let text = format!("{MINIMAL}\n[pipeline]\n{key} = {value}\n");
+            let err = parse(&text).unwrap_err().to_string();
+            assert!(
+                err.contains(&format!("pipeline.{key}")) && err.contains(&value.to_string()),
+                "{err}"
+            );
+        }
         let text = format!("{MINIMAL}\n[pipeline]\nthreads = 3\n");
         assert_eq!(parse(&text).unwrap().pipeline.threads(), 3);
         assert!(parse(MINIMAL).unwrap().pipeline.threads() >= 1);

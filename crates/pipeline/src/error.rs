@@ -70,6 +70,17 @@ pub enum RunError {
         limit: u64,
         what: &'static str,
     },
+    #[error(
+        "{input}: slices of {nx} x {ny} voxels are read whole as f32, and {slices} of them take {need_gib:.1} GiB, more than this machine's {physical_gib:.1} GiB of memory (nothing was run): use a smaller grid ([input] size, or a cropped file), or see a coarser volume through [input] upsample (read row by row)"
+    )]
+    SliceMemory {
+        input: String,
+        nx: u64,
+        ny: u64,
+        slices: u64,
+        need_gib: f64,
+        physical_gib: f64,
+    },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,
     #[error(

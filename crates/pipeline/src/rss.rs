@@ -11,9 +11,19 @@ pub fn current_rss_bytes() -> Option<u64> {
     status_bytes("VmRSS:")
 }
 
+/// Physical memory of the machine in bytes (Linux `MemTotal`), if the OS tells.
+pub(crate) fn physical_memory_bytes() -> Option<u64> {
+    kib_line("/proc/meminfo", "MemTotal:")
+}
+
 /// A `kB` line of `/proc/self/status`, in bytes.
 fn status_bytes(key: &str) -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    kib_line("/proc/self/status", key)
+}
+
+/// The `kB` value of the line starting with `key` in `file`, in bytes.
+fn kib_line(file: &str, key: &str) -> Option<u64> {
+    let status = std::fs::read_to_string(file).ok()?;
     let line = status.lines().find(|l| l.starts_with(key))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
@@ -32,5 +42,7 @@ mod tests {
         let peak = super::peak_rss_bytes().expect("VmHWM on Linux");
         assert!(now > 1024 * 1024, "{now}");
         assert!(peak + 4 * 1024 * 1024 >= now, "{peak} < {now}");
+        let total = super::physical_memory_bytes().expect("MemTotal on Linux");
+        assert!(total > peak, "{total} <= {peak}");
     }
 }

@@ -49,7 +49,7 @@ pub struct ServeConfig {
     pub max_queued_jobs: usize,
 }
 
-/// Runs the service until Ctrl-C or SIGTERM. `ready` is called with the bound address (port 0
+/// Runs the service until Ctrl-C, SIGTERM or SIGHUP. `ready` is called with the bound address (port 0
 /// picks a free one) once requests can be accepted.
 ///
 /// On shutdown, running jobs are interrupted and stay `running` on disk, so the next start runs
@@ -128,17 +128,24 @@ fn check_exposure(config: &ServeConfig) -> Result<(), ServiceError> {
 
 async fn stop_on_signal(shutdown: CancellationToken) {
     let ctrl_c = tokio::signal::ctrl_c();
+    // SIGTERM (systemd, `kill`) and SIGHUP (the terminal closed) stop it as Ctrl-C does, as
+    // they stop `isostream run`: by default SIGHUP killed the process on the spot, leaving its
+    // running jobs' temporary files behind.
     #[cfg(unix)]
     {
         use tokio::signal::unix::{SignalKind, signal};
-        match signal(SignalKind::terminate()) {
-            Ok(mut term) => {
+        match (
+            signal(SignalKind::terminate()),
+            signal(SignalKind::hangup()),
+        ) {
+            (Ok(mut term), Ok(mut hup)) => {
                 tokio::select! {
                     _ = ctrl_c => {}
                     _ = term.recv() => {}
+                    _ = hup.recv() => {}
                 }
             }
-            Err(_) => {
+            _ => {
                 let _ = ctrl_c.await;
             }
         }

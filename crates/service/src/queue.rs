@@ -123,6 +123,12 @@ pub(crate) enum DeleteOutcome {
     NotFound,
 }
 
+/// Runs of one job the service may die in before the job is failed rather than run again: a
+/// job that aborts the process (memory exhausted, a bug) would otherwise bring the service down
+/// at every start, and with it every job queued behind it. A host's reboot or one `kill -9`
+/// during a long run is survived.
+const MAX_CRASHES: u32 = 3;
+
 /// How many jobs may run, and wait, at once.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Limits {
@@ -172,8 +178,21 @@ impl Queue {
                 }
             }
             if record.state == JobState::Running {
-                info!(id = %record.id, "restarting a job interrupted while running (from its checkpoint if it saved one)");
-                record.state = JobState::Queued;
+                // The service died during this run (its own stop requeues what it interrupts).
+                record.crashes += 1;
+                if record.crashes >= MAX_CRASHES {
+                    warn!(id = %record.id, crashes = record.crashes, "not running again a job the service died in");
+                    record.state = JobState::Failed;
+                    record.error = Some(format!(
+                        "the service stopped abnormally (crash, kill -9 or power cut) during {} runs of this job, so it is not run again: see the service's log around each start of it, and resubmit once the cause is fixed",
+                        record.crashes
+                    ));
+                    record.finished_unix_ms = Some(now_ms());
+                    config = None;
+                } else {
+                    info!(id = %record.id, "restarting a job interrupted while running (from its checkpoint if it saved one)");
+                    record.state = JobState::Queued;
+                }
                 if let Err(e) = store.clear_outputs(&record.id, &resumable(config.as_deref())) {
                     warn!(id = %record.id, error = %e, "cannot remove the partial output");
                 }
@@ -241,6 +260,7 @@ impl Queue {
             started_unix_ms: None,
             finished_unix_ms: None,
             attempts: 0,
+            crashes: 0,
             output,
             error: None,
             summary: None,
@@ -534,6 +554,7 @@ fn run_error_kind(e: &RunError) -> &'static str {
         RunError::EmptySurface { .. } => "run_empty_surface",
         RunError::ClassicalOverBudget { .. } => "run_over_budget",
         RunError::IndexLimit { .. } => "run_index_limit",
+        RunError::SliceMemory { .. } => "run_input",
         RunError::Cancelled | RunError::Interrupted { .. } => "run_cancelled",
         RunError::CheckpointFound { .. }
         | RunError::Checkpoint { .. }

@@ -66,6 +66,10 @@ pub(crate) struct JobRecord {
     pub finished_unix_ms: Option<u64>,
     /// How many times a run was started (more than 1 after a restart interrupted one).
     pub attempts: u32,
+    /// Runs of this job found still running at a start of the service: the service died
+    /// during them (a crash, `kill -9`, a power cut) rather than stopping them itself.
+    #[serde(default)]
+    pub crashes: u32,
     /// The output's file name in the job folder (`output.smb`, ...).
     pub output: String,
     /// The one-line error of a failed run.
@@ -178,6 +182,15 @@ impl Store {
                 continue;
             }
             let state = dir.join(STATE_FILE);
+            if !dir
+                .file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(is_job_id)
+            {
+                // Not a folder this service made: `--state` may name a folder already in use.
+                warn!(dir = %dir.display(), "skipping a folder that is not a job's");
+                continue;
+            }
             if !state.exists() {
                 warn!(dir = %dir.display(), "removing an incomplete submission");
                 if let Err(e) = std::fs::remove_dir_all(&dir) {
@@ -208,6 +221,15 @@ impl Store {
     }
 }
 
+/// Whether `name` is a job id as the service makes them (`http::new_id`: 32 hexadecimal
+/// digits, lower case): only such folders are the service's to remove.
+pub(crate) fn is_job_id(name: &str) -> bool {
+    name.len() == 32
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
 /// Temporary file in the same folder, fsync, rename: readers see the old or the new bytes.
 fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -234,24 +256,33 @@ mod tests {
             started_unix_ms: None,
             finished_unix_ms: None,
             attempts: 0,
+            crashes: 0,
             output: "output.smb".into(),
             error: None,
             summary: None,
         }
     }
 
+    const AA: &str = "aa000000000000000000000000000000";
+    const BB: &str = "bb000000000000000000000000000000";
+
     #[test]
     fn jobs_survive_a_reopen_in_submission_order() {
         let dir = tempfile::tempdir().unwrap();
         let store = Store::open(dir.path()).unwrap();
-        store.create(&record("bb", 2), "b = 1").unwrap();
-        store.create(&record("aa", 1), "a = 1").unwrap();
-        let mut r = record("bb", 2);
+        store.create(&record(BB, 2), "b = 1").unwrap();
+        store.create(&record(AA, 1), "a = 1").unwrap();
+        let mut r = record(BB, 2);
         r.state = JobState::Running;
         store.save(&r).unwrap();
-        std::fs::write(store.job_dir("bb").join(".output.smb.x.tmp"), b"half").unwrap();
-        store.clear_outputs("bb", &[]).unwrap();
-        std::fs::create_dir(store.job_dir("half-made")).unwrap();
+        std::fs::write(store.job_dir(BB).join(".output.smb.x.tmp"), b"half").unwrap();
+        store.clear_outputs(BB, &[]).unwrap();
+        let half_made = "cc000000000000000000000000000000";
+        std::fs::create_dir(store.job_dir(half_made)).unwrap();
+        // Not the service's: a `--state` folder that was in use before must keep its files.
+        let theirs = store.job_dir("my-project").join("src");
+        std::fs::create_dir_all(&theirs).unwrap();
+        std::fs::write(theirs.join("thesis.tex"), b"precious").unwrap();
 
         let err = Store::open(dir.path()).unwrap_err().to_string();
         assert!(err.contains("another isostream serve"), "{err}");
@@ -259,11 +290,28 @@ mod tests {
         let store = Store::open(dir.path()).unwrap();
         let loaded = store.load_all();
         let ids: Vec<_> = loaded.iter().map(|(r, _)| r.id.as_str()).collect();
-        assert_eq!(ids, ["aa", "bb"]);
+        assert_eq!(ids, [AA, BB]);
         assert_eq!(loaded[1].0.state, JobState::Running);
         assert_eq!(loaded[0].1, "a = 1");
-        assert!(!store.job_dir("half-made").exists());
-        let left: Vec<_> = std::fs::read_dir(store.job_dir("bb")).unwrap().collect();
+        assert!(!store.job_dir(half_made).exists());
+        assert_eq!(
+            std::fs::read(theirs.join("thesis.tex")).unwrap(),
+            b"precious"
+        );
+        let left: Vec<_> = std::fs::read_dir(store.job_dir(BB)).unwrap().collect();
         assert_eq!(left.len(), 2, "only job.toml and state.json stay");
+    }
+
+    #[test]
+    fn job_ids_are_what_the_service_makes() {
+        assert!(is_job_id(AA));
+        for not in [
+            "aa",
+            "my-project",
+            "AA000000000000000000000000000000",
+            "../aa0000000000000000000000000000",
+        ] {
+            assert!(!is_job_id(not), "{not}");
+        }
     }
 }
