@@ -427,11 +427,11 @@ fn stalled_and_oversized_requests_are_cut_off() {
     let dir = tempfile::tempdir().unwrap();
     let s = Server::start(&dir.path().join("state"), &[]);
     let (head, body) = std::thread::scope(|scope| {
-        let head = scope.spawn(|| raw_exchange(&s, b"POST /jobs HTTP/1.1\r\nHost: x\r\n"));
+        let head = scope.spawn(|| raw_exchange(&s, b"POST /jobs HTTP/1.1\r\nHost: 127.0.0.1\r\n"));
         let body = scope.spawn(|| {
             raw_exchange(
                 &s,
-                b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 100\r\n\r\n[input]\n",
+                b"POST /jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 100\r\n\r\n[input]\n",
             )
         });
         // Meanwhile the service answers everyone else.
@@ -453,7 +453,7 @@ fn stalled_and_oversized_requests_are_cut_off() {
 
     let (answer, took) = raw_exchange(
         &s,
-        b"POST /jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 1000000000\r\n\r\n",
+        b"POST /jobs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 1000000000\r\n\r\n",
     );
     assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
     assert!(answer.contains("at most 1048576 bytes"), "{answer}");
@@ -590,6 +590,62 @@ fn an_open_address_without_token_is_refused() {
     );
 }
 
+/// What a web page on another site can make a browser send is refused: a cross-site `POST`
+/// (a form or `fetch` with `text/plain` needs no preflight) and, without a token, a request
+/// under a name that is not loopback (DNS rebinding). Unknown routes and methods answer JSON.
+#[test]
+fn requests_from_other_sites_are_refused_and_every_refusal_is_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("state"), &[]);
+    let (code, body) = send(
+        agent()
+            .post(&s.url("/jobs"))
+            .set("Origin", "http://evil.example")
+            .set("Content-Type", "text/plain"),
+        Some(SPHERE),
+    );
+    assert_eq!(code, 403, "{body}");
+    assert!(
+        error_of(&body).contains("Origin http://evil.example"),
+        "{body}"
+    );
+    let address = s.base.trim_start_matches("http://").to_string();
+    let (answer, _) = raw_exchange(
+        &s,
+        format!(
+            "GET /jobs HTTP/1.1\r\nHost: evil.example:{}\r\nConnection: close\r\n\r\n",
+            address.rsplit(':').next().unwrap()
+        )
+        .as_bytes(),
+    );
+    assert!(answer.starts_with("HTTP/1.1 403"), "{answer}");
+    assert!(answer.contains("not a loopback name"), "{answer}");
+    // The service's own page posts with its own origin; programs send none.
+    let (code, body) = send(
+        agent()
+            .post(&s.url("/jobs"))
+            .set("Origin", &format!("http://{address}")),
+        Some(SPHERE),
+    );
+    assert_eq!(code, 201, "{body}");
+    let (answer, _) = raw_exchange(
+        &s,
+        format!(
+            "GET /healthz HTTP/1.1\r\nHost: localhost:{}\r\nConnection: close\r\n\r\n",
+            address.rsplit(':').next().unwrap()
+        )
+        .as_bytes(),
+    );
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+
+    let (code, body) = send(agent().get(&s.url("/nothing/here")), None);
+    assert_eq!(code, 404, "{body}");
+    assert!(error_of(&body).contains("no such route"), "{body}");
+    let (code, body) = send(agent().put(&s.url("/jobs")), Some("x"));
+    assert_eq!(code, 405, "{body}");
+    assert!(error_of(&body).contains("PUT is not allowed"), "{body}");
+}
+
 #[test]
 fn with_a_token_every_request_needs_it() {
     let dir = tempfile::tempdir().unwrap();
@@ -617,6 +673,14 @@ fn with_a_token_every_request_needs_it() {
         agent()
             .get(&s.url("/jobs"))
             .set("Authorization", "Bearer s3cret-token"),
+        None,
+    );
+    assert_eq!(code, 200, "{body}");
+    // The scheme's name is case-insensitive.
+    let (code, body) = send(
+        agent()
+            .get(&s.url("/jobs"))
+            .set("Authorization", "bearer s3cret-token"),
         None,
     );
     assert_eq!(code, 200, "{body}");
@@ -650,7 +714,7 @@ fn stop_with_a_signal_and_restart(signal: &str) {
     // did for as long as the client kept its connection).
     let mut stalled = TcpStream::connect(s.base.trim_start_matches("http://")).unwrap();
     stalled
-        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n")
         .unwrap();
     let term = Command::new("kill")
         .args([signal, &s.child.id().to_string()])
@@ -752,6 +816,115 @@ fn a_job_the_service_keeps_dying_in_is_failed_not_run_again() {
         "no partial output"
     );
     wait_for(&s, &behind, "done", |v| v["state"] == "done");
+}
+
+/// A gyroid sampled into a raw `f32` file of `n`^3 voxels (a file input that runs a few
+/// seconds, for checkpoints and swaps under `--allow-input`).
+fn gyroid_raw(path: &Path, n: usize) {
+    let mut bytes = Vec::with_capacity(n * n * n * 4);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let [x, y, z] = [x, y, z].map(|c| c as f32 * 0.2);
+                let f = x.sin() * y.cos() + y.sin() * z.cos() + z.sin() * x.cos();
+                bytes.extend_from_slice(&f.to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn raw_job(path: &Path, n: usize, output: &str) -> String {
+    format!(
+        "[input]\npath = \"{}\"\ndims = [{n}, {n}, {n}]\ndtype = \"f32\"\n[extract]\niso = 0.0\n[output]\npath = \"{output}\"\n",
+        path.display()
+    )
+}
+
+/// An input swapped for a link out of the allowed folders after its job was admitted is not
+/// followed: the job fails when it starts, naming the key.
+#[cfg(unix)]
+#[test]
+fn an_input_replaced_by_a_link_after_submission_is_not_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let input = data.join("v.raw");
+    gyroid_raw(&input, 8);
+    gyroid_raw(&dir.path().join("secret.raw"), 8);
+    let s = Server::start(
+        &dir.path().join("state"),
+        &[
+            "--allow-input",
+            data.to_str().unwrap(),
+            "--max-parallel-jobs",
+            "1",
+        ],
+    );
+    let blocker = submit(&s, &long_job("g.smb"));
+    wait_for(&s, &blocker, "running", |v| v["state"] == "running");
+    let id = submit(&s, &raw_job(&input, 8, "v.smb"));
+    std::fs::remove_file(&input).unwrap();
+    std::os::unix::fs::symlink(dir.path().join("secret.raw"), &input).unwrap();
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{blocker}"))), None);
+    assert_eq!(code, 202);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "failed", "{last}");
+    let error = last["error"].as_str().unwrap_or_default();
+    assert!(
+        error.contains("input.path") && error.contains("secret.raw") && error.contains("resubmit"),
+        "{error}"
+    );
+}
+
+/// A checkpoint that cannot be resumed (the input was touched after the service died) is
+/// thrown away and the job starts over: a client cannot pass `--restart` to a service.
+#[test]
+fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let input = data.join("gyroid.raw");
+    gyroid_raw(&input, 96);
+    let state = dir.path().join("state");
+    let job_text = format!(
+        "{}[pipeline]\ncheckpoint = {{ every_slabs = 5 }}\n",
+        raw_job(&input, 96, "gyroid.smb")
+    );
+    let allow = ["--allow-input", data.to_str().unwrap()];
+    let id = {
+        let s = Server::start(&state, &allow);
+        let id = submit(&s, &job_text);
+        let job_dir = state.join("jobs").join(&id);
+        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
+        wait_for(&s, &id, "past a checkpoint", |v| {
+            v["state"] == "running" && saved()
+        });
+        // Drop sends SIGKILL.
+        drop(s);
+        id
+    };
+    let later = std::time::SystemTime::now() + Duration::from_secs(60);
+    std::fs::File::options()
+        .write(true)
+        .open(&input)
+        .unwrap()
+        .set_modified(later)
+        .unwrap();
+
+    let s = Server::start(&state, &allow);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+    let view = job(&s, &id);
+    assert!(view["summary"]["resumed_at_slab"].is_null(), "{view}");
+    assert!(s.log().contains("starting the job over"), "{}", s.log());
+    let served = output_bytes(&s, &id);
+    assert_same_as_a_direct_run(
+        dir.path(),
+        &raw_job(&input, 96, "gyroid.smb"),
+        "gyroid.smb",
+        &served,
+    );
 }
 
 /// Runs `job_text` with `isostream run` in `dir` and compares its output `name` with `served`.

@@ -9,7 +9,7 @@
 use std::path::{Component, Path, PathBuf};
 
 use axum::http::StatusCode;
-use isostream_pipeline::{JobConfig, LogConfig};
+use isostream_pipeline::{ConfigError, JobConfig, LogConfig, RunError};
 
 use crate::error::{ApiError, ServiceError};
 
@@ -80,6 +80,45 @@ impl Roots {
             return Err(refused());
         }
         Ok(canonical)
+    }
+}
+
+impl Roots {
+    /// Checks again that every input of an admitted job is the file it was admitted as: its
+    /// stored path (canonical at admission) still resolves to itself, under an allowed folder.
+    /// A file swapped for a symbolic link after admission was otherwise followed out of the
+    /// allowed folders when the job ran.
+    pub fn confirm(&self, job: &JobConfig) -> Result<(), RunError> {
+        let inputs =
+            job.input
+                .path
+                .iter()
+                .map(|p| ("input.path".to_string(), p))
+                .chain(job.attributes.iter().enumerate().filter_map(|(i, a)| {
+                    Some((format!("attributes[{i}].path"), a.path.as_ref()?))
+                }));
+        for (key, path) in inputs {
+            let why = match path.canonicalize() {
+                Ok(now) if now != *path => format!(
+                    "{} (it now resolves to {}: it was replaced since the job was submitted)",
+                    path.display(),
+                    now.display()
+                ),
+                Ok(_) if !self.canonical.iter().any(|r| path.starts_with(r)) => format!(
+                    "{} (outside the --allow-input folders this service was started with)",
+                    path.display()
+                ),
+                Ok(_) => continue,
+                Err(e) => format!("{}: {e}", path.display()),
+            };
+            return Err(RunError::Config(ConfigError::Invalid {
+                path: ORIGIN.into(),
+                key,
+                expected: "the file admitted at submission, under an --allow-input folder (resubmit the job)".into(),
+                got: why,
+            }));
+        }
+        Ok(())
     }
 }
 

@@ -59,6 +59,8 @@ pub(crate) fn router(state: AppState) -> Router {
         .route("/jobs/{id}/output", get(output))
         .route("/jobs/{id}/report", get(report))
         .route("/jobs/{id}/log", get(log))
+        .fallback(no_route)
+        .method_not_allowed_fallback(wrong_method)
         .layer(DefaultBodyLimit::max(MAX_BODY))
         // Outermost: the token is checked before a body is read.
         .layer(middleware::from_fn_with_state(state.clone(), guard))
@@ -71,6 +73,10 @@ pub(crate) fn router(state: AppState) -> Router {
 /// to a navigation; its script sends the token (taken from the URL fragment, which browsers do
 /// not send) on every request it makes.
 async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response {
+    if let Err(refused) = same_site(req.headers(), s.token.is_some()) {
+        s.metrics.error("foreign_site");
+        return refused.into_response();
+    }
     let static_page = req.method() == Method::GET && req.uri().path() == "/";
     if let Some(token) = &s.token
         && !static_page
@@ -90,12 +96,69 @@ async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response 
     response
 }
 
+/// Refuses what a web page on another site can make a browser send: a request naming another
+/// origin (`Origin`, which browsers add to every cross-site request that could change
+/// something: a form or `fetch` posting a job as `text/plain` needs no preflight), and, when
+/// there is no token, a `Host` that is not a loopback name (DNS rebinding: a hostile name
+/// re-pointed at 127.0.0.1 makes the browser treat this service as that site's). With a token
+/// the page cannot send it, and a reverse proxy may forward any name. Clients that are not
+/// browsers send no `Origin`.
+fn same_site(headers: &HeaderMap, token: bool) -> Result<(), ApiError> {
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+    if let Some(origin) = headers.get(header::ORIGIN) {
+        let authority = origin
+            .to_str()
+            .ok()
+            .and_then(|o| o.split_once("://"))
+            .map(|(_, a)| a);
+        if authority.is_none()
+            || !host
+                .zip(authority)
+                .is_some_and(|(h, a)| h.eq_ignore_ascii_case(a))
+        {
+            return Err(ApiError::new(
+                StatusCode::FORBIDDEN,
+                format!(
+                    "a request from another site (Origin {}) is refused: submit from a program (curl, a script) or from this service's own page",
+                    String::from_utf8_lossy(origin.as_bytes())
+                ),
+            ));
+        }
+    }
+    match host {
+        Some(h) if !token && !is_loopback_host(h) => Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            format!(
+                "Host {h} is not a loopback name, and this service has no --token: reach it as 127.0.0.1, [::1] or localhost, or start it with --token to serve other names"
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// `localhost`, a `127.x.y.z` address or `[::1]`, with or without a port.
+fn is_loopback_host(host: &str) -> bool {
+    let name = match host.strip_prefix('[') {
+        Some(v6) => v6.split_once(']').map_or(v6, |(ip, _)| ip),
+        None => host.rsplit_once(':').map_or(host, |(name, _)| name),
+    };
+    name.eq_ignore_ascii_case("localhost")
+        || name
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
 /// Constant-time comparison, so response timing does not reveal how much of a guess was right.
 fn authorized(headers: &HeaderMap, token: &str) -> bool {
     headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
+        // The scheme's name is case-insensitive (RFC 9110, 11.1).
+        .and_then(|v| {
+            v.split_once(' ')
+                .filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer"))
+        })
+        .map(|(_, given)| given)
         .is_some_and(|given| bool::from(given.trim().as_bytes().ct_eq(token.as_bytes())))
 }
 
@@ -106,6 +169,27 @@ fn new_id() -> Result<String, ApiError> {
     getrandom::fill(&mut bytes)
         .map_err(|e| ApiError::internal(format!("no randomness for a job id: {e}")))?;
     Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// Unknown paths answer in the API's JSON, as every other refusal does.
+async fn no_route(method: Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::new(
+        StatusCode::NOT_FOUND,
+        format!(
+            "no such route: {method} {}; the API is GET /, /healthz, /metrics, GET and POST /jobs, GET and DELETE /jobs/{{id}}, GET /jobs/{{id}}/events, /output, /report, /log (docs/service.md)",
+            uri.path()
+        ),
+    )
+}
+
+async fn wrong_method(method: Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        format!(
+            "{method} is not allowed on {}: see docs/service.md for the methods of each route",
+            uri.path()
+        ),
+    )
 }
 
 async fn page() -> Html<&'static str> {
@@ -199,7 +283,17 @@ async fn job_text(req: Request) -> Result<String, ApiError> {
         }
         String::from_request(req, &())
             .await
-            .map_err(|r: StringRejection| ApiError::new(r.status(), r.body_text()))
+            .map_err(|r: StringRejection| match r.status() {
+                StatusCode::PAYLOAD_TOO_LARGE => ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!("a body over {MAX_BODY} bytes: a job file is at most {MAX_BODY} bytes"),
+                ),
+                StatusCode::BAD_REQUEST => ApiError::bad_job(format!(
+                    "{}: the job file is not UTF-8 text; send it as UTF-8 TOML",
+                    admission::ORIGIN
+                )),
+                status => ApiError::new(status, r.body_text()),
+            })
     };
     tokio::time::timeout(BODY_DEADLINE, read)
         .await
@@ -339,6 +433,61 @@ mod tests {
         assert!(!authorized(&h, "secret"));
         h.insert(header::AUTHORIZATION, "Basic secret".parse().unwrap());
         assert!(!authorized(&h, "secret"));
+    }
+
+    #[test]
+    fn loopback_names_and_origins() {
+        for host in [
+            "localhost",
+            "LOCALHOST:8440",
+            "127.0.0.1",
+            "127.3.2.1:80",
+            "[::1]",
+            "[::1]:8440",
+        ] {
+            assert!(is_loopback_host(host), "{host}");
+        }
+        for host in [
+            "evil.example",
+            "evil.example:8440",
+            "10.0.0.1:80",
+            "[::2]:1",
+            "localhost.evil.example",
+        ] {
+            assert!(!is_loopback_host(host), "{host}");
+        }
+        let headers = |pairs: &[(header::HeaderName, &str)]| {
+            let mut h = HeaderMap::new();
+            for (k, v) in pairs {
+                h.insert(k.clone(), v.parse().unwrap());
+            }
+            h
+        };
+        let own = headers(&[
+            (header::HOST, "127.0.0.1:8440"),
+            (header::ORIGIN, "http://127.0.0.1:8440"),
+        ]);
+        assert!(same_site(&own, false).is_ok());
+        let foreign = headers(&[
+            (header::HOST, "127.0.0.1:8440"),
+            (header::ORIGIN, "http://evil.example"),
+        ]);
+        assert!(
+            same_site(&foreign, true).is_err(),
+            "a token does not make a cross-site request safe"
+        );
+        let null = headers(&[(header::HOST, "127.0.0.1:8440"), (header::ORIGIN, "null")]);
+        assert!(same_site(&null, false).is_err());
+        let rebound = headers(&[(header::HOST, "evil.example:8440")]);
+        assert!(same_site(&rebound, false).is_err());
+        assert!(
+            same_site(&rebound, true).is_ok(),
+            "behind a proxy, with a token"
+        );
+        assert!(
+            same_site(&HeaderMap::new(), false).is_ok(),
+            "HTTP/1.0 has no Host"
+        );
     }
 
     #[test]

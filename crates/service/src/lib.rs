@@ -62,7 +62,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
     if config.max_queued_jobs == 0 {
         return Err(ServiceError::NoQueue);
     }
-    let roots = admission::Roots::new(&config.allow_input)?;
+    let roots = Arc::new(admission::Roots::new(&config.allow_input)?);
     let store = store::Store::open(&config.state_dir)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -84,6 +84,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
         let metrics = Arc::new(metrics::Metrics::new());
         let queue = queue::Queue::recover(
             store,
+            Arc::clone(&roots),
             queue::Limits {
                 running: config.max_parallel_jobs,
                 queued: config.max_queued_jobs,
@@ -95,7 +96,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
         tokio::spawn(stop_on_signal(shutdown.clone()));
         let app = http::router(http::AppState {
             queue: Arc::clone(&queue),
-            roots: Arc::new(roots),
+            roots,
             token: config.token.map(Arc::from),
             metrics,
             shutdown: shutdown.clone(),

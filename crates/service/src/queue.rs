@@ -147,6 +147,8 @@ pub(crate) enum SubmitError {
 pub(crate) struct Queue {
     table: Mutex<Table>,
     store: Store,
+    /// The `--allow-input` folders, checked again when a run starts (see [`Queue::run`]).
+    roots: Arc<admission::Roots>,
     wake: Notify,
     limits: Limits,
     metrics: Arc<Metrics>,
@@ -159,6 +161,7 @@ impl Queue {
     /// partial output removed), finished ones are kept for clients to read.
     pub fn recover(
         store: Store,
+        roots: Arc<admission::Roots>,
         limits: Limits,
         metrics: Arc<Metrics>,
         shutdown: CancellationToken,
@@ -215,6 +218,7 @@ impl Queue {
         Arc::new(Queue {
             table: Mutex::new(table),
             store,
+            roots,
             wake: Notify::new(),
             limits,
             metrics,
@@ -414,16 +418,36 @@ impl Queue {
         let job_id = id.clone();
         let outcome = tokio::task::spawn_blocking(move || {
             let _entered = span.enter();
+            // The inputs were confined at submission, but a file under an allowed folder may
+            // have been replaced by a link to one outside since (or the folders changed with a
+            // restart): checked again now, just before the run opens them.
+            queue.roots.confirm(&config)?;
             let observer = |p: &Progress| queue.progress(&job_id, p);
             // A job folder holds one job: a checkpoint in it is this job's, from a run the
             // service's stop or crash interrupted.
-            isostream_pipeline::run_from(
-                &config,
-                Path::new(admission::ORIGIN),
-                Start::Resume,
-                &cancel,
-                &observer,
-            )
+            let run = |start| {
+                isostream_pipeline::run_from(
+                    &config,
+                    Path::new(admission::ORIGIN),
+                    start,
+                    &cancel,
+                    &observer,
+                )
+            };
+            match run(Start::Resume) {
+                // No one can pass `--restart` to a service: a checkpoint that cannot be resumed
+                // (the input was touched or replaced, another build wrote it) is thrown away
+                // and the job starts over, as it would without one.
+                Err(
+                    e @ (RunError::InputChanged { .. }
+                    | RunError::ResumeMismatch { .. }
+                    | RunError::Checkpoint { .. }),
+                ) => {
+                    warn!(error = %e, "the checkpoint cannot be resumed; starting the job over");
+                    run(Start::Restart)
+                }
+                outcome => outcome,
+            }
         })
         .await
         .unwrap_or_else(|e| {
