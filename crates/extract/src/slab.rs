@@ -135,6 +135,9 @@ pub struct ExtractStats {
     /// NaN or infinite voxels (treated as outside). Slice 0 is counted with slab 0 and every
     /// other slice as the upper slice of its slab, so a full sweep counts each voxel once.
     pub non_finite_voxels: u64,
+    /// Attribute values at vertices that came out NaN or infinite and were replaced (see
+    /// `attributes::sample`): the attribute volumes' own non-finite voxels next to the surface.
+    pub non_finite_attribute_values: u64,
     /// The most triangles one slab had: the size of the sweep front a simplifier holds at once
     /// (a flat face across the sweep puts a whole slice's worth of surface in one slab).
     pub max_slab_triangles: u64,
@@ -149,6 +152,8 @@ impl std::ops::Sub for ExtractStats {
             active_cubes: self.active_cubes - o.active_cubes,
             triangles: self.triangles - o.triangles,
             non_finite_voxels: self.non_finite_voxels - o.non_finite_voxels,
+            non_finite_attribute_values: self.non_finite_attribute_values
+                - o.non_finite_attribute_values,
             skipped_cubes: self.skipped_cubes - o.skipped_cubes,
             // One slab's own triangles are its largest slab.
             max_slab_triangles: self.triangles - o.triangles,
@@ -164,6 +169,7 @@ impl std::ops::AddAssign for ExtractStats {
         self.active_cubes += o.active_cubes;
         self.triangles += o.triangles;
         self.non_finite_voxels += o.non_finite_voxels;
+        self.non_finite_attribute_values += o.non_finite_attribute_values;
         self.max_slab_triangles = self.max_slab_triangles.max(o.max_slab_triangles);
     }
 }
@@ -416,6 +422,11 @@ impl Extractor {
         self.stats
     }
 
+    /// Counts attribute values replaced for being non-finite (`attributes::sample`).
+    pub(crate) fn add_non_finite_attribute_values(&mut self, n: u64) {
+        self.stats.non_finite_attribute_values += n;
+    }
+
     /// Appends the non-empty cubes of row `y` of slab `z` that lie in blocks of `bounds` that may
     /// cross the iso value (runs of such blocks at once).
     fn extract_row_blocks(
@@ -581,6 +592,7 @@ mod tests {
                 active_cubes: 8,
                 triangles: 8,
                 non_finite_voxels: 0,
+                non_finite_attribute_values: 0,
                 max_slab_triangles: 4,
             }
         );

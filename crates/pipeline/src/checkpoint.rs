@@ -83,8 +83,8 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// simplifier's fronts within a slab; 31: a cascade's rear with rows; 32: a free vertex slot's
 /// position NaN, read by the dense scan of positions; 33: the guard's cell lists in blocks of
 /// one pool; 34: the costs' tie-break by edge length, so the queued costs of a 33 are not this
-/// build's).
-const FORMAT: u32 = 34;
+/// build's; 35: the extraction's count of non-finite attribute values).
+const FORMAT: u32 = 35;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

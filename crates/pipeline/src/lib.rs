@@ -389,6 +389,7 @@ fn run_job(
         .into_iter()
         .chain(front_stretched(job, budget_faces, &outputs.simplify))
         .chain(faces_past_the_surface(job, faces_kept))
+        .chain(non_finite_attributes(&outputs.extract))
         .collect();
     if let Some(p) = &outputs.prune {
         info!(
@@ -759,6 +760,16 @@ fn rate_missed(
             stats.rejected_flip,
             stats.rejected_intersection,
             stats.rejected_unguarded,
+        )
+    })
+}
+
+/// Attribute values that were NaN or infinite at surface vertices, and were replaced.
+fn non_finite_attributes(extract: &ExtractStats) -> Option<String> {
+    let n = extract.non_finite_attribute_values;
+    (n > 0).then(|| {
+        format!(
+            "{n} attribute values at surface vertices were NaN or infinite (the attribute volumes' own voxels) and were replaced by the edge's finite end, or 0 (extract.non_finite_attribute_values); fill those voxels in the attribute volume for values that mean something"
         )
     })
 }

@@ -7,8 +7,9 @@
 //!
 //! Decisions:
 //! * **Levels**: level `L` has cells of `cell * 2^L`; a triangle is filed at the lowest level
-//!   whose cell is at least `LEVEL_ROOM` times its bounding box's largest extent, so it lies in
-//!   at most 2 x 2 x 2 cells whatever its size. Simplification at low rates makes triangles tens
+//!   whose cell is at least `LEVEL_ROOM` times its bounding box's middle extent and a
+//!   `NEEDLE_SPAN`th of its largest, so it lies in at most 2 x 2 x 2 cells whatever its size
+//!   (a needle in up to 2 x 2 x 5). Simplification at low rates makes triangles tens
 //!   of voxels wide; with one cell size they were filed in thousands of cells each and filing,
 //!   unfiling and querying grew with their size (86 % of a 2 M-face run at R = 0.01).
 //! * **Cell size**: `CELL_EDGES` times the median edge length of the first `SAMPLE` triangles
@@ -71,6 +72,17 @@ use star::Spoke;
 /// 41 MiB) for 0.5 % more instructions and the same output; 4 saved 4-7 MiB more for 4 % more
 /// instructions.
 const LEVEL_ROOM: f64 = 2.0;
+/// A needle (a triangle whose box is long along one axis only) is filed at the level of its
+/// middle extent, in up to this many cells plus one along its length, rather than at the level
+/// of its length. Filed by its length, the needles of a sheet decimated at a low rate (tilted
+/// parallel sheets 3 voxels apart at R = 0.01, straight along the sweep: half the triangles 34
+/// to 127 voxels long and 1 to 4 wide) all sat in the one cell of a level wider than the
+/// volume, and every query scanned about 15,500 entries (807 of them meeting its box) there:
+/// 32.0 s for the 128^3 case, 15.5 s filed this way (103 records a query, the same bytes).
+/// Real scans have few needles: bonsai +0.3 to +0.5 % instructions (`tools/instructions.py`),
+/// the same bytes.
+const NEEDLE_SPAN: f64 = 4.0;
+const NEEDLE_ASPECT: f64 = 8.0;
 /// Cell edge in median triangle edge lengths (the mean until the thirty-third session). 12
 /// rather than 6: at low rates on large slices the fans behind the front grow tens of voxels
 /// wide while the front is at full resolution, and a fan's box spanned hundreds of level-0
@@ -162,8 +174,11 @@ impl Aabb {
         }
     }
 
-    fn extent(&self) -> f64 {
-        f64::from((self.hi - self.lo).max_element())
+    /// The box's middle and largest extents.
+    fn extents(&self) -> (f64, f64) {
+        let e = self.hi - self.lo;
+        let (lo, hi) = (e.x.min(e.y), e.x.max(e.y));
+        (f64::from(lo.max(e.z).min(hi)), f64::from(hi.max(e.z)))
     }
 
     /// Whether `o` lies within this box.
@@ -824,13 +839,21 @@ impl TriIndex {
         ]
     }
 
-    /// The lowest level whose cell is at least [`LEVEL_ROOM`] times the box's largest extent
-    /// (so the box meets at most two cells per axis there, and usually one).
+    /// The lowest level whose cell is at least [`LEVEL_ROOM`] times the box's middle extent
+    /// and its largest over [`NEEDLE_SPAN`] (so the box meets at most two cells along two axes
+    /// there, usually one, and along the third at most `NEEDLE_SPAN + 1`).
     fn level_of(&self, bx: &Aabb) -> usize {
         let mut level = 0;
         let mut size = self.cell;
-        let extent = bx.extent();
-        while level + 1 < LEVELS && LEVEL_ROOM * extent > size {
+        let (middle, largest) = bx.extents();
+        let needle = largest > NEEDLE_ASPECT * middle;
+        while level + 1 < LEVELS
+            && if needle {
+                LEVEL_ROOM * middle > size || largest > NEEDLE_SPAN * size
+            } else {
+                LEVEL_ROOM * largest > size
+            }
+        {
             size *= 2.0;
             level += 1;
         }
@@ -1313,6 +1336,49 @@ mod tests {
         assert!(ix.filed[1].level > ix.filed[0].level);
         ix.remove(1);
         assert_eq!(ix.levels.iter().map(|l| l.records).sum::<usize>(), 1);
+    }
+
+    /// A needle (60 long, at most 0.5 wide) is filed at the level of its width, in several
+    /// cells along its length, not in one cell of a level as wide as it is long; a fan
+    /// crossing it anywhere finds it, and reads it once however many of its cells the fan's
+    /// box meets.
+    #[test]
+    fn a_needle_is_filed_by_its_width_along_its_length_and_found_once() {
+        let mut ix = TriIndex::default();
+        row(&mut ix, 0, 20, 0.0);
+        ix.fix_cell();
+        let needle = [
+            DVec3::new(0.0, 5.0, -30.0),
+            DVec3::new(0.5, 5.0, -30.0),
+            DVec3::new(0.25, 5.0, 30.0),
+        ];
+        ix.insert(20, [500, 501, 502], needle);
+        let f = ix.filed[20];
+        let level = usize::from(f.level);
+        let size = ix.cell * f64::from(1u32 << level);
+        // Filed by its length, its cells would be at least 120 wide (`LEVEL_ROOM`).
+        assert!(size <= 16.0, "cells of {size} for a needle of 60");
+        let (lo, hi) = ix.cells_of(level, &f.room);
+        assert!(hi[2] - lo[2] >= 3 && hi[0] - lo[0] <= 1, "{lo:?} {hi:?}");
+        for z in [-25.0, -2.0, 0.0, size, 20.0] {
+            // A fan in the plane x = 0.25 through the needle's plane y = 5 at height z, across
+            // a cell wall when z = 0 or `size` (its box then meets two of the needle's cells).
+            let v = [1_000_000, 1_000_001, 1_000_002];
+            let p = [
+                DVec3::new(0.25, 5.0, z + 10.0),
+                DVec3::new(0.25, 4.0, z - 0.5),
+                DVec3::new(0.25, 6.0, z - 0.5),
+            ];
+            let before = ix.work().records;
+            let top = DVec3::new(0.25, 5.0, z + 0.5);
+            assert_eq!(move_corner(&mut ix, v, p, top), Verdict::Crosses, "at {z}");
+            assert_eq!(ix.work().records - before, 1, "the needle once, at {z}");
+            let beside = p.map(|x| x + DVec3::Y * 2.0);
+            assert_eq!(
+                move_corner(&mut ix, v, beside, top + DVec3::Y * 2.0),
+                Verdict::Clear
+            );
+        }
     }
 
     /// A fan whose box spans more cells of level 0 than the level has records reads that
