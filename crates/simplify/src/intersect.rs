@@ -7,9 +7,9 @@
 //!
 //! Decisions:
 //! * **Levels**: level `L` has cells of `cell * 2^L`; a triangle is filed at the lowest level
-//!   whose cell is at least `LEVEL_ROOM` times its bounding box's middle extent and a
-//!   `NEEDLE_SPAN`th of its largest, so it lies in at most 2 x 2 x 2 cells whatever its size
-//!   (a needle in up to 2 x 2 x 5). Simplification at low rates makes triangles tens
+//!   whose cell is at least `LEVEL_ROOM` times its bounding box's largest extent, so it lies in
+//!   at most 2 x 2 x 2 cells whatever its size; a needle (`NEEDLE_ASPECT`) at the level of its
+//!   width, in up to 2 x 2 x 5 cells. Simplification at low rates makes triangles tens
 //!   of voxels wide; with one cell size they were filed in thousands of cells each and filing,
 //!   unfiling and querying grew with their size (86 % of a 2 M-face run at R = 0.01).
 //! * **Cell size**: `CELL_EDGES` times the median edge length of the first `SAMPLE` triangles
@@ -72,16 +72,20 @@ use star::Spoke;
 /// 41 MiB) for 0.5 % more instructions and the same output; 4 saved 4-7 MiB more for 4 % more
 /// instructions.
 const LEVEL_ROOM: f64 = 2.0;
-/// A needle (a triangle whose box is long along one axis only) is filed at the level of its
-/// middle extent, in up to this many cells plus one along its length, rather than at the level
-/// of its length. Filed by its length, the needles of a sheet decimated at a low rate (tilted
-/// parallel sheets 3 voxels apart at R = 0.01, straight along the sweep: half the triangles 34
-/// to 127 voxels long and 1 to 4 wide) all sat in the one cell of a level wider than the
-/// volume, and every query scanned about 15,500 entries (807 of them meeting its box) there:
-/// 32.0 s for the 128^3 case, 15.5 s filed this way (103 records a query, the same bytes).
-/// Real scans have few needles: bonsai +0.3 to +0.5 % instructions (`tools/instructions.py`),
-/// the same bytes.
+/// A needle (a triangle whose box is more than [`NEEDLE_ASPECT`] times longer along one axis
+/// than along the next) is filed at the level of its middle extent, in up to this many cells
+/// plus one along its length, rather than at the level of its length. Filed by its length, the
+/// needles of a sheet decimated at a low rate (tilted parallel sheets 3 voxels apart at R =
+/// 0.01, straight along the sweep: half the triangles 34 to 127 voxels long and 1 to 4 wide)
+/// all sat in the one cell of a level wider than the volume, and every query scanned about
+/// 15,500 entries there (807 of them meeting its box): 32.0 s for the 128^3 case, 14.3 s filed
+/// this way (130 records a query), the same bytes.
 const NEEDLE_SPAN: f64 = 4.0;
+/// How much longer than wide a box must be to be filed as a needle. Every triangle filed by
+/// its middle extent (no threshold) cost bonsai upsampled to 511^3 about 1.5 MiB of peak RSS
+/// (more of the common, slightly elongated triangles in 12 cells rather than 8); with 8, the
+/// same within the runs' spread, and +0.4 % instructions on bonsai at R = 0.2
+/// (`tools/instructions.py`), the same bytes on every real volume.
 const NEEDLE_ASPECT: f64 = 8.0;
 /// Cell edge in median triangle edge lengths (the mean until the thirty-third session). 12
 /// rather than 6: at low rates on large slices the fans behind the front grow tens of voxels
@@ -839,9 +843,10 @@ impl TriIndex {
         ]
     }
 
-    /// The lowest level whose cell is at least [`LEVEL_ROOM`] times the box's middle extent
-    /// and its largest over [`NEEDLE_SPAN`] (so the box meets at most two cells along two axes
-    /// there, usually one, and along the third at most `NEEDLE_SPAN + 1`).
+    /// The lowest level whose cell is at least [`LEVEL_ROOM`] times the box's largest extent
+    /// (so the box meets at most two cells per axis there, and usually one); for a needle, at
+    /// least [`LEVEL_ROOM`] times its middle extent and its largest over [`NEEDLE_SPAN`] (two
+    /// cells along two axes at most, `NEEDLE_SPAN + 1` along the third).
     fn level_of(&self, bx: &Aabb) -> usize {
         let mut level = 0;
         let mut size = self.cell;
