@@ -90,7 +90,10 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 isostream_smesh::SmeshError::Io { source, .. }
                     if !matches!(
                         source.kind(),
-                        std::io::ErrorKind::NotFound | std::io::ErrorKind::IsADirectory
+                        std::io::ErrorKind::NotFound
+                            | std::io::ErrorKind::IsADirectory
+                            // Text that is not UTF-8 (an SMA or OBJ line): bad input.
+                            | std::io::ErrorKind::InvalidData
                     ) =>
                 {
                     1

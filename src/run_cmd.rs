@@ -185,6 +185,7 @@ pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
             "bytes": w.bytes,
             "max_active_vertices": w.max_active_vertices,
             "dropped_vertices": stats.dropped_vertices,
+            "dropped_triangles": stats.dropped_triangles,
         });
         println!("{v}");
         return Ok(());
@@ -201,6 +202,12 @@ pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
         line.push_str(&format!(
             ", stream width {} vertices",
             w.max_active_vertices
+        ));
+    }
+    if stats.dropped_triangles > 0 {
+        line.push_str(&format!(
+            "; {} triangles that use a vertex twice (no area) were dropped",
+            stats.dropped_triangles
         ));
     }
     if stats.dropped_vertices > 0 {

@@ -356,6 +356,26 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
         assert!(!dir.path().join("out.smb").exists());
     }
 
+    // Its temporary output gone (removed by hand, a tmp cleaner): named, with the fix.
+    std::fs::write(&ckpt, &saved).unwrap();
+    let output_tmp = before
+        .iter()
+        .find(|f| f.starts_with(".out.smb.") && f.ends_with(".tmp") && !f.contains("ckpt"))
+        .unwrap_or_else(|| panic!("a temporary output among {before:?}"));
+    let kept = std::fs::read(dir.path().join(output_tmp)).unwrap();
+    std::fs::remove_file(dir.path().join(output_tmp)).unwrap();
+    let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
+    assert_one_line_error(
+        &o,
+        1,
+        &[
+            "cannot reopen its checkpointed temporary output",
+            output_tmp,
+            "--restart",
+        ],
+    );
+    std::fs::write(dir.path().join(output_tmp), kept).unwrap();
+
     // --restart throws the checkpoint and its files away and runs from the beginning.
     std::fs::write(&ckpt, &saved).unwrap();
     let o = isostream(&["run", "--quiet", "--restart", &job_arg]);

@@ -584,13 +584,21 @@ fn check_rejects_empty_truncated_and_non_finite_meshes() {
         &sma_text[line_end..]
     );
     std::fs::write(p("nan.sma"), nan).unwrap();
+    std::fs::write(p("latin1.sma"), b"v 0 0 0\nv 1 0 \xff\n").unwrap();
+    std::fs::write(
+        p("twice.sma"),
+        "# nverts 2\nv 0 0 0\nv 1 0 0\nf 1 1 -1\nx 1\n",
+    )
+    .unwrap();
     let cut_at = format!("truncated at byte {} of {m}", m - 10);
-    let cases: [(&str, &[&str]); 5] = [
+    let cases: [(&str, &[&str]); 7] = [
         ("empty.sma", &["empty (0 bytes)"]),
         ("empty.smb", &["empty (0 bytes)"]),
         ("cut.smb", &[&cut_at]),
         ("cut.sma", &["cut.sma", "truncated|end of stream|expected"]),
         ("nan.sma", &["non-finite coordinate", "NaN"]),
+        ("latin1.sma", &["line 2", "UTF-8"]),
+        ("twice.sma", &["line 4", "uses vertex 0 twice"]),
     ];
     for (name, needles) in cases {
         let o = bin().args(["check", &p(name)]).output().unwrap();
@@ -605,6 +613,33 @@ fn check_rejects_empty_truncated_and_non_finite_meshes() {
     }
     let o = bin().args(["measure", &p("nan.sma")]).output().unwrap();
     assert_one_line_error(&o, 2, &["non-finite"]);
+
+    // A foreign mesh's triangle that uses a vertex twice has no area: `measure` counts it so,
+    // `convert` drops it (a streaming mesh cannot hold it) and says so.
+    std::fs::write(
+        p("twice.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 1 4\n",
+    )
+    .unwrap();
+    let o = bin()
+        .args(["measure", "--json", &p("twice.obj")])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(report["quality"]["zero_area_triangles"], 1, "{report}");
+    let o = bin()
+        .args(["convert", &p("twice.obj"), &p("twice.smb")])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains("1 triangles, ") && said.contains("1 triangles that use a vertex twice"),
+        "{said}"
+    );
+    let o = bin().args(["check", &p("twice.smb")]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
 /// `measure --volume` with a job other than the one that made the mesh (by the mesh's run

@@ -57,7 +57,8 @@ pub fn mesh_quality(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> MeshQuali
         oriented: report.misoriented_edges == 0,
         closed: report.is_closed_manifold(),
         boundary_edges: report.boundary_edges,
-        zero_area_triangles: report.zero_area_triangles,
+        // A triangle using a vertex twice has no area either (the check counts it apart).
+        zero_area_triangles: report.zero_area_triangles + report.repeated_index_triangles,
         euler: report.euler(),
         components: report.components.len(),
         min_angle_histogram: min_angle_histogram(&tris),

@@ -130,6 +130,15 @@ pub struct FileMark {
     pub len: u64,
 }
 
+/// A checkpoint's files that cannot be reopened cannot be resumed from: the run must start
+/// over, which only `--restart` does (it refuses to throw a checkpoint away by itself).
+fn restart_fix(e: io::Error) -> io::Error {
+    io::Error::new(
+        e.kind(),
+        format!("{e}; the checkpoint cannot be resumed: run with --restart to start over"),
+    )
+}
+
 pub(crate) struct AtomicFile {
     path: PathBuf,
     tmp: TempFile,
@@ -160,8 +169,16 @@ impl AtomicFile {
 
     /// The temporary output of an interrupted run, cut back to its checkpointed length.
     pub(crate) fn reopen(path: &Path, mark: &FileMark) -> Result<AtomicFile, SmeshError> {
-        let tmp = TempFile::reopen(mark)
-            .map_err(|e| SmeshError::io(path, "reopen the checkpointed temporary output of", e))?;
+        let tmp = TempFile::reopen(mark).map_err(|e| {
+            SmeshError::io(
+                path,
+                format!(
+                    "reopen its checkpointed temporary output {}",
+                    mark.path.display()
+                ),
+                restart_fix(e),
+            )
+        })?;
         Ok(AtomicFile {
             path: path.to_path_buf(),
             tmp,
@@ -278,8 +295,16 @@ impl Spill {
     }
 
     pub(crate) fn reopen(output: &Path, mark: &FileMark) -> Result<Spill, SmeshError> {
-        let tmp = TempFile::reopen(mark)
-            .map_err(|e| SmeshError::io(output, "reopen the checkpointed scratch file of", e))?;
+        let tmp = TempFile::reopen(mark).map_err(|e| {
+            SmeshError::io(
+                output,
+                format!(
+                    "reopen its checkpointed scratch file {}",
+                    mark.path.display()
+                ),
+                restart_fix(e),
+            )
+        })?;
         Ok(Spill {
             output: output.to_path_buf(),
             tmp,

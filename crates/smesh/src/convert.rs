@@ -37,6 +37,10 @@ pub struct ConvertStats {
     /// Vertices of a non-streaming input that no triangle uses; they cannot be finalized in a
     /// stream and are not written.
     pub dropped_vertices: u64,
+    /// Triangles of a non-streaming input that use a vertex twice (no area; an STL triangle
+    /// with two equal corners reads as one): a streaming mesh cannot hold them, so they are
+    /// not written.
+    pub dropped_triangles: u64,
 }
 
 /// A sink writing `path` in the format its extension names.
@@ -110,7 +114,7 @@ pub fn convert_until(
     };
     let input_format = Format::from_path(input)?;
     let output_format = Format::from_path(output)?;
-    let (written, dropped_vertices) = if input_format.is_streaming() {
+    let (written, dropped_vertices, dropped_triangles) = if input_format.is_streaming() {
         let mut stream = CheckedStream::open(input)?;
         let header = Header {
             comments: stream.header().comments.clone(),
@@ -131,10 +135,14 @@ pub fn convert_until(
         }
         stream.finish()?;
         stopped()?;
-        (sink.finish()?, 0)
+        (sink.finish()?, 0, 0)
     } else {
-        let mesh = read_indexed(input)?;
+        let mut mesh = read_indexed(input)?;
         stopped()?;
+        let before = mesh.triangles.len();
+        mesh.triangles
+            .retain(|t| t[0] != t[1] && t[1] != t[2] && t[2] != t[0]);
+        let degenerate = (before - mesh.triangles.len()) as u64;
         let header = Header {
             comments: Vec::new(),
             attribute_names: mesh.attribute_names.clone(),
@@ -142,12 +150,13 @@ pub fn convert_until(
         let mut sink = create_sink(output, &header, options)?;
         let dropped = mesh.stream_into(sink.as_mut())?;
         stopped()?;
-        (sink.finish()?, dropped)
+        (sink.finish()?, dropped, degenerate)
     };
     Ok(ConvertStats {
         input: input_format,
         output: output_format,
         written,
         dropped_vertices,
+        dropped_triangles,
     })
 }

@@ -57,6 +57,8 @@ pub enum StreamFault {
     BeforeFirst { index: i64, available: u64 },
     #[error("uses vertex {vertex}, which was already finalized")]
     UseAfterFinalize { vertex: u64 },
+    #[error("uses vertex {vertex} twice: a triangle needs three distinct vertices")]
+    RepeatedVertex { vertex: u64 },
     #[error("vertex {vertex} was never finalized ({others} other vertices neither)")]
     NeverFinalized { vertex: u64, others: u64 },
     #[error("the header declares {declared} {what} but the stream holds {found}{}", if found < declared { " (truncated file?)" } else { "" })]

@@ -59,14 +59,19 @@ impl Tracker {
         v
     }
 
-    /// Checks a triangle (all three vertices written and still active) before changing anything,
-    /// then finalizes the flagged ones. A vertex repeated within the triangle is finalized once.
-    /// Returns the corner positions (sinks that store triangles as positions need them).
+    /// Checks a triangle (three distinct vertices, all written and still active) before
+    /// changing anything, then finalizes the flagged ones. Returns the corner positions (sinks
+    /// that store triangles as positions need them). A repeated vertex is refused: such a
+    /// "triangle" has no area, and one of its corners would be finalized twice; `check` called
+    /// a mesh holding one valid and `measure` missed it among the zero-area triangles.
     pub(crate) fn triangle(
         &mut self,
         v: [u64; 3],
         finalize: [bool; 3],
     ) -> Result<[[f32; 3]; 3], StreamFault> {
+        if let Some(k) = (0..3).find(|&k| v[k] == v[(k + 1) % 3]) {
+            return Err(StreamFault::RepeatedVertex { vertex: v[k] });
+        }
         let mut corners = [[0.0; 3]; 3];
         for (c, &x) in corners.iter_mut().zip(&v) {
             *c = self.active_position(x)?;
@@ -149,6 +154,10 @@ mod tests {
         assert_eq!(
             t.triangle([1, 2, 3], [true; 3]).unwrap()[2],
             [3.0, 0.0, 0.0]
+        );
+        assert_eq!(
+            t.triangle([1, 2, 1], [true; 3]),
+            Err(StreamFault::RepeatedVertex { vertex: 1 })
         );
         assert_eq!(t.finish(), Ok(()));
         assert_eq!(t.triangles(), 2);
