@@ -37,7 +37,17 @@ pub fn run(
     clean_stale: bool,
     start: isostream_pipeline::Start,
 ) -> anyhow::Result<()> {
-    let job = JobConfig::load(job_path)?;
+    let job = JobConfig::load(job_path).inspect_err(|_| {
+        // Read but not valid (a bad value, not bad TOML): its error in the format its `[log]`
+        // asks for, as every later error is.
+        let log = std::fs::read_to_string(job_path)
+            .ok()
+            .and_then(|text| JobConfig::parse(&text, job_path).ok())
+            .map(|parsed| parsed.log);
+        if let Some(log) = log {
+            crate::logging::init(&log, None);
+        }
+    })?;
     crate::logging::init(&job.log, None);
 
     // Ctrl-C, SIGTERM and SIGHUP (ctrlc's `termination` feature) all stop the run the same way:

@@ -690,16 +690,17 @@ fn measure_refuses_a_job_that_did_not_make_the_mesh() {
 }
 
 /// With `[log] format = "json"` every line on stderr is a JSON object, the error that ends a
-/// failed run included (level `ERROR`, its exit code among the fields), whatever the log level.
+/// failed run included (level `ERROR`, its exit code among the fields), whatever the log level,
+/// and an invalid value of the job too (its file was read; it was plain text).
 #[test]
 fn json_logs_end_a_failed_run_with_a_json_error() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("v.raw"), [0u8; 64]).unwrap();
-    for level in ["info", "off"] {
+    for (level, spacing) in [("info", "1.0"), ("off", "1.0"), ("info", "0.0")] {
         let job = write_job(
             dir.path(),
             &format!(
-                "[input]\npath = \"v.raw\"\ndims = [4, 4, 5]\ndtype = \"u8\"\n[extract]\niso = 0.5\n\
+                "[input]\npath = \"v.raw\"\ndims = [4, 4, 5]\ndtype = \"u8\"\nspacing = [{spacing}, 1.0, 1.0]\n[extract]\niso = 0.5\n\
                  [output]\npath = \"m.smb\"\n[log]\nformat = \"json\"\nlevel = \"{level}\"\n"
             ),
         );
@@ -713,10 +714,12 @@ fn json_logs_end_a_failed_run_with_a_json_error() {
         assert_eq!(last["level"], "ERROR", "{last}");
         assert_eq!(last["fields"]["exit_code"], 2, "{last}");
         let message = last["fields"]["message"].as_str().unwrap();
-        assert!(
-            message.contains("v.raw") && message.contains("dims"),
-            "{message}"
-        );
+        let named = if spacing == "0.0" {
+            "input.spacing"
+        } else {
+            "dims"
+        };
+        assert!(message.contains(named), "{message}");
     }
 }
 

@@ -372,6 +372,11 @@ impl SliceReader {
         self.grid
     }
 
+    /// The iso volume, as its errors name it (a path, or a procedural shape).
+    pub(crate) fn describe(&self) -> String {
+        self.iso.describe()
+    }
+
     /// Makes slice `z` the next one (resuming at a checkpoint): what `next_slices` returns from
     /// here is what it returned when it got to `z` the first time.
     ///

@@ -102,9 +102,9 @@ pub enum RunError {
     #[error("{}: {what}; run with --restart instead of --resume to start over", path.display())]
     ResumeMismatch { path: PathBuf, what: String },
     #[error(
-        "the input changed since the checkpoint ({what}); run with --restart instead of --resume to start over"
+        "{input}: the input changed since the checkpoint ({what}); run with --restart instead of --resume to start over"
     )]
-    InputChanged { what: String },
+    InputChanged { input: String, what: String },
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]
     Internal { stage: &'static str, reason: String },
 }

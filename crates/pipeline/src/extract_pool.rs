@@ -161,6 +161,7 @@ impl Step for ReadStep<'_> {
             && upper.hash(&grid) != expected
         {
             return Err(Stop::Failed(RunError::InputChanged {
+                input: self.reader.describe(),
                 what: format!("slice {z} holds other values than when the checkpoint was saved"),
             }));
         }
