@@ -25,7 +25,7 @@ pub struct ServeArgs {
     #[arg(long)]
     pub state: Option<PathBuf>,
     /// Address to listen on (default 127.0.0.1:8440); a non-loopback address needs a token.
-    #[arg(long)]
+    #[arg(long, value_parser = isostream_service::parse_listen)]
     pub listen: Option<SocketAddr>,
     /// A folder job inputs may be read from (repeatable; adds to the config file's); without
     /// any, only procedural shapes.

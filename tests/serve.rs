@@ -749,11 +749,11 @@ fn a_job_killed_with_the_service_restarts_and_gives_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
     let state = dir.path().join("state");
     let job_text = long_job("gyroid.smb");
-    let id = {
+    let (id, queued, done_progress) = {
         let s = Server::start(&state, &[]);
         let queued = submit(&s, SPHERE);
         let id = submit(&s, &job_text);
-        wait_for(&s, &queued, "done", |v| v["state"] == "done");
+        let done = wait_for(&s, &queued, "done", |v| v["state"] == "done");
         wait_for(&s, &id, "half-way", |v| {
             v["state"] == "running" && v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 20
         });
@@ -761,13 +761,19 @@ fn a_job_killed_with_the_service_restarts_and_gives_the_same_bytes() {
         // Drop sends SIGKILL: no chance to clean up.
         drop(s);
         std::fs::write(dir.path().join("third"), third).unwrap();
-        id
+        (id, queued, done["progress"].clone())
     };
     let third = std::fs::read_to_string(dir.path().join("third")).unwrap();
     let stored = std::fs::read_to_string(state.join("jobs").join(&id).join("state.json")).unwrap();
     assert_eq!(json(&stored)["state"], "running");
 
     let s = Server::start(&state, &[]);
+    // A job done before the restart shows the progress it ended with, not zeros.
+    assert_eq!(job(&s, &queued)["progress"], done_progress);
+    assert!(
+        done_progress["faces_out"].as_u64().unwrap() > 0,
+        "{done_progress}"
+    );
     let last = follow(&s, &id).pop().unwrap();
     assert_eq!(last["state"], "done", "{last}\n{}", s.log());
     assert_eq!(last["attempts"], 2);

@@ -17,6 +17,7 @@ pub struct ServeFile {
     /// `--state`.
     pub state: Option<PathBuf>,
     /// `--listen`.
+    #[serde(default, deserialize_with = "listen_address")]
     pub listen: Option<SocketAddr>,
     /// `--allow-input`, every folder.
     #[serde(default)]
@@ -29,6 +30,34 @@ pub struct ServeFile {
     pub max_queued_jobs: Option<usize>,
     /// `--log-format`: `text` or `json`.
     pub log_format: Option<LogFormat>,
+}
+
+/// A `--listen` address: `IP:PORT`, or `localhost:PORT` for `127.0.0.1:PORT` (the name people
+/// type; other names are not resolved, since a name may stand for several addresses).
+///
+/// # Errors
+/// Anything else, with what to write instead.
+pub fn parse_listen(text: &str) -> Result<SocketAddr, String> {
+    if let Ok(addr) = text.parse() {
+        return Ok(addr);
+    }
+    let port = text
+        .rsplit_once(':')
+        .filter(|(host, _)| host.eq_ignore_ascii_case("localhost"))
+        .and_then(|(_, port)| port.parse::<u16>().ok());
+    port.map(|p| SocketAddr::from(([127, 0, 0, 1], p)))
+        .ok_or_else(|| {
+            format!(
+                "{text:?} is not IP:PORT (such as 127.0.0.1:8440, [::1]:8440 or localhost:8440)"
+            )
+        })
+}
+
+fn listen_address<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<SocketAddr>, D::Error> {
+    let text = String::deserialize(d)?;
+    parse_listen(&text)
+        .map(Some)
+        .map_err(serde::de::Error::custom)
 }
 
 impl ServeFile {
@@ -73,6 +102,14 @@ mod tests {
         let f = ServeFile::load(&path).unwrap();
         assert_eq!(f.state, Some(dir.path().join("state")));
         assert_eq!(f.listen, Some("127.0.0.1:9000".parse().unwrap()));
+        assert_eq!(
+            parse_listen("localhost:8440"),
+            Ok("127.0.0.1:8440".parse().unwrap())
+        );
+        assert_eq!(parse_listen("[::1]:1"), Ok("[::1]:1".parse().unwrap()));
+        for bad in ["example.org:80", "localhost", "localhost:99999", "8440"] {
+            assert!(parse_listen(bad).is_err(), "{bad}");
+        }
         assert_eq!(
             f.allow_input,
             [PathBuf::from("/data"), dir.path().join("more")]

@@ -33,6 +33,24 @@ pub(crate) struct ProgressView {
     pub resident_faces: u64,
 }
 
+impl ProgressView {
+    /// A finished run's progress, read back from its summary (a restarted service showed the
+    /// done jobs it loaded at zero).
+    fn of_summary(summary: &serde_json::Value) -> Self {
+        let count = |key: &str| summary[key].as_u64().unwrap_or(0);
+        let slabs = summary["dims"][2]
+            .as_u64()
+            .map_or(0, |nz| nz.saturating_sub(1));
+        Self {
+            slabs_done: slabs,
+            slabs_total: slabs,
+            faces_in: count("faces_extracted"),
+            faces_out: count("faces_written"),
+            resident_faces: 0,
+        }
+    }
+}
+
 impl From<&Progress> for ProgressView {
     fn from(p: &Progress) -> Self {
         Self {
@@ -205,9 +223,12 @@ impl Queue {
             }
             table.next_seq = table.next_seq.max(record.seq + 1);
             table.order.push(record.id.clone());
-            table
-                .jobs
-                .insert(record.id.clone(), Job::new(record, config));
+            let mut job = Job::new(record, config);
+            if let (JobState::Done, Some(summary)) = (job.record.state, &job.record.summary) {
+                job.progress = ProgressView::of_summary(summary);
+                job.publish();
+            }
+            table.jobs.insert(job.record.id.clone(), job);
         }
         let queued = table
             .jobs

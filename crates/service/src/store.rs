@@ -129,11 +129,15 @@ impl Store {
     }
 
     /// Creates the job's folder with its job file and first state.
+    /// A submission that cannot be stored whole (a full disk) leaves no folder behind.
     pub fn create(&self, record: &JobRecord, job_toml: &str) -> std::io::Result<()> {
         let dir = self.job_dir(&record.id);
         std::fs::create_dir_all(&dir)?;
-        write_atomic(&dir.join(JOB_FILE), job_toml.as_bytes())?;
-        self.save(record)
+        write_atomic(&dir.join(JOB_FILE), job_toml.as_bytes())
+            .and_then(|()| self.save(record))
+            .inspect_err(|_| {
+                let _ = std::fs::remove_dir_all(&dir);
+            })
     }
 
     pub fn save(&self, record: &JobRecord) -> std::io::Result<()> {
