@@ -1,5 +1,6 @@
-//! Counts self-intersecting triangles of a binary little-endian PLY (float xyz, uchar/uint faces,
-//! as `isostream convert` writes): `cargo run --release -p isostream-meshcheck --example
+//! Counts self-intersecting triangles of a binary little-endian PLY (float xyz first, any
+//! further float vertex properties such as attributes, uchar/uint faces, as `isostream convert`
+//! writes): `cargo run --release -p isostream-meshcheck --example
 //! self_intersections -- mesh.ply`.
 
 fn main() {
@@ -21,12 +22,25 @@ fn main() {
             .expect("element count")
     };
     let (nv, nf) = (count("vertex"), count("face"));
+    // Bytes a vertex takes: its float properties (x, y, z, then attributes), 4 bytes each.
+    let stride = 4 * header
+        .lines()
+        .skip_while(|l| !l.starts_with("element vertex"))
+        .skip(1)
+        .take_while(|l| l.starts_with("property"))
+        .inspect(|l| {
+            assert!(
+                l.starts_with("property float"),
+                "float vertex properties only: {l}"
+            )
+        })
+        .count();
     let f32_at = |o: usize| f32::from_le_bytes(data[o..o + 4].try_into().unwrap());
     let u32_at = |o: usize| u32::from_le_bytes(data[o..o + 4].try_into().unwrap());
     let pos: Vec<[f64; 3]> = (0..nv)
-        .map(|i| [0, 1, 2].map(|k| f64::from(f32_at(end + 12 * i + 4 * k))))
+        .map(|i| [0, 1, 2].map(|k| f64::from(f32_at(end + stride * i + 4 * k))))
         .collect();
-    let mut o = end + 12 * nv;
+    let mut o = end + stride * nv;
     let mut tris = Vec::with_capacity(nf);
     for _ in 0..nf {
         assert_eq!(data[o], 3, "triangles only");
