@@ -35,7 +35,7 @@ fn check_f32_positions(dims: [u64; 3], spacing: [f64; 3], origin: [f64; 3]) -> R
     let finest = spacing.iter().copied().fold(f64::INFINITY, f64::min);
     let fix = "move the origin near 0 ([input] origin = [0, 0, 0]) and add the offset back to \
                the mesh afterwards, or check the origin and spacing";
-    if !(far < f64::from(f32::MAX)) {
+    if far >= f64::from(f32::MAX) {
         return Err(format!(
             "positions reach {far:e}, past what an f32 mesh can hold; {fix}"
         ));
