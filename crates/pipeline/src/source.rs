@@ -1,6 +1,6 @@
 //! Turns `[input]` into a volume source.
 
-use isostream_volume::{Procedural, Upsampled, VolumeSource};
+use isostream_volume::{Grid, Procedural, Upsampled, VolumeError, VolumeSource};
 
 use crate::config::InputConfig;
 use crate::error::RunError;
@@ -10,7 +10,55 @@ use crate::error::RunError;
 pub fn open_source(input: &InputConfig) -> Result<Box<dyn VolumeSource>, RunError> {
     let source = open_stored(input)?;
     check_slice_memory(source.as_ref(), crate::rss::physical_memory_bytes())?;
-    upsampled(source, input)
+    let source = upsampled(source, input)?;
+    check_f32_positions(&source.grid()).map_err(|problem| VolumeError::Grid {
+        origin: source.describe(),
+        problem,
+    })?;
+    Ok(source)
+}
+
+/// The coarsest `f32` step, as a share of the smallest spacing, that positions may have.
+/// Meshes are written in `f32` (and the simplifier keeps `f32`-exact positions): a volume far
+/// from the origin at a fine spacing had its vertices rounded onto a few positions (a sphere at
+/// x = 1e9 with spacing 0.5 came out flat; at 4e6 with spacing 0.1, 85 % of the triangles had
+/// no area), with no error. 1/64 of a voxel leaves marching-cubes vertices distinct in
+/// practice; a 16,384-voxel axis from 0 at spacing 1 has steps of 1/512.
+const MIN_VOXEL_STEPS: f64 = 64.0;
+
+/// Refuses a job grid whose positions `f32` cannot hold (past its range) or cannot tell apart
+/// at a 1/[`MIN_VOXEL_STEPS`] of the smallest spacing. A job's grid, not every `Grid`: the
+/// volume crate's grids go to 2^64 voxels, and only what is written must fit `f32`.
+fn check_f32_positions(grid: &Grid) -> Result<(), String> {
+    let Grid {
+        dims,
+        spacing,
+        origin,
+    } = *grid;
+    let far = (0..3)
+        .map(|k| {
+            let end = origin[k] + spacing[k] * dims[k].saturating_sub(1) as f64;
+            origin[k].abs().max(end.abs())
+        })
+        .fold(0.0, f64::max);
+    let finest = spacing.iter().copied().fold(f64::INFINITY, f64::min);
+    let fix = "move the origin near 0 ([input] origin = [0, 0, 0]) and add the offset back to \
+               the mesh afterwards, or check the origin and spacing";
+    if far >= f64::from(f32::MAX) {
+        return Err(format!(
+            "positions reach {far:e}, past what an f32 mesh can hold; {fix}"
+        ));
+    }
+    let at = far as f32;
+    let step = f64::from(at.next_up() - at);
+    if step * MIN_VOXEL_STEPS > finest {
+        return Err(format!(
+            "positions reach {far}, where the f32 coordinates of the mesh step by {step}, more \
+             than 1/{MIN_VOXEL_STEPS} of the smallest spacing {finest}: the surface would be \
+             rounded onto a few positions; {fix}"
+        ));
+    }
+    Ok(())
 }
 
 /// Whole slices in memory at once, at the least, when a volume is read slice by slice (the
@@ -97,5 +145,38 @@ mod tests {
             check_slice_memory(&wide, None).is_ok(),
             "unknown memory: not refused"
         );
+    }
+
+    /// Positions an `f32` mesh cannot hold, or cannot tell apart at a fraction of a voxel, are
+    /// refused: they came out flattened or with most triangles of no area.
+    #[test]
+    fn positions_f32_cannot_resolve_are_refused() {
+        for (spacing, origin) in [
+            ([0.5; 3], [1e9, 0.0, 0.0]),
+            ([0.1; 3], [4e6; 3]),
+            ([1e37, 1.0, 1.0], [0.0; 3]),
+            ([1.0; 3], [1e39, 0.0, 0.0]),
+        ] {
+            let e = check_f32_positions(&Grid {
+                dims: [40; 3],
+                spacing,
+                origin,
+            })
+            .unwrap_err();
+            assert!(e.contains("f32") && e.contains("[input] origin"), "{e}");
+        }
+        // Large real grids: CT in millimetres, a long axis from 0, an upsampled volume.
+        for (dims, spacing, origin) in [
+            ([512, 512, 2000], [0.3, 0.3, 0.5], [-150.0, -150.0, -800.0]),
+            ([16384, 64, 64], [1.0; 3], [0.0; 3]),
+            ([4081, 4081, 4081], [0.0625; 3], [0.0; 3]),
+        ] {
+            let grid = Grid {
+                dims,
+                spacing,
+                origin,
+            };
+            assert!(check_f32_positions(&grid).is_ok(), "{grid:?}");
+        }
     }
 }
