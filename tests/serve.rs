@@ -557,9 +557,14 @@ fn a_full_queue_refuses_submissions() {
     let running = submit(&s, &long_job("a.smb"));
     wait_for(&s, &running, "running", |v| v["state"] == "running");
     let waiting = submit(&s, SPHERE);
-    let (code, body) = send(agent().post(&s.url("/jobs")), Some(SPHERE));
-    assert_eq!(code, 429, "{body}");
-    assert!(error_of(&body).contains("--max-queued-jobs"), "{body}");
+    match agent().post(&s.url("/jobs")).send_string(SPHERE) {
+        Err(ureq::Error::Status(429, r)) => {
+            assert_eq!(r.header("retry-after"), Some("10"));
+            let body = r.into_string().unwrap();
+            assert!(error_of(&body).contains("--max-queued-jobs"), "{body}");
+        }
+        other => panic!("expected 429: {other:?}"),
+    }
     assert_eq!(files_in(&state.join("jobs")).len(), 2, "nothing stored");
     let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
     assert!(

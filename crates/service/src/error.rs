@@ -100,9 +100,21 @@ pub(crate) fn request_error_kind(status: StatusCode) -> Option<&'static str> {
     })
 }
 
+/// Seconds a client refused for a full queue is told to wait (`Retry-After`): about what a
+/// small job takes to start, and a hint only (the queue has no schedule to promise one).
+const RETRY_AFTER_SECONDS: &str = "10";
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let body = Json(serde_json::json!({ "error": self.reason.replace('\n', " ") }));
+        if self.status == StatusCode::TOO_MANY_REQUESTS {
+            return (
+                self.status,
+                [(axum::http::header::RETRY_AFTER, RETRY_AFTER_SECONDS)],
+                body,
+            )
+                .into_response();
+        }
         (self.status, body).into_response()
     }
 }
