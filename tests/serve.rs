@@ -280,7 +280,11 @@ fn a_config_file_json_logs_with_the_job_id_and_reports_only_when_done() {
     wait_for(&s, &running, "running", |v| v["state"] == "running");
     let (code, body) = send(agent().get(&s.url(&format!("/jobs/{queued}/report"))), None);
     assert_eq!(code, 409, "{body}");
-    assert!(json(&body)["error"].as_str().unwrap().contains("queued"));
+    let reason = error_of(&body);
+    assert!(
+        reason.contains("queued") && reason.contains("once the job is done"),
+        "{body}"
+    );
     // A job asking for progress lines as often as the service allows (once a second): they come
     // from a stage thread.
     let chatty = submit(
@@ -492,6 +496,8 @@ fn jobs_are_cancelled_queued_or_running() {
     assert_eq!(last["state"], "cancelled", "{last}");
     let (code, body) = send(agent().get(&s.url(&format!("/jobs/{first}/output"))), None);
     assert_eq!(code, 409, "{body}");
+    // A cancelled job will never have one: it says so, not "once it is done".
+    assert!(error_of(&body).contains("it has none"), "{body}");
     // Nothing half-written kept; the log stays.
     assert_eq!(
         files_in(&state.join("jobs").join(&first)),

@@ -355,13 +355,17 @@ async fn events(
 /// The job, once it is done; else 404 or 409 saying what exists when.
 fn done_job(s: &AppState, id: &str, what: &str) -> Result<JobView, ApiError> {
     let view = s.queue.get(id).ok_or_else(|| ApiError::not_found(id))?;
-    if view.record.state != JobState::Done {
+    let state = view.record.state;
+    if state != JobState::Done {
+        let when = if state.is_final() {
+            // Failed or cancelled: it never will be done.
+            "it has none (see its `error` and log; resubmit the job to make one)"
+        } else {
+            "it exists once the job is done"
+        };
         return Err(ApiError::new(
             StatusCode::CONFLICT,
-            format!(
-                "job {id} is {}: its {what} exists once it is done",
-                view.record.state.name()
-            ),
+            format!("job {id} is {}: {what}: {when}", state.name()),
         ));
     }
     Ok(view)
