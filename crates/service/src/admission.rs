@@ -160,7 +160,8 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
             a.path = Some(roots.admit(&format!("attributes[{i}].path"), p)?);
         }
     }
-    job.output.path = job_dir.join(output_name(&job.output.path));
+    let requested = job.output.path.clone();
+    job.output.path = job_dir.join(output_name(&requested));
     // The service keeps every run summary and does its own logging (format, level); a job only
     // chooses how often its progress is logged, at most once a second.
     job.output.summary = true;
@@ -172,8 +173,14 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
         },
         ..LogConfig::default()
     };
-    job.validate(origin)
-        .map_err(|e| ApiError::bad_job(e.to_string()))?;
+    // Errors name the output as the client wrote it, not the folder it was moved to.
+    let rewritten = job.output.path.display().to_string();
+    job.validate(origin).map_err(|e| {
+        ApiError::bad_job(
+            e.to_string()
+                .replace(&rewritten, &requested.display().to_string()),
+        )
+    })?;
     isostream_pipeline::open_source(&job.input).map_err(|e| ApiError::bad_job(e.to_string()))?;
     let toml = toml::to_string(&job)
         .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))?;
@@ -235,6 +242,10 @@ mod tests {
         let text = SPHERE.replace("out.ply", "out.xyz");
         let err = admit(&text, Path::new("/nonexistent"), &Roots::default()).unwrap_err();
         assert!(err.reason.contains("output.path"), "{err:?}");
+        assert!(
+            err.reason.contains("/etc/evil/out.xyz") && !err.reason.contains("nonexistent"),
+            "the output as written: {err:?}"
+        );
     }
 
     #[test]
