@@ -585,13 +585,22 @@ fn check_rejects_empty_truncated_and_non_finite_meshes() {
     );
     std::fs::write(p("nan.sma"), nan).unwrap();
     std::fs::write(p("latin1.sma"), b"v 0 0 0\nv 1 0 \xff\n").unwrap();
+    let boxed = sma_text
+        .lines()
+        .find(|l| l.starts_with("# bb_max"))
+        .expect("a box in the SMA");
+    std::fs::write(p("box.sma"), sma_text.replace(boxed, "# bb_max 0 0 0")).unwrap();
     std::fs::write(
         p("twice.sma"),
         "# nverts 2\nv 0 0 0\nv 1 0 0\nf 1 1 -1\nx 1\n",
     )
     .unwrap();
     let cut_at = format!("truncated at byte {} of {m}", m - 10);
-    let cases: [(&str, &[&str]); 7] = [
+    let cases: [(&str, &[&str]); 8] = [
+        (
+            "box.sma",
+            &["bounding box", "does not contain the vertices"],
+        ),
         ("empty.sma", &["empty (0 bytes)"]),
         ("empty.smb", &["empty (0 bytes)"]),
         ("cut.smb", &[&cut_at]),

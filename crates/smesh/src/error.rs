@@ -59,6 +59,10 @@ pub enum StreamFault {
     UseAfterFinalize { vertex: u64 },
     #[error("uses vertex {vertex} twice: a triangle needs three distinct vertices")]
     RepeatedVertex { vertex: u64 },
+    #[error(
+        "the header's bounding box {declared} does not contain the vertices, which span {found}"
+    )]
+    BoundingBox { declared: String, found: String },
     #[error("vertex {vertex} was never finalized ({others} other vertices neither)")]
     NeverFinalized { vertex: u64, others: u64 },
     #[error("the header declares {declared} {what} but the stream holds {found}{}", if found < declared { " (truncated file?)" } else { "" })]

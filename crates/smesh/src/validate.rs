@@ -78,7 +78,8 @@ impl CheckedStream {
         )
     }
 
-    /// End-of-stream rules: declared counts match, every vertex finalized.
+    /// End-of-stream rules: declared counts match, the declared bounding box holds every vertex,
+    /// every vertex finalized.
     pub(crate) fn finish(self) -> Result<(ReadHeader, Tracker), SmeshError> {
         let path = self.reader.path();
         let header = self.reader.header();
@@ -94,6 +95,16 @@ impl CheckedStream {
                     found,
                 }));
             }
+        }
+        // A box that leaves vertices out misleads whoever culls or frames by it (a box of 0..1
+        // around data spanning 60..220 passed); a looser one is allowed.
+        if let (Some((lo, hi)), Some((vlo, vhi))) = (header.bbox, self.tracker.bbox())
+            && (0..3).any(|k| vlo[k] < lo[k] || vhi[k] > hi[k])
+        {
+            return Err(fault(StreamFault::BoundingBox {
+                declared: format!("{lo:?}..{hi:?}"),
+                found: format!("{vlo:?}..{vhi:?}"),
+            }));
         }
         self.tracker.finish().map_err(fault)?;
         Ok((header.clone(), self.tracker))
