@@ -680,11 +680,14 @@ fn with_a_token_every_request_needs_it() {
         None,
     );
     assert_eq!(code, 200, "{body}");
-    // The scheme's name is case-insensitive.
+    // The scheme's name is case-insensitive; behind a reverse proxy, the public name and the
+    // browser's origin are not refused when the token comes with them.
     let (code, body) = send(
         agent()
             .get(&s.url("/jobs"))
-            .set("Authorization", "bearer s3cret-token"),
+            .set("Authorization", "bearer s3cret-token")
+            .set("Host", "isostream.example.org")
+            .set("Origin", "https://isostream.example.org"),
         None,
     );
     assert_eq!(code, 200, "{body}");

@@ -22,9 +22,10 @@ pub fn open_source(input: &InputConfig) -> Result<Box<dyn VolumeSource>, RunErro
 /// Meshes are written in `f32` (and the simplifier keeps `f32`-exact positions): a volume far
 /// from the origin at a fine spacing had its vertices rounded onto a few positions (a sphere at
 /// x = 1e9 with spacing 0.5 came out flat; at 4e6 with spacing 0.1, 85 % of the triangles had
-/// no area), with no error. 1/64 of a voxel leaves marching-cubes vertices distinct in
-/// practice; a 16,384-voxel axis from 0 at spacing 1 has steps of 1/512.
-const MIN_VOXEL_STEPS: f64 = 64.0;
+/// no area), with no error. Past an eighth of a voxel the mesh is visibly rounded; finer is
+/// accepted, since real data lives there: UTM eastings (5e5 m at 1 m: steps of 1/32) and
+/// microscope stage coordinates (5e4 um at 0.1 um: 1/25) must run.
+const MIN_VOXEL_STEPS: f64 = 8.0;
 
 /// Refuses a job grid whose positions `f32` cannot hold (past its range) or cannot tell apart
 /// at a 1/[`MIN_VOXEL_STEPS`] of the smallest spacing. A job's grid, not every `Grid`: the
@@ -165,9 +166,12 @@ mod tests {
             .unwrap_err();
             assert!(e.contains("f32") && e.contains("[input] origin"), "{e}");
         }
-        // Large real grids: CT in millimetres, a long axis from 0, an upsampled volume.
+        // Real grids: CT in millimetres, UTM metres, microscope stage micrometres, a long axis
+        // from 0, an upsampled volume.
         for (dims, spacing, origin) in [
             ([512, 512, 2000], [0.3, 0.3, 0.5], [-150.0, -150.0, -800.0]),
+            ([500, 500, 100], [1.0; 3], [5e5, 4e5, 0.0]),
+            ([1000, 1000, 200], [0.1; 3], [5e4, 5e4, 0.0]),
             ([16384, 64, 64], [1.0; 3], [0.0; 3]),
             ([4081, 4081, 4081], [0.0625; 3], [0.0; 3]),
         ] {

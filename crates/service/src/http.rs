@@ -73,7 +73,12 @@ pub(crate) fn router(state: AppState) -> Router {
 /// to a navigation; its script sends the token (taken from the URL fragment, which browsers do
 /// not send) on every request it makes.
 async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response {
-    if let Err(refused) = same_site(req.headers(), s.token.is_some()) {
+    // With a token, a request carrying it cannot come from another site's page (a page cannot
+    // send it), and one without it is refused below: a reverse proxy forwarding its public
+    // name (`Host`, and the browser's `Origin`) must work then.
+    if s.token.is_none()
+        && let Err(refused) = same_site(req.headers())
+    {
         s.metrics.error("foreign_site");
         return refused.into_response();
     }
@@ -96,14 +101,13 @@ async fn guard(State(s): State<AppState>, req: Request, next: Next) -> Response 
     response
 }
 
-/// Refuses what a web page on another site can make a browser send: a request naming another
-/// origin (`Origin`, which browsers add to every cross-site request that could change
-/// something: a form or `fetch` posting a job as `text/plain` needs no preflight), and, when
-/// there is no token, a `Host` that is not a loopback name (DNS rebinding: a hostile name
-/// re-pointed at 127.0.0.1 makes the browser treat this service as that site's). With a token
-/// the page cannot send it, and a reverse proxy may forward any name. Clients that are not
-/// browsers send no `Origin`.
-fn same_site(headers: &HeaderMap, token: bool) -> Result<(), ApiError> {
+/// For a service without a token: refuses what a web page on another site can make a browser
+/// send, a request naming another origin (`Origin`, which browsers add to every cross-site
+/// request that could change something: a form or `fetch` posting a job as `text/plain` needs
+/// no preflight), and a `Host` that is not a loopback name (DNS rebinding: a hostile name
+/// re-pointed at 127.0.0.1 makes the browser treat this service as that site's). Clients that
+/// are not browsers send no `Origin`.
+fn same_site(headers: &HeaderMap) -> Result<(), ApiError> {
     let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
     if let Some(origin) = headers.get(header::ORIGIN) {
         let authority = origin
@@ -126,10 +130,10 @@ fn same_site(headers: &HeaderMap, token: bool) -> Result<(), ApiError> {
         }
     }
     match host {
-        Some(h) if !token && !is_loopback_host(h) => Err(ApiError::new(
+        Some(h) if !is_loopback_host(h) => Err(ApiError::new(
             StatusCode::FORBIDDEN,
             format!(
-                "Host {h} is not a loopback name, and this service has no --token: reach it as 127.0.0.1, [::1] or localhost, or start it with --token to serve other names"
+                "Host {h} is not a loopback name, and this service has no --token: reach it as 127.0.0.1, [::1] or localhost, or start it with --token to serve other names (behind a reverse proxy too)"
             ),
         )),
         _ => Ok(()),
@@ -283,16 +287,16 @@ async fn job_text(req: Request) -> Result<String, ApiError> {
         }
         String::from_request(req, &())
             .await
-            .map_err(|r: StringRejection| match r.status() {
-                StatusCode::PAYLOAD_TOO_LARGE => ApiError::new(
-                    StatusCode::PAYLOAD_TOO_LARGE,
-                    format!("a body over {MAX_BODY} bytes: a job file is at most {MAX_BODY} bytes"),
-                ),
-                StatusCode::BAD_REQUEST => ApiError::bad_job(format!(
+            .map_err(|r: StringRejection| match r {
+                StringRejection::InvalidUtf8(_) => ApiError::bad_job(format!(
                     "{}: the job file is not UTF-8 text; send it as UTF-8 TOML",
                     admission::ORIGIN
                 )),
-                status => ApiError::new(status, r.body_text()),
+                r if r.status() == StatusCode::PAYLOAD_TOO_LARGE => ApiError::new(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!("a body over {MAX_BODY} bytes: a job file is at most {MAX_BODY} bytes"),
+                ),
+                r => ApiError::new(r.status(), r.body_text()),
             })
     };
     tokio::time::timeout(BODY_DEADLINE, read)
@@ -471,27 +475,17 @@ mod tests {
             (header::HOST, "127.0.0.1:8440"),
             (header::ORIGIN, "http://127.0.0.1:8440"),
         ]);
-        assert!(same_site(&own, false).is_ok());
+        assert!(same_site(&own).is_ok());
         let foreign = headers(&[
             (header::HOST, "127.0.0.1:8440"),
             (header::ORIGIN, "http://evil.example"),
         ]);
-        assert!(
-            same_site(&foreign, true).is_err(),
-            "a token does not make a cross-site request safe"
-        );
+        assert!(same_site(&foreign).is_err());
         let null = headers(&[(header::HOST, "127.0.0.1:8440"), (header::ORIGIN, "null")]);
-        assert!(same_site(&null, false).is_err());
+        assert!(same_site(&null).is_err());
         let rebound = headers(&[(header::HOST, "evil.example:8440")]);
-        assert!(same_site(&rebound, false).is_err());
-        assert!(
-            same_site(&rebound, true).is_ok(),
-            "behind a proxy, with a token"
-        );
-        assert!(
-            same_site(&HeaderMap::new(), false).is_ok(),
-            "HTTP/1.0 has no Host"
-        );
+        assert!(same_site(&rebound).is_err());
+        assert!(same_site(&HeaderMap::new()).is_ok(), "HTTP/1.0 has no Host");
     }
 
     #[test]

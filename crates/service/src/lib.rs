@@ -52,8 +52,8 @@ pub struct ServeConfig {
 /// Runs the service until Ctrl-C, SIGTERM or SIGHUP. `ready` is called with the bound address (port 0
 /// picks a free one) once requests can be accepted.
 ///
-/// On shutdown, running jobs are interrupted and stay `running` on disk, so the next start runs
-/// them again, from their last checkpoint when they saved one.
+/// On shutdown, running jobs are interrupted and put back in the queue on disk, so the next
+/// start runs them again, from their last checkpoint when they saved one.
 pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), ServiceError> {
     check_exposure(&config)?;
     if config.max_parallel_jobs == 0 {
