@@ -940,6 +940,41 @@ fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
     );
 }
 
+/// After the service died with two jobs running, both count the death and run one at a time,
+/// so a job that brings the service down again is the only one blamed.
+#[test]
+fn jobs_running_when_the_service_died_run_alone_afterwards() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let two = ["--max-parallel-jobs", "2"];
+    let ids = {
+        let s = Server::start(&state, &two);
+        let ids = [
+            submit(&s, &long_job("a.smb")),
+            submit(&s, &long_job("b.smb")),
+        ];
+        for id in &ids {
+            wait_for(&s, id, "running", |v| v["state"] == "running");
+        }
+        // Drop sends SIGKILL.
+        drop(s);
+        ids
+    };
+    let s = Server::start(&state, &two);
+    let started = Instant::now();
+    loop {
+        let views = ids.clone().map(|id| job(&s, &id));
+        assert!(views.iter().all(|v| v["crashes"] == 1), "{views:?}");
+        let running = views.iter().filter(|v| v["state"] == "running").count();
+        assert!(running <= 1, "both ran at once: {views:?}");
+        if views.iter().all(|v| v["state"] == "done") {
+            break;
+        }
+        assert!(started.elapsed() < Duration::from_secs(120), "{views:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 /// Runs `job_text` with `isostream run` in `dir` and compares its output `name` with `served`.
 fn assert_same_as_a_direct_run(dir: &Path, job_text: &str, name: &str, served: &[u8]) {
     let job_file = dir.join("direct.toml");

@@ -144,7 +144,9 @@ pub(crate) enum DeleteOutcome {
 /// Runs of one job the service may die in before the job is failed rather than run again: a
 /// job that aborts the process (memory exhausted, a bug) would otherwise bring the service down
 /// at every start, and with it every job queued behind it. A host's reboot or one `kill -9`
-/// during a long run is survived.
+/// during a long run is survived. Every job found running counts a death; from its first on, a
+/// job runs alone (`Queue::start_ready`), so its later deaths are its own, and the jobs that
+/// only ran beside it once finish.
 const MAX_CRASHES: u32 = 3;
 
 /// How many jobs may run, and wait, at once.
@@ -393,6 +395,17 @@ impl Queue {
                 .find(|id| t.jobs[*id].record.state == JobState::Queued)
                 .cloned();
             let Some(id) = next else { break };
+            // A job the service died in runs alone, and nothing starts beside it: should it
+            // bring the service down again, the death is its own, not its neighbours' (the
+            // count fails a job after `MAX_CRASHES`).
+            let suspect = |j: &Job| j.record.crashes > 0;
+            let running_suspect = t
+                .jobs
+                .values()
+                .any(|j| j.record.state == JobState::Running && suspect(j));
+            if running_suspect || (t.running > 0 && suspect(&t.jobs[&id])) {
+                break;
+            }
             let job = t.jobs.get_mut(&id).expect("ids in order are in the table");
             // Every queued job has its config (it is dropped only in final states); should that
             // ever break, fail the job rather than stall the queue behind it.
@@ -443,7 +456,13 @@ impl Queue {
             // have been replaced by a link to one outside since (or the folders changed with a
             // restart): checked again now, just before the run opens them.
             queue.roots.confirm(&config)?;
-            let observer = |p: &Progress| queue.progress(&job_id, p);
+            // Whether a slab was done: an error before is one of resuming (loading and
+            // checking the checkpoint, reopening its files), after it one of the run.
+            let progressed = AtomicBool::new(false);
+            let observer = |p: &Progress| {
+                progressed.store(true, Ordering::Relaxed);
+                queue.progress(&job_id, p);
+            };
             // A job folder holds one job: a checkpoint in it is this job's, from a run the
             // service's stop or crash interrupted.
             let run = |start| {
@@ -457,13 +476,15 @@ impl Queue {
             };
             match run(Start::Resume) {
                 // No one can pass `--restart` to a service: a checkpoint that cannot be resumed
-                // (the input was touched or replaced, another build wrote it) is thrown away
-                // and the job starts over, as it would without one.
+                // (the input was touched or replaced, another build wrote it, its temporary
+                // output is gone) is thrown away and the job starts over, as it would without
+                // one. Not a checkpoint that failed to be written mid-run (a full disk).
                 Err(
                     e @ (RunError::InputChanged { .. }
                     | RunError::ResumeMismatch { .. }
-                    | RunError::Checkpoint { .. }),
-                ) => {
+                    | RunError::Checkpoint { .. }
+                    | RunError::Output(_)),
+                ) if !progressed.load(Ordering::Relaxed) => {
                     warn!(error = %e, "the checkpoint cannot be resumed; starting the job over");
                     run(Start::Restart)
                 }
