@@ -36,8 +36,50 @@ fn fixed_mmap_threshold() {
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn fixed_mmap_threshold() {}
 
+/// Whether SIGHUP was ignored when the process started (`nohup`, or a supervisor that sets it
+/// so): then a closed terminal must not stop it, though the handlers installed later (ctrlc's
+/// for `run`, tokio's for `serve`) would catch the signal. Read first thing in `main`.
+static HANGUP_IGNORED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+
+pub(crate) fn hangup_ignored() -> bool {
+    HANGUP_IGNORED.get().copied().unwrap_or(false)
+}
+
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[allow(unsafe_code)]
+fn hangup_ignored_at_start() -> bool {
+    // SAFETY: a null new action only reads SIGHUP's current disposition into `old`, a plain
+    // struct zeroed first; nothing is changed.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(libc::SIGHUP, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn hangup_ignored_at_start() -> bool {
+    false
+}
+
+/// Puts SIGHUP back to ignored after a handler library took it (see [`HANGUP_IGNORED`]).
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+#[allow(unsafe_code)]
+pub(crate) fn keep_hangup_ignored() {
+    if hangup_ignored() {
+        // SAFETY: sets SIGHUP's disposition to SIG_IGN, which installs no handler code.
+        unsafe {
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
+        }
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub(crate) fn keep_hangup_ignored() {}
+
 fn main() -> ExitCode {
     fixed_mmap_threshold();
+    let _ = HANGUP_IGNORED.set(hangup_ignored_at_start());
     let cli = cli::Cli::parse();
     match cli.command.execute() {
         Ok(()) => ExitCode::SUCCESS,

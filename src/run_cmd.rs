@@ -58,6 +58,8 @@ pub fn run(
         let cancel = Arc::clone(&cancel);
         ctrlc::set_handler(move || cancel.store(true, Ordering::Relaxed))
             .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
+        // Under `nohup` a closed terminal does not stop the run.
+        crate::keep_hangup_ignored();
     }
     // Held until the run ends: a second job on the same output is refused, and temporary files
     // of this output found now cannot belong to a live run.

@@ -92,6 +92,7 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
     let mut allow_input = file.allow_input;
     allow_input.extend(args.allow_input);
     let config = isostream_service::ServeConfig {
+        stop_on_hangup: !crate::hangup_ignored(),
         state_dir,
         listen,
         allow_input,

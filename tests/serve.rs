@@ -30,8 +30,19 @@ struct Server {
 
 impl Server {
     fn start(state: &Path, args: &[&str]) -> Server {
+        Self::start_under(Command::new(BIN), state, args)
+    }
+
+    /// Started through `nohup`: SIGHUP ignored from the start, as a terminal's user leaves it.
+    fn start_nohup(state: &Path, args: &[&str]) -> Server {
+        let mut nohup = Command::new("nohup");
+        nohup.arg(BIN);
+        Self::start_under(nohup, state, args)
+    }
+
+    fn start_under(mut command: Command, state: &Path, args: &[&str]) -> Server {
         let log = state.with_extension("log");
-        let mut child = Command::new(BIN)
+        let mut child = command
             .arg("serve")
             .arg("--state")
             .arg(state)
@@ -708,6 +719,23 @@ fn sigterm_interrupts_a_run_cleanly_and_the_next_start_runs_it() {
 #[test]
 fn sighup_stops_the_service_as_sigterm_does() {
     stop_with_a_signal_and_restart("-HUP");
+}
+
+/// Started with SIGHUP ignored (`nohup`), the service keeps running through a hangup.
+#[cfg(unix)]
+#[test]
+fn under_nohup_a_hangup_does_not_stop_the_service() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = Server::start_nohup(&dir.path().join("state"), &[]);
+    let hup = Command::new("kill")
+        .args(["-HUP", &s.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(hup.success());
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(s.child.try_wait().unwrap().is_none(), "{}", s.log());
+    let (code, _) = send(agent().get(&s.url("/healthz")), None);
+    assert_eq!(code, 200);
 }
 
 #[cfg(unix)]

@@ -47,6 +47,8 @@ pub struct ServeConfig {
     pub max_parallel_jobs: usize,
     /// Jobs waiting to run at once: a submission past it is refused (429) rather than stored.
     pub max_queued_jobs: usize,
+    /// Whether SIGHUP stops the service: not when it was started ignoring it (`nohup`).
+    pub stop_on_hangup: bool,
 }
 
 /// Runs the service until Ctrl-C, SIGTERM or SIGHUP. `ready` is called with the bound address (port 0
@@ -93,7 +95,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
             shutdown.clone(),
         );
         tokio::spawn(Arc::clone(&queue).schedule());
-        tokio::spawn(stop_on_signal(shutdown.clone()));
+        tokio::spawn(stop_on_signal(shutdown.clone(), config.stop_on_hangup));
         let app = http::router(http::AppState {
             queue: Arc::clone(&queue),
             roots,
@@ -127,32 +129,43 @@ fn check_exposure(config: &ServeConfig) -> Result<(), ServiceError> {
     }
 }
 
-async fn stop_on_signal(shutdown: CancellationToken) {
+async fn stop_on_signal(shutdown: CancellationToken, hangup: bool) {
     let ctrl_c = tokio::signal::ctrl_c();
     // SIGTERM (systemd, `kill`) and SIGHUP (the terminal closed) stop it as Ctrl-C does, as
     // they stop `isostream run`: by default SIGHUP killed the process on the spot, leaving its
-    // running jobs' temporary files behind.
+    // running jobs' temporary files behind. Not SIGHUP when it was ignored at start (`nohup`):
+    // listening for it would install a handler over that.
     #[cfg(unix)]
     {
         use tokio::signal::unix::{SignalKind, signal};
-        match (
-            signal(SignalKind::terminate()),
-            signal(SignalKind::hangup()),
-        ) {
-            (Ok(mut term), Ok(mut hup)) => {
+        let hup = if hangup {
+            signal(SignalKind::hangup()).ok()
+        } else {
+            None
+        };
+        let hung_up = async move {
+            match hup {
+                Some(mut hup) => {
+                    hup.recv().await;
+                }
+                None => std::future::pending::<()>().await,
+            }
+        };
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
                 tokio::select! {
                     _ = ctrl_c => {}
                     _ = term.recv() => {}
-                    _ = hup.recv() => {}
+                    () = hung_up => {}
                 }
             }
-            _ => {
+            Err(_) => {
                 let _ = ctrl_c.await;
             }
         }
     }
     #[cfg(not(unix))]
-    let _ = ctrl_c.await;
+    let _ = (ctrl_c.await, hangup);
     info!("shutting down: running jobs are interrupted and will restart on the next start");
     shutdown.cancel();
 }
@@ -169,6 +182,7 @@ mod tests {
             token: token.map(String::from),
             max_parallel_jobs: 1,
             max_queued_jobs: 1,
+            stop_on_hangup: true,
         }
     }
 
