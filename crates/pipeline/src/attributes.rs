@@ -361,9 +361,15 @@ impl SliceReader {
     /// Opens a job's iso volume and attributes (`[input]`, `[[attributes]]`).
     ///
     /// # Errors
-    /// A volume cannot be opened, or an attribute's grid differs from the iso volume's.
+    /// A volume cannot be opened, an attribute's grid differs from the iso volume's, or the
+    /// slices held whole do not fit the machine's memory.
     pub fn open(job: &JobConfig) -> Result<Self, RunError> {
         let iso = crate::open_source(&job.input)?;
+        crate::source::check_attribute_slice_memory(
+            iso.as_ref(),
+            job.attributes.len(),
+            crate::rss::physical_memory_bytes(),
+        )?;
         let attributes = open(&job.attributes, &job.input, iso.grid())?;
         Ok(Self::new(iso, attributes))
     }

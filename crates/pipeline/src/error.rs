@@ -71,7 +71,7 @@ pub enum RunError {
         what: &'static str,
     },
     #[error(
-        "{input}: slices of {nx} x {ny} voxels are read whole as f32, and {slices} of them take {need_gib:.1} GiB, more than this machine's {physical_gib:.1} GiB of memory (nothing was run): use a smaller grid ([input] size, or a cropped file), or see a coarser volume through [input] upsample (read row by row)"
+        "{input}: slices of {nx} x {ny} voxels are read whole as f32, and {slices} of them take {need_gib:.1} GiB, more than this machine's {physical_gib:.1} GiB of memory (nothing was run): {fix}"
     )]
     SliceMemory {
         input: String,
@@ -80,6 +80,7 @@ pub enum RunError {
         slices: u64,
         need_gib: f64,
         physical_gib: f64,
+        fix: &'static str,
     },
     #[error("interrupted: no output was written (the partial file was removed)")]
     Cancelled,

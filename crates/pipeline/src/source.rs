@@ -74,23 +74,59 @@ const SLICES_HELD: u64 = 4;
 /// kernel's out-of-memory kill instead. Checked where the volume is opened, so that
 /// `validate`, the service's admission and `run` all say it before any work.
 fn check_slice_memory(source: &dyn VolumeSource, physical: Option<u64>) -> Result<(), RunError> {
+    slices_fit(
+        &source.describe(),
+        source.grid().dims,
+        SLICES_HELD,
+        "use a smaller grid ([input] size, or a cropped file), or see a coarser volume through [input] upsample (read row by row)",
+        physical,
+    )
+}
+
+/// With `[[attributes]]`, the iso volume's slices and every attribute's are held whole, on
+/// the upsampled grid when there is one (`SliceReader`): checked on that grid, for all of them.
+pub(crate) fn check_attribute_slice_memory(
+    iso: &dyn VolumeSource,
+    attributes: usize,
+    physical: Option<u64>,
+) -> Result<(), RunError> {
+    if attributes == 0 {
+        return Ok(());
+    }
+    slices_fit(
+        &iso.describe(),
+        iso.grid().dims,
+        SLICES_HELD * (1 + attributes as u64),
+        "use a smaller grid or upsampling factor, or fewer [[attributes]] (with attributes, upsampled slices are held whole too)",
+        physical,
+    )
+}
+
+/// Whether `slices` whole `f32` slices of `dims` fit in `physical` bytes (unknown: yes).
+fn slices_fit(
+    input: &str,
+    dims: [u64; 3],
+    slices: u64,
+    fix: &'static str,
+    physical: Option<u64>,
+) -> Result<(), RunError> {
     let Some(physical) = physical else {
         return Ok(());
     };
-    let dims = source.grid().dims;
     let need = dims[0]
         .saturating_mul(dims[1])
-        .saturating_mul(4 * SLICES_HELD);
+        .saturating_mul(4u64.saturating_mul(slices));
     if need <= physical {
         return Ok(());
     }
     Err(RunError::SliceMemory {
-        input: source.describe(),
+        input: input.to_string(),
         nx: dims[0],
         ny: dims[1],
-        slices: SLICES_HELD,
+        slices,
         need_gib: need as f64 / f64::from(1u32 << 30),
         physical_gib: physical as f64 / f64::from(1u32 << 30),
+        fix,
     })
 }
 
@@ -145,6 +181,30 @@ mod tests {
         assert!(
             check_slice_memory(&wide, None).is_ok(),
             "unknown memory: not refused"
+        );
+    }
+
+    /// With attributes, upsampled slices are held whole, the attributes' too: checked on the
+    /// upsampled grid (a 20,000^2 sphere upsampled 4x with one attribute passed before).
+    #[test]
+    fn attribute_slices_are_checked_on_the_upsampled_grid() {
+        let source =
+            Procedural::new(Shape::Sphere, [20_000, 20_000, 4], [1.0; 3], [0.0; 3]).unwrap();
+        assert!(
+            check_slice_memory(&source, Some(64 << 30)).is_ok(),
+            "the source fits"
+        );
+        let up = Upsampled::new(Box::new(source), [4, 4, 1]).unwrap();
+        let err = check_attribute_slice_memory(&up, 1)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("79997 x 79997") && err.contains("fewer [[attributes]]"),
+            "{err}"
+        );
+        assert!(
+            check_attribute_slice_memory(&up, 0, Some(64 << 30)).is_ok(),
+            "rows on demand without them"
         );
     }
 

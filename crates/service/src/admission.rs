@@ -182,6 +182,11 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
         )
     })?;
     isostream_pipeline::open_source(&job.input).map_err(|e| ApiError::bad_job(e.to_string()))?;
+    // Attribute files too, as `isostream validate` opens them (and the slices they hold).
+    if !job.attributes.is_empty() {
+        isostream_pipeline::SliceReader::open(&job)
+            .map_err(|e| ApiError::bad_job(e.to_string()))?;
+    }
     let toml = toml::to_string(&job)
         .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))?;
     Ok(Admitted { job, toml })
