@@ -195,7 +195,7 @@ mod tests {
             "the source fits"
         );
         let up = Upsampled::new(Box::new(source), [4, 4, 1]).unwrap();
-        let err = check_attribute_slice_memory(&up, 1)
+        let err = check_attribute_slice_memory(&up, 1, Some(64 << 30))
             .unwrap_err()
             .to_string();
         assert!(
