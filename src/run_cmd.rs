@@ -174,6 +174,7 @@ pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
         let stop = Arc::clone(&stop);
         ctrlc::set_handler(move || stop.store(true, Ordering::Relaxed))
             .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
+        crate::keep_hangup_ignored();
     }
     // The output's folder is created when missing, as `run` creates its output's.
     if let Some(dir) = output

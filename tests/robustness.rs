@@ -116,6 +116,58 @@ fn long_job(dir: &Path) -> String {
     )
 }
 
+/// `cmd` with SIGHUP at its default disposition in the child, whatever the test runner's: a
+/// runner started under `nohup` hands its children SIGHUP ignored, and a run started so keeps
+/// it ignored (`main::keep_hangup_ignored`).
+#[cfg(unix)]
+fn hangup_default(cmd: &mut Command) -> &mut Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child before exec,
+    // where only async-signal-safe calls are allowed; `signal` is one.
+    #[allow(unsafe_code)]
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::signal(libc::SIGHUP, libc::SIG_DFL);
+            Ok(())
+        })
+    }
+}
+
+/// Under `nohup` (SIGHUP ignored from the start) a run is not stopped by a hangup.
+#[cfg(unix)]
+#[test]
+fn under_nohup_a_hangup_does_not_stop_a_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"gyroid\"\nsize = [64, 64, 64]\n[extract]\niso = 0.0\n[output]\npath = \"g.smb\"\n",
+    );
+    let mut cmd = bin();
+    cmd.args(["run", &job]);
+    use std::os::unix::process::CommandExt;
+    // SAFETY: as in `hangup_default`, with SIGHUP ignored instead.
+    #[allow(unsafe_code)]
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let child = cmd.spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !leftovers(dir.path(), &[])
+        .iter()
+        .any(|n| n.ends_with(".tmp"))
+    {
+        assert!(Instant::now() < deadline, "no temporary output appeared");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    kill(&child, "HUP");
+    let o = wait_at_most(child, 60);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("g.smb").exists());
+}
+
 /// SIGTERM and SIGHUP stop a run like Ctrl-C: exit 130, one line, no file left behind.
 #[cfg(unix)]
 #[test]
@@ -123,7 +175,7 @@ fn term_and_hup_stop_like_ctrl_c() {
     for signal in ["TERM", "HUP"] {
         let dir = tempfile::tempdir().unwrap();
         let job = long_job(dir.path());
-        let child = bin().args(["run", &job]).spawn().unwrap();
+        let child = hangup_default(bin().args(["run", &job])).spawn().unwrap();
         // Wait until the run is writing (its temporary file exists), then signal it.
         let deadline = Instant::now() + Duration::from_secs(30);
         while !leftovers(dir.path(), &[])

@@ -30,7 +30,23 @@ struct Server {
 
 impl Server {
     fn start(state: &Path, args: &[&str]) -> Server {
-        Self::start_under(Command::new(BIN), state, args)
+        let mut command = Command::new(BIN);
+        // SIGHUP at its default disposition, whatever the test runner's: a runner started
+        // under `nohup` hands its children SIGHUP ignored, which the service then keeps.
+        #[cfg(unix)]
+        {
+            use std::os::unix::process::CommandExt;
+            // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child before
+            // exec, where only async-signal-safe calls are allowed; `signal` is one.
+            #[allow(unsafe_code)]
+            unsafe {
+                command.pre_exec(|| {
+                    libc::signal(libc::SIGHUP, libc::SIG_DFL);
+                    Ok(())
+                });
+            }
+        }
+        Self::start_under(command, state, args)
     }
 
     /// Started through `nohup`: SIGHUP ignored from the start, as a terminal's user leaves it.
