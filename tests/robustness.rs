@@ -240,7 +240,8 @@ fn small_job(dir: &Path, output: &str) -> String {
     )
 }
 
-/// Temporary files a killed run left are reported at start, and removed by `--clean-stale`.
+/// Temporary files a killed run left are reported at start, and removed by `--clean-stale`;
+/// checkpoints it was still writing (of no use to anyone) are removed at once.
 #[test]
 fn stale_temporary_files_are_reported_then_cleaned() {
     let dir = tempfile::tempdir().unwrap();
@@ -248,6 +249,8 @@ fn stale_temporary_files_are_reported_then_cleaned() {
     std::fs::create_dir(dir.path().join("out")).unwrap();
     let stale = dir.path().join("out/.m.smb.Ab12cD.tmp");
     std::fs::write(&stale, b"partial").unwrap();
+    let unfinished = dir.path().join("out/.m.smb.ckpt.Zz98yX.tmp");
+    std::fs::write(&unfinished, b"half a checkpoint").unwrap();
     let o = bin().args(["run", &job]).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
     let err = stderr(&o);
@@ -256,6 +259,8 @@ fn stale_temporary_files_are_reported_then_cleaned() {
         "{err}"
     );
     assert!(stale.exists(), "reported only, not removed");
+    assert!(!unfinished.exists(), "an unfinished checkpoint is removed");
+    assert!(!err.contains("ckpt"), "{err}");
     let o = bin().args(["run", "--clean-stale", &job]).output().unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!stale.exists());
