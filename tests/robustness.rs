@@ -116,6 +116,17 @@ fn long_job(dir: &Path) -> String {
     )
 }
 
+/// Waits (at most 30 s) until a temporary file appears in `dir` beside `inputs`: the command
+/// started writing its output.
+#[cfg(unix)]
+fn wait_for_a_temporary_file(dir: &Path, inputs: &[&str]) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !leftovers(dir, inputs).iter().any(|n| n.ends_with(".tmp")) {
+        assert!(Instant::now() < deadline, "no temporary output appeared");
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 /// `cmd` with SIGHUP at its default disposition in the child, whatever the test runner's: a
 /// runner started under `nohup` hands its children SIGHUP ignored, and a run started so keeps
 /// it ignored (`main::keep_hangup_ignored`).
@@ -154,14 +165,7 @@ fn under_nohup_a_hangup_does_not_stop_a_run() {
         });
     }
     let child = cmd.spawn().unwrap();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !leftovers(dir.path(), &[])
-        .iter()
-        .any(|n| n.ends_with(".tmp"))
-    {
-        assert!(Instant::now() < deadline, "no temporary output appeared");
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_for_a_temporary_file(dir.path(), &[]);
     kill(&child, "HUP");
     let o = wait_at_most(child, 60);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -177,14 +181,7 @@ fn term_and_hup_stop_like_ctrl_c() {
         let job = long_job(dir.path());
         let child = hangup_default(bin().args(["run", &job])).spawn().unwrap();
         // Wait until the run is writing (its temporary file exists), then signal it.
-        let deadline = Instant::now() + Duration::from_secs(30);
-        while !leftovers(dir.path(), &[])
-            .iter()
-            .any(|n| n.ends_with(".tmp"))
-        {
-            assert!(Instant::now() < deadline, "no temporary output appeared");
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        wait_for_a_temporary_file(dir.path(), &[]);
         kill(&child, signal);
         let o = wait_at_most(child, 30);
         assert_one_line_error(&o, 130, &["interrupted"]);
@@ -213,14 +210,7 @@ fn convert_stops_on_a_signal_and_leaves_nothing() {
     let full = dir.path().join("full.smb").to_string_lossy().into_owned();
     let obj = dir.path().join("full.obj").to_string_lossy().into_owned();
     let child = bin().args(["convert", &full, &obj]).spawn().unwrap();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !leftovers(dir.path(), &inputs)
-        .iter()
-        .any(|n| n.ends_with(".tmp"))
-    {
-        assert!(Instant::now() < deadline, "no temporary output appeared");
-        std::thread::sleep(Duration::from_millis(1));
-    }
+    wait_for_a_temporary_file(dir.path(), &inputs);
     kill(&child, "TERM");
     let o = wait_at_most(child, 30);
     assert_one_line_error(&o, 130, &["full.obj", "interrupted"]);
