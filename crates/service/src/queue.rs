@@ -556,7 +556,7 @@ impl Queue {
             Err(e) => {
                 self.metrics.error(run_error_kind(&e));
                 job.record.state = JobState::Failed;
-                job.record.error = Some(e.to_string().replace('\n', " "));
+                job.record.error = Some(for_a_client(&e.to_string()));
                 job.config = None;
                 warn!(error = %e, "run failed");
             }
@@ -590,6 +590,15 @@ impl Queue {
         self.runs.close();
         self.runs.wait().await;
     }
+}
+
+/// A run's error as a client of the service reads it: one line, and without advice only the
+/// command line can follow (a client chooses no output folder: the service's is its state).
+fn for_a_client(error: &str) -> String {
+    error.replace('\n', " ").replace(
+        "free space on that disk or choose another output folder",
+        "free space on the disk of the service's state folder",
+    )
 }
 
 /// The files of a job's checkpoint (kept while the job may resume from it).
@@ -627,5 +636,19 @@ fn run_error_kind(e: &RunError) -> &'static str {
         | RunError::ResumeMismatch { .. }
         | RunError::InputChanged { .. } => "run_checkpoint",
         RunError::Internal { .. } => "run_internal",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn errors_reach_clients_on_one_line_with_advice_they_can_follow() {
+        let full = "out/output.smb: cannot write: No space left on device; free space on that disk or choose another output folder\nmore";
+        assert_eq!(
+            for_a_client(full),
+            "out/output.smb: cannot write: No space left on device; free space on the disk of the service's state folder more"
+        );
     }
 }
