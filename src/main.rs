@@ -80,7 +80,21 @@ pub(crate) fn keep_hangup_ignored() {}
 fn main() -> ExitCode {
     fixed_mmap_threshold();
     let _ = HANGUP_IGNORED.set(hangup_ignored_at_start());
-    let cli = cli::Cli::parse();
+    let cli = match cli::Cli::try_parse() {
+        Ok(cli) => cli,
+        // --help and --version (exit 0), and the help shown for a bare `isostream` (exit 2):
+        // their text as clap lays it out.
+        Err(e)
+            if !e.use_stderr()
+                || e.kind() == clap::error::ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand =>
+        {
+            e.exit()
+        }
+        Err(e) => {
+            eprintln!("{}", one_line_usage_error(&e.render().to_string()));
+            return ExitCode::from(2);
+        }
+    };
     match cli.command.execute() {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
@@ -89,6 +103,20 @@ fn main() -> ExitCode {
             ExitCode::from(code)
         }
     }
+}
+
+/// clap's usage error on one line, as every other error: its lines joined (the usage kept, as
+/// it says what is missing), without the blank lines and the "For more information" one.
+fn one_line_usage_error(text: &str) -> String {
+    let parts: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("For more information"))
+        .collect();
+    format!(
+        "{} (--help for more)",
+        parts.join(" ").replace(" Usage:", "; usage:")
+    )
 }
 
 /// Joins the context chain into one line: "reading job a.toml: a.toml:3: unknown field ...".

@@ -175,3 +175,26 @@ fn ctrl_c_stops_with_130_and_leaves_no_file() {
         leftovers(dir.path())
     );
 }
+
+/// A bad command line is one line too (clap's layout spread it over five, a blank line and a
+/// "For more information" among them), naming what is wrong, exit 2; `--help` keeps its text.
+#[test]
+fn command_line_errors_are_one_line() {
+    for (args, needles) in [
+        (&["run"][..], &["<JOB>", "usage: isostream run"][..]),
+        (&["frobnicate"], &["unrecognized subcommand 'frobnicate'"]),
+        (
+            &["serve", "--listen", "example.org:1"],
+            &["--listen", "is not IP:PORT"],
+        ),
+        (&["run", "--bogus", "x.toml"], &["'--bogus'"]),
+    ] {
+        let o = isostream(args);
+        assert_one_line_error(&o, 2, needles);
+        let lines = stderr(&o).lines().filter(|l| !l.trim().is_empty()).count();
+        assert_eq!(lines, 1, "{}", stderr(&o));
+    }
+    let o = isostream(&["run", "--help"]);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).lines().count() > 3);
+}
