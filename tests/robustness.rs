@@ -127,18 +127,18 @@ fn wait_for_a_temporary_file(dir: &Path, inputs: &[&str]) {
     }
 }
 
-/// `cmd` with SIGHUP at its default disposition in the child, whatever the test runner's: a
-/// runner started under `nohup` hands its children SIGHUP ignored, and a run started so keeps
-/// it ignored (`main::keep_hangup_ignored`).
+/// `cmd` with SIGHUP's disposition in the child set to `disposition` (`SIG_DFL`, `SIG_IGN`),
+/// whatever the test runner's: a runner started under `nohup` hands its children SIGHUP
+/// ignored, and a run started so keeps it ignored (`main::keep_hangup_ignored`).
 #[cfg(unix)]
-fn hangup_default(cmd: &mut Command) -> &mut Command {
+fn with_hangup(cmd: &mut Command, disposition: libc::sighandler_t) -> &mut Command {
     use std::os::unix::process::CommandExt;
     // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child before exec,
     // where only async-signal-safe calls are allowed; `signal` is one.
     #[allow(unsafe_code)]
     unsafe {
-        cmd.pre_exec(|| {
-            libc::signal(libc::SIGHUP, libc::SIG_DFL);
+        cmd.pre_exec(move || {
+            libc::signal(libc::SIGHUP, disposition);
             Ok(())
         })
     }
@@ -154,16 +154,7 @@ fn under_nohup_a_hangup_does_not_stop_a_run() {
         "[input]\nshape = \"gyroid\"\nsize = [64, 64, 64]\n[extract]\niso = 0.0\n[output]\npath = \"g.smb\"\n",
     );
     let mut cmd = bin();
-    cmd.args(["run", &job]);
-    use std::os::unix::process::CommandExt;
-    // SAFETY: as in `hangup_default`, with SIGHUP ignored instead.
-    #[allow(unsafe_code)]
-    unsafe {
-        cmd.pre_exec(|| {
-            libc::signal(libc::SIGHUP, libc::SIG_IGN);
-            Ok(())
-        });
-    }
+    with_hangup(cmd.args(["run", &job]), libc::SIG_IGN);
     let child = cmd.spawn().unwrap();
     wait_for_a_temporary_file(dir.path(), &[]);
     kill(&child, "HUP");
@@ -179,7 +170,9 @@ fn term_and_hup_stop_like_ctrl_c() {
     for signal in ["TERM", "HUP"] {
         let dir = tempfile::tempdir().unwrap();
         let job = long_job(dir.path());
-        let child = hangup_default(bin().args(["run", &job])).spawn().unwrap();
+        let child = with_hangup(bin().args(["run", &job]), libc::SIG_DFL)
+            .spawn()
+            .unwrap();
         // Wait until the run is writing (its temporary file exists), then signal it.
         wait_for_a_temporary_file(dir.path(), &[]);
         kill(&child, signal);
