@@ -21,8 +21,8 @@ pub enum Command {
         /// No progress bar even on a terminal.
         #[arg(long)]
         quiet: bool,
-        /// Remove temporary files an interrupted run of the same output left next to it
-        /// (`.NAME.XXXXXX.tmp`); without it they are only reported.
+        /// Remove temporary files an interrupted run or conversion of the same output left next
+        /// to it (`.NAME.XXXXXX.tmp`); without it they are only reported.
         #[arg(long)]
         clean_stale: bool,
         /// Continue from the checkpoint an interrupted run of this job left (after checking that
@@ -42,6 +42,10 @@ pub enum Command {
         /// Print the counts as JSON instead of a sentence.
         #[arg(long)]
         json: bool,
+        /// Remove temporary files an interrupted run or conversion of the same output left next
+        /// to it (`.NAME.XXXXXX.tmp`); without it they are only reported.
+        #[arg(long)]
+        clean_stale: bool,
     },
     /// Check a streaming mesh file: indices, finalization, header counts, finite coordinates,
     /// stream width.
@@ -108,7 +112,8 @@ impl Command {
                 input,
                 output,
                 json,
-            } => crate::run_cmd::convert(&input, &output, json),
+                clean_stale,
+            } => crate::run_cmd::convert(&input, &output, json, clean_stale),
             Command::Check { mesh, json } => crate::run_cmd::check(&mesh, json),
             Command::Measure {
                 volume,

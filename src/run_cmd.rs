@@ -64,7 +64,7 @@ pub fn run(
     // Held until the run ends: a second job on the same output is refused, and temporary files
     // of this output found now cannot belong to a live run.
     let _lock = isostream_pipeline::lock_output(&job.output.path)?;
-    stale_files(&job.output.path, clean_stale)?;
+    stale_files(&job.output.path, clean_stale, "run")?;
     // A bar for a person at a terminal; JSON logs are for machines, which get the periodic
     // `progress` lines instead.
     let bar = (!quiet && std::io::stderr().is_terminal() && job.log.format != LogFormat::Json)
@@ -83,8 +83,10 @@ pub fn run(
     Ok(())
 }
 
-/// Reports (or with `--clean-stale` removes) what interrupted runs of this output left behind.
-fn stale_files(output: &Path, clean: bool) -> anyhow::Result<()> {
+/// Reports (or with `--clean-stale` removes) what interrupted runs or conversions of this output
+/// left behind; `command` (`run` or `convert`) names the command whose `--clean-stale` removes
+/// them. Called with the output's lock held, so no live process owns what it finds.
+fn stale_files(output: &Path, clean: bool, command: &str) -> anyhow::Result<()> {
     let mut stale = isostream_pipeline::stale_temp_files(output);
     // Checkpoints a killed run was still writing (`.NAME.ckpt.XXXXXX.tmp`) hold nothing a run
     // can use (only a finished checkpoint is resumed from) and nothing else refers to them, and
@@ -112,7 +114,7 @@ fn stale_files(output: &Path, clean: bool) -> anyhow::Result<()> {
         tracing::info!(files = %names.join(", "), "removed stale temporary files");
     } else {
         tracing::warn!(
-            "{} stale temporary file(s) of {} left by an interrupted run: {}; `isostream run --clean-stale` removes them",
+            "{} stale temporary file(s) of {} left by an interrupted run or conversion: {}; `isostream {command} --clean-stale` removes them",
             stale.len(),
             output.display(),
             names.join(", ")
@@ -180,7 +182,7 @@ pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow:
     Ok(())
 }
 
-pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
+pub fn convert(input: &Path, output: &Path, json: bool, clean_stale: bool) -> anyhow::Result<()> {
     // Ctrl-C, SIGTERM and SIGHUP stop a conversion as they stop a run: its temporary file
     // removed, exit code 130 (killed by the signal, it was left behind).
     let stop = Arc::new(AtomicBool::new(false));
@@ -198,6 +200,20 @@ pub fn convert(input: &Path, output: &Path, json: bool) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
     }
+    // The same lock as a run's: a run and a conversion (or two conversions) never write one
+    // file at once, and temporary files of this output found now are stale.
+    let _lock = isostream_pipeline::lock_output(output).map_err(|e| match e {
+        isostream_pipeline::RunError::Locked { lock, .. } => anyhow::anyhow!(
+            "{}: another isostream run or conversion is writing this file (it holds {}); wait for it to finish or convert to another file",
+            output.display(),
+            lock.display()
+        ),
+        other => other.into(),
+    })?;
+    // Text logs at the default level (a conversion has no job file to configure them): the
+    // stale files' notice is a warning like a run's.
+    crate::logging::init(&isostream_pipeline::LogConfig::default(), None);
+    stale_files(output, clean_stale, "convert")?;
     let options = isostream_smesh::ConvertOptions::default();
     let stats = isostream_smesh::convert_until(input, output, &options, &stop)?;
     let w = &stats.written;

@@ -252,6 +252,42 @@ fn stale_temporary_files_are_reported_then_cleaned() {
     assert_eq!(left, ["m.smb", "m.smb.run.json"]);
 }
 
+/// `convert` treats its output as a run does: temporary files a killed conversion left are
+/// reported (removed with `convert --clean-stale`), and a file a run or another conversion is
+/// writing (its lock held) is refused, the lock's holder untouched.
+#[test]
+fn convert_reports_stale_files_and_respects_the_lock() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, mesh) = sphere_mesh(dir.path(), "m.smb");
+    let stale = dir.path().join(".m.ply.Qw12eR.tmp");
+    std::fs::write(&stale, b"half a ply").unwrap();
+    let ply = dir.path().join("m.ply").to_string_lossy().into_owned();
+    let o = bin().args(["convert", &mesh, &ply]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(
+        err.contains(".m.ply.Qw12eR.tmp") && err.contains("isostream convert --clean-stale"),
+        "{err}"
+    );
+    assert!(stale.exists(), "reported only, not removed");
+    let o = bin()
+        .args(["convert", "--clean-stale", &mesh, &ply])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stale.exists());
+
+    let lock = isostream_pipeline::lock_output(&dir.path().join("m.obj")).unwrap();
+    let obj = dir.path().join("m.obj").to_string_lossy().into_owned();
+    let o = bin().args(["convert", &mesh, &obj]).output().unwrap();
+    assert_one_line_error(&o, 1, &["m.obj", "another isostream run or conversion"]);
+    assert!(!dir.path().join("m.obj").exists());
+    drop(lock);
+    let mut left = leftovers(dir.path(), &["m.smb", "m.smb.run.json", "m.ply"]);
+    left.sort();
+    assert!(left.is_empty(), "{left:?}");
+}
+
 /// Two jobs on one output: the second is refused while the first holds the output's lock.
 #[test]
 fn second_job_on_the_same_output_is_refused() {
