@@ -28,6 +28,11 @@ pub enum ServiceError {
     AllowInput { path: PathBuf, reason: String },
     #[error("state folder {}: {reason}; choose a writable --state folder", path.display())]
     State { path: PathBuf, reason: String },
+    #[error(
+        "state folder {}: another isostream serve is using it; stop that service or choose another --state folder",
+        path.display()
+    )]
+    StateInUse { path: PathBuf },
     #[error("{}: {reason} (the keys are those of docs/service.md's flags)", path.display())]
     Config { path: PathBuf, reason: String },
     #[error("cannot listen on {addr}: {source}")]

@@ -114,9 +114,8 @@ impl Store {
         match lock.try_lock() {
             Ok(()) => {}
             Err(std::fs::TryLockError::WouldBlock) => {
-                return Err(ServiceError::State {
+                return Err(ServiceError::StateInUse {
                     path: state_dir.to_path_buf(),
-                    reason: "another isostream serve is using it".into(),
                 });
             }
             Err(std::fs::TryLockError::Error(e)) => return Err(fail(e)),
@@ -289,7 +288,10 @@ mod tests {
         std::fs::write(theirs.join("thesis.tex"), b"precious").unwrap();
 
         let err = Store::open(dir.path()).unwrap_err().to_string();
-        assert!(err.contains("another isostream serve"), "{err}");
+        assert!(
+            err.contains("another isostream serve") && !err.contains("writable"),
+            "{err}"
+        );
         drop(store);
         let store = Store::open(dir.path()).unwrap();
         let loaded = store.load_all();
