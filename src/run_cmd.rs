@@ -10,13 +10,10 @@ use isostream_pipeline::{JobConfig, LogFormat, Progress, RunSummary};
 
 pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
-    // Opening the source checks the input file (exists, size matches dims and type).
-    let source = isostream_pipeline::open_source(&job.input)?;
+    // The input file (exists, size matches dims and type), the attributes' files (on the iso
+    // volume's grid) and the output format's index limit, as `run` checks them.
+    let source = isostream_pipeline::preflight(&job)?;
     let grid = source.grid();
-    // And the attributes: each file exists, opens, and is on the iso volume's grid.
-    if !job.attributes.is_empty() {
-        isostream_pipeline::SliceReader::open(&job)?;
-    }
     println!(
         "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
         job_path.display(),

@@ -367,4 +367,12 @@ fn attribute_settings_are_validated() {
     let o = isostream(&["validate", &j.to_string_lossy()]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("attributes[1].derive"));
+    // A position's name: refused by `validate` (the writer refused it only once running).
+    let body = std::fs::read_to_string(job(dir.path(), "x.toml", "", "x.ply"))
+        .unwrap()
+        .replace("name = \"grad\"", "name = \"y\"");
+    std::fs::write(&j, body).unwrap();
+    let o = isostream(&["validate", &j.to_string_lossy()]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("attributes[1].name"));
 }

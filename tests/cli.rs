@@ -87,6 +87,25 @@ fn impossible_rate_names_the_key() {
     );
 }
 
+/// A job whose output format cannot index what it could write is refused by `validate` as by
+/// `run`, before any work (a procedural 2000^3 sphere kept whole is not generated).
+#[test]
+fn validate_refuses_an_output_past_its_index_limit() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"sphere\"\nsize = [2000, 2000, 2000]\n[extract]\niso = 0.0\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n",
+    );
+    for command in ["validate", "run"] {
+        assert_one_line_error(
+            &isostream(&[command, &job]),
+            2,
+            &["o.smb", "could write up to", ".sma"],
+        );
+    }
+    assert!(!dir.path().join("o.smb").exists());
+}
+
 #[test]
 fn wrong_dims_name_the_file_and_both_sizes() {
     let dir = tempfile::tempdir().unwrap();

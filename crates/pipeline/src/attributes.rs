@@ -80,6 +80,16 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
                 format!("{:?}", a.name),
             ));
         }
+        // The output formats name the position properties x, y and z (PLY, SMA): an attribute
+        // of one of those names could not be told from them (the writer refused it only once
+        // the run had started).
+        if ["x", "y", "z"].contains(&a.name.as_str()) {
+            return Err(bad(
+                key("name"),
+                "a name other than x, y and z (the positions' names in the output)",
+                format!("{:?}", a.name),
+            ));
+        }
         if job.attributes[..i].iter().any(|b| b.name == a.name) {
             return Err(bad(key("name"), "a name used once", a.name.clone()));
         }

@@ -25,7 +25,7 @@ fn vertex_limit(output: &Path) -> Option<(u64, &'static str)> {
 /// Most vertices the job could write: every surface vertex lies on its own grid edge (3 per
 /// voxel at most); a rate keeps that share of them; a face target `N` needs about `N / 2`
 /// vertices on a closed surface, bounded here by `N`.
-pub(crate) fn vertex_bound(job: &JobConfig, voxels: u64, rate: f64) -> u64 {
+fn vertex_bound(job: &JobConfig, voxels: u64, rate: f64) -> u64 {
     let edges = voxels.saturating_mul(3);
     match (job.simplify.mode, job.output.faces) {
         (Mode::Rate, Some(faces)) => faces.min(edges),
@@ -34,8 +34,14 @@ pub(crate) fn vertex_bound(job: &JobConfig, voxels: u64, rate: f64) -> u64 {
     }
 }
 
+/// Refuses a job on a grid of `voxels` whose output format cannot index the vertices it could
+/// write.
+pub(crate) fn check_job(job: &JobConfig, voxels: u64) -> Result<(), RunError> {
+    check(job, vertex_bound(job, voxels, job.simplify.rate()))
+}
+
 /// Refuses a job whose output format cannot index `bound` vertices.
-pub(crate) fn check(job: &JobConfig, bound: u64) -> Result<(), RunError> {
+fn check(job: &JobConfig, bound: u64) -> Result<(), RunError> {
     match vertex_limit(&job.output.path) {
         Some((limit, what)) if bound > limit => Err(RunError::IndexLimit {
             output: job.output.path.clone(),

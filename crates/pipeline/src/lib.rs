@@ -48,7 +48,7 @@ pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
 pub use output::{OutputLock, lock_output, lock_path, one_file, stale_temp_files};
 pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
-pub use source::open_source;
+pub use source::{open_source, preflight};
 pub use stages::{Progress, StageSeconds};
 
 /// What a finished run reports (logged, and written as `<output>.run.json`).
@@ -194,11 +194,8 @@ fn run_job(
         warn!(input = %input, "the input's encoding forces decoding the whole volume at once (one chunk spans every slice): memory grows with the volume; re-chunk it along z");
     }
 
+    index_limit::check_job(job, grid.voxel_count())?;
     let rate = job.simplify.rate();
-    index_limit::check(
-        job,
-        index_limit::vertex_bound(job, grid.voxel_count(), rate),
-    )?;
     let prune = NonZeroU64::new(job.simplify.min_component_faces);
     // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts,
     // and the stage count on large slices the largest slab's (a resumed run counts again and

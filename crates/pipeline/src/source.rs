@@ -2,7 +2,7 @@
 
 use isostream_volume::{Grid, Procedural, Upsampled, VolumeError, VolumeSource};
 
-use crate::config::InputConfig;
+use crate::config::{InputConfig, JobConfig};
 use crate::error::RunError;
 
 /// Opens the volume a job names: a procedural shape, or a file in any format `volume` reads,
@@ -15,6 +15,19 @@ pub fn open_source(input: &InputConfig) -> Result<Box<dyn VolumeSource>, RunErro
         origin: source.describe(),
         problem,
     })?;
+    Ok(source)
+}
+
+/// Everything a job's inputs can be checked for before any work, as `run` checks it: the
+/// volume opens (with `upsample`), its attribute volumes open on its grid, and the output
+/// format can index as many vertices as the job could write. `isostream validate` and the
+/// service's admission call this, so neither accepts a job that `run` refuses at once.
+pub fn preflight(job: &JobConfig) -> Result<Box<dyn VolumeSource>, RunError> {
+    let source = open_source(&job.input)?;
+    if !job.attributes.is_empty() {
+        crate::attributes::SliceReader::open(job)?;
+    }
+    crate::index_limit::check_job(job, source.grid().voxel_count())?;
     Ok(source)
 }
 

@@ -181,12 +181,14 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
                 .replace(&rewritten, &requested.display().to_string()),
         )
     })?;
-    isostream_pipeline::open_source(&job.input).map_err(|e| ApiError::bad_job(e.to_string()))?;
-    // Attribute files too, as `isostream validate` opens them (and the slices they hold).
-    if !job.attributes.is_empty() {
-        isostream_pipeline::SliceReader::open(&job)
-            .map_err(|e| ApiError::bad_job(e.to_string()))?;
-    }
+    // What `isostream validate` checks: the input and attribute files open (and the slices
+    // they hold fit), and the output format can index what the job could write.
+    isostream_pipeline::preflight(&job).map_err(|e| {
+        ApiError::bad_job(
+            e.to_string()
+                .replace(&rewritten, &requested.display().to_string()),
+        )
+    })?;
     let toml = toml::to_string(&job)
         .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))?;
     Ok(Admitted { job, toml })
@@ -233,6 +235,21 @@ mod tests {
         assert!(a.toml.contains("output.ply"), "{}", a.toml);
         let again = reload(&a.toml).unwrap();
         assert_eq!(again.output.path, a.job.output.path);
+    }
+
+    /// `isostream validate`'s checks past the job file: an output that cannot index what the
+    /// job could write is refused at submission, named as the client wrote it.
+    #[test]
+    fn an_output_past_its_index_limit_is_refused_at_submission() {
+        let text = SPHERE
+            .replace("[16, 16, 16]", "[2000, 2000, 2000]")
+            .replace("[output]", "[simplify]\nmode = \"none\"\n[output]");
+        let err = admit(&text, Path::new("/nonexistent"), &Roots::default()).unwrap_err();
+        assert_eq!(err.status, StatusCode::BAD_REQUEST);
+        assert!(
+            err.reason.contains("could write up to") && err.reason.contains("/etc/evil/out.ply"),
+            "{err:?}"
+        );
     }
 
     #[test]
