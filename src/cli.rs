@@ -46,6 +46,13 @@ pub enum Command {
         /// to it (`.NAME.XXXXXX.tmp`); without it they are only reported.
         #[arg(long)]
         clean_stale: bool,
+        /// A PLY output in ASCII instead of binary little-endian.
+        #[arg(long)]
+        ascii: bool,
+        /// A GLB output with area-weighted per-vertex normals (smooth shading; without them
+        /// viewers shade each triangle flat).
+        #[arg(long)]
+        normals: bool,
     },
     /// Check a streaming mesh file: indices, finalization, header counts, finite coordinates,
     /// stream width.
@@ -113,7 +120,12 @@ impl Command {
                 output,
                 json,
                 clean_stale,
-            } => crate::run_cmd::convert(&input, &output, json, clean_stale),
+                ascii,
+                normals,
+            } => {
+                let options = crate::run_cmd::convert_options(&output, ascii, normals)?;
+                crate::run_cmd::convert(&input, &output, &options, json, clean_stale)
+            }
             Command::Check { mesh, json } => crate::run_cmd::check(&mesh, json),
             Command::Measure {
                 volume,
@@ -133,3 +145,9 @@ impl Command {
         }
     }
 }
+
+/// A command line asking for what cannot be done (a flag the output has no use for): exit 2,
+/// like clap's own usage errors.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);

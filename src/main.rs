@@ -142,7 +142,12 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | RunError::EmptySurface { .. }
                 | RunError::ClassicalOverBudget { .. }
                 | RunError::IndexLimit { .. }
-                | RunError::SliceMemory { .. } => 2,
+                | RunError::SliceMemory { .. }
+                // The command asks for what cannot be done: a flag to add (`--resume` or
+                // `--restart`), or a resume of a job or input that changed since.
+                | RunError::CheckpointFound { .. }
+                | RunError::ResumeMismatch { .. }
+                | RunError::InputChanged { .. } => 2,
                 _ => 1,
             };
         }
@@ -185,6 +190,9 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | isostream_report::ReportError::OverInput { .. } => 2,
                 _ => 1,
             };
+        }
+        if cause.downcast_ref::<cli::UsageError>().is_some() {
+            return 2;
         }
         // measure: a job other than the one that made the mesh is bad input.
         if cause.downcast_ref::<measure_cmd::OtherJob>().is_some() {

@@ -179,7 +179,43 @@ pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow:
     Ok(())
 }
 
-pub fn convert(input: &Path, output: &Path, json: bool, clean_stale: bool) -> anyhow::Result<()> {
+/// `convert`'s output options from its flags; a flag the output's format has no use for is a
+/// usage error (exit 2), not silently ignored.
+pub fn convert_options(
+    output: &Path,
+    ascii: bool,
+    normals: bool,
+) -> anyhow::Result<isostream_smesh::ConvertOptions> {
+    use isostream_smesh::Format;
+    let format = Format::from_path(output)?;
+    for (set, flag, wants) in [
+        (ascii, "--ascii", Format::Ply),
+        (normals, "--normals", Format::Glb),
+    ] {
+        if set && format != wants {
+            return Err(crate::cli::UsageError(format!(
+                "{}: {flag} applies to a {wants:?} output only, not {format:?}; drop {flag} or change the output's extension",
+                output.display()
+            ))
+            .into());
+        }
+    }
+    Ok(isostream_smesh::ConvertOptions {
+        ply_encoding: match ascii {
+            true => isostream_smesh::PlyEncoding::Ascii,
+            false => isostream_smesh::PlyEncoding::BinaryLittleEndian,
+        },
+        normals,
+    })
+}
+
+pub fn convert(
+    input: &Path,
+    output: &Path,
+    options: &isostream_smesh::ConvertOptions,
+    json: bool,
+    clean_stale: bool,
+) -> anyhow::Result<()> {
     // Ctrl-C, SIGTERM and SIGHUP stop a conversion as they stop a run: its temporary file
     // removed, exit code 130 (killed by the signal, it was left behind).
     let stop = Arc::new(AtomicBool::new(false));
@@ -211,8 +247,7 @@ pub fn convert(input: &Path, output: &Path, json: bool, clean_stale: bool) -> an
     // stale files' notice is a warning like a run's.
     crate::logging::init(&isostream_pipeline::LogConfig::default(), None);
     stale_files(output, clean_stale, "convert")?;
-    let options = isostream_smesh::ConvertOptions::default();
-    let stats = isostream_smesh::convert_until(input, output, &options, &stop)?;
+    let stats = isostream_smesh::convert_until(input, output, options, &stop)?;
     let w = &stats.written;
     if json {
         let v = serde_json::json!({

@@ -323,7 +323,7 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     let job_arg = job.1.to_string_lossy().into_owned();
 
     let o = isostream(&["run", "--quiet", &job_arg]);
-    assert_one_line_error(&o, 1, &["found a checkpoint at", "add --resume"]);
+    assert_one_line_error(&o, 2, &["found a checkpoint at", "add --resume"]);
     assert_eq!(hidden_files(dir.path()), before);
 
     // Another iso value is another job.
@@ -331,7 +331,7 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
     assert_one_line_error(
         &o,
-        1,
+        2,
         &["the job file changed since the checkpoint", "--restart"],
     );
     load(dir.path(), "job.toml", &text("iso = 0.0"));

@@ -47,6 +47,45 @@ fn example_job_runs_and_converts() {
     }
 }
 
+/// `convert --ascii` writes ASCII PLY and `convert --normals` GLB normals (the formats had
+/// both, but no flag reached them); either flag on an output without that choice is refused.
+#[test]
+fn convert_writes_ascii_ply_and_glb_normals_on_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"torus\"\nsize = [24, 24, 24]\n[extract]\niso = 0.0\n[output]\npath = \"t.smb\"\n",
+    );
+    assert!(isostream(&["run", &job]).status.success());
+    let smb = dir.path().join("t.smb").to_string_lossy().into_owned();
+    let path = |name: &str| dir.path().join(name).to_string_lossy().into_owned();
+    let faces = Mesh::read(&dir.path().join("t.smb")).triangles.len();
+
+    let o = isostream(&["convert", "--ascii", &smb, &path("a.ply")]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(dir.path().join("a.ply")).unwrap();
+    assert!(
+        text.starts_with("ply\nformat ascii 1.0\n"),
+        "{}",
+        &text[..40]
+    );
+    assert_eq!(Mesh::read(&dir.path().join("a.ply")).triangles.len(), faces);
+
+    for (flag, glb) in [("--normals", "n.glb"), ("--json", "plain.glb")] {
+        let o = isostream(&["convert", flag, &smb, &path(glb)]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let bytes = std::fs::read(dir.path().join(glb)).unwrap();
+        let has_normals = bytes.windows(8).any(|w| w == b"\"NORMAL\"");
+        assert_eq!(has_normals, flag == "--normals", "{glb}");
+    }
+
+    for (flag, out) in [("--ascii", "o.obj"), ("--normals", "o.ply")] {
+        let o = isostream(&["convert", flag, &smb, &path(out)]);
+        assert_one_line_error(&o, 2, &[flag, out, "drop"]);
+        assert!(!dir.path().join(out).exists());
+    }
+}
+
 #[test]
 fn bundled_example_configs_validate() {
     for entry in std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples")).unwrap()

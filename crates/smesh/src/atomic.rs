@@ -217,7 +217,7 @@ impl AtomicFile {
     pub(crate) fn append(&mut self, spill: &mut Spill) -> Result<(), SmeshError> {
         io::copy(spill.tmp.out.get_mut(), &mut self.tmp.out)
             .map(|_| ())
-            .map_err(|e| SmeshError::io(&self.path, "copy spilled data into", e))
+            .map_err(|e| SmeshError::io(&self.path, "copy spilled data into it", e))
     }
 
     /// Overwrites bytes already written at `offset` (header counts known only at the end).
@@ -231,7 +231,7 @@ impl AtomicFile {
             f.seek(SeekFrom::Start(end))?;
             Ok(())
         })();
-        res.map_err(|e| SmeshError::io(&self.path, "patch the header of", e))
+        res.map_err(|e| SmeshError::io(&self.path, "patch its header", e))
     }
 
     /// Cuts the output at `len` bytes (an SMB header without bounding box is shorter).
@@ -256,7 +256,7 @@ impl AtomicFile {
         #[cfg(unix)]
         if let Ok(dir) = File::open(dir_of(&path)) {
             dir.sync_all()
-                .map_err(|e| SmeshError::io(&path, "fsync the directory of", e))?;
+                .map_err(|e| SmeshError::io(&path, "fsync its folder", e))?;
         }
         Ok(bytes)
     }
@@ -318,14 +318,14 @@ impl Spill {
     pub(crate) fn mark(&mut self) -> Result<FileMark, SmeshError> {
         self.tmp
             .mark()
-            .map_err(|e| SmeshError::io(&self.output, "flush scratch data for a checkpoint of", e))
+            .map_err(|e| SmeshError::io(&self.output, "flush its scratch data for a checkpoint", e))
     }
 
     /// Flushes and rewinds for reading back; returns the length.
     pub(crate) fn rewind(&mut self) -> Result<u64, SmeshError> {
         self.tmp
             .rewind()
-            .map_err(|e| SmeshError::io(&self.output, "read back scratch data for", e))
+            .map_err(|e| SmeshError::io(&self.output, "read back its scratch data", e))
     }
 
     /// The rewound data, for reading.

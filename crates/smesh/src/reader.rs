@@ -94,7 +94,7 @@ impl StreamReader {
         };
         let len = file
             .metadata()
-            .map_err(|e| SmeshError::io(path, "read the size of", e))?
+            .map_err(|e| SmeshError::io(path, "read its size", e))?
             .len();
         if len == 0 {
             return Err(SmeshError::Unsupported {

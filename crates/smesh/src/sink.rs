@@ -242,7 +242,7 @@ impl SinkCore {
     }
 
     pub(crate) fn scratch_error(&self, e: io::Error) -> SmeshError {
-        SmeshError::io(&self.path, "write scratch data for", e)
+        SmeshError::io(&self.path, "write its scratch data", e)
     }
 
     pub(crate) fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {

@@ -372,7 +372,7 @@ impl SmbDecoder {
         path: &Path,
         mut file: File,
     ) -> Result<(SmbDecoder, ReadHeader), SmeshError> {
-        let io_err = |e| SmeshError::io(path, "read the SMB header of", e);
+        let io_err = |e| SmeshError::io(path, "read its SMB header", e);
         let file_len = file.metadata().map_err(io_err)?.len();
         let mut prefix = Vec::new();
         (&mut file)

@@ -71,7 +71,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     for f in &files {
         // A detached data file may be a FIFO or device too: refuse it before opening.
         crate::open::check_file_type(f)?;
-        let meta = std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read the size of", e))?;
+        let meta = std::fs::metadata(f).map_err(|e| VolumeError::io(f, "read its size", e))?;
         lens.push(meta.len());
     }
     let start = if attached { h.len } else { 0 };

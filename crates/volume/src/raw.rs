@@ -83,7 +83,7 @@ impl RawVolume {
         let file = File::open(p.path).map_err(|e| VolumeError::io(p.path, "open", e))?;
         let actual = file
             .metadata()
-            .map_err(|e| VolumeError::io(p.path, "read the size of", e))?
+            .map_err(|e| VolumeError::io(p.path, "read its size", e))?
             .len();
         if actual < expected || (actual > expected && !p.trailing_ok) {
             return Err(VolumeError::SizeMismatch {
@@ -325,7 +325,7 @@ impl VolumeSource for RawVolume {
         let now = self
             .file
             .metadata()
-            .map_err(|e| VolumeError::io(&self.path, "read the size of", e))?
+            .map_err(|e| VolumeError::io(&self.path, "read its size", e))?
             .len();
         let need = (start + self.slice_bytes) as u64;
         if now < need {

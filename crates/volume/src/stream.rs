@@ -249,7 +249,7 @@ pub(crate) fn open_at(path: &Path, skip: u64) -> Result<io::BufReader<std::fs::F
     use std::io::{Seek, SeekFrom};
     let mut f = std::fs::File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
     f.seek(SeekFrom::Start(skip))
-        .map_err(|e| VolumeError::io(path, "seek in", e))?;
+        .map_err(|e| VolumeError::io(path, "seek in it", e))?;
     Ok(io::BufReader::with_capacity(1 << 16, f))
 }
 

@@ -112,7 +112,7 @@ fn decoder(path: &Path) -> Result<TiffDecoder, VolumeError> {
     let f = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
     let len = f
         .metadata()
-        .map_err(|e| VolumeError::io(path, "read the size of", e))?
+        .map_err(|e| VolumeError::io(path, "read its size", e))?
         .len();
     Decoder::new(BufReader::new(f))
         .map(|d| d.with_limits(limits_for(len)))
