@@ -784,7 +784,7 @@ impl JobConfig {
         if !(0.0..=1e9).contains(&every) {
             return Err(bad(
                 "log.progress_seconds",
-                "seconds between progress lines, >= 0 (0: none)",
+                "seconds between progress lines, from 0 (none) to 1e9",
                 every.to_string(),
             ));
         }
