@@ -256,3 +256,34 @@ fn command_line_errors_are_one_line() {
     assert!(o.status.success());
     assert!(String::from_utf8_lossy(&o.stdout).lines().count() > 3);
 }
+
+/// Trial bug: `measure` and `convert` took an OBJ whose faces are in `g` (or `o`) groups for
+/// one piece per group (8 vertices, 2 components, not closed for a tetrahedron in two groups),
+/// and never counted the vertices no face uses.
+#[test]
+fn obj_groups_keep_the_file_s_vertex_numbers() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("tet_g.obj");
+    std::fs::write(
+        &obj,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv 7 7 7\ng a\nf 1 3 2\nf 1 2 4\ng b\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    let obj = obj.to_string_lossy().into_owned();
+    let o = isostream(&["measure", "--json", &obj]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let q = &report["quality"];
+    assert_eq!(q["vertices"], 4, "{report}");
+    assert_eq!(
+        (&q["components"], &q["closed"]),
+        (&1.into(), &true.into()),
+        "{report}"
+    );
+    let smb = dir.path().join("tet.smb").to_string_lossy().into_owned();
+    let o = isostream(&["convert", "--json", &obj, &smb]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stats: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(stats["vertices"], 4, "{stats}");
+    assert_eq!(stats["dropped_vertices"], 1, "{stats}");
+}
