@@ -11,7 +11,8 @@
 //! stream's finalization lag (small for the pipeline's sweep-ordered output). A vertex without
 //! any non-degenerate triangle gets +z, since glTF requires unit normals.
 //!
-//! Reading goes through the `gltf` crate, which validates the document.
+//! Reading goes through the `gltf` crate, which validates the document; the node transforms
+//! are applied by hand (`instances`), since the crate leaves them to the caller.
 
 use std::collections::BTreeMap;
 
@@ -328,8 +329,84 @@ fn check_glb_header(path: &Path, bytes: &[u8]) -> Result<(), SmeshError> {
     }
 }
 
-/// Loads a GLB file: every triangle primitive of every mesh (node transforms ignored), with the
-/// `_NAME` float attributes of the first primitive as per-vertex attributes.
+/// A 4 x 4 matrix, glTF's column-major layout (`m[column][row]`), in f64.
+type Matrix = [[f64; 4]; 4];
+
+const IDENTITY: Matrix = [
+    [1.0, 0.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.0],
+    [0.0, 0.0, 0.0, 1.0],
+];
+
+fn multiply(a: &Matrix, b: &Matrix) -> Matrix {
+    std::array::from_fn(|c| std::array::from_fn(|r| (0..4).map(|k| a[k][r] * b[c][k]).sum()))
+}
+
+fn apply(m: &Matrix, p: [f32; 3]) -> [f64; 3] {
+    let v = [p[0], p[1], p[2], 1.0].map(f64::from);
+    std::array::from_fn(|r| (0..4).map(|c| m[c][r] * v[c]).sum())
+}
+
+/// Whether `m` mirrors: a negative determinant of its linear part turns counter-clockwise
+/// triangles clockwise, so their winding must be swapped to keep the surface facing out.
+fn mirrors(m: &Matrix) -> bool {
+    let d = m[0][0] * (m[1][1] * m[2][2] - m[2][1] * m[1][2])
+        - m[1][0] * (m[0][1] * m[2][2] - m[2][1] * m[0][2])
+        + m[2][0] * (m[0][1] * m[1][2] - m[1][1] * m[0][2]);
+    d < 0.0
+}
+
+/// Every mesh instance the file shows, with its node's world transform: the node hierarchy of
+/// the default scene, or of every scene when none is the default. A document without scenes
+/// shows no nodes; its meshes are taken as they are, untransformed.
+fn instances<'a>(
+    path: &Path,
+    gltf: &'a gltf::Gltf,
+) -> Result<Vec<(gltf::Mesh<'a>, Matrix)>, SmeshError> {
+    if gltf.scenes().len() == 0 {
+        return Ok(gltf.meshes().map(|m| (m, IDENTITY)).collect());
+    }
+    let scenes: Vec<gltf::Scene> = match gltf.default_scene() {
+        Some(scene) => vec![scene],
+        None => gltf.scenes().collect(),
+    };
+    let mut out = Vec::new();
+    for scene in scenes {
+        // A node met twice in one scene has two parents or is its own ancestor, which glTF
+        // forbids but the `gltf` crate does not check: a cycle would never end, and shared
+        // subtrees could multiply the work without bound.
+        let mut seen = vec![false; gltf.nodes().len()];
+        let mut todo: Vec<(gltf::Node, Matrix)> = scene.nodes().map(|n| (n, IDENTITY)).collect();
+        todo.reverse();
+        while let Some((node, parent)) = todo.pop() {
+            if std::mem::replace(&mut seen[node.index()], true) {
+                return Err(SmeshError::foreign(
+                    path,
+                    format!(
+                        "invalid glTF: node {} appears twice in scene {} (the node hierarchy must be a tree)",
+                        node.index(),
+                        scene.index()
+                    ),
+                ));
+            }
+            let local = node.transform().matrix().map(|c| c.map(f64::from));
+            let world = multiply(&parent, &local);
+            if let Some(mesh) = node.mesh() {
+                out.push((mesh, world));
+            }
+            let first_child = todo.len();
+            todo.extend(node.children().map(|c| (c, world)));
+            todo[first_child..].reverse();
+        }
+    }
+    Ok(out)
+}
+
+/// Loads a GLB file: every triangle primitive of every mesh instance of the scene, placed by
+/// its node's world transform (see [`instances`]; a mesh two nodes show comes out twice, each
+/// where its node puts it), with the `_NAME` float attributes of the first primitive as
+/// per-vertex attributes.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let bytes = std::fs::read(path).map_err(|e| SmeshError::io(path, "read", e))?;
     check_glb_header(path, &bytes)?;
@@ -343,7 +420,11 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let bad = |m: String| SmeshError::foreign(path, m);
     let mut mesh = IndexedMesh::default();
     let mut first = true;
-    for (p, prim) in gltf.meshes().flat_map(|m| m.primitives()).enumerate() {
+    let instances = instances(path, &gltf)?;
+    let primitives = instances
+        .iter()
+        .flat_map(|(m, world)| m.primitives().map(move |p| (p, world)));
+    for (p, (prim, world)) in primitives.enumerate() {
         if prim.mode() != gltf::mesh::Mode::Triangles {
             return Err(bad(format!("primitive {p} is not made of triangles")));
         }
@@ -352,7 +433,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         let positions = reader
             .read_positions()
             .ok_or_else(|| bad(format!("primitive {p} has no embedded POSITION data")))?;
-        mesh.positions.extend(positions.map(|x| x.map(f64::from)));
+        mesh.positions.extend(positions.map(|x| apply(world, x)));
         let n = mesh.positions.len() - base;
         if first {
             mesh.attribute_names = prim
@@ -390,11 +471,11 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
             )));
         }
         let base = base as u32;
-        mesh.triangles.extend(
-            indices
-                .chunks_exact(3)
-                .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
-        );
+        let mirrored = mirrors(world);
+        mesh.triangles.extend(indices.chunks_exact(3).map(|t| {
+            let [a, b, c] = [t[0], t[1], t[2]].map(|v| v + base);
+            if mirrored { [a, c, b] } else { [a, b, c] }
+        }));
     }
     Ok(mesh)
 }
@@ -415,5 +496,123 @@ mod tests {
         assert!(e.contains("declares 0 bytes"), "{e}");
         std::fs::write(&p, b"glTF\x02\x00").unwrap();
         assert!(read(&p).is_err());
+    }
+
+    /// A GLB of one tetrahedron mesh (outward, volume 1/6) and the given scene part of the
+    /// document (`scene`, `scenes`, `nodes`).
+    fn tetrahedra(dir: &Path, scenes: serde_json::Value) -> std::path::PathBuf {
+        let mut bin = Vec::new();
+        for c in [0f32, 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1.] {
+            bin.extend(c.to_le_bytes());
+        }
+        for i in [0u16, 2, 1, 0, 1, 3, 0, 3, 2, 1, 2, 3] {
+            bin.extend(i.to_le_bytes());
+        }
+        let mut doc = json!({
+            "asset": { "version": "2.0" },
+            "meshes": [{ "primitives": [{ "attributes": { "POSITION": 0 }, "indices": 1 }] }],
+            "buffers": [{ "byteLength": 72 }],
+            "bufferViews": [
+                { "buffer": 0, "byteOffset": 0, "byteLength": 48 },
+                { "buffer": 0, "byteOffset": 48, "byteLength": 24 },
+            ],
+            "accessors": [
+                { "bufferView": 0, "componentType": FLOAT, "count": 4, "type": "VEC3",
+                  "min": [0, 0, 0], "max": [1, 1, 1] },
+                { "bufferView": 1, "componentType": 5123, "count": 12, "type": "SCALAR" },
+            ],
+        });
+        for (k, v) in scenes.as_object().unwrap() {
+            doc[k] = v.clone();
+        }
+        let mut json = serde_json::to_vec(&doc).unwrap();
+        json.resize(json.len().next_multiple_of(4), b' ');
+        let mut bytes = b"glTF".to_vec();
+        bytes.extend(2u32.to_le_bytes());
+        bytes.extend((12 + 8 + json.len() as u32 + 8 + 72).to_le_bytes());
+        bytes.extend((json.len() as u32).to_le_bytes());
+        bytes.extend(b"JSON");
+        bytes.extend(json);
+        bytes.extend(72u32.to_le_bytes());
+        bytes.extend(b"BIN\0");
+        bytes.extend(bin);
+        let p = dir.join("t.glb");
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+
+    /// Six times the signed volume enclosed by the triangles: positive when they face out.
+    fn volume6(m: &IndexedMesh) -> f64 {
+        m.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|v| m.positions[v as usize]);
+                a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                    + a[2] * (b[0] * c[1] - b[1] * c[0])
+            })
+            .sum()
+    }
+
+    /// A translated node moves its mesh; a mesh shown by two nodes comes out twice, each where
+    /// its node (and its parents) put it, and a mirroring node's triangles still face out.
+    /// Scenes other than the default one are not shown.
+    #[test]
+    fn node_transforms_place_every_instance() {
+        let dir = tempfile::tempdir().unwrap();
+        let scenes = json!({
+            "scene": 0,
+            "scenes": [{ "nodes": [0, 1] }, { "nodes": [3] }],
+            "nodes": [
+                { "mesh": 0, "translation": [10, 0, 0] },
+                { "children": [2], "translation": [0, 5, 0] },
+                { "mesh": 0, "matrix": [-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1] },
+                { "mesh": 0, "translation": [0, 0, 99] },
+            ],
+        });
+        let m = read(&tetrahedra(dir.path(), scenes)).unwrap();
+        assert_eq!(m.positions.len(), 8);
+        assert_eq!(
+            m.positions[..4],
+            [[10., 0., 0.], [11., 0., 0.], [10., 1., 0.], [10., 0., 1.]]
+        );
+        assert_eq!(
+            m.positions[4..],
+            [[0., 5., 0.], [-1., 5., 0.], [0., 6., 0.], [0., 5., 1.]]
+        );
+        assert_eq!(
+            m.triangles[..4],
+            [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
+        );
+        assert_eq!(
+            m.triangles[4..],
+            [[4, 5, 6], [4, 7, 5], [4, 6, 7], [5, 7, 6]]
+        );
+        assert!((volume6(&m) - 2.0).abs() < 1e-12, "{}", volume6(&m));
+
+        // Without a default scene every scene is shown.
+        let all = json!({
+            "scenes": [{ "nodes": [0] }, { "nodes": [1] }],
+            "nodes": [
+                { "mesh": 0, "translation": [10, 0, 0] },
+                { "mesh": 0, "rotation": [0, 0, 1, 0], "scale": [1, 1, 2] },
+            ],
+        });
+        let m = read(&tetrahedra(dir.path(), all)).unwrap();
+        assert_eq!(
+            m.positions[4..],
+            [[0., 0., 0.], [-1., 0., 0.], [0., -1., 0.], [0., 0., 2.]]
+        );
+        assert!((volume6(&m) - 3.0).abs() < 1e-6, "{}", volume6(&m));
+
+        // A node that is its own ancestor is refused rather than followed for ever.
+        let cycle = json!({
+            "scene": 0,
+            "scenes": [{ "nodes": [0] }],
+            "nodes": [{ "children": [1] }, { "mesh": 0, "children": [0] }],
+        });
+        let e = read(&tetrahedra(dir.path(), cycle))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("node 0 appears twice in scene 0"), "{e}");
     }
 }
