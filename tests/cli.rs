@@ -287,3 +287,22 @@ fn obj_groups_keep_the_file_s_vertex_numbers() {
     assert_eq!(stats["vertices"], 4, "{stats}");
     assert_eq!(stats["dropped_vertices"], 1, "{stats}");
 }
+
+/// Trial bug: a PLY double attribute beyond f32 became inf in `convert`'s output, which
+/// `check` then called valid.
+#[test]
+fn ply_attribute_beyond_f32_is_refused_by_convert() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("big.ply");
+    std::fs::write(
+        &ply,
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+         property float z\nproperty double t\nelement face 1\n\
+         property list uchar int vertex_indices\nend_header\n0 0 0 1\n1 0 0 1e300\n0 1 0 2\n3 0 1 2\n",
+    )
+    .unwrap();
+    let out = dir.path().join("big.smb");
+    let o = isostream(&["convert", &ply.to_string_lossy(), &out.to_string_lossy()]);
+    assert_one_line_error(&o, 2, &["big.ply", "vertex 1", "attribute `t`", "1e300"]);
+    assert!(!out.exists());
+}

@@ -31,22 +31,24 @@ pub fn read_indexed(path: &Path) -> Result<IndexedMesh, SmeshError> {
 
 /// Refuses a foreign mesh with a NaN or infinite coordinate, as the streaming formats' check
 /// does: every distance, angle and box computed from it would be NaN (`measure` reported a NaN
-/// directional bias and carried on).
+/// directional bias and carried on). A finite coordinate beyond f32's range (a PLY double) is
+/// refused too: every output format holds f32, and `convert` wrote it as inf without a word.
 fn finite(path: &Path, mesh: IndexedMesh) -> Result<IndexedMesh, SmeshError> {
-    match mesh
-        .positions
-        .iter()
-        .position(|p| !p.iter().all(|c| c.is_finite()))
-    {
+    let fits = |c: &f64| (*c as f32).is_finite();
+    match mesh.positions.iter().position(|p| !p.iter().all(fits)) {
         None => Ok(mesh),
         Some(i) => {
             let [x, y, z] = mesh.positions[i];
-            Err(SmeshError::foreign(
-                path,
+            let message = if mesh.positions[i].iter().all(|c| c.is_finite()) {
+                format!(
+                    "vertex {i} has a coordinate beyond the range of f32 (about ±3.4e38) that meshes are held in ({x:e}, {y:e}, {z:e}); rescale the mesh"
+                )
+            } else {
                 format!(
                     "vertex {i} has a non-finite coordinate ({x}, {y}, {z}); the mesh is corrupt"
-                ),
-            ))
+                )
+            };
+            Err(SmeshError::foreign(path, message))
         }
     }
 }

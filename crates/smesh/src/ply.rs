@@ -230,21 +230,43 @@ impl PropertyAccess for PlyVertex {
     }
 }
 
-/// A face: its vertex index list, whatever its integer type.
-#[derive(Default)]
-struct PlyFace(Option<Vec<u32>>);
+/// The names PLY writers give a face's (or a strip's) vertex index list.
+fn is_index_list(name: &str) -> bool {
+    matches!(name, "vertex_indices" | "vertex_index")
+}
 
-impl PropertyAccess for PlyFace {
+/// A face or a triangle strip: its vertex index list, whatever its integer type, signed (a
+/// strip's restarts are -1).
+#[derive(Default)]
+struct PlyList(Option<Vec<i64>>);
+
+impl PropertyAccess for PlyList {
     fn new() -> Self {
         Self::default()
     }
 
     fn set_property(&mut self, name: &str, p: Property) -> PropertyAccessResult {
-        if matches!(name, "vertex_indices" | "vertex_index") {
-            self.0 = p.to_u32_list();
+        if is_index_list(name) {
+            self.0 = int_list(&p);
         }
         PropertyAccessResult::Ignored
     }
+}
+
+/// Any integer list as i64 (`Property::to_u32_list` refuses the -1 of strips).
+fn int_list(p: &Property) -> Option<Vec<i64>> {
+    fn wide<T: Copy + Into<i64>>(v: &[T]) -> Vec<i64> {
+        v.iter().map(|&x| x.into()).collect()
+    }
+    Some(match p {
+        Property::ListChar(v) => wide(v),
+        Property::ListUChar(v) => wide(v),
+        Property::ListShort(v) => wide(v),
+        Property::ListUShort(v) => wide(v),
+        Property::ListInt(v) => wide(v),
+        Property::ListUInt(v) => wide(v),
+        _ => return None,
+    })
 }
 
 /// Elements other than vertex and face, read only to get past them.
@@ -257,8 +279,9 @@ impl PropertyAccess for Skip {
 }
 
 /// Loads a PLY file (ascii or binary, any scalar types): `x y z` and every other scalar vertex
-/// property as an attribute; faces from `vertex_indices` (or `vertex_index`), polygons fanned
-/// into triangles.
+/// property as an attribute (f32, refused when out of its range); faces from `vertex_indices`
+/// (or `vertex_index`), polygons fanned into triangles; `tristrips` as triangle strips. The
+/// elements may come in any order (the faces are checked against the vertices at the end).
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let file = File::open(path).map_err(|e| SmeshError::io(path, "open", e))?;
     let mut input = Reader::new(BufReader::with_capacity(1 << 16, file));
@@ -269,6 +292,8 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         .read_header(&mut input)
         .map_err(invalid)?;
     let mut mesh = IndexedMesh::default();
+    let mut faces = Vec::new();
+    let mut strips = Vec::new();
     for (name, def) in &header.elements {
         match name.as_str() {
             "vertex" => {
@@ -290,45 +315,183 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
                 let vertices = Parser::<PlyVertex>::new()
                     .read_payload_for_element(&mut input, def, &header)
                     .map_err(invalid)?;
-                for v in vertices {
+                for (n, v) in vertices.into_iter().enumerate() {
                     mesh.positions.push(xyz.map(|i| v.0[i]));
-                    mesh.attrs.extend(attrs.iter().map(|&i| v.0[i] as f32));
+                    for &i in &attrs {
+                        // `as` would make a finite double beyond f32's range infinite, and
+                        // `convert` wrote that inf without a word.
+                        let (x, f) = (v.0[i], v.0[i] as f32);
+                        if x.is_finite() && !f.is_finite() {
+                            return Err(bad(format!(
+                                "vertex {n}: attribute `{}` is {x:e}, beyond the range of f32 (about ±3.4e38) that attributes are held in; rescale it",
+                                scalars[i]
+                            )));
+                        }
+                        mesh.attrs.push(f);
+                    }
                 }
             }
-            "face" => {
-                let faces = Parser::<PlyFace>::new()
+            "face" | "tristrips" => {
+                let lists = Parser::<PlyList>::new()
                     .read_payload_for_element(&mut input, def, &header)
                     .map_err(invalid)?;
-                let n = mesh.positions.len();
-                for (i, f) in faces.into_iter().enumerate() {
-                    let list = f.0.ok_or_else(|| {
-                        bad(format!(
-                            "face {i} has no list `vertex_indices` of non-negative integers"
-                        ))
-                    })?;
-                    // Dropping it would lose part of the surface without a word.
-                    if list.len() < 3 {
-                        return Err(bad(format!(
-                            "face {i} has {} vertices; a face needs at least 3",
-                            list.len()
-                        )));
-                    }
-                    if let Some(&v) = list.iter().find(|&&v| v as usize >= n) {
-                        return Err(bad(format!(
-                            "face {i} references vertex {v} but the file has {n} vertices before it"
-                        )));
-                    }
-                    for k in 2..list.len() {
-                        mesh.triangles.push([list[0], list[k - 1], list[k]]);
-                    }
+                let lists = lists.into_iter().map(|l| l.0);
+                match name.as_str() {
+                    "face" => faces.extend(lists),
+                    _ => strips.extend(lists),
                 }
             }
             _ => {
+                // Faces under another name would be lost without a word.
+                if let Some((list, _)) = def.properties.iter().find(|(k, p)| {
+                    is_index_list(k) && matches!(p.data_type, PropertyType::List(..))
+                }) {
+                    return Err(bad(format!(
+                        "element `{name}` has a vertex index list `{list}` but only `face` and `tristrips` elements are read; convert it to faces first"
+                    )));
+                }
                 Parser::<Skip>::new()
                     .read_payload_for_element(&mut input, def, &header)
                     .map_err(invalid)?;
             }
         }
     }
+    let n = mesh.positions.len();
+    let vertex = |what: &str, i: usize, v: i64| match usize::try_from(v) {
+        Ok(v) if v < n => Ok(v as u32),
+        _ => Err(bad(format!(
+            "{what} {i} references vertex {v} but the file has {n} vertices"
+        ))),
+    };
+    for (i, list) in faces.into_iter().enumerate() {
+        let list = list.filter(|l| l.iter().all(|&v| v >= 0)).ok_or_else(|| {
+            bad(format!(
+                "face {i} has no list `vertex_indices` of non-negative integers"
+            ))
+        })?;
+        // Dropping it would lose part of the surface without a word.
+        if list.len() < 3 {
+            return Err(bad(format!(
+                "face {i} has {} vertices; a face needs at least 3",
+                list.len()
+            )));
+        }
+        let list = list
+            .iter()
+            .map(|&v| vertex("face", i, v))
+            .collect::<Result<Vec<u32>, _>>()?;
+        for k in 2..list.len() {
+            mesh.triangles.push([list[0], list[k - 1], list[k]]);
+        }
+    }
+    for (i, list) in strips.into_iter().enumerate() {
+        let list = list.ok_or_else(|| {
+            bad(format!(
+                "tristrips {i} has no list `vertex_indices` of integers"
+            ))
+        })?;
+        for run in list.split(|&v| v == -1) {
+            let run = run
+                .iter()
+                .map(|&v| vertex("tristrips", i, v))
+                .collect::<Result<Vec<u32>, _>>()?;
+            for (k, t) in run.windows(3).enumerate() {
+                // Every other triangle of a strip turns the other way; a triangle with a
+                // repeated corner is the strip's way of turning a corner, not a surface.
+                let t = if k % 2 == 0 {
+                    [t[0], t[1], t[2]]
+                } else {
+                    [t[1], t[0], t[2]]
+                };
+                if t[0] != t[1] && t[1] != t[2] && t[2] != t[0] {
+                    mesh.triangles.push(t);
+                }
+            }
+        }
+    }
     Ok(mesh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const XYZ: &str = "property float x\nproperty float y\nproperty float z\n";
+
+    fn read_text(elements: &str, body: &str) -> Result<IndexedMesh, String> {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.ply");
+        let text = format!("ply\nformat ascii 1.0\n{elements}end_header\n{body}");
+        std::fs::write(&p, text).unwrap();
+        read(&p).map_err(|e| e.to_string().replace(&format!("{}: ", p.display()), ""))
+    }
+
+    /// `convert` turned a double attribute of 1e300 into inf without a word.
+    #[test]
+    fn attribute_beyond_f32_is_refused() {
+        let e = read_text(
+            &format!("element vertex 2\n{XYZ}property double t\n"),
+            "0 0 0 1\n1 0 0 1e300\n",
+        )
+        .unwrap_err();
+        assert_eq!(
+            e,
+            "vertex 1: attribute `t` is 1e300, beyond the range of f32 (about ±3.4e38) that attributes are held in; rescale it"
+        );
+        let m = read_text(
+            &format!("element vertex 2\n{XYZ}property double t\n"),
+            "0 0 0 -1e30\n1 0 0 2\n",
+        )
+        .unwrap();
+        assert_eq!(m.attrs, [-1e30, 2.0]);
+    }
+
+    /// A strip of 4 vertices, a restart, and a strip turning a corner with a repeated vertex.
+    #[test]
+    fn tristrips_become_triangles_of_alternating_winding() {
+        let m = read_text(
+            &format!(
+                "element vertex 6\n{XYZ}element tristrips 1\nproperty list int int vertex_indices\n"
+            ),
+            "0 0 0\n1 0 0\n0 1 0\n1 1 0\n2 0 0\n2 1 0\n10 0 1 2 3 -1 1 4 3 3 5\n",
+        )
+        .unwrap();
+        assert_eq!(m.triangles, [[0, 1, 2], [2, 1, 3], [1, 4, 3]]);
+    }
+
+    /// PLY lets the face element come first; it was refused ("the file has 0 vertices").
+    #[test]
+    fn faces_may_precede_vertices() {
+        let m = read_text(
+            &format!(
+                "element face 1\nproperty list uchar int vertex_indices\nelement vertex 3\n{XYZ}"
+            ),
+            "3 0 1 2\n0 0 0\n1 0 0\n0 1 0\n",
+        )
+        .unwrap();
+        assert_eq!((m.positions.len(), m.triangles), (3, vec![[0, 1, 2]]));
+        let e = read_text(
+            &format!(
+                "element face 1\nproperty list uchar int vertex_indices\nelement vertex 3\n{XYZ}"
+            ),
+            "3 0 1 3\n0 0 0\n1 0 0\n0 1 0\n",
+        )
+        .unwrap_err();
+        assert_eq!(e, "face 0 references vertex 3 but the file has 3 vertices");
+    }
+
+    /// Faces under another element name were skipped: 0 triangles and no error.
+    #[test]
+    fn other_elements_with_index_lists_are_refused() {
+        let e = read_text(
+            &format!("element vertex 3\n{XYZ}element triangle 1\nproperty list uchar int vertex_indices\n"),
+            "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("element `triangle` has a vertex index list")
+                && e.contains("convert it to faces first"),
+            "{e}"
+        );
+    }
 }

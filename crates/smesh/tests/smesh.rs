@@ -950,6 +950,14 @@ fn foreign_meshes_with_bad_coordinates_or_faces_are_refused() {
             "vertex 1 has a non-finite coordinate (1, 0, NaN); the mesh is corrupt",
         ),
         (
+            "big.ply",
+            b"ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n\
+              property double z\nelement face 1\nproperty list uchar int vertex_indices\n\
+              end_header\n0 0 0\n1e300 0 0\n0 1 0\n3 0 1 2\n"
+                .to_vec(),
+            "vertex 1 has a coordinate beyond the range of f32 (about ±3.4e38) that meshes are held in (1e300, 0e0, 0e0); rescale the mesh",
+        ),
+        (
             "neg.ply",
             ply(0.0, -1),
             "face 0 has no list `vertex_indices` of non-negative integers",
