@@ -159,8 +159,8 @@ impl SmaDecoder {
                 "" => {}
                 "nverts" => header.nverts = parse_count(path, place, rest)?,
                 "nfaces" => header.nfaces = parse_count(path, place, rest)?,
-                "bb_min" => bb_min = Some(parse_floats::<3>(path, place, rest, "three floats")?),
-                "bb_max" => bb_max = Some(parse_floats::<3>(path, place, rest, "three floats")?),
+                "bb_min" => bb_min = Some(parse_corner(path, place, rest)?),
+                "bb_max" => bb_max = Some(parse_corner(path, place, rest)?),
                 ATTRIBUTES_KEY => {
                     header.attribute_names = rest.split_whitespace().map(String::from).collect()
                 }
@@ -290,13 +290,12 @@ fn parse_count(path: &Path, place: Place, s: &str) -> Result<Option<u64>, SmeshE
     }
 }
 
-fn parse_floats<const N: usize>(
-    path: &Path,
-    place: Place,
-    s: &str,
-    expected: &str,
-) -> Result<[f32; N], SmeshError> {
-    parse_n(s).ok_or_else(|| SmeshError::syntax(path, place, expected, s.trim()))
+/// A corner of the bounding box: three finite floats (a NaN compares false with every
+/// coordinate, so a NaN box held every vertex and `check` passed it).
+fn parse_corner(path: &Path, place: Place, s: &str) -> Result<[f32; 3], SmeshError> {
+    parse_n::<f32, 3>(s)
+        .filter(|c| c.iter().all(|x| x.is_finite()))
+        .ok_or_else(|| SmeshError::syntax(path, place, "three finite floats", s.trim()))
 }
 
 /// Exactly `N` whitespace-separated values.

@@ -283,9 +283,9 @@ fn vertex_size(attributes: usize) -> usize {
     ELEMENT + 4 * attributes
 }
 
-/// Whether `h` under `order` describes the file: counts not below -1, known counts matching the
-/// file size exactly, and the triangles of the first block (if in the prefix) using valid indices.
-fn plausible(h: &Parsed, order: Order, bytes: &[u8], file_len: u64) -> bool {
+/// Whether `h` describes the file's size: counts not below -1, and known counts matching the
+/// file size exactly.
+fn fits_size(h: &Parsed, file_len: u64) -> bool {
     if h.nverts < -1 || h.nfaces < -1 {
         return false;
     }
@@ -298,6 +298,13 @@ fn plausible(h: &Parsed, order: Order, bytes: &[u8], file_len: u64) -> bool {
             return false;
         }
     }
+    true
+}
+
+/// Whether the triangles of the first block (as far as it is in the prefix) use valid indices
+/// under `order`.
+fn first_block_decodes(h: &Parsed, order: Order, bytes: &[u8]) -> bool {
+    let vertex = vertex_size(h.attribute_names.len());
     let mut p = Prefix {
         bytes,
         at: h.len as usize,
@@ -324,6 +331,35 @@ fn plausible(h: &Parsed, order: Order, bytes: &[u8], file_len: u64) -> bool {
         }
     }
     true
+}
+
+/// The byte order the file is in, and its header under it: of the orders whose header fits the
+/// file size (the declared one first), the first whose first block decodes, or else the first,
+/// whose bad element the decoder then names. Requiring the first block to decode outright made
+/// one bad index there a "counts do not match the file size" error about an intact header.
+fn choose_order(
+    path: &Path,
+    prefix: &[u8],
+    declared: Order,
+    file_len: u64,
+) -> Result<(Parsed, Order), SmeshError> {
+    let other = match declared {
+        Order::Little => Order::Big,
+        Order::Big => Order::Little,
+    };
+    let mut fitting: Vec<(Parsed, Order)> = [declared, other]
+        .into_iter()
+        .filter_map(|o| parse_header(prefix, o).map(|h| (h, o)))
+        .filter(|(h, _)| fits_size(h, file_len))
+        .collect();
+    if fitting.is_empty() {
+        return Err(truncated_or_bad(path, prefix, declared, file_len));
+    }
+    let pick = fitting
+        .iter()
+        .position(|(h, o)| first_block_decodes(h, *o, prefix))
+        .unwrap_or(0);
+    Ok(fitting.swap_remove(pick))
 }
 
 pub(crate) struct SmbDecoder {
@@ -390,19 +426,19 @@ impl SmbDecoder {
         } else {
             Order::Big
         };
-        let other = if declared == Order::Little {
-            Order::Big
-        } else {
-            Order::Little
-        };
-        let (h, order) = [declared, other]
-            .into_iter()
-            .find_map(|o| {
-                parse_header(&prefix, o)
-                    .filter(|h| plausible(h, o, &prefix, file_len))
-                    .map(|h| (h, o))
-            })
-            .ok_or_else(|| truncated_or_bad(path, &prefix, declared, file_len))?;
+        let (h, order) = choose_order(path, &prefix, declared, file_len)?;
+        // NaN compares false with every coordinate, so a NaN box held every vertex and
+        // `check` passed it.
+        if let Some((lo, hi)) = h.bbox
+            && !lo.iter().chain(&hi).all(|x| x.is_finite())
+        {
+            return Err(SmeshError::syntax(
+                path,
+                Place::Byte(h.len - 24),
+                "a bounding box of six finite numbers",
+                format!("{lo:?}..{hi:?}"),
+            ));
+        }
         file.seek(SeekFrom::Start(h.len)).map_err(io_err)?;
         let count = |n: i32| u64::try_from(n).ok();
         let header = ReadHeader {

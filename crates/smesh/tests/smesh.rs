@@ -473,6 +473,75 @@ fn validate_rejects_truncated_and_foreign_smb() {
     );
 }
 
+/// A bad index in the first block was reported as a header whose counts do not fit the file
+/// (the byte-order check needed the first block to decode); the same fault later in the file was
+/// named. Now it is named wherever it is, in either byte order.
+#[test]
+fn bad_index_in_the_first_block_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let golden = std::fs::read(data("tetrahedron.smb")).unwrap();
+    let p = dir.path().join("first.smb");
+    let cases: [(i32, &str); 3] = [
+        (
+            9999,
+            "triangle 0 at byte 96 references vertex 9998 but only 3 vertices precede it",
+        ),
+        (
+            0,
+            "byte 96: expected nonzero triangle indices (1-based, or negative relative), found [0, 3, 2]",
+        ),
+        (
+            -99999,
+            "triangle 0 at byte 96 uses relative index -99999 but only 3 vertices precede it",
+        ),
+    ];
+    for (index, message) in cases {
+        for unknown_counts in [false, true] {
+            let mut bytes = golden.clone();
+            bytes[96..100].copy_from_slice(&index.to_le_bytes());
+            if unknown_counts {
+                bytes[23..31].copy_from_slice(&[0xff; 8]);
+            }
+            std::fs::write(&p, &bytes).unwrap();
+            let msg = validate(&p).unwrap_err().to_string();
+            assert_eq!(msg, format!("{}: {message}", p.display()));
+        }
+    }
+}
+
+/// A NaN compares false with every coordinate, so a NaN in the header's box held every vertex
+/// and the file passed; an infinite bound is as meaningless.
+#[test]
+fn non_finite_bounding_box_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let golden = std::fs::read(data("tetrahedron.smb")).unwrap();
+    let p = dir.path().join("box.smb");
+    for (at, x) in [(32, f32::NAN), (52, f32::INFINITY)] {
+        let mut bytes = golden.clone();
+        bytes[at..at + 4].copy_from_slice(&x.to_le_bytes());
+        std::fs::write(&p, &bytes).unwrap();
+        let msg = validate(&p).unwrap_err().to_string();
+        assert!(
+            msg.starts_with(&format!(
+                "{}: byte 32: expected a bounding box of six finite numbers, found [",
+                p.display()
+            )) && msg.contains(&format!("{x:?}")),
+            "{msg}"
+        );
+    }
+    let text = std::fs::read_to_string(data("tetrahedron.sma")).unwrap();
+    let p = dir.path().join("box.sma");
+    std::fs::write(&p, text.replace("bb_min 0e0 0e0 0e0", "bb_min 0e0 NaN 0e0")).unwrap();
+    let msg = validate(&p).unwrap_err().to_string();
+    assert_eq!(
+        msg,
+        format!(
+            "{}: line 3: expected three finite floats, found 0e0 NaN 0e0",
+            p.display()
+        )
+    );
+}
+
 #[test]
 fn header_is_checked_before_anything_is_written() {
     let dir = tempfile::tempdir().unwrap();
