@@ -58,7 +58,8 @@ pub enum Command {
     /// stream width.
     Check {
         mesh: PathBuf,
-        /// Print the report as JSON instead of a sentence.
+        /// Print the report as JSON instead of a sentence (`"valid": false` and the error for an
+        /// invalid file, which still exits with status 2).
         #[arg(long)]
         json: bool,
     },
@@ -69,7 +70,7 @@ pub enum Command {
         /// The job file whose volume and iso value define the full-resolution surface.
         #[arg(long)]
         volume: Option<PathBuf>,
-        /// The mesh to measure (.smb, .sma, .ply, .obj).
+        /// The mesh to measure (.smb, .sma, .ply, .obj, .stl, .glb).
         mesh: PathBuf,
         /// Print JSON instead of text.
         #[arg(long)]

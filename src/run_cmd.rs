@@ -296,7 +296,17 @@ pub fn convert(
 }
 
 pub fn check(mesh: &Path, json: bool) -> anyhow::Result<()> {
-    let r = isostream_smesh::validate(mesh)?;
+    let r = match isostream_smesh::validate(mesh) {
+        Ok(r) => r,
+        Err(e) => {
+            // A script reading stdout gets an answer too, not only the error line on stderr.
+            if json {
+                let v = serde_json::json!({ "path": mesh, "valid": false, "error": e.to_string() });
+                println!("{v}");
+            }
+            return Err(e.into());
+        }
+    };
     if json {
         let v = serde_json::json!({
             "path": mesh,

@@ -288,6 +288,20 @@ fn obj_groups_keep_the_file_s_vertex_numbers() {
     assert_eq!(stats["dropped_vertices"], 1, "{stats}");
 }
 
+/// Trial bug: `check --json` on an invalid file printed nothing on stdout.
+#[test]
+fn check_json_answers_for_an_invalid_file_too() {
+    let dir = tempfile::tempdir().unwrap();
+    let sma = dir.path().join("bad.sma");
+    std::fs::write(&sma, "v 0 0 0\nv 1 0 0\nf 1 2 3\n").unwrap();
+    let o = isostream(&["check", "--json", &sma.to_string_lossy()]);
+    assert_one_line_error(&o, 2, &["bad.sma", "references vertex 2"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["valid"], false, "{v}");
+    let error = v["error"].as_str().unwrap();
+    assert!(stderr(&o).contains(error), "{error}");
+}
+
 /// Trial bug: a PLY double attribute beyond f32 became inf in `convert`'s output, which
 /// `check` then called valid.
 #[test]
@@ -305,4 +319,13 @@ fn ply_attribute_beyond_f32_is_refused_by_convert() {
     let o = isostream(&["convert", &ply.to_string_lossy(), &out.to_string_lossy()]);
     assert_one_line_error(&o, 2, &["big.ply", "vertex 1", "attribute `t`", "1e300"]);
     assert!(!out.exists());
+}
+
+/// Trial bug: `measure --help` listed four of the six formats it reads.
+#[test]
+fn measure_help_names_every_format() {
+    let o = isostream(&["measure", "--help"]);
+    assert!(o.status.success());
+    let help = String::from_utf8_lossy(&o.stdout);
+    assert!(help.contains(".stl, .glb"), "{help}");
 }
