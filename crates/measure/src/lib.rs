@@ -12,8 +12,8 @@
 //!
 //! Modules: `triangle` (one triangle's geometry), `bvh` (nearest-point queries), `sampling`
 //! (seeded area-proportional samples), `anisotropy`, `bias`, `quality`, `distances` (the streamed
-//! two-way distance), `full_surface` (the volume -> slab stream), `halves` (a batch's queries on
-//! two threads the caller lends), `report`.
+//! two-way distance), `quantile` (its 99.9th percentile in bounded memory), `full_surface` (the
+//! volume -> slab stream), `halves` (a batch's queries on two threads the caller lends), `report`.
 #![deny(unsafe_code)]
 
 mod anisotropy;
@@ -25,6 +25,7 @@ mod error;
 mod full_surface;
 mod halves;
 mod quality;
+mod quantile;
 mod report;
 mod sampling;
 mod triangle;
