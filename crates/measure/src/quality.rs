@@ -24,9 +24,23 @@ pub struct MeshQuality {
     pub vertex_manifold: bool,
     /// Neighbouring triangles traverse their shared edge in opposite directions.
     pub oriented: bool,
-    /// A valid manifold without boundary edges.
+    /// A closed manifold: no boundary edges, and edge-manifold, vertex-manifold, oriented,
+    /// without duplicate triangles or triangles that use a vertex twice. A mesh without boundary
+    /// edges can still fail it (a bowtie, a flipped face): the counts below say which way.
     pub closed: bool,
     pub boundary_edges: usize,
+    /// Edges of three or more triangles (`edge_manifold` is false when there is one).
+    pub non_manifold_edges: usize,
+    /// Vertices whose link is not one cycle or one path (`vertex_manifold` is false when there
+    /// is one).
+    pub non_manifold_vertices: usize,
+    /// Edges whose two triangles traverse it the same way (`oriented` is false when there is
+    /// one).
+    pub misoriented_edges: usize,
+    /// Copies of a triangle beyond its first (same three vertices).
+    pub duplicate_triangles: usize,
+    /// Triangles that use a vertex twice (also counted in `zero_area_triangles`).
+    pub repeated_index_triangles: usize,
     pub zero_area_triangles: usize,
     /// V - E + F over the whole mesh.
     pub euler: i64,
@@ -57,6 +71,11 @@ pub fn mesh_quality(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> MeshQuali
         oriented: report.misoriented_edges == 0,
         closed: report.is_closed_manifold(),
         boundary_edges: report.boundary_edges,
+        non_manifold_edges: report.non_manifold_edges,
+        non_manifold_vertices: report.non_manifold_vertices,
+        misoriented_edges: report.misoriented_edges,
+        duplicate_triangles: report.duplicate_triangles,
+        repeated_index_triangles: report.repeated_index_triangles,
         // A triangle using a vertex twice has no area either (the check counts it apart).
         zero_area_triangles: report.zero_area_triangles + report.repeated_index_triangles,
         euler: report.euler(),

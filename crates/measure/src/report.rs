@@ -26,29 +26,13 @@ impl MeasureReport {
     pub fn to_text(&self) -> String {
         let q = &self.quality;
         let mut s = String::new();
-        let yes_no = |b: bool, what: &str| {
-            if b {
-                what.to_string()
-            } else {
-                format!("NOT {what}")
-            }
-        };
         // Writing into a String cannot fail.
         let _ = writeln!(
             s,
             "mesh: {} triangles, {} vertices, {} components, Euler characteristic {}",
             q.triangles, q.vertices, q.components, q.euler
         );
-        let _ = writeln!(
-            s,
-            "topology: {}, {}, {}, {}, {} boundary edges, {} zero-area triangles",
-            yes_no(q.closed, "closed"),
-            yes_no(q.edge_manifold, "edge-manifold"),
-            yes_no(q.vertex_manifold, "vertex-manifold"),
-            yes_no(q.oriented, "oriented"),
-            q.boundary_edges,
-            q.zero_area_triangles
-        );
+        let _ = writeln!(s, "topology: {}", topology(q));
         let _ = writeln!(
             s,
             "anisotropy {:.4}, directional bias {:.4}",
@@ -78,6 +62,59 @@ impl MeasureReport {
         }
         s
     }
+}
+
+/// The topology line's facts. A mesh without boundary edges that is not a closed manifold (a
+/// bowtie, a flipped face) said "NOT closed, ..., 0 boundary edges", which read as a
+/// contradiction: it says instead that it has no boundary and what else is wrong, with counts.
+fn topology(q: &MeshQuality) -> String {
+    let property = |ok: bool, what: &str, count: usize, unit: &str| {
+        if ok {
+            what.to_string()
+        } else {
+            format!("NOT {what} ({count} {unit})")
+        }
+    };
+    let mut parts = vec![
+        property(
+            q.edge_manifold,
+            "edge-manifold",
+            q.non_manifold_edges,
+            "non-manifold edges",
+        ),
+        property(
+            q.vertex_manifold,
+            "vertex-manifold",
+            q.non_manifold_vertices,
+            "non-manifold vertices",
+        ),
+        property(
+            q.oriented,
+            "oriented",
+            q.misoriented_edges,
+            "misoriented edges",
+        ),
+    ];
+    let boundary = q.boundary_edges;
+    let lead = match (q.closed, boundary) {
+        (true, _) => "closed,",
+        (false, 0) => "no boundary edges, but NOT a closed manifold:",
+        (false, _) => "NOT closed,",
+    };
+    if boundary > 0 || q.closed {
+        parts.push(format!("{boundary} boundary edges"));
+    }
+    if q.duplicate_triangles > 0 {
+        parts.push(format!("{} duplicate triangles", q.duplicate_triangles));
+    }
+    if q.repeated_index_triangles > 0 {
+        parts.push(format!(
+            "{} triangles that use a vertex twice",
+            q.repeated_index_triangles
+        ));
+    }
+    parts.push(format!("{} zero-area triangles", q.zero_area_triangles));
+    format!("{lead} {}", parts.join(", "))
 }
 
 fn write_distances(s: &mut String, d: &Distances) {
@@ -175,7 +212,7 @@ mod tests {
         let text = report(0).to_text();
         for needle in [
             "1 triangles",
-            "NOT closed",
+            "NOT closed, edge-manifold, vertex-manifold, oriented, 3 boundary edges, 0 zero-area",
             "anisotropy",
             "directional bias",
             "55-60: 0",
@@ -198,6 +235,72 @@ mod tests {
                 .to_text()
                 .contains("sampled more sparsely, the last samples counting 16 times each")
         );
+    }
+
+    /// Two tetrahedra sharing one vertex (a bowtie), and an icosahedron with one face flipped:
+    /// no boundary edge, yet not closed manifolds. The text said "NOT closed" beside "0 boundary
+    /// edges"; it now says what is wrong, and the JSON has the counts.
+    #[test]
+    fn a_mesh_without_boundary_that_is_not_a_closed_manifold_says_why() {
+        let tetra = |o: [f64; 3], s: f64| {
+            [
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ]
+            .map(|p| [o[0] + s * p[0], o[1] + s * p[1], o[2] + s * p[2]])
+        };
+        let mut p: Vec<[f64; 3]> = tetra([0.0; 3], 1.0).to_vec();
+        p.extend(&tetra([0.0; 3], -1.0)[1..]);
+        let faces = |v: [u32; 4]| {
+            [
+                [v[0], v[2], v[1]],
+                [v[0], v[1], v[3]],
+                [v[0], v[3], v[2]],
+                [v[1], v[2], v[3]],
+            ]
+        };
+        let mut t = faces([0, 1, 2, 3]).to_vec();
+        // Mirrored by the negative scale: the other winding points out.
+        t.extend(faces([0, 4, 5, 6]).map(|[a, b, c]| [a, c, b]));
+        let q = mesh_quality(&p, &t);
+        assert_eq!((q.boundary_edges, q.non_manifold_vertices), (0, 1), "{q:?}");
+        assert!(!q.closed && q.edge_manifold && q.oriented && !q.vertex_manifold);
+        let text = MeasureReport {
+            quality: q,
+            distances: None,
+            shape_error: None,
+            attributes: Vec::new(),
+        }
+        .to_text();
+        assert!(
+            text.contains("topology: no boundary edges, but NOT a closed manifold: edge-manifold, NOT vertex-manifold (1 non-manifold vertices), oriented, 0 zero-area triangles"),
+            "{text}"
+        );
+
+        let (v, mut f) = crate::bias::tests::icosahedron();
+        f[0].swap(1, 2);
+        let p: Vec<[f64; 3]> = v.iter().map(|x| x.to_array()).collect();
+        let q = mesh_quality(&p, &f);
+        let json = serde_json::to_value(&q).unwrap();
+        assert_eq!(json["misoriented_edges"], 3);
+        assert_eq!(
+            (json["closed"].clone(), json["boundary_edges"].clone()),
+            (false.into(), 0.into())
+        );
+        let text = MeasureReport {
+            quality: q,
+            distances: None,
+            shape_error: None,
+            attributes: Vec::new(),
+        }
+        .to_text();
+        assert!(
+            text.contains("no boundary edges, but NOT a closed manifold: edge-manifold, vertex-manifold, NOT oriented (3 misoriented edges)"),
+            "{text}"
+        );
+        assert!(!text.contains("NOT closed"), "{text}");
     }
 
     #[test]
