@@ -5,8 +5,13 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Context;
-use isostream_measure::{FullSurfaceDistances, MeasureOptions, MeasureReport, mesh_quality};
-use isostream_pipeline::{JobConfig, MeasureHalves, open_source, summary_path, visit_surface};
+use isostream_measure::{
+    Distances, FullSurfaceDistances, MAX_SAMPLES, MIN_SAMPLES, MeasureOptions, MeasureReport,
+    MeshQuality, mesh_quality,
+};
+use isostream_pipeline::{
+    JobConfig, LogConfig, MeasureHalves, open_source, summary_path, visit_surface,
+};
 
 pub fn measure(
     job_path: Option<&Path>,
@@ -15,9 +20,24 @@ pub fn measure(
     samples_per_area: Option<f64>,
     seed: Option<u64>,
 ) -> anyhow::Result<()> {
+    // Warnings only unless RUST_LOG asks for more: the report is the answer, and the
+    // extraction `--volume` borrows logs its own progress at info.
+    crate::logging::init(
+        &LogConfig {
+            level: Some("warn".into()),
+            ..LogConfig::default()
+        },
+        None,
+    );
     let mesh = isostream_smesh::read_indexed(mesh_path)?;
-    let run = run_summary(mesh_path);
     let quality = mesh_quality(&mesh.positions, &mesh.triangles);
+    let run = run_summary(mesh_path).filter(|run| describes(run, mesh_path, &quality));
+    let defaults = MeasureOptions::default();
+    let opts = MeasureOptions {
+        samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),
+        seed: seed.unwrap_or(defaults.seed),
+        ..defaults
+    };
     let distances = match job_path {
         None => None,
         Some(job_path) => {
@@ -36,12 +56,6 @@ pub fn measure(
                     read,
                 })?;
             }
-            let defaults = MeasureOptions::default();
-            let opts = MeasureOptions {
-                samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),
-                seed: seed.unwrap_or(defaults.seed),
-                ..defaults
-            };
             let context = || format!("measuring {}", mesh_path.display());
             let halves = MeasureHalves {
                 threads: job.pipeline.threads() > 1,
@@ -55,12 +69,16 @@ pub fn measure(
             // on one thread through every voxel was most of the time.
             let never = AtomicBool::new(false);
             visit_surface(&job, source, &never, |batch| full.add(batch)).with_context(context)?;
-            Some(full.finish().with_context(context)?)
+            let distances = full.finish().with_context(context)?;
+            if let Some(asked) = samples_per_area {
+                density_note(asked, &distances);
+            }
+            Some(distances)
         }
     };
     let attributes = match job_path {
         Some(job_path) if !mesh.attribute_names.is_empty() => {
-            attribute_report(job_path, &mesh, samples_per_area, seed)?
+            attribute_report(job_path, &mesh, &opts)?
         }
         _ => Vec::new(),
     };
@@ -84,6 +102,46 @@ pub fn measure(
 fn run_summary(mesh: &Path) -> Option<serde_json::Value> {
     let text = std::fs::read_to_string(summary_path(mesh)).ok()?;
     serde_json::from_str(&text).ok()
+}
+
+/// Whether the run summary next to `mesh` is that of the mesh read, by its face and vertex
+/// counts; if not, says so in one warning. A conversion onto a run's output (`isostream convert
+/// other.glb s.smb`) leaves the run's summary beside another mesh: its shape error was reported
+/// for that mesh, and `--volume` took the summary as proof of which job made it.
+fn describes(run: &serde_json::Value, mesh: &Path, quality: &MeshQuality) -> bool {
+    let count = |key: &str| run.get(key).and_then(serde_json::Value::as_u64);
+    let faces_differ = count("faces_written").is_some_and(|f| f != quality.triangles as u64);
+    let vertices_differ = count("vertices_written").is_some_and(|v| v != quality.vertices as u64);
+    if faces_differ || vertices_differ {
+        tracing::warn!(
+            "{} describes another mesh ({} faces, {} vertices written) than {} ({} triangles, {} vertices): ignored (no shape error, and it does not say which job made the mesh)",
+            summary_path(mesh).display(),
+            count("faces_written").map_or("?".into(), |f| f.to_string()),
+            count("vertices_written").map_or("?".into(), |v| v.to_string()),
+            mesh.display(),
+            quality.triangles,
+            quality.vertices
+        );
+        return false;
+    }
+    true
+}
+
+/// Says when `--samples-per-area` was not the density used: it is raised or lowered so that each
+/// direction gets between [`MIN_SAMPLES`] and [`MAX_SAMPLES`] samples, which was silent.
+fn density_note(asked: f64, distances: &Distances) {
+    let used = distances.samples_per_area;
+    if (used - asked).abs() <= 1e-9 * asked {
+        return;
+    }
+    let (how, bound, count) = if used > asked {
+        ("raised", "at least", MIN_SAMPLES)
+    } else {
+        ("lowered", "at most", MAX_SAMPLES)
+    };
+    tracing::warn!(
+        "--samples-per-area {asked} {how} to {used:.4} on this mesh's area: each direction takes {bound} {count} samples"
+    );
 }
 
 /// What a surface is made from: the input as the run names it, its dims (after upsampling)
@@ -156,8 +214,7 @@ fn check_made_by(run: &serde_json::Value, read: &Made) -> Result<(), Made> {
 fn attribute_report(
     job_path: &Path,
     mesh: &isostream_smesh::IndexedMesh,
-    samples_per_area: Option<f64>,
-    seed: Option<u64>,
+    opts: &MeasureOptions,
 ) -> anyhow::Result<Vec<isostream_measure::AttributeError>> {
     let job = JobConfig::load(job_path)?;
     let names: Vec<String> = job.attributes.iter().map(|a| a.name.clone()).collect();
@@ -177,12 +234,6 @@ fn attribute_report(
         .flat_map(|a| column.iter().map(move |&c| a[c]))
         .collect();
     let mut reader = isostream_pipeline::SliceReader::open(&job)?;
-    let defaults = MeasureOptions::default();
-    let opts = MeasureOptions {
-        samples_per_area: samples_per_area.unwrap_or(defaults.samples_per_area),
-        seed: seed.unwrap_or(defaults.seed),
-        ..defaults
-    };
     Ok(isostream_measure::attribute_errors(
         reader.grid(),
         job.extract.iso as f32,
@@ -196,6 +247,6 @@ fn attribute_report(
         &mesh.positions,
         &mesh.triangles,
         &attrs,
-        &opts,
+        opts,
     )?)
 }

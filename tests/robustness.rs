@@ -774,6 +774,106 @@ fn measure_refuses_a_job_that_did_not_make_the_mesh() {
     assert!(o.status.success(), "{}", stderr(&o));
 }
 
+/// A mesh converted onto a run's output leaves that run's summary beside another mesh: `measure`
+/// reported the run's shape error for it, and `--volume` took the summary as proof of which job
+/// made it. Now the summary is ignored, with one warning, when its counts are not the mesh's.
+#[test]
+fn measure_ignores_a_run_summary_of_another_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, mesh) = sphere_mesh(dir.path(), "m.smb");
+    let o = bin().args(["measure", &mesh]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("shape error (max eps0)"));
+
+    let other_job = dir.path().join("other.toml");
+    std::fs::write(
+        &other_job,
+        "[input]\nshape = \"torus\"\nsize = [16, 16, 16]\n[extract]\niso = 0.0\n[output]\npath = \"other.ply\"\n",
+    )
+    .unwrap();
+    let o = bin().arg("run").arg(&other_job).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let other = dir.path().join("other.ply");
+    let o = bin()
+        .arg("convert")
+        .arg(&other)
+        .arg(&mesh)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+
+    let warned = |o: &Output| {
+        stderr(o)
+            .lines()
+            .filter(|l| l.contains("m.smb.run.json describes another mesh"))
+            .count()
+    };
+    let o = bin().args(["measure", &mesh]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(warned(&o), 1, "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("shape error: unknown"), "{text}");
+    // The job that made the converted mesh: measured, not refused by the sphere run's summary.
+    let o = bin()
+        .args(["measure", "--json", "--volume"])
+        .arg(&other_job)
+        .arg(&mesh)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(warned(&o), 1, "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(report["shape_error"].is_null(), "{report}");
+    assert!(
+        report["distances"]["hausdorff"].as_f64().unwrap() < 2.0,
+        "{report}"
+    );
+}
+
+/// `--samples-per-area` and `--seed` are the distances' (`--volume`): clap refuses them without
+/// it, and a density that is not a positive finite number, as usage errors (exit 2) naming the
+/// flag; the density is raised or lowered to the sample budget with a warning, not silently.
+#[test]
+fn measure_sampling_flags_are_usage_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let (job, mesh) = sphere_mesh(dir.path(), "m.smb");
+    for bad in ["0", "nan", "inf", "-1", "ten"] {
+        let o = bin()
+            .args(["measure", "--volume", &job, &mesh])
+            .arg(format!("--samples-per-area={bad}"))
+            .output()
+            .unwrap();
+        assert_one_line_error(&o, 2, &["--samples-per-area", "positive finite"]);
+    }
+    for flag in ["--samples-per-area=5", "--seed=3"] {
+        let o = bin().args(["measure", &mesh, flag]).output().unwrap();
+        assert_one_line_error(&o, 2, &["--volume", &flag[..flag.find('=').unwrap()]]);
+    }
+    let o = bin()
+        .args([
+            "measure",
+            "--volume",
+            &job,
+            &mesh,
+            "--samples-per-area",
+            "0.01",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let raised: Vec<&str> = std::str::from_utf8(&o.stderr)
+        .unwrap()
+        .lines()
+        .filter(|l| l.contains("--samples-per-area 0.01 raised to"))
+        .collect();
+    assert_eq!(raised.len(), 1, "{}", stderr(&o));
+    assert!(
+        raised[0].contains("at least 10000 samples"),
+        "{}",
+        raised[0]
+    );
+}
+
 /// With `[log] format = "json"` every line on stderr is a JSON object, the error that ends a
 /// failed run included (level `ERROR`, its exit code among the fields), whatever the log level,
 /// and an invalid value of the job too (its file was read; it was plain text).

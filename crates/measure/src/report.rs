@@ -48,7 +48,7 @@ impl MeasureReport {
             Some(e) => {
                 let _ = writeln!(s, "shape error (max eps0): {e:.6}");
             }
-            None => s.push_str("shape error: unknown (no run summary)\n"),
+            None => s.push_str("shape error: unknown (no run summary of this mesh)\n"),
         }
         if let Some(d) = &self.distances {
             write_distances(&mut s, d);
