@@ -125,19 +125,23 @@ fn normalised(path: &Path) -> std::path::PathBuf {
     std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf())
 }
 
+/// The `job done` line: numbers as numbers (a JSON log reader got `"seconds":"6.443"`), rounded
+/// to what is worth reading (seconds to the millisecond, MiB to a tenth); an unknown peak RSS is
+/// left out rather than logged as NaN.
 fn report(s: &RunSummary) {
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
+    let ms = |x: f64| (x * 1000.0).round() / 1000.0;
     tracing::info!(
         voxels = s.voxels,
         faces_extracted = s.faces_extracted,
         faces_written = s.faces_written,
-        seconds = format!("{:.3}", s.seconds),
-        read_s = format!("{:.3}", s.stage_seconds.read),
-        extract_s = format!("{:.3}", s.stage_seconds.extract),
-        detect_s = format!("{:.3}", s.stage_seconds.detect),
-        simplify_s = format!("{:.3}", s.stage_seconds.simplify),
-        write_s = format!("{:.3}", s.stage_seconds.write),
-        peak_rss_mib = format!("{:.1}", s.peak_rss_bytes.map(mib).unwrap_or(f64::NAN)),
+        seconds = ms(s.seconds),
+        read_s = ms(s.stage_seconds.read),
+        extract_s = ms(s.stage_seconds.extract),
+        detect_s = ms(s.stage_seconds.detect),
+        simplify_s = ms(s.stage_seconds.simplify),
+        write_s = ms(s.stage_seconds.write),
+        peak_rss_mib = s.peak_rss_bytes.map(|b| (mib(b) * 10.0).round() / 10.0),
         peak_resident_faces = s.peak_resident_faces,
         "job done"
     );

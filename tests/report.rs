@@ -55,6 +55,35 @@ fn run(dir: &Path) -> Value {
         .filter(|v| v["fields"]["message"] == "progress" && v["fields"]["eta_s"].is_number())
         .collect();
     assert!(!progress.is_empty(), "{}", stderr(&o));
+    // The stage's span names the stage under its own key: a field `name` beside the span's
+    // name gave `"span":{"name":"simplify","name":"stage"}`, a duplicate key.
+    assert_eq!(progress[0]["span"]["name"], "stage", "{}", progress[0]);
+    let stage = progress[0]["span"]["stage"].as_str().unwrap_or_default();
+    assert!(stage.starts_with("simplify"), "{}", progress[0]);
+    assert!(
+        !stderr(&o).contains(r#""name":"simplify"#),
+        "{}",
+        stderr(&o)
+    );
+    // The run's last line: numbers as JSON numbers, not strings ("seconds":"6.443").
+    let done: Vec<Value> = stderr(&o)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["fields"]["message"] == "job done")
+        .collect();
+    assert_eq!(done.len(), 1, "{}", stderr(&o));
+    for key in [
+        "seconds",
+        "read_s",
+        "extract_s",
+        "detect_s",
+        "simplify_s",
+        "write_s",
+        "peak_rss_mib",
+        "faces_written",
+    ] {
+        assert!(done[0]["fields"][key].is_number(), "{key}: {}", done[0]);
+    }
     for key in [
         "voxels_per_s",
         "percent",

@@ -288,7 +288,9 @@ pub(crate) fn run<S: Step>(
     mut out: Outbox<'_, S::Out>,
 ) -> StageResult<(f64, S::Done)> {
     ctl.stage(|| {
-        let _span = info_span!(parent: &ctl.parent, "stage", name).entered();
+        // The field is `stage`, not `name`: JSON lines put the span's own name under `name`,
+        // and `"span":{"name":"simplify","name":"stage"}` lost one of them in JSON parsers.
+        let _span = info_span!(parent: &ctl.parent, "stage", stage = name).entered();
         let started = Instant::now();
         let mut busy = Duration::ZERO;
         loop {

@@ -135,7 +135,7 @@ mod tests {
             tracing::info!("outside any job");
             let span = tracing::info_span!("job", id = %job);
             let _in_job = span.enter();
-            let stage = tracing::info_span!("stage", name = "simplify");
+            let stage = tracing::info_span!("stage", stage = "simplify");
             let _in_stage = stage.enter();
             tracing::warn!(slab = 3, eta_s = 1.5, "progress");
             // Not a service id: never a path.
