@@ -187,6 +187,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 isostream_report::ReportError::Read { .. }
                 | isostream_report::ReportError::NotRun { .. }
                 | isostream_report::ReportError::NotMeasure { .. }
+                | isostream_report::ReportError::OtherMesh { .. }
                 | isostream_report::ReportError::OverInput { .. } => 2,
                 _ => 1,
             };

@@ -171,7 +171,14 @@ pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow:
         .into());
     }
     let summary = isostream_report::Run::load(run)?;
-    let measure = measure.map(isostream_report::Measure::load).transpose()?;
+    let measure = match measure {
+        Some(path) => {
+            let m = isostream_report::Measure::load(path)?;
+            m.check_of(path, &summary, run)?;
+            Some(m)
+        }
+        None => None,
+    };
     let page = isostream_report::html(&summary, measure.as_ref())?;
     isostream_report::write(output, &page)?;
     println!(

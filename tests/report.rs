@@ -250,6 +250,33 @@ fn bad_files_give_one_line_and_no_page() {
         &run_json.to_string_lossy(),
     ]);
     assert_one_line_error(&o, 2, &["gyroid.smb.run.json", "not a measure report"]);
+    // The measure of another mesh (one triangle) beside this run's: refused, naming both files
+    // and both counts; the page showed "2016 written" beside "measured mesh 4348 triangles".
+    let other = dir.path().join("other.obj");
+    std::fs::write(&other, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let o = isostream(&["measure", "--json", &other.to_string_lossy()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let other_measure = dir.path().join("other.json");
+    std::fs::write(&other_measure, &o.stdout).unwrap();
+    let o = isostream(&[
+        "report",
+        &run_json.to_string_lossy(),
+        "-o",
+        &out,
+        "--measure",
+        &other_measure.to_string_lossy(),
+    ]);
+    let written = summary["faces_written"].to_string();
+    assert_one_line_error(
+        &o,
+        2,
+        &[
+            "other.json",
+            "1 triangles",
+            "gyroid.smb.run.json",
+            &format!("wrote {written}"),
+        ],
+    );
     assert!(!page.exists());
 
     // A missing folder is made, as `run` makes its output's; one that cannot be (a file stands

@@ -111,6 +111,23 @@ impl Measure {
     }
 }
 
+impl Measure {
+    /// Refuses the measure of another mesh than the run wrote (by the triangle count): the page
+    /// showed "2016 written" beside "measured mesh 4348 triangles" and the other mesh's
+    /// distances as the run's. `path` and `run_path` name the two files in the error.
+    pub fn check_of(&self, path: &Path, run: &Run, run_path: &Path) -> Result<(), ReportError> {
+        if self.quality.triangles == run.faces_written {
+            return Ok(());
+        }
+        Err(ReportError::OtherMesh {
+            measure: path.to_path_buf(),
+            triangles: self.quality.triangles,
+            run: run_path.to_path_buf(),
+            faces_written: run.faces_written,
+        })
+    }
+}
+
 /// The file's bytes: a file that is not text (a mesh given by mistake) is then told apart as
 /// "not a run summary" by the parser, not as a failed read.
 fn read(path: &Path) -> Result<Vec<u8>, ReportError> {
@@ -118,4 +135,39 @@ fn read(path: &Path) -> Result<Vec<u8>, ReportError> {
         path: path.to_path_buf(),
         source,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A measure of the run's face count is the run's; another count is refused with both files
+    /// and both counts.
+    #[test]
+    fn a_measure_of_another_mesh_is_refused() {
+        let run: Run = serde_json::from_value(serde_json::json!({
+            "input": "sphere", "dims": [8, 8, 8], "voxels": 512, "iso": 0.0, "mode": "rate",
+            "output": "o.smb", "faces_extracted": 100, "faces_written": 20,
+            "vertices_written": 12, "seconds": 0.1, "stage_seconds": {},
+            "peak_resident_faces": 100
+        }))
+        .unwrap();
+        let measure = |triangles: u64| -> Measure {
+            serde_json::from_value(serde_json::json!({
+                "quality": {"triangles": triangles, "closed": true, "euler": 2,
+                            "min_angle_histogram": []},
+                "distances": null
+            }))
+            .unwrap()
+        };
+        let (m, r) = (Path::new("m.json"), Path::new("o.smb.run.json"));
+        assert!(measure(20).check_of(m, &run, r).is_ok());
+        let e = measure(4348).check_of(m, &run, r).unwrap_err().to_string();
+        assert!(
+            e.starts_with(
+                "m.json: measures a mesh of 4348 triangles, but the run of o.smb.run.json wrote 20;"
+            ),
+            "{e}"
+        );
+    }
 }

@@ -27,6 +27,13 @@ pub enum ReportError {
     NotRun { path: PathBuf, reason: String },
     #[error("{}: not a measure report ({reason}); make one with `isostream measure --volume JOB.toml MESH --json > M.json`", path.display())]
     NotMeasure { path: PathBuf, reason: String },
+    #[error("{}: measures a mesh of {triangles} triangles, but the run of {} wrote {faces_written}; give the measure of that run's output (`isostream measure --volume JOB.toml OUTPUT --json`)", measure.display(), run.display())]
+    OtherMesh {
+        measure: PathBuf,
+        triangles: u64,
+        run: PathBuf,
+        faces_written: u64,
+    },
     #[error("drawing the {plot} plot: {reason}")]
     Plot { plot: &'static str, reason: String },
     #[error("{}: cannot write the report: {reason}", path.display())]
