@@ -31,46 +31,44 @@ pub fn preflight(job: &JobConfig) -> Result<Box<dyn VolumeSource>, RunError> {
     Ok(source)
 }
 
-/// The coarsest `f32` step, as a share of the smallest spacing, that positions may have.
-/// Meshes are written in `f32` (and the simplifier keeps `f32`-exact positions): a volume far
-/// from the origin at a fine spacing had its vertices rounded onto a few positions (a sphere at
-/// x = 1e9 with spacing 0.5 came out flat; at 4e6 with spacing 0.1, 85 % of the triangles had
-/// no area), with no error. Past an eighth of a voxel the mesh is visibly rounded; finer is
-/// accepted, since real data lives there: UTM eastings (5e5 m at 1 m: steps of 1/32) and
-/// microscope stage coordinates (5e4 um at 0.1 um: 1/25) must run.
+/// The coarsest `f32` step, as a share of an axis's spacing, that positions along that axis
+/// may have. Meshes are written in `f32` (and the simplifier keeps `f32`-exact positions): a
+/// volume far from the origin at a fine spacing had its vertices rounded onto a few positions
+/// (a sphere at x = 1e9 with spacing 0.5 came out flat; at 4e6 with spacing 0.1, 85 % of the
+/// triangles had no area), with no error. Past an eighth of a voxel the mesh is visibly
+/// rounded; finer is accepted, since real data lives there: UTM eastings (5e5 m at 1 m: steps
+/// of 1/32) and microscope stage coordinates (5e4 um at 0.1 um: 1/25) must run.
 const MIN_VOXEL_STEPS: f64 = 8.0;
 
+const AXES: [char; 3] = ['x', 'y', 'z'];
+
 /// Refuses a job grid whose positions `f32` cannot hold (past its range) or cannot tell apart
-/// at a 1/[`MIN_VOXEL_STEPS`] of the smallest spacing. A job's grid, not every `Grid`: the
-/// volume crate's grids go to 2^64 voxels, and only what is written must fit `f32`.
+/// at a 1/[`MIN_VOXEL_STEPS`] of the spacing, axis by axis: each coordinate is rounded on its
+/// own, so a northing of 4.1e6 at 25 m (steps of 0.25 m) is fine beside heights in metres near
+/// 0 (the smallest spacing of all axes against the largest position refused such UTM grids).
+/// A job's grid, not every `Grid`: the volume crate's grids go to 2^64 voxels, and only what
+/// is written must fit `f32`.
 fn check_f32_positions(grid: &Grid) -> Result<(), String> {
-    let Grid {
-        dims,
-        spacing,
-        origin,
-    } = *grid;
-    let far = (0..3)
-        .map(|k| {
-            let end = origin[k] + spacing[k] * dims[k].saturating_sub(1) as f64;
-            origin[k].abs().max(end.abs())
-        })
-        .fold(0.0, f64::max);
-    let finest = spacing.iter().copied().fold(f64::INFINITY, f64::min);
     let fix = "move the origin near 0 ([input] origin = [0, 0, 0]) and add the offset back to \
                the mesh afterwards, or check the origin and spacing";
-    if far >= f64::from(f32::MAX) {
-        return Err(format!(
-            "positions reach {far:e}, past what an f32 mesh can hold; {fix}"
-        ));
-    }
-    let at = far as f32;
-    let step = f64::from(at.next_up() - at);
-    if step * MIN_VOXEL_STEPS > finest {
-        return Err(format!(
-            "positions reach {far}, where the f32 coordinates of the mesh step by {step}, more \
-             than 1/{MIN_VOXEL_STEPS} of the smallest spacing {finest}: the surface would be \
-             rounded onto a few positions; {fix}"
-        ));
+    for (k, axis) in AXES.iter().enumerate() {
+        let end = grid.origin[k] + grid.spacing[k] * grid.dims[k].saturating_sub(1) as f64;
+        let far = grid.origin[k].abs().max(end.abs());
+        if far >= f64::from(f32::MAX) {
+            return Err(format!(
+                "{axis} positions reach {far:e}, past what an f32 mesh can hold; {fix}"
+            ));
+        }
+        let at = far as f32;
+        let step = f64::from(at.next_up() - at);
+        let spacing = grid.spacing[k];
+        if step * MIN_VOXEL_STEPS > spacing {
+            return Err(format!(
+                "{axis} positions reach {far}, where the f32 coordinates of the mesh step by \
+                 {step}, more than 1/{MIN_VOXEL_STEPS} of the {axis} spacing {spacing}: the \
+                 surface would be rounded onto a few positions; {fix}"
+            ));
+        }
     }
     Ok(())
 }
@@ -237,7 +235,10 @@ mod tests {
                 origin,
             })
             .unwrap_err();
-            assert!(e.contains("f32") && e.contains("[input] origin"), "{e}");
+            assert!(
+                e.contains("f32") && e.contains("[input] origin") && e.starts_with('x'),
+                "{e}"
+            );
         }
         // Real grids: CT in millimetres, UTM metres, microscope stage micrometres, a long axis
         // from 0, an upsampled volume.
@@ -245,6 +246,9 @@ mod tests {
             ([512, 512, 2000], [0.3, 0.3, 0.5], [-150.0, -150.0, -800.0]),
             ([500, 500, 100], [1.0; 3], [5e5, 4e5, 0.0]),
             ([1000, 1000, 200], [0.1; 3], [5e4, 5e4, 0.0]),
+            // UTM at 25 m with heights in metres; a tiny x spacing beside a huge z one.
+            ([40, 40, 40], [25.0, 25.0, 1.0], [5e5, 4.1e6, -100.0]),
+            ([17, 33, 9], [0.001, 1.0, 1000.0], [0.0; 3]),
             ([16384, 64, 64], [1.0; 3], [0.0; 3]),
             ([4081, 4081, 4081], [0.0625; 3], [0.0; 3]),
         ] {
