@@ -51,7 +51,9 @@ impl fmt::Display for Subject {
 /// A violation of the streaming-mesh rules, independent of the file it was found in.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum StreamFault {
-    #[error("references vertex {vertex} but only {available} vertices precede it")]
+    #[error(
+        "references vertex {vertex} (counting from 0) but only {available} vertices precede it"
+    )]
     Forward { vertex: u64, available: u64 },
     #[error("uses relative index {index} but only {available} vertices precede it")]
     BeforeFirst { index: i64, available: u64 },

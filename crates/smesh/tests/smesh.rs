@@ -353,7 +353,9 @@ fn validate_rejects_broken_streams_with_one_line_messages() {
         ),
         (
             format!("{TRIANGLE}f 1 2 4\nv 0 0 1\n"),
-            format!("{p}: triangle 0 on line 4 references vertex 3 but only 3 vertices precede it"),
+            format!(
+                "{p}: triangle 0 on line 4 references vertex 3 (counting from 0) but only 3 vertices precede it"
+            ),
         ),
         (
             format!("{TRIANGLE}f -4 2 3\n"),
@@ -484,7 +486,7 @@ fn bad_index_in_the_first_block_is_named() {
     let cases: [(i32, &str); 3] = [
         (
             9999,
-            "triangle 0 at byte 96 references vertex 9998 but only 3 vertices precede it",
+            "triangle 0 at byte 96 references vertex 9998 (counting from 0) but only 3 vertices precede it",
         ),
         (
             0,
@@ -579,7 +581,7 @@ fn writer_rejects_invalid_calls() {
     assert_eq!(
         e,
         format!(
-            "{}: triangle 0 references vertex 3 but only 3 vertices precede it",
+            "{}: triangle 0 references vertex 3 (counting from 0) but only 3 vertices precede it",
             p.display()
         )
     );
