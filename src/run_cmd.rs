@@ -205,8 +205,10 @@ pub fn convert_options(
     ] {
         if set && format != wants {
             return Err(crate::cli::UsageError(format!(
-                "{}: {flag} applies to a {wants:?} output only, not {format:?}; drop {flag} or change the output's extension",
-                output.display()
+                "{}: {flag} applies to a {} output only, not {}; drop {flag} or change the output's extension",
+                output.display(),
+                format!("{wants:?}").to_uppercase(),
+                format!("{format:?}").to_uppercase()
             ))
             .into());
         }

@@ -81,7 +81,7 @@ fn convert_writes_ascii_ply_and_glb_normals_on_request() {
 
     for (flag, out) in [("--ascii", "o.obj"), ("--normals", "o.ply")] {
         let o = isostream(&["convert", flag, &smb, &path(out)]);
-        assert_one_line_error(&o, 2, &[flag, out, "drop"]);
+        assert_one_line_error(&o, 2, &[flag, out, "drop", "output only, not"]);
         assert!(!dir.path().join(out).exists());
     }
 }

@@ -26,7 +26,8 @@ pub struct MeshQuality {
     pub oriented: bool,
     /// A closed manifold: no boundary edges, and edge-manifold, vertex-manifold, oriented,
     /// without duplicate triangles or triangles that use a vertex twice. A mesh without boundary
-    /// edges can still fail it (a bowtie, a flipped face): the counts below say which way.
+    /// edges can still fail it (a bowtie, a flipped face): the counts below say which way. An
+    /// empty mesh (an `allow_empty` output) is closed: it has no boundary.
     pub closed: bool,
     pub boundary_edges: usize,
     /// Edges of three or more triangles (`edge_manifold` is false when there is one).

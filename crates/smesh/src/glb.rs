@@ -358,8 +358,9 @@ fn mirrors(m: &Matrix) -> bool {
 }
 
 /// Every mesh instance the file shows, with its node's world transform: the node hierarchy of
-/// the default scene, or of every scene when none is the default. A document without scenes
-/// shows no nodes; its meshes are taken as they are, untransformed.
+/// the default scene, or of the first scene when none is the default (as viewers show it;
+/// every scene at once put a node listed in two scenes twice on top of itself). A document
+/// without scenes shows no nodes; its meshes are taken as they are, untransformed.
 fn instances<'a>(
     path: &Path,
     gltf: &'a gltf::Gltf,
@@ -367,12 +368,8 @@ fn instances<'a>(
     if gltf.scenes().len() == 0 {
         return Ok(gltf.meshes().map(|m| (m, IDENTITY)).collect());
     }
-    let scenes: Vec<gltf::Scene> = match gltf.default_scene() {
-        Some(scene) => vec![scene],
-        None => gltf.scenes().collect(),
-    };
     let mut out = Vec::new();
-    for scene in scenes {
+    if let Some(scene) = gltf.default_scene().or_else(|| gltf.scenes().next()) {
         // A node met twice in one scene has two parents or is its own ancestor, which glTF
         // forbids but the `gltf` crate does not check: a cycle would never end, and shared
         // subtrees could multiply the work without bound.
@@ -390,7 +387,7 @@ fn instances<'a>(
                     ),
                 ));
             }
-            let local = node.transform().matrix().map(|c| c.map(f64::from));
+            let local = local_matrix(path, &node)?;
             let world = multiply(&parent, &local);
             if let Some(mesh) = node.mesh() {
                 out.push((mesh, world));
@@ -401,6 +398,37 @@ fn instances<'a>(
         }
     }
     Ok(out)
+}
+
+/// A node's own transform. glTF requires unit rotation quaternions but the `gltf` crate takes
+/// them as they are, and one of length 2 scaled the mesh by 4: normalised here, and one of
+/// length 0 (no rotation at all) refused.
+fn local_matrix(path: &Path, node: &gltf::Node) -> Result<Matrix, SmeshError> {
+    let transform = match node.transform() {
+        gltf::scene::Transform::Decomposed {
+            translation,
+            rotation,
+            scale,
+        } => {
+            let length = rotation.iter().map(|q| q * q).sum::<f32>().sqrt();
+            if !(length.is_finite() && length > 0.0) {
+                return Err(SmeshError::foreign(
+                    path,
+                    format!(
+                        "invalid glTF: node {} has rotation {rotation:?}, not a unit quaternion",
+                        node.index()
+                    ),
+                ));
+            }
+            gltf::scene::Transform::Decomposed {
+                translation,
+                rotation: rotation.map(|q| q / length),
+                scale,
+            }
+        }
+        matrix => matrix,
+    };
+    Ok(transform.matrix().map(|c| c.map(f64::from)))
 }
 
 /// Loads a GLB file: every triangle primitive of every mesh instance of the scene, placed by
@@ -470,7 +498,15 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
                 "primitive {p} references vertex {v} but has {n} vertices"
             )));
         }
-        let base = base as u32;
+        // Instancing can repeat a mesh past what u32 indices reach: refused, not wrapped.
+        let base = u32::try_from(mesh.positions.len())
+            .map(|_| base as u32)
+            .map_err(|_| {
+                bad(format!(
+                    "the scene's mesh instances hold more than {} vertices",
+                    u32::MAX
+                ))
+            })?;
         let mirrored = mirrors(world);
         mesh.triangles.extend(indices.chunks_exact(3).map(|t| {
             let [a, b, c] = [t[0], t[1], t[2]].map(|v| v + base);
@@ -589,20 +625,30 @@ mod tests {
         );
         assert!((volume6(&m) - 2.0).abs() < 1e-12, "{}", volume6(&m));
 
-        // Without a default scene every scene is shown.
-        let all = json!({
-            "scenes": [{ "nodes": [0] }, { "nodes": [1] }],
+        // Without a default scene the first is shown (as viewers show it), its rotation
+        // quaternion normalised (one of length 2 scaled the mesh by 4).
+        let first = json!({
+            "scenes": [{ "nodes": [1] }, { "nodes": [0] }],
             "nodes": [
                 { "mesh": 0, "translation": [10, 0, 0] },
-                { "mesh": 0, "rotation": [0, 0, 1, 0], "scale": [1, 1, 2] },
+                { "mesh": 0, "rotation": [0, 0, 2, 0], "scale": [1, 1, 2] },
             ],
         });
-        let m = read(&tetrahedra(dir.path(), all)).unwrap();
+        let m = read(&tetrahedra(dir.path(), first)).unwrap();
         assert_eq!(
-            m.positions[4..],
+            m.positions,
             [[0., 0., 0.], [-1., 0., 0.], [0., -1., 0.], [0., 0., 2.]]
         );
-        assert!((volume6(&m) - 3.0).abs() < 1e-6, "{}", volume6(&m));
+        assert!((volume6(&m) - 2.0).abs() < 1e-6, "{}", volume6(&m));
+        let no_rotation = json!({
+            "scene": 0,
+            "scenes": [{ "nodes": [0] }],
+            "nodes": [{ "mesh": 0, "rotation": [0, 0, 0, 0] }],
+        });
+        let e = read(&tetrahedra(dir.path(), no_rotation))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a unit quaternion"), "{e}");
 
         // A node that is its own ancestor is refused rather than followed for ever.
         let cycle = json!({

@@ -101,7 +101,8 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
             first_line = n as u64 + 1;
         }
         let text = String::from_utf8_lossy(&line);
-        let text = text.trim_end();
+        // The comment first: a `\` ending a comment (`# C:\models\`) continues nothing.
+        let text = text.split('#').next().unwrap_or_default().trim_end();
         match text.strip_suffix('\\') {
             Some(head) => {
                 statement.push_str(head);
@@ -116,6 +117,16 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     }
     reader.statement(&statement, first_line)?;
     reader.finish()
+}
+
+/// A coordinate as `f32` reads it (what the mesh keeps), or, past `f32`'s range, the `f64`
+/// value, so that the range check names it as too large rather than as infinite.
+fn coordinate(word: &str) -> Option<f64> {
+    let single = word.parse::<f32>().ok()?;
+    match single.is_finite() {
+        true => Some(f64::from(single)),
+        false => word.parse::<f64>().ok(),
+    }
 }
 
 /// The state of an OBJ read: the mesh so far, and the farthest vertex a face named before it
@@ -142,20 +153,26 @@ impl Reader<'_> {
         )
     }
 
-    /// One statement (a line, continuations joined), comments stripped.
+    /// One statement (a line, continuations joined, comments stripped).
     fn statement(&mut self, text: &str, line: u64) -> Result<(), SmeshError> {
-        let text = text.split('#').next().unwrap_or_default();
         let mut words = text.split_whitespace();
         match words.next() {
             Some("v") => {
-                let xyz: Vec<f64> = words
-                    .take(3)
-                    .map_while(|w| w.parse::<f32>().ok().map(f64::from))
-                    .collect();
-                match xyz[..] {
-                    [x, y, z] => self.mesh.positions.push([x, y, z]),
+                let numbers: Vec<f64> = words.map_while(coordinate).collect();
+                let [x, y, z] = match numbers[..] {
+                    [x, y, z, ..] => [x, y, z],
                     _ => return Err(self.expected(line, "a vertex of three numbers", text)),
-                }
+                };
+                // `v x y z w`, a weight (four numbers; six or seven are a colour): the position
+                // is x/w, y/w, z/w, as tobj read it.
+                let position = match numbers[..] {
+                    [_, _, _, 0.0] => {
+                        return Err(self.invalid(line, "a vertex of weight 0 has no position"));
+                    }
+                    [_, _, _, w] => [x / w, y / w, z / w],
+                    _ => [x, y, z],
+                };
+                self.mesh.positions.push(position);
             }
             Some("f") => {
                 let corners = words
@@ -250,6 +267,31 @@ mod tests {
         .unwrap();
         assert_eq!(m.positions.len(), 5);
         assert_eq!(m.triangles, [[0, 1, 2], [0, 2, 3], [0, 2, 3]]);
+    }
+
+    /// A comment ending in `\\` (a Windows path) continues nothing: the next line is read.
+    #[test]
+    fn a_comment_ending_in_a_backslash_is_only_a_comment() {
+        let m = read_text(
+            "# exported from C:\\models\\\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n\
+             f 1 3 2 # C:\\tmp\\\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+        )
+        .unwrap();
+        assert_eq!(m.positions.len(), 4);
+        assert_eq!(m.triangles.len(), 4);
+    }
+
+    /// `v x y z w` is the point (x/w, y/w, z/w), as tobj read it; six numbers are a colour; a
+    /// weight of 0 is refused; past f32's range is kept as the number, for the range check.
+    #[test]
+    fn vertex_weights_colours_and_large_coordinates() {
+        let m = read_text("v 2 0 0 2\nv 1 2 3 0.5 0.5 0.5\nv 1e39 0 0\n").unwrap();
+        assert_eq!(
+            m.positions,
+            [[1.0, 0.0, 0.0], [1.0, 2.0, 3.0], [1e39, 0.0, 0.0]]
+        );
+        let e = read_text("v 1 2 3 0\n").unwrap_err();
+        assert!(e.contains("line 1: a vertex of weight 0"), "{e}");
     }
 
     #[test]

@@ -294,6 +294,10 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let mut mesh = IndexedMesh::default();
     let mut faces = Vec::new();
     let mut strips = Vec::new();
+    let has_faces = header
+        .elements
+        .keys()
+        .any(|k| k == "face" || k == "tristrips");
     for (name, def) in &header.elements {
         match name.as_str() {
             "vertex" => {
@@ -342,9 +346,11 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
                 }
             }
             _ => {
-                // Faces under another name would be lost without a word.
+                // In a file without `face` or `tristrips`, faces under another name would be
+                // lost without a word; beside them, an index list is something else (edges,
+                // lines) and is passed over.
                 if let Some((list, _)) = def.properties.iter().find(|(k, p)| {
-                    is_index_list(k) && matches!(p.data_type, PropertyType::List(..))
+                    !has_faces && is_index_list(k) && matches!(p.data_type, PropertyType::List(..))
                 }) {
                     return Err(bad(format!(
                         "element `{name}` has a vertex index list `{list}` but only `face` and `tristrips` elements are read; convert it to faces first"
@@ -390,7 +396,8 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
                 "tristrips {i} has no list `vertex_indices` of integers"
             ))
         })?;
-        for run in list.split(|&v| v == -1) {
+        // The restart is -1, or its bits read as an unsigned index.
+        for run in list.split(|&v| v == -1 || v == i64::from(u32::MAX)) {
             let run = run
                 .iter()
                 .map(|&v| vertex("tristrips", i, v))
@@ -493,5 +500,28 @@ mod tests {
                 && e.contains("convert it to faces first"),
             "{e}"
         );
+        // Beside faces, an index list is something else (edges): passed over.
+        let m = read_text(
+            &format!(
+                "element vertex 3\n{XYZ}element face 1\nproperty list uchar int vertex_indices\n\
+                 element edge 1\nproperty list uchar int vertex_indices\n"
+            ),
+            "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n2 0 1\n",
+        )
+        .unwrap();
+        assert_eq!(m.triangles, [[0, 1, 2]]);
+    }
+
+    /// A strip of unsigned indices restarts at 0xFFFFFFFF, the bits of -1.
+    #[test]
+    fn an_unsigned_strip_restarts_at_all_ones() {
+        let m = read_text(
+            &format!(
+                "element vertex 4\n{XYZ}element tristrips 1\nproperty list int uint vertex_indices\n"
+            ),
+            "0 0 0\n1 0 0\n0 1 0\n1 1 0\n7 0 1 2 4294967295 1 3 2\n",
+        )
+        .unwrap();
+        assert_eq!(m.triangles, [[0, 1, 2], [1, 3, 2]]);
     }
 }
