@@ -121,6 +121,7 @@ fn group(dir: &Path, root: &J, wanted: Option<&str>) -> Result<ArrayMeta, Volume
         .ok_or_else(|| list.err("at least one dataset"))?;
     let mut meta = resolve(&dir.join(paths[pick]), None)?;
     let rank = meta.shape.len();
+    check_axes(&m.get("axes"), rank)?;
     // Dataset transformations first, then the multiscale's own (OME-Zarr v0.5, "multiscales").
     let (s1, t1) = transforms(&dataset.get("coordinateTransformations"), rank)?;
     let (s2, t2) = transforms(&m.get("coordinateTransformations"), rank)?;
@@ -131,6 +132,82 @@ fn group(dir: &Path, root: &J, wanted: Option<&str>) -> Result<ArrayMeta, Volume
     meta.spacing = Some(xyz(&scale));
     meta.origin = Some(xyz(&shift));
     Ok(meta)
+}
+
+/// Refuses an OME-Zarr image whose last three axes are not the spatial z, y, x, in that order.
+///
+/// The reader takes the last three axes as z, y, x (x fastest) and streams z slices; a time or
+/// channel axis there was meshed as depth with the time step as spacing, and axes listed as
+/// x, y, z had x and z swapped with their spacing and origin. Mapping the names instead would
+/// mean slicing along the fastest axis (every chunk of the volume decoded for each slice, or the
+/// volume held whole) and mirrored meshes, so the store must be written in z, y, x order. An
+/// axis is spatial when its `type` is `"space"`, or when it has no type and is named x, y or z
+/// (OME-Zarr v0.3 lists bare names). Without `axes` the last three are taken as z, y, x.
+fn check_axes(axes: &J, rank: usize) -> Result<(), VolumeError> {
+    if axes.is_null() {
+        return Ok(());
+    }
+    let items = axes.items("a list of axes")?;
+    if items.len() != rank {
+        return Err(axes.err(format!("{rank} axes, one per axis of the array")));
+    }
+    let mut named = Vec::with_capacity(rank);
+    for a in &items {
+        let (name, kind) = match a.value.as_str() {
+            Some(n) => (n, None),
+            None => (
+                a.get("name").str("an axis name")?,
+                a.get("type").value.as_str(),
+            ),
+        };
+        named.push((name, kind));
+    }
+    let last = &named[rank - 3..];
+    let listed = last
+        .iter()
+        .map(|(n, k)| match k {
+            Some(k) => format!("{n} ({k})"),
+            None => n.to_string(),
+        })
+        .collect::<Vec<_>>()
+        .join(", ");
+    let xyz = |n: &str| {
+        ["x", "y", "z"]
+            .iter()
+            .position(|a| n.eq_ignore_ascii_case(a))
+    };
+    if let Some((n, k)) = last.iter().find(|(n, k)| match k {
+        Some(k) => *k != "space",
+        None => xyz(n).is_none(),
+    }) {
+        let what = k.map_or("not named x, y or z".to_string(), |k| {
+            format!("of type {k}")
+        });
+        return Err(axes.problem(&format!(
+            "the last three axes [{listed}] must be spatial (z, y, x) but {n} is {what}; write one 3-D volume (one time point, one channel) as its own image with axes z, y, x"
+        )));
+    }
+    // Spatial axes of other names (a custom "depth") cannot be checked for order.
+    let order: Option<Vec<usize>> = last.iter().map(|(n, _)| xyz(n)).collect();
+    if let Some(order) = order
+        && order != [2, 1, 0]
+    {
+        let from: Option<Vec<String>> = [2, 1, 0]
+            .iter()
+            .map(|want| Some(order.iter().position(|o| o == want)?.to_string()))
+            .collect();
+        let fix = match from {
+            Some(from) => format!(
+                "rewrite the array with its last three axes transposed to z, y, x (numpy: a.transpose({}) of those axes)",
+                from.join(", ")
+            ),
+            None => "name them z, y, x, once each".to_string(),
+        };
+        return Err(axes.problem(&format!(
+            "axes [{listed}]: only the order z, y, x (x varying fastest) is read, since the volume is streamed in z slices; {fix}"
+        )));
+    }
+    Ok(())
 }
 
 /// Names of the sub-directories of a group that hold a `zarr.json`, for error messages.
@@ -272,5 +349,85 @@ mod tests {
         assert_eq!(k(false, '.'), "c.0.2.10");
         assert_eq!(k(true, '.'), "0.2.10");
         assert_eq!(k(true, '/'), "0/2/10");
+    }
+
+    /// The `axes` of an OME-Zarr multiscale, checked as `group` does.
+    fn axes(list: Value, rank: usize) -> Result<(), String> {
+        let doc = serde_json::json!({ "axes": list });
+        let file = Path::new("img.zarr/zarr.json");
+        check_axes(&J::root(file, &doc).get("axes"), rank).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn spatial_axes_in_z_y_x_order_are_read() {
+        let space = |n: &str| serde_json::json!({"name": n, "type": "space", "unit": "micrometer"});
+        let zyx = serde_json::json!([
+            {"name": "t", "type": "time"},
+            {"name": "c", "type": "channel"},
+            space("z"),
+            space("y"),
+            space("x")
+        ]);
+        assert_eq!(axes(zyx, 5), Ok(()));
+        // v0.3's bare names, untyped names, and spatial axes of other names.
+        assert_eq!(axes(serde_json::json!(["z", "y", "x"]), 3), Ok(()));
+        assert_eq!(
+            axes(
+                serde_json::json!([{"name": "Z"}, {"name": "y"}, {"name": "x"}]),
+                3
+            ),
+            Ok(())
+        );
+        let custom = serde_json::json!([space("depth"), space("row"), space("col")]);
+        assert_eq!(axes(custom, 3), Ok(()));
+        assert_eq!(axes(Value::Null, 3), Ok(()));
+    }
+
+    /// A time series or channels of 2-D images were meshed as a volume (time as depth).
+    #[test]
+    fn time_or_channel_among_the_last_three_axes_is_refused() {
+        let space = |n: &str| serde_json::json!({"name": n, "type": "space"});
+        let tyx = serde_json::json!([{"name": "t", "type": "time", "unit": "second"}, space("y"), space("x")]);
+        assert_eq!(
+            axes(tyx, 3).unwrap_err(),
+            "img.zarr/zarr.json: key axes: the last three axes [t (time), y (space), x (space)] must be spatial (z, y, x) but t is of type time; write one 3-D volume (one time point, one channel) as its own image with axes z, y, x"
+        );
+        let cyx = serde_json::json!([{"name": "c", "type": "channel"}, space("y"), space("x")]);
+        assert!(
+            axes(cyx, 3)
+                .unwrap_err()
+                .contains("but c is of type channel;")
+        );
+        let untyped = serde_json::json!(["c", "y", "x"]);
+        assert!(
+            axes(untyped, 3)
+                .unwrap_err()
+                .contains("but c is not named x, y or z;")
+        );
+        let short = serde_json::json!([space("y"), space("x")]);
+        assert!(
+            axes(short, 3)
+                .unwrap_err()
+                .contains("expected 3 axes, one per axis of the array")
+        );
+    }
+
+    /// Axes listed x, y, z (allowed by the spec) had x and z swapped silently.
+    #[test]
+    fn spatial_axes_in_another_order_are_refused() {
+        let space = |n: &str| serde_json::json!({"name": n, "type": "space"});
+        let xyz = serde_json::json!([space("x"), space("y"), space("z")]);
+        assert_eq!(
+            axes(xyz, 3).unwrap_err(),
+            "img.zarr/zarr.json: key axes: axes [x (space), y (space), z (space)]: only the order z, y, x (x varying fastest) is read, since the volume is streamed in z slices; rewrite the array with its last three axes transposed to z, y, x (numpy: a.transpose(2, 1, 0) of those axes)"
+        );
+        let zxy = serde_json::json!(["z", "x", "y"]);
+        assert!(axes(zxy, 3).unwrap_err().contains("a.transpose(0, 2, 1)"));
+        let twice = serde_json::json!(["z", "x", "x"]);
+        assert!(
+            axes(twice, 3)
+                .unwrap_err()
+                .ends_with("; name them z, y, x, once each")
+        );
     }
 }

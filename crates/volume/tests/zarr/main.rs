@@ -217,6 +217,49 @@ fn ome_zarr_levels_spacing_and_origin() {
     );
 }
 
+/// OME-Zarr axes that are not the spatial z, y, x are refused (a time axis was meshed as depth,
+/// axes listed x, y, z had x and z swapped), with the axes named.
+#[test]
+fn ome_zarr_axes_must_be_spatial_z_y_x() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("img.ome.zarr");
+    write(
+        &root.join("0"),
+        &Spec::new(&[3, 4, 5], &[2, 2, 2]),
+        &pattern("uint8"),
+        &keep_all,
+    );
+    write_ome_group(&root, &[("0", [1.0, 1.0, 1.0])], [0.0; 3], 3);
+    assert!(open_path(&root, &OpenOptions::default()).is_ok());
+    let file = root.join("zarr.json");
+    let with_axes = |names: [(&str, &str); 3]| {
+        let mut doc: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&file).unwrap()).unwrap();
+        doc["attributes"]["ome"]["multiscales"][0]["axes"] = names
+            .iter()
+            .map(|(n, t)| serde_json::json!({"name": n, "type": t}))
+            .collect();
+        write_json(&file, &doc);
+        open_path(&root, &OpenOptions::default())
+            .err()
+            .map(|e| e.to_string())
+    };
+    let e = with_axes([("t", "time"), ("y", "space"), ("x", "space")]).expect("refused");
+    assert!(
+        e.starts_with(&format!(
+            "{}: key attributes.ome.multiscales[0].axes: the last three axes [t (time), y (space), x (space)] must be spatial",
+            file.display()
+        )),
+        "{e}"
+    );
+    let e = with_axes([("x", "space"), ("y", "space"), ("z", "space")]).expect("refused");
+    assert!(e.contains("only the order z, y, x"), "{e}");
+    assert_eq!(
+        with_axes([("z", "space"), ("y", "space"), ("x", "space")]),
+        None
+    );
+}
+
 #[test]
 fn plain_group_needs_the_array_named() {
     let dir = tempfile::tempdir().unwrap();
