@@ -1,7 +1,10 @@
 //! TIFF stacks: one multi-page `.tif`/`.tiff` (page k = slice z = k) or a directory of
-//! single-page TIFFs in natural name order (`slice2.tif` before `slice10.tif`). Grayscale pages
+//! single-page TIFFs in natural name order (`slice2.tif` before `slice10.tif`; hidden files,
+//! whose names start with '.', are skipped). Grayscale pages of one channel at one time point
 //! only. One page is decoded per slice; TIFF carries no reliable voxel size, so spacing and origin
-//! come from [`OpenOptions`] (default 1 and 0).
+//! come from [`OpenOptions`] (default 1 and 0). WhiteIsZero pages are inverted by the `tiff`
+//! decoder (`max - v` for unsigned samples, `1 - v` for floats; signed samples are refused), so
+//! they read as the picture looks.
 
 use crate::grid::dims_text;
 use crate::source::check_request;
@@ -11,6 +14,7 @@ use std::io::BufReader;
 use std::path::{Path, PathBuf};
 use tiff::ColorType;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
+use tiff::tags::Tag;
 
 type TiffDecoder = Decoder<BufReader<File>>;
 
@@ -27,6 +31,8 @@ pub(crate) struct TiffStack {
     grid: Grid,
     dtype: Dtype,
     pages: Pages,
+    /// What the other pages must match, for messages: "the first page" or the first file.
+    like: String,
 }
 
 /// Opens a multi-page TIFF file or a directory of TIFF files.
@@ -48,21 +54,33 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     };
     // Decode the first page once: it fixes the slice size and tells the stored type.
     let mut d = decoder(&first)?;
+    refuse_hyperstack(&first, &mut d)?;
     let (w, h) = d.dimensions().map_err(|e| page_err(&first, 0, e))?;
     let dims = [u64::from(w), u64::from(h), count];
     let grid = opts.grid(path, dims, [1.0; 3], [0.0; 3])?;
+    let like = match pages {
+        Pages::Files(_) => format!("the first file, {}", file_name(&first)),
+        Pages::MultiPage(_) => "the first page".to_string(),
+    };
     // Only the type is needed now: no slice buffer sized from the header's claim (the decoder's
     // limits, scaled to the file, bound what decoding the page may allocate).
-    let dtype = read_page(&first, 0, &mut d, (w, h), &mut [])?;
+    let dtype = read_page(&first, 0, &mut d, (w, h), &like, &mut [])?;
     Ok(Box::new(TiffStack {
         path: path.to_path_buf(),
         grid,
         dtype,
         pages,
+        like,
     }))
 }
 
-/// TIFF files of a directory in natural order; at least one.
+fn file_name(p: &Path) -> std::borrow::Cow<'_, str> {
+    p.file_name().unwrap_or_default().to_string_lossy()
+}
+
+/// TIFF files of a directory in natural order; at least one. Hidden files (names starting with
+/// '.') are skipped: macOS writes an AppleDouble `._slice0.tif` beside each file copied to a
+/// foreign disk, which is not a TIFF and aborted the run.
 fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, VolumeError> {
     let entries = std::fs::read_dir(dir).map_err(|e| VolumeError::io(dir, "list", e))?;
     let mut files = Vec::new();
@@ -71,7 +89,7 @@ fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, VolumeError> {
         let ext = p
             .extension()
             .map(|e| e.to_string_lossy().to_ascii_lowercase());
-        if matches!(ext.as_deref(), Some("tif" | "tiff")) {
+        if matches!(ext.as_deref(), Some("tif" | "tiff")) && !file_name(&p).starts_with('.') {
             files.push(p);
         }
     }
@@ -83,7 +101,7 @@ fn list_dir(dir: &Path) -> Result<Vec<PathBuf>, VolumeError> {
             "none",
         ));
     }
-    files.sort_by_key(|p| natural_key(&p.file_name().unwrap_or_default().to_string_lossy()));
+    files.sort_by_key(|p| natural_key(&file_name(p)));
     Ok(files)
 }
 
@@ -133,6 +151,63 @@ fn limits_for(file_len: u64) -> Limits {
     limits
 }
 
+/// Refuses a file whose ImageDescription declares more than one channel or time point: ImageJ
+/// hyperstacks and OME-TIFF store them as interleaved pages, which were read as z slices (two
+/// channels doubled the depth). A description the decoder cannot read (not UTF-8) declares
+/// nothing this reader can use, and the pages are still read.
+fn refuse_hyperstack(path: &Path, d: &mut TiffDecoder) -> Result<(), VolumeError> {
+    let Some(desc) = d
+        .find_tag(Tag::ImageDescription)
+        .ok()
+        .flatten()
+        .and_then(|v| v.into_string().ok())
+    else {
+        return Ok(());
+    };
+    let (writer, extra) = hyperstack_extents(&desc);
+    if extra.is_empty() {
+        return Ok(());
+    }
+    Err(VolumeError::Grid {
+        origin: path.display().to_string(),
+        problem: format!(
+            "ImageDescription: {writer} metadata declares {}, but one 3-D volume is read (its pages would be taken as interleaved z slices); save one channel at one time point as its own stack (Fiji: Image > Color > Split Channels; tifffile: imwrite(path, data[:, c]) of ZCYX data)",
+            extra.join(" and ")
+        ),
+    })
+}
+
+/// Channel and time-point counts above 1 that an ImageJ (`channels=`, `frames=`) or OME-XML
+/// (`SizeC`, `SizeT`; the largest of its images) description declares, with the writer's name.
+fn hyperstack_extents(desc: &str) -> (&'static str, Vec<String>) {
+    let (writer, counts) = if desc.starts_with("ImageJ=") {
+        let count = |key: &str| {
+            desc.lines()
+                .filter_map(|l| l.strip_prefix(key)?.strip_prefix('='))
+                .filter_map(|v| v.trim().parse::<u64>().ok())
+                .max()
+        };
+        ("ImageJ", [count("channels"), count("frames")])
+    } else if desc.contains("<OME") {
+        let count = |key: &str| {
+            desc.split(key)
+                .skip(1)
+                .filter_map(|rest| rest.strip_prefix("=\"")?.split('"').next())
+                .filter_map(|v| v.trim().parse::<u64>().ok())
+                .max()
+        };
+        ("OME-XML", [count(" SizeC"), count(" SizeT")])
+    } else {
+        return ("", Vec::new());
+    };
+    let extra = counts
+        .iter()
+        .zip(["channels", "time points"])
+        .filter_map(|(n, what)| n.filter(|&n| n > 1).map(|n| format!("{n} {what}")))
+        .collect();
+    (writer, extra)
+}
+
 fn page_err(path: &Path, page: u64, e: tiff::TiffError) -> VolumeError {
     VolumeError::format(
         path,
@@ -143,12 +218,14 @@ fn page_err(path: &Path, page: u64, e: tiff::TiffError) -> VolumeError {
 }
 
 /// Decodes the current page of `d` into `out` (nothing when `out` is empty: the caller only wants
-/// the type), checking it matches the stack; returns its type.
+/// the type), checking its size is that of the stack (`like` names the page that set it); returns
+/// its type.
 fn read_page(
     path: &Path,
     page: u64,
     d: &mut TiffDecoder,
     (w, h): (u32, u32),
+    like: &str,
     out: &mut [f32],
 ) -> Result<Dtype, VolumeError> {
     let at = || format!("page {page}");
@@ -157,7 +234,7 @@ fn read_page(
         return Err(VolumeError::format(
             path,
             at(),
-            format!("{w}x{h} pixels like the first page"),
+            format!("{w}x{h} pixels like {like}"),
             format!("{}x{}", size.0, size.1),
         ));
     }
@@ -234,11 +311,21 @@ impl VolumeSource for TiffStack {
         check_request(self, z, out)?;
         // Grid dims 0 and 1 came from a u32 page size.
         let size = (self.grid.dims[0] as u32, self.grid.dims[1] as u32);
-        let (file, got) = match &mut self.pages {
+        let like = &self.like;
+        // The page within its file: a folder's files hold page 0 only.
+        let (file, page, got) = match &mut self.pages {
             Pages::Files(files) => {
                 let file = &files[z as usize];
                 let mut d = decoder(file)?;
-                (file.clone(), read_page(file, 0, &mut d, size, out)?)
+                let got = read_page(file, 0, &mut d, size, like, out)?;
+                // A second page was silently ignored: the file is not one slice.
+                if d.more_images() {
+                    return Err(VolumeError::Grid {
+                        origin: file.display().to_string(),
+                        problem: "holds more than one page, but each file of a slice folder is one z slice; save one page per file, or give a multi-page stack as the input path itself".into(),
+                    });
+                }
+                (file.clone(), 0, got)
             }
             Pages::MultiPage(slot) => {
                 let d = match slot {
@@ -247,14 +334,15 @@ impl VolumeSource for TiffStack {
                 };
                 d.seek_to_image(z as usize)
                     .map_err(|e| page_err(&self.path, z, e))?;
-                (self.path.clone(), read_page(&self.path, z, d, size, out)?)
+                let got = read_page(&self.path, z, d, size, like, out)?;
+                (self.path.clone(), z, got)
             }
         };
         if got != self.dtype {
             return Err(VolumeError::format(
                 &file,
-                format!("page {z}"),
-                format!("{} samples like the first page", self.dtype),
+                format!("page {page}"),
+                format!("{} samples like {like}", self.dtype),
                 got.name(),
             ));
         }

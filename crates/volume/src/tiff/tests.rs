@@ -2,6 +2,7 @@ use super::*;
 use crate::open_path;
 use crate::testutil::read_all;
 use tiff::encoder::{TiffEncoder, colortype};
+use tiff::tags::Tag;
 
 /// Writes 16-bit pages of 3x2 pixels valued z * 100 + i.
 fn pages(path: &Path, n: u16) {
@@ -143,6 +144,123 @@ fn bad_stacks_give_one_line_errors() {
             .unwrap_err()
             .to_string()
             .contains("apply only to .raw files")
+    );
+}
+
+/// Writes `n` 16-bit pages of 3x2 pixels valued z * 100 + i, the first with ImageDescription
+/// `desc`, as ImageJ and tifffile write hyperstacks.
+fn described(path: &Path, n: u16, desc: &str) {
+    let mut e = TiffEncoder::new(File::create(path).unwrap()).unwrap();
+    for z in 0..n {
+        let data: Vec<u16> = (0..6).map(|i| z * 100 + i).collect();
+        let mut page = e.new_image::<colortype::Gray16>(3, 2).unwrap();
+        if z == 0 {
+            page.encoder()
+                .write_tag(Tag::ImageDescription, desc)
+                .unwrap();
+        }
+        page.write_data(&data).unwrap();
+    }
+}
+
+/// ImageJ hyperstacks and OME-TIFF store channels and time points as interleaved pages, which
+/// were read as z slices (two channels: twice the depth).
+#[test]
+fn channels_or_time_points_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("ij.tif");
+    let ij = "ImageJ=1.11a\nimages=4\nchannels=2\nslices=2\nhyperstack=true\nmode=grayscale\n";
+    described(&p, 4, ij);
+    let e = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: ImageDescription: ImageJ metadata declares 2 channels, but one 3-D volume is read (its pages would be taken as interleaved z slices); save one channel at one time point as its own stack (Fiji: Image > Color > Split Channels; tifffile: imwrite(path, data[:, c]) of ZCYX data)",
+            p.display()
+        )
+    );
+    let ome = r#"<?xml version="1.0" encoding="UTF-8"?><OME><Image ID="Image:0"><Pixels ID="Pixels:0" DimensionOrder="XYCZT" Type="uint16" SizeX="3" SizeY="2" SizeC="2" SizeZ="1" SizeT="2"><TiffData IFD="0" PlaneCount="4"/></Pixels></Image></OME>"#;
+    described(&p, 4, ome);
+    let e = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(
+            ": ImageDescription: OME-XML metadata declares 2 channels and 2 time points, but"
+        ),
+        "{e}"
+    );
+    // One channel at one time point, as ImageJ and tifffile write plain stacks, reads as before.
+    described(
+        &p,
+        4,
+        "ImageJ=1.11a\nimages=4\nchannels=1\nslices=4\nframes=1\n",
+    );
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want(4));
+    described(
+        &p,
+        4,
+        &ome.replace("SizeC=\"2\"", "SizeC=\"1\"")
+            .replace("SizeT=\"2\"", "SizeT=\"1\"")
+            .replace("SizeZ=\"1\"", "SizeZ=\"4\""),
+    );
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want(4));
+    described(&p, 4, "a scan of channels=2 written by hand");
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want(4));
+}
+
+/// A folder's slices: hidden files skipped, a file of two pages refused, and a file of another
+/// type named as page 0 of that file (it was "page 13", the slice's index).
+#[test]
+fn slice_folder_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let stack = dir.path().join("slices");
+    std::fs::create_dir(&stack).unwrap();
+    let slice = |z: u16| {
+        let mut e =
+            TiffEncoder::new(File::create(stack.join(format!("slice{z}.tif"))).unwrap()).unwrap();
+        let data: Vec<u16> = (0..6).map(|i| z * 100 + i).collect();
+        e.write_image::<colortype::Gray16>(3, 2, &data).unwrap();
+    };
+    for z in 0..4 {
+        slice(z);
+    }
+    // macOS AppleDouble files beside each copied file: not TIFFs, and hidden.
+    std::fs::write(
+        stack.join("._slice0.tif"),
+        b"\0\x05\x16\x07\0\x02\0\0Mac OS X        ",
+    )
+    .unwrap();
+    pages(&stack.join(".hidden.tif"), 2);
+    assert_eq!(read_all(&stack, &OpenOptions::default()).unwrap(), want(4));
+
+    let two = stack.join("slice2.tif");
+    pages(&two, 2);
+    let e = read_all(&stack, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: holds more than one page, but each file of a slice folder is one z slice; save one page per file, or give a multi-page stack as the input path itself",
+            two.display()
+        )
+    );
+
+    let mut e = TiffEncoder::new(File::create(&two).unwrap()).unwrap();
+    e.write_image::<colortype::Gray8>(3, 2, &[0u8; 6]).unwrap();
+    drop(e);
+    let e = read_all(&stack, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: page 0: expected u16 samples like the first file, slice0.tif, found \"u8\"",
+            two.display()
+        )
     );
 }
 
