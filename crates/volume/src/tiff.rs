@@ -74,6 +74,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     }))
 }
 
+/// A path's last part as text, for sorting a folder and for messages.
 fn file_name(p: &Path) -> std::borrow::Cow<'_, str> {
     p.file_name().unwrap_or_default().to_string_lossy()
 }
@@ -196,7 +197,7 @@ fn hyperstack_extents(desc: &str) -> (&'static str, Vec<String>) {
                 .filter_map(|v| v.trim().parse::<u64>().ok())
                 .max()
         };
-        ("OME-XML", [count(" SizeC"), count(" SizeT")])
+        ("OME-XML", [count("SizeC"), count("SizeT")])
     } else {
         return ("", Vec::new());
     };
