@@ -25,6 +25,9 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
         job.simplify.mode,
         job.output.path.display()
     );
+    if let Some(w) = isostream_pipeline::orientation_warning(source.as_ref()) {
+        println!("{}: warning: {w}", job_path.display());
+    }
     Ok(())
 }
 

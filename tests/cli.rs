@@ -206,6 +206,44 @@ fn nan_voxels_are_outside_and_counted() {
     assert!(r.is_valid_manifold(), "{r:?}");
 }
 
+/// An LPS NRRD (x and y step backwards from the origin): the dropped flips are one warning in
+/// the run summary, and a warning line of `validate`.
+#[test]
+fn dropped_axis_flips_are_warned_about() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = random_blobs([12, 12, 12], 1, 3);
+    let mut nrrd = b"NRRD0004\ntype: float\ndimension: 3\nsizes: 12 12 12\nendian: little\nencoding: raw\nspace: left-posterior-superior\nspace directions: (-0.5,0,0) (0,-0.8,0) (0,0,1.2)\nspace origin: (10,-5,3)\n\n".to_vec();
+    nrrd.extend(vol.data.iter().flat_map(|v| v.to_le_bytes()));
+    std::fs::write(dir.path().join("lps.nrrd"), nrrd).unwrap();
+    let job = write_job(
+        dir.path(),
+        &format!(
+            "[input]\npath = \"lps.nrrd\"\n[extract]\niso = {}\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n",
+            vol.iso
+        ),
+    );
+    let o = isostream(&["validate", &job]);
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let warning: Vec<&str> = out.lines().filter(|l| l.contains(": warning: ")).collect();
+    assert_eq!(warning.len(), 1, "{out}");
+    assert!(
+        warning[0].contains("lps.nrrd: the header flips axis x, y"),
+        "{out}"
+    );
+    let o = isostream(&["run", &job]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("o.smb.run.json")).unwrap())
+            .unwrap();
+    let warnings = summary["warnings"].as_array().unwrap();
+    assert_eq!(warnings.len(), 1, "{summary}");
+    assert!(
+        warnings[0].as_str().unwrap().contains("mirrored on x, y"),
+        "{summary}"
+    );
+}
+
 #[test]
 fn ctrl_c_stops_with_130_and_leaves_no_file() {
     let dir = tempfile::tempdir().unwrap();

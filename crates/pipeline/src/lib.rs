@@ -48,7 +48,7 @@ pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
 pub use output::{OutputLock, lock_output, lock_path, one_file, stale_temp_files};
 pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
-pub use source::{open_source, preflight};
+pub use source::{open_source, orientation_warning, preflight};
 pub use stages::{Progress, StageSeconds};
 
 /// What a finished run reports (logged, and written as `<output>.run.json`).
@@ -190,6 +190,12 @@ fn run_job(
     let grid = source.grid();
     let input = source.describe();
     info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");
+    // Said at the start (the mesh of a long run is in the wrong place from its first slab), and
+    // kept for the summary's warnings.
+    let dropped_orientation = orientation_warning(source.as_ref());
+    if let Some(w) = &dropped_orientation {
+        warn!("{w}");
+    }
     if source.loads_whole_volume() {
         warn!(input = %input, "the input's encoding forces decoding the whole volume at once (one chunk spans every slice): memory grows with the volume; re-chunk it along z");
     }
@@ -367,7 +373,7 @@ fn run_job(
             .faces
             .unwrap_or_else(|| (rate * faces_kept as f64).round() as u64)
     });
-    let warnings: Vec<String> = target_faces
+    let late: Vec<String> = target_faces
         .and_then(|target| {
             // A cascade's first stage retires for memory by design (it hands its surface on);
             // what the last stage retired early was written less simplified.
@@ -396,9 +402,10 @@ fn run_job(
             "small components pruned"
         );
     }
-    for w in &warnings {
+    for w in &late {
         warn!("{w}");
     }
+    let warnings = dropped_orientation.into_iter().chain(late).collect();
     let summary = RunSummary {
         input,
         dims: grid.dims,

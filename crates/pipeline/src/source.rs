@@ -31,6 +31,18 @@ pub fn preflight(job: &JobConfig) -> Result<Box<dyn VolumeSource>, RunError> {
     Ok(source)
 }
 
+/// The warning for what of the input's header orientation the grid dropped (axis flips, a
+/// rotation), `None` when nothing was: without it a flipped volume's mesh lands outside the
+/// volume's physical box and nobody notices. `run` logs it and puts it in the run summary,
+/// `validate` prints it.
+pub fn orientation_warning(source: &dyn VolumeSource) -> Option<String> {
+    let dropped = source.orientation().dropped()?;
+    Some(format!(
+        "{}: {dropped}; see config/README.md, Orientation",
+        source.describe()
+    ))
+}
+
 /// The coarsest `f32` step, as a share of an axis's spacing, that positions along that axis
 /// may have. Meshes are written in `f32` (and the simplifier keeps `f32`-exact positions): a
 /// volume far from the origin at a fine spacing had its vertices rounded onto a few positions
@@ -171,7 +183,42 @@ fn open_stored(input: &InputConfig) -> Result<Box<dyn VolumeSource>, RunError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use isostream_volume::Shape;
+    use isostream_volume::{Orientation, Shape};
+
+    /// A procedural volume whose "header" flipped x.
+    struct Flipped(Procedural);
+
+    impl VolumeSource for Flipped {
+        fn grid(&self) -> Grid {
+            self.0.grid()
+        }
+        fn describe(&self) -> String {
+            "lps.nrrd".into()
+        }
+        fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
+            self.0.read_slice(z, out)
+        }
+        fn orientation(&self) -> Orientation {
+            Orientation::Flipped([true, false, false])
+        }
+    }
+
+    #[test]
+    fn a_dropped_flip_is_one_warning_naming_the_file() {
+        let sphere = || Procedural::new(Shape::Sphere, [8; 3], [1.0; 3], [0.0; 3]).unwrap();
+        assert_eq!(orientation_warning(&sphere()), None);
+        let w = orientation_warning(&Flipped(sphere())).unwrap();
+        assert!(
+            w.starts_with("lps.nrrd: the header flips axis x")
+                && w.ends_with("see config/README.md, Orientation")
+                && !w.contains('\n'),
+            "{w}"
+        );
+        // Through `upsample` too.
+        let up: Box<dyn VolumeSource> =
+            Box::new(Upsampled::new(Box::new(Flipped(sphere())), [2, 1, 1]).unwrap());
+        assert!(orientation_warning(up.as_ref()).is_some());
+    }
 
     #[test]
     fn slices_larger_than_the_memory_are_refused_up_front() {

@@ -41,6 +41,7 @@ mod nifti;
 mod nrrd;
 mod open;
 mod options;
+mod orientation;
 mod procedural;
 mod raw;
 #[cfg(test)]
@@ -65,6 +66,7 @@ pub use grid::Grid;
 pub use memory::MemoryVolume;
 pub use open::open_path;
 pub use options::OpenOptions;
+pub use orientation::Orientation;
 pub use procedural::{Procedural, Shape};
 pub use raw::{RawSpec, RawVolume};
 pub use source::{SliceRows, VolumeSource};

@@ -5,13 +5,17 @@
 //! of pulling the `nifti` crate, whose ndarray dependency would pin ndarray for the whole workspace
 //! and whose volume API loads whole arrays. `.nii` payloads are memory-mapped; `.nii.gz` streams.
 //!
-//! Orientation: only the translation of the sform (else qform) becomes the grid origin; axis
-//! flips and rotations are ignored (isostream grids are axis-aligned), so meshes come out in
-//! voxel-index orientation scaled by `pixdim`.
+//! Placement follows nibabel and the NIfTI-1 standard: the sform when `sform_code > 0` (spacing
+//! its columns' lengths, origin its translation: tools that rewrite only the sform leave a stale
+//! `pixdim`), else the qform when `qform_code > 0` (`pixdim` and `qoffset`), else `pixdim` from
+//! 0. Axis flips and rotations are not applied (isostream grids are axis-aligned): meshes come
+//! out in voxel-index orientation from that origin, and the source reports what it dropped
+//! ([`VolumeSource::orientation`]).
 
+use crate::orientation::step_length;
 use crate::raw::{Payload, RawVolume};
 use crate::stream::{Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
-use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, OpenOptions, Orientation, VolumeError, VolumeSource};
 use flate2::read::MultiGzDecoder;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -25,6 +29,7 @@ struct Header {
     dtype: Dtype,
     spacing: [f64; 3],
     origin: [f64; 3],
+    orientation: Orientation,
     vox_offset: u64,
     slope: f32,
     inter: f32,
@@ -78,6 +83,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
                 Ok(s)
             }),
             exact_end: false,
+            orientation: h.orientation,
         })?)
     } else {
         Box::new(raw(path, &h, grid)?)
@@ -102,6 +108,7 @@ fn raw(data: &Path, h: &Header, grid: Grid) -> Result<RawVolume, VolumeError> {
         offset: h.vox_offset,
         trailing_ok: true,
         hint: "check the NIfTI header's dim, datatype and vox_offset",
+        orientation: h.orientation,
     })
 }
 
@@ -181,7 +188,6 @@ fn parse(path: &Path, b: &[u8; HEADER]) -> Result<Header, VolumeError> {
             ));
         }
     };
-    let spacing = [1, 2, 3].map(|k| f64::from(f32_at(76 + 4 * k)).abs());
     let vox = f32_at(108);
     let min_offset = if pair { 0.0 } else { HEADER as f32 };
     if !vox.is_finite() || vox < min_offset || vox.fract() != 0.0 {
@@ -191,12 +197,22 @@ fn parse(path: &Path, b: &[u8; HEADER]) -> Result<Header, VolumeError> {
             vox.to_string(),
         ));
     }
-    let origin = if i16_at(254) > 0 {
-        [280, 296, 312].map(|o| f64::from(f32_at(o + 12)))
+    let f64_at = |o: usize| f64::from(f32_at(o));
+    let pixdim = [1, 2, 3].map(|k| f64_at(76 + 4 * k).abs());
+    let (spacing, origin, orientation) = if i16_at(254) > 0 {
+        // srow_x, srow_y, srow_z: the affine's rows; column k is index axis k's step.
+        let rows = [280, 296, 312].map(|o| [0, 1, 2, 3].map(|c| f64_at(o + 4 * c)));
+        let columns = [0, 1, 2].map(|k| rows.map(|r| r[k]));
+        (
+            columns.map(step_length),
+            rows.map(|r| r[3]),
+            Orientation::of_columns(columns),
+        )
     } else if i16_at(252) > 0 {
-        [268, 272, 276].map(|o| f64::from(f32_at(o)))
+        let origin = [268, 272, 276].map(f64_at);
+        (pixdim, origin, qform_orientation(&f64_at))
     } else {
-        [0.0; 3]
+        (pixdim, [0.0; 3], Orientation::Aligned)
     };
     Ok(Header {
         endian,
@@ -204,11 +220,42 @@ fn parse(path: &Path, b: &[u8; HEADER]) -> Result<Header, VolumeError> {
         dtype,
         spacing,
         origin,
+        orientation,
         vox_offset: vox as u64,
         slope: f32_at(112),
         inter: f32_at(116),
         pair,
     })
+}
+
+/// The axes of the qform (NIfTI-1 method 2): the rotation of the quaternion (b, c, d) at bytes
+/// 256..268, its z column negated when `qfac` (`pixdim[0]`) is negative. Lengths do not matter:
+/// only the directions are compared with the axes.
+fn qform_orientation(f64_at: &dyn Fn(usize) -> f64) -> Orientation {
+    let [b, c, d] = [256, 260, 264].map(f64_at);
+    let a = (1.0 - (b * b + c * c + d * d)).max(0.0).sqrt();
+    let r = [
+        [
+            a * a + b * b - c * c - d * d,
+            2.0 * (b * c - a * d),
+            2.0 * (b * d + a * c),
+        ],
+        [
+            2.0 * (b * c + a * d),
+            a * a + c * c - b * b - d * d,
+            2.0 * (c * d - a * b),
+        ],
+        [
+            2.0 * (b * d - a * c),
+            2.0 * (c * d + a * b),
+            a * a + d * d - c * c - b * b,
+        ],
+    ];
+    let qfac = if f64_at(76) < 0.0 { -1.0 } else { 1.0 };
+    Orientation::of_columns([0, 1, 2].map(|k| {
+        let sign = if k == 2 { qfac } else { 1.0 };
+        r.map(|row| row[k] * sign)
+    }))
 }
 
 /// Applies `value * slope + inter` (NIfTI's scl_slope / scl_inter) to every voxel.
@@ -234,6 +281,9 @@ impl VolumeSource for Scaled {
     }
     fn dtype(&self) -> Option<Dtype> {
         self.inner.dtype()
+    }
+    fn orientation(&self) -> Orientation {
+        self.inner.orientation()
     }
 }
 

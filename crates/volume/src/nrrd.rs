@@ -3,14 +3,17 @@
 //! and `data file: LIST`). No NRRD crate exists, and the header is a short line-based text, so we
 //! parse it here. Raw single-file payloads are memory-mapped; everything else streams.
 //!
-//! Orientation: `space directions` contribute only their lengths (the spacing); isostream grids
-//! are axis-aligned, so a rotated or sheared volume is meshed in index-aligned physical units.
+//! Orientation: `space directions` (and negative `spacings`) contribute only their lengths (the
+//! spacing); isostream grids are axis-aligned, so a flipped, rotated or sheared volume is meshed
+//! in index-aligned physical units from `space origin`, and the source reports what it dropped
+//! ([`VolumeSource::orientation`]).
 
 use crate::codec::AsciiValues;
 use crate::grid::dims_text;
+use crate::orientation::step_length;
 use crate::raw::{Payload, RawVolume, checked_payload};
 use crate::stream::{Opener, Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
-use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, OpenOptions, Orientation, VolumeError, VolumeSource};
 use flate2::read::MultiGzDecoder;
 use std::io::{self, BufRead, Read};
 use std::path::{Path, PathBuf};
@@ -33,6 +36,8 @@ struct Header {
     encoding: Encoding,
     spacing: [f64; 3],
     origin: [f64; 3],
+    /// Flips or rotation of `space directions` / signs of `spacings`, dropped from the grid.
+    orientation: Orientation,
     /// Empty when the data is attached.
     files: Vec<PathBuf>,
     line_skip: u64,
@@ -91,6 +96,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             // only `byte skip: -1` (the payload is the file's last bytes) skips a prefix.
             trailing_ok: h.byte_skip < 0,
             hint: "check the NRRD header's sizes, type, byte skip and data file",
+            orientation: h.orientation,
         })?));
     }
     // The memory-mapped path above handled the one case where teem allows -1.
@@ -182,6 +188,7 @@ fn streamed(
         // `sizes` describe the whole payload: more data means they are wrong (the raw
         // encoding's file size is checked at open).
         exact_end: true,
+        orientation: h.orientation,
     })
 }
 
@@ -321,20 +328,20 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
             }
             "spacings" => {
                 let s = parse_n::<f64>(value).ok_or_else(|| err(n, "three spacings", value))?;
-                spacing = Some(s.map(|v| if v.is_nan() { 1.0 } else { v.abs() }));
+                spacing = Some(s.map(|v| if v.is_nan() { 1.0 } else { v }));
             }
             "space directions" => {
-                let mut d = [1.0; 3];
+                // `none` (a non-spatial axis) steps by 1 along its own axis.
+                let mut d = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
                 let vecs: Vec<&str> = value.split_whitespace().collect();
                 if vecs.len() != 3 {
                     return Err(err(n, "three space direction vectors", value));
                 }
                 for (axis, v) in vecs.iter().enumerate() {
-                    if *v == "none" {
-                        continue;
+                    if *v != "none" {
+                        d[axis] =
+                            parse_vector(v).ok_or_else(|| err(n, "vectors like (1,0,0)", v))?;
                     }
-                    let c = parse_vector(v).ok_or_else(|| err(n, "vectors like (1,0,0)", v))?;
-                    d[axis] = c.iter().map(|x| x * x).sum::<f64>().sqrt();
                 }
                 directions = Some(d);
             }
@@ -368,6 +375,12 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
             _ => {}
         }
     }
+    // Each axis' step vector: `space directions`, else `spacings` along the axes (a negative
+    // spacing is a flip).
+    let steps = directions.unwrap_or_else(|| {
+        let s = spacing.unwrap_or([1.0; 3]);
+        [[s[0], 0.0, 0.0], [0.0, s[1], 0.0], [0.0, 0.0, s[2]]]
+    });
     let missing =
         |field: &str| VolumeError::format(path, "header", format!("a \"{field}:\" line"), "none");
     Ok(Header {
@@ -375,8 +388,9 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
         dtype: dtype.ok_or_else(|| missing("type"))?,
         endian,
         encoding: encoding.ok_or_else(|| missing("encoding"))?,
-        spacing: directions.or(spacing).unwrap_or([1.0; 3]),
+        spacing: steps.map(step_length),
         origin,
+        orientation: Orientation::of_columns(steps),
         files,
         line_skip,
         byte_skip,

@@ -9,7 +9,7 @@
 use crate::dtype::decode;
 use crate::grid::dims_text;
 use crate::source::check_request;
-use crate::{Dtype, Endian, Grid, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, Orientation, VolumeError, VolumeSource};
 use memmap2::Mmap;
 use std::fs::File;
 use std::io::{BufRead, Read};
@@ -41,6 +41,8 @@ pub(crate) struct Payload<'a> {
     pub offset: u64,
     pub trailing_ok: bool,
     pub hint: &'static str,
+    /// What the header's axis directions say that the grid dropped.
+    pub orientation: Orientation,
 }
 
 /// A memory-mapped raw volume.
@@ -57,6 +59,7 @@ pub struct RawVolume {
     file: File,
     /// Bytes at the start of the map already handed back to the kernel.
     released: usize,
+    orientation: Orientation,
 }
 
 impl RawVolume {
@@ -74,6 +77,7 @@ impl RawVolume {
             offset: spec.header_bytes,
             trailing_ok: false,
             hint: "check [input] dims, dtype and header_bytes",
+            orientation: Orientation::Aligned,
         })
     }
 
@@ -121,6 +125,7 @@ impl RawVolume {
             map,
             file,
             released: 0,
+            orientation: p.orientation,
         })
     }
 
@@ -349,6 +354,10 @@ impl VolumeSource for RawVolume {
 
     fn dtype(&self) -> Option<Dtype> {
         Some(self.dtype)
+    }
+
+    fn orientation(&self) -> Orientation {
+        self.orientation
     }
 }
 

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use crate::{Dtype, Grid, SlabBounds, VolumeError};
+use crate::{Dtype, Grid, Orientation, SlabBounds, VolumeError};
 
 /// A volume read slice by slice in increasing z. Implementations never hold the whole volume
 /// (an encoding that forces it says so in its docs), because the memory bound of the whole
@@ -18,6 +18,12 @@ pub trait VolumeSource: Send {
     /// The voxel type stored in the file, when there is one (for logs and format checks).
     fn dtype(&self) -> Option<Dtype> {
         None
+    }
+    /// What of the header's axis directions the grid dropped (flips, a rotation): the grid is
+    /// axis-aligned, so the pipeline warns that the mesh is not where the header puts the
+    /// volume. Sources without a header say [`Orientation::Aligned`].
+    fn orientation(&self) -> Orientation {
+        Orientation::Aligned
     }
     /// True when the encoding forces the reader to decode the whole volume up front, so the
     /// pipeline can warn that its memory bound does not hold for this input.
@@ -72,6 +78,9 @@ impl VolumeSource for Box<dyn VolumeSource> {
     }
     fn dtype(&self) -> Option<Dtype> {
         (**self).dtype()
+    }
+    fn orientation(&self) -> Orientation {
+        (**self).orientation()
     }
     fn loads_whole_volume(&self) -> bool {
         (**self).loads_whole_volume()

@@ -5,7 +5,7 @@
 use crate::dtype::decode;
 use crate::grid::dims_text;
 use crate::source::check_request;
-use crate::{Dtype, Endian, Grid, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, Orientation, VolumeError, VolumeSource};
 use std::io::{self, Read};
 use std::path::{Path, PathBuf};
 
@@ -29,6 +29,7 @@ pub(crate) struct StreamVolume {
     open: Opener,
     /// The payload must end with the last slice (NRRD: its `sizes` describe all of it).
     exact_end: bool,
+    orientation: Orientation,
     reader: Option<Stream>,
     /// Slice index the reader is positioned at.
     next_z: u64,
@@ -49,6 +50,8 @@ pub(crate) struct StreamSpec {
     /// Data past the last slice is an error (formats whose header describes the whole payload;
     /// not NIfTI or VTK, whose files may go on past the volume).
     pub exact_end: bool,
+    /// What the header's axis directions say that the grid dropped.
+    pub orientation: Orientation,
 }
 
 impl StreamVolume {
@@ -78,6 +81,7 @@ impl StreamVolume {
             endian: spec.endian,
             open: spec.open,
             exact_end: spec.exact_end,
+            orientation: spec.orientation,
             reader: None,
             next_z: 0,
             bytes: Vec::new(),
@@ -233,6 +237,10 @@ impl VolumeSource for StreamVolume {
     fn dtype(&self) -> Option<Dtype> {
         Some(self.stored)
     }
+
+    fn orientation(&self) -> Orientation {
+        self.orientation
+    }
 }
 
 /// A zero-filled buffer, or None when the allocator refuses: dims from a corrupt header must end
@@ -284,6 +292,7 @@ mod tests {
                 Ok(Box::new(io::Cursor::new(bytes.as_ref().clone())) as Stream)
             }),
             exact_end: false,
+            orientation: Orientation::Aligned,
         })
         .unwrap();
         (v, opens)
@@ -325,6 +334,7 @@ mod tests {
             endian: Endian::Little,
             open: Box::new(|| Ok(Box::new(io::Cursor::new(vec![0u8; 92])) as Stream)),
             exact_end: false,
+            orientation: Orientation::Aligned,
         })
         .err()
         .unwrap()

@@ -340,6 +340,10 @@ impl VolumeSource for Upsampled {
     fn loads_whole_volume(&self) -> bool {
         self.inner.loads_whole_volume()
     }
+
+    fn orientation(&self) -> crate::Orientation {
+        self.inner.orientation()
+    }
 }
 
 #[cfg(test)]

@@ -4,13 +4,14 @@
 //!
 //! Nothing here loads the whole array: uncompressed appended raw data is memory-mapped like a raw
 //! file; every other form streams through base64 / zlib-block decoders that keep one block
-//! (VTK writes 32 KiB blocks) in memory. `Direction` is ignored: grids are axis-aligned.
+//! (VTK writes 32 KiB blocks) in memory. `Direction` is not applied (grids are axis-aligned): the
+//! source reports its flips or rotation ([`VolumeSource::orientation`]).
 
 use crate::codec::{AsciiValues, Base64Reader, ZlibBlocks, ZlibLayout};
 use crate::raw::{MapReader, MappedFile, Payload, RawVolume, checked_payload, map_file};
 use crate::stream::{Stream, StreamSpec, StreamVolume};
 use crate::xml::{Tag, Tags};
-use crate::{Dtype, Endian, Grid, OpenOptions, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, Grid, OpenOptions, Orientation, VolumeError, VolumeSource};
 use std::io::Read;
 use std::path::Path;
 use std::sync::Arc;
@@ -41,7 +42,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     let map = map_file(path)?;
     let doc = Doc::scan(path, &map)?;
     let (endian, header_u64, compressed) = file_settings(path, &doc.root)?;
-    let grid = image_grid(path, &doc, opts)?;
+    let (grid, orientation) = image_grid(path, &doc, opts)?;
     let array = doc.pick(path, opts.array.as_deref())?;
     let at = format!("DataArray {:?}", array.attr("Name").unwrap_or(""));
     let (dtype, form, start) = array_form(path, &at, &array, doc.appended, map.len())?;
@@ -64,6 +65,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             offset: data_start as u64,
             trailing_ok: true,
             hint: "check WholeExtent, the DataArray type and offset",
+            orientation,
         })?));
     }
     let (decode_as, what) = match (layout.form, layout.compressed) {
@@ -86,6 +88,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         },
         open: Box::new(move || open_stream(&owned, &at, &map, layout, payload).map(|(s, _)| s)),
         exact_end: false,
+        orientation,
     })?))
 }
 
@@ -118,8 +121,13 @@ fn file_settings(path: &Path, root: &Tag) -> Result<(Endian, bool, bool), Volume
 }
 
 /// The grid of the `ImageData` tag, with the job's overrides. VTK places point (i, j, k) of the extent at
-/// Origin + Spacing * (x0 + i, y0 + j, z0 + k), so the extent start moves the origin.
-fn image_grid(path: &Path, doc: &Doc, opts: &OpenOptions) -> Result<Grid, VolumeError> {
+/// Origin + Spacing * (x0 + i, y0 + j, z0 + k), so the extent start moves the origin; with the
+/// `Direction` (row-major, column k axis k's direction) it drops.
+fn image_grid(
+    path: &Path,
+    doc: &Doc,
+    opts: &OpenOptions,
+) -> Result<(Grid, Orientation), VolumeError> {
     let err =
         |expected: &str, found: &str| VolumeError::format(path, "ImageData tag", expected, found);
     let image = doc
@@ -137,6 +145,14 @@ fn image_grid(path: &Path, doc: &Doc, opts: &OpenOptions) -> Result<Grid, Volume
     let extent = attr("WholeExtent", "", "x0 x1 y0 y1 z0 z1")?;
     let spacing = attr("Spacing", "1 1 1", "sx sy sz")?;
     let origin = attr("Origin", "0 0 0", "x y z")?;
+    let direction = attr(
+        "Direction",
+        "1 0 0 0 1 0 0 0 1",
+        "d00 d01 d02 d10 d11 d12 d20 d21 d22",
+    )?;
+    let orientation = Orientation::of_columns(
+        [0, 1, 2].map(|k| [direction[k], direction[3 + k], direction[6 + k]]),
+    );
     if doc.pieces != 1 {
         return Err(err("exactly one Piece", &doc.pieces.to_string()));
     }
@@ -150,7 +166,8 @@ fn image_grid(path: &Path, doc: &Doc, opts: &OpenOptions) -> Result<Grid, Volume
         }
     });
     let origin = [0, 1, 2].map(|a| origin[a] + spacing[a] * extent[2 * a]);
-    opts.grid(path, dims, [spacing[0], spacing[1], spacing[2]], origin)
+    let grid = opts.grid(path, dims, [spacing[0], spacing[1], spacing[2]], origin)?;
+    Ok((grid, orientation))
 }
 
 /// The stored type of the chosen array, its form and where its bytes start in the file.

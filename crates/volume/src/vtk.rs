@@ -7,7 +7,7 @@ use crate::codec::AsciiValues;
 use crate::grid::dims_text;
 use crate::raw::{Payload, RawVolume, payload_bytes};
 use crate::stream::{Stream, StreamSpec, StreamVolume, skip_bytes};
-use crate::{Dtype, Endian, OpenOptions, VolumeError, VolumeSource};
+use crate::{Dtype, Endian, OpenOptions, Orientation, VolumeError, VolumeSource};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Seek};
 use std::path::{Path, PathBuf};
@@ -41,6 +41,8 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             offset,
             trailing_ok: true,
             hint: "check the DIMENSIONS and SCALARS lines against the data",
+            // Legacy structured points have no direction.
+            orientation: Orientation::Aligned,
         })?));
     }
     drop(reader);
@@ -57,6 +59,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             Ok(Box::new(AsciiValues::new(r, None)) as Stream)
         }),
         exact_end: false,
+        orientation: Orientation::Aligned,
     })?))
 }
 

@@ -25,7 +25,10 @@ struct Hdr {
     vox_offset: f32,
     slope: f32,
     inter: f32,
-    sform: Option<[f32; 3]>,
+    /// srow_x, srow_y, srow_z (sform_code 1 when set).
+    sform: Option<[[f32; 4]; 3]>,
+    /// quatern_b, c, d and qoffset x, y, z (qform_code 1 when set).
+    qform: Option<([f32; 3], [f32; 3])>,
     magic: &'static [u8; 4],
     sizeof_hdr: i32,
 }
@@ -41,6 +44,7 @@ impl Hdr {
             slope: 0.0,
             inter: 0.0,
             sform: None,
+            qform: None,
             magic: b"n+1\0",
             sizeof_hdr: 348,
         }
@@ -70,15 +74,79 @@ impl Hdr {
         put(108, &enc!(self.vox_offset));
         put(112, &enc!(self.slope));
         put(116, &enc!(self.inter));
-        if let Some(t) = self.sform {
+        if let Some(rows) = self.sform {
             put(254, &enc!(1i16));
-            for (k, v) in t.iter().enumerate() {
-                put(280 + 16 * k + 12, &enc!(*v));
+            for (r, row) in rows.iter().enumerate() {
+                for (c, v) in row.iter().enumerate() {
+                    put(280 + 16 * r + 4 * c, &enc!(*v));
+                }
+            }
+        }
+        if let Some((quatern, offset)) = self.qform {
+            put(252, &enc!(1i16));
+            for (k, v) in quatern.iter().chain(&offset).enumerate() {
+                put(256 + 4 * k, &enc!(*v));
             }
         }
         put(344, self.magic);
         b
     }
+}
+
+/// An sform with steps `diag` along the axes (negative: flipped) and translation `t`.
+fn affine(diag: [f32; 3], t: [f32; 3]) -> [[f32; 4]; 3] {
+    let mut rows = [[0.0; 4]; 3];
+    for k in 0..3 {
+        rows[k][k] = diag[k];
+        rows[k][3] = t[k];
+    }
+    rows
+}
+
+/// The grid and dropped orientation of a 3x2x4 u8 `.nii` with header `h`.
+fn placement(h: &Hdr) -> (Grid, Orientation) {
+    let dir = tempfile::tempdir().unwrap();
+    let mut file = h.bytes();
+    file.extend([0u8; 24]);
+    let p = dir.path().join("o.nii");
+    std::fs::write(&p, &file).unwrap();
+    let v = open_path(&p, &OpenOptions::default()).unwrap();
+    (v.grid(), v.orientation())
+}
+
+/// sform_code > 0: spacing and origin both from the sform (a tool that rewrote only the sform
+/// left pixdim at 1), flips reported; else the qform with pixdim.
+#[test]
+fn sform_then_qform_place_the_grid() {
+    let mut h = Hdr::new(Dtype::U8, Endian::Little);
+    h.pixdim = [1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0];
+    h.sform = Some(affine([0.5, 0.8, 1.2], [10.0, -5.0, 3.0]));
+    let (g, o) = placement(&h);
+    let close = |a: [f64; 3], b: [f64; 3]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6);
+    assert!(close(g.spacing, [0.5, 0.8, 1.2]), "{:?}", g.spacing);
+    assert_eq!((g.origin, o), ([10.0, -5.0, 3.0], Orientation::Aligned));
+    // LAS: x steps backwards from the origin.
+    h.sform = Some(affine([-0.5, 0.8, 1.2], [10.0, -5.0, 3.0]));
+    let (g, o) = placement(&h);
+    assert!(close(g.spacing, [0.5, 0.8, 1.2]), "{:?}", g.spacing);
+    assert_eq!(o, Orientation::Flipped([true, false, false]));
+    // A rotation of the sform about z.
+    let mut rot = affine([0.0, 0.0, 1.0], [0.0; 3]);
+    rot[0][1] = -1.0;
+    rot[1][0] = 1.0;
+    h.sform = Some(rot);
+    assert_eq!(placement(&h).1, Orientation::Rotated);
+    // qform only: pixdim and qoffset; quaternion (0, 1, 0) turns x and z about y, and qfac -1
+    // turns z back: only x is flipped.
+    h.sform = None;
+    h.pixdim = [-1.0, 0.5, 2.0, 1.5, 1.0, 0.0, 0.0, 0.0];
+    h.qform = Some(([0.0, 1.0, 0.0], [4.0, 5.0, 6.0]));
+    let (g, o) = placement(&h);
+    assert_eq!((g.spacing, g.origin), ([0.5, 2.0, 1.5], [4.0, 5.0, 6.0]));
+    assert_eq!(o, Orientation::Flipped([true, false, false]));
+    h.qform = Some(([0.0, 0.0, 0.0], [4.0, 5.0, 6.0]));
+    h.pixdim[0] = 1.0;
+    assert_eq!(placement(&h).1, Orientation::Aligned);
 }
 
 #[test]
@@ -112,7 +180,7 @@ fn scaling_origin_and_pairs() {
     let mut h = Hdr::new(Dtype::I16, Endian::Little);
     h.slope = 0.5;
     h.inter = -10.0;
-    h.sform = Some([-90.0, 126.0, -72.0]);
+    h.sform = Some(affine([0.5, 2.0, 1.5], [-90.0, 126.0, -72.0]));
     let values: Vec<f64> = (0..24).map(|i| i as f64 * 4.0).collect();
     let mut file = h.bytes();
     file.extend(encode(Dtype::I16, Endian::Little, &values));

@@ -64,6 +64,38 @@ fn space_directions_and_origin() {
     let v = open_path(&p, &OpenOptions::default()).unwrap();
     assert_eq!(v.grid().spacing, [2.0, 3.0, 0.5]);
     assert_eq!(v.grid().origin, [1.0, -2.0, 3.5]);
+    assert_eq!(v.orientation(), Orientation::Rotated, "x and y swapped");
+}
+
+/// Negative steps (LPS data written as RAS-flipped, or negative spacings) are reported as flips;
+/// the spacing is their length and the origin the header's.
+#[test]
+fn flips_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            "space directions: (-0.5,0,0) (0,-0.8,0) (0,0,1.2)\nspace origin: (10,-5,3)\n\n",
+            [true, true, false],
+        ),
+        ("spacings: 0.5 0.8 -1.2\n\n", [false, false, true]),
+        ("spacings: 0.5 0.8 1.2\n\n", [false; 3]),
+    ];
+    for (extra, flips) in cases {
+        let mut file = header(Dtype::U8, Endian::Little, "raw", extra).into_bytes();
+        file.extend(0..24u8);
+        let p = write(dir.path(), "v.nrrd", &file);
+        let v = open_path(&p, &OpenOptions::default()).unwrap();
+        let g = v.grid();
+        assert!(
+            g.spacing
+                .iter()
+                .zip([0.5, 0.8, 1.2])
+                .all(|(a, b)| (a - b).abs() < 1e-12),
+            "{extra}: {:?}",
+            g.spacing
+        );
+        assert_eq!(v.orientation(), Orientation::from_flips(flips), "{extra}");
+    }
 }
 
 #[test]

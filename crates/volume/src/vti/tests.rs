@@ -215,6 +215,40 @@ impl Bytes {
     }
 }
 
+/// `Direction` is not applied to the grid, but its flips or rotation are reported.
+#[test]
+fn direction_is_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("d.vti");
+    let c = Case {
+        format: "binary",
+        zlib: false,
+        u64_header: false,
+        endian: Endian::Little,
+    };
+    let base = vti(Dtype::U8, "UInt8", &sample_values(Dtype::U8, 24), c);
+    for (direction, want) in [
+        (
+            "-1 0 0 0 1 0 0 0 1",
+            Orientation::Flipped([true, false, false]),
+        ),
+        (
+            "1 0 0 0 -1 0 0 0 -1",
+            Orientation::Flipped([false, true, true]),
+        ),
+        ("0 1 0 1 0 0 0 0 1", Orientation::Rotated),
+        ("1 0 0 0 1 0 0 0 1", Orientation::Aligned),
+    ] {
+        let file = Bytes(base.clone())
+            .replace("Spacing=", &format!("Direction=\"{direction}\" Spacing="))
+            .into_bytes();
+        std::fs::write(&p, file).unwrap();
+        let v = open_path(&p, &OpenOptions::default()).unwrap();
+        assert_eq!(v.orientation(), want, "{direction}");
+        assert_eq!(v.grid().origin, [12.0, 0.0, 1.0], "{direction}");
+    }
+}
+
 #[test]
 fn bad_files_give_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
