@@ -8,13 +8,12 @@
 //! in index-aligned physical units from `space origin`, and the source reports what it dropped
 //! ([`VolumeSource::orientation`]).
 
-use crate::codec::AsciiValues;
+use crate::codec::{AsciiValues, GzipMembers};
 use crate::grid::dims_text;
 use crate::orientation::step_length;
 use crate::raw::{Payload, RawVolume, checked_payload};
 use crate::stream::{Opener, Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
 use crate::{Dtype, Endian, Grid, OpenOptions, Orientation, VolumeError, VolumeSource};
-use flate2::read::MultiGzDecoder;
 use std::io::{self, BufRead, Read};
 use std::path::{Path, PathBuf};
 
@@ -149,7 +148,8 @@ fn streamed(
         }
         let mut s: Stream = match encoding {
             Encoding::Raw => Box::new(r),
-            Encoding::Gzip => Box::new(MultiGzDecoder::new(r)),
+            // Whitespace after the stream (a final newline) is not data.
+            Encoding::Gzip => Box::new(GzipMembers::new(r)),
             Encoding::Ascii => Box::new(AsciiValues::new(r, None)),
         };
         // Byte skip counts decoded bytes (teem applies it after decompression).
@@ -279,7 +279,9 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
     let mut endian = None;
     let mut spacing = None;
     let mut directions = None;
-    let mut origin = [0.0; 3];
+    let mut origin = None;
+    let mut mins = None;
+    let mut cell = [false; 3];
     let mut files = Vec::new();
     let mut line_skip = 0;
     let mut byte_skip = 0;
@@ -346,8 +348,25 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
                 directions = Some(d);
             }
             "space origin" => {
-                origin =
-                    parse_vector(value).ok_or_else(|| err(n, "an origin like (0,0,0)", value))?
+                origin = Some(
+                    parse_vector(value).ok_or_else(|| err(n, "an origin like (0,0,0)", value))?,
+                )
+            }
+            "axis mins" | "axismins" => {
+                let m = parse_n::<f64>(value).ok_or_else(|| err(n, "three axis mins", value))?;
+                mins = Some(m.map(|v| if v.is_nan() { 0.0 } else { v }));
+            }
+            "centerings" | "centers" => {
+                let words: Vec<&str> = value.split_whitespace().collect();
+                let known = ["cell", "node", "???", "none"];
+                if words.len() != 3 || words.iter().any(|w| !known.contains(w)) {
+                    return Err(err(
+                        n,
+                        "three centerings among cell, node, ???, none",
+                        value,
+                    ));
+                }
+                cell = [0, 1, 2].map(|k| words[k] == "cell");
             }
             "data file" | "datafile" => {
                 files = data_files(value, dir, &lines[i..]).ok_or_else(|| {
@@ -389,7 +408,13 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
         endian,
         encoding: encoding.ok_or_else(|| missing("encoding"))?,
         spacing: steps.map(step_length),
-        origin,
+        // Without `space origin`, `axis mins` place the first sample (teem's rule): at the
+        // min for node centering (the default), half a step past it for cell centering, where
+        // the min is the first cell's edge.
+        origin: origin
+            .or(mins
+                .map(|m| [0, 1, 2].map(|k| m[k] + if cell[k] { steps[k][k] / 2.0 } else { 0.0 })))
+            .unwrap_or([0.0; 3]),
         orientation: Orientation::of_columns(steps),
         files,
         line_skip,

@@ -3,10 +3,12 @@
 
 mod ascii;
 mod base64;
+mod gzip;
 mod zblocks;
 
 pub(crate) use ascii::AsciiValues;
 pub(crate) use base64::Base64Reader;
+pub(crate) use gzip::GzipMembers;
 pub(crate) use zblocks::{ZlibBlocks, ZlibLayout};
 
 use std::io;

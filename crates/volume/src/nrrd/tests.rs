@@ -98,6 +98,54 @@ fn flips_are_reported() {
     }
 }
 
+/// Without `space origin`, `axis mins` place the first sample: the min itself for node
+/// centering (the default), half a spacing past it for cell centering.
+#[test]
+fn axis_mins_place_the_first_sample() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases = [
+        ("axis mins: 10 -5 3\n", [10.0, -5.0, 3.0]),
+        (
+            "axis mins: 10 -5 nan\ncenterings: cell node ???\n",
+            [10.25, -5.0, 0.0],
+        ),
+        (
+            "axis mins: 10 -5 3\ncenters: cell cell cell\n",
+            [10.25, -4.6, 3.6],
+        ),
+        (
+            "axis mins: 10 -5 3\nspace origin: (1,2,3)\n",
+            [1.0, 2.0, 3.0],
+        ),
+        ("", [0.0; 3]),
+    ];
+    for (extra, want) in cases {
+        let extra = format!("spacings: 0.5 0.8 1.2\n{extra}\n");
+        let mut file = header(Dtype::U8, Endian::Little, "raw", &extra).into_bytes();
+        file.extend(0..24u8);
+        let p = write(dir.path(), "v.nrrd", &file);
+        let g = open_path(&p, &OpenOptions::default()).unwrap().grid();
+        assert!(
+            g.origin
+                .iter()
+                .zip(want)
+                .all(|(a, b)| (a - b).abs() < 1e-12),
+            "{extra}: {:?}",
+            g.origin
+        );
+    }
+    let mut file = header(
+        Dtype::U8,
+        Endian::Little,
+        "raw",
+        "centerings: cell edge node\n\n",
+    )
+    .into_bytes();
+    file.extend(0..24u8);
+    let e = error_of(&file);
+    assert!(e.contains("three centerings among cell, node"), "{e}");
+}
+
 #[test]
 fn ascii_encoding() {
     let dir = tempfile::tempdir().unwrap();
@@ -237,9 +285,17 @@ fn bad_files_give_one_line_errors() {
         (
             with_data(
                 ok("\n", "gzip"),
-                &[gzip(&[0; 24]), b"garbage".to_vec()].concat(),
+                &[gzip(&[0; 24]), b"\ngarbage".to_vec()].concat(),
             ),
             "DIR/bad.nrrd: gzip NRRD payload after the last slice: expected the end of the data, found \"more bytes, not decodable: unexpected end of file\"",
+        ),
+        // A newline after the stream (pynrrd, teem) is not data.
+        (
+            with_data(
+                ok("\n", "gzip"),
+                &[gzip(&[0; 24]), b"\r\n\n".to_vec()].concat(),
+            ),
+            "Ok",
         ),
         (
             with_data(ok("\n", "ascii"), b"1 2 3 x"),
