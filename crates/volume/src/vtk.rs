@@ -1,7 +1,9 @@
 //! VTK legacy `.vtk` files, `DATASET STRUCTURED_POINTS` only, BINARY (big-endian by definition
 //! of the format) or ASCII. Binary payloads are memory-mapped at their offset; ASCII streams.
 //! A file may carry several `SCALARS` arrays: [`OpenOptions::array`] picks one by name, otherwise
-//! the first is used.
+//! the first is used. `COLOR_SCALARS name 1` (what vtkStructuredPointsWriter writes for unsigned
+//! char scalars) is read as u8: raw bytes in binary files, values in [0, 1] in ASCII ones, scaled
+//! back to 0..255.
 
 use crate::codec::AsciiValues;
 use crate::grid::dims_text;
@@ -21,6 +23,8 @@ struct Header {
     origin: [f64; 3],
     dtype: Dtype,
     binary: bool,
+    /// `COLOR_SCALARS`: ASCII values are v / 255.
+    color: bool,
 }
 
 /// Opens a VTK legacy structured-points file.
@@ -55,8 +59,13 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         stored: h.dtype,
         endian: Endian::Little,
         open: Box::new(move || {
-            let (_, r) = locate(&owned, want.as_deref())?;
-            Ok(Box::new(AsciiValues::new(r, None)) as Stream)
+            let (h, r) = locate(&owned, want.as_deref())?;
+            let values = AsciiValues::new(r, None);
+            Ok(Box::new(if h.color {
+                values.unit_to_byte()
+            } else {
+                values
+            }) as Stream)
         }),
         exact_end: false,
         orientation: Orientation::Aligned,
@@ -162,7 +171,7 @@ fn locate(path: &Path, want: Option<&str>) -> Result<(Header, BufReader<File>), 
                 let c = args.first().and_then(|c| c.parse::<u64>().ok());
                 count = Some(c.ok_or_else(|| l.err("POINT_DATA count", &line))?);
             }
-            "SCALARS" => {
+            "SCALARS" | "COLOR_SCALARS" => {
                 let d = dims.ok_or_else(|| l.err("DIMENSIONS before the data", &line))?;
                 let c = count.ok_or_else(|| l.err("POINT_DATA before SCALARS", &line))?;
                 if Some(c) != d[0].checked_mul(d[1]).and_then(|s| s.checked_mul(d[2])) {
@@ -171,16 +180,31 @@ fn locate(path: &Path, want: Option<&str>) -> Result<(Header, BufReader<File>), 
                         &c.to_string(),
                     ));
                 }
-                let [name, ty, rest @ ..] = args else {
-                    return Err(l.err("SCALARS name type", &line));
+                let color = key == "COLOR_SCALARS";
+                let (name, dtype) = if color {
+                    let [name, components] = args else {
+                        return Err(l.err("COLOR_SCALARS name nValues", &line));
+                    };
+                    if *components != "1" {
+                        return Err(l.err(
+                            "COLOR_SCALARS with 1 component (isostream meshes one scalar; save one component of the colors as SCALARS)",
+                            &line,
+                        ));
+                    }
+                    (name, Dtype::U8)
+                } else {
+                    let [name, ty, rest @ ..] = args else {
+                        return Err(l.err("SCALARS name type", &line));
+                    };
+                    let dtype = vtk_type(ty).ok_or_else(|| {
+                        l.err("a type among unsigned_char/char/unsigned_short/short/unsigned_int/int/float/double", ty)
+                    })?;
+                    if rest.first().is_some_and(|c| *c != "1") {
+                        return Err(l.err("one component per voxel", &line));
+                    }
+                    l.skip_lookup_table()?;
+                    (name, dtype)
                 };
-                let dtype = vtk_type(ty).ok_or_else(|| {
-                    l.err("a type among unsigned_char/char/unsigned_short/short/unsigned_int/int/float/double", ty)
-                })?;
-                if rest.first().is_some_and(|c| *c != "1") {
-                    return Err(l.err("one component per voxel", &line));
-                }
-                l.skip_lookup_table()?;
                 if want.is_none_or(|w| w == *name) {
                     let header = Header {
                         dims: d,
@@ -188,6 +212,7 @@ fn locate(path: &Path, want: Option<&str>) -> Result<(Header, BufReader<File>), 
                         origin,
                         dtype,
                         binary,
+                        color,
                     };
                     return Ok((header, l.r));
                 }
@@ -195,7 +220,12 @@ fn locate(path: &Path, want: Option<&str>) -> Result<(Header, BufReader<File>), 
                 skip_values(&mut l.r, binary, c, dtype)
                     .map_err(|e| l.err(&format!("{c} values of {name}"), &e.to_string()))?;
             }
-            _ => return Err(l.err("DIMENSIONS, SPACING, ORIGIN, POINT_DATA or SCALARS", &line)),
+            _ => {
+                return Err(l.err(
+                    "DIMENSIONS, SPACING, ORIGIN, POINT_DATA, SCALARS or COLOR_SCALARS",
+                    &line,
+                ));
+            }
         }
     }
     let expected = match want {

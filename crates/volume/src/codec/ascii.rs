@@ -14,6 +14,9 @@ pub(crate) struct AsciiValues<R> {
     count: u64,
     /// Byte that ends the text (e.g. `<` in XML); None reads to the end of the stream.
     stop: Option<u8>,
+    /// Values are colors in [0, 1] of bytes (VTK legacy `COLOR_SCALARS` in ASCII): re-emitted
+    /// as `round(v * 255)`, the bytes they were written from.
+    unit_to_byte: bool,
     /// An error met after some bytes of a `read` call were produced, reported by the next call
     /// so the caller sees exactly how many values were good.
     deferred: Option<io::Error>,
@@ -27,7 +30,16 @@ impl<R: BufRead> AsciiValues<R> {
             used: 8,
             count: 0,
             stop,
+            unit_to_byte: false,
             deferred: None,
+        }
+    }
+
+    /// Reads values in [0, 1] back as the bytes 0..255 they were written from.
+    pub(crate) fn unit_to_byte(self) -> Self {
+        AsciiValues {
+            unit_to_byte: true,
+            ..self
         }
     }
 
@@ -97,6 +109,11 @@ impl<R: BufRead> Read for AsciiValues<R> {
                     Err(e) => return Err(e),
                 };
                 self.count += 1;
+                let v = if self.unit_to_byte {
+                    (v * 255.0).round()
+                } else {
+                    v
+                };
                 self.pending = v.to_le_bytes();
                 self.used = 0;
             }
@@ -130,6 +147,20 @@ mod tests {
         );
         assert_eq!(values("7 8 </DataArray>", Some(b'<')).unwrap(), [7.0, 8.0]);
         assert_eq!(values("", None).unwrap(), Vec::<f64>::new());
+    }
+
+    #[test]
+    fn unit_values_back_to_bytes() {
+        let mut bytes = Vec::new();
+        AsciiValues::new("0 0.00392157 0.501961 1".as_bytes(), None)
+            .unit_to_byte()
+            .read_to_end(&mut bytes)
+            .unwrap();
+        let v: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        assert_eq!(v, [0.0, 1.0, 128.0, 255.0]);
     }
 
     #[test]

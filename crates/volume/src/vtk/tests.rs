@@ -107,11 +107,56 @@ fn picks_named_array() {
     assert_eq!(read_all(&p, &named("b")).unwrap(), as_f32(&b));
 }
 
+/// vtkStructuredPointsWriter writes unsigned char scalars as `COLOR_SCALARS name 1`: raw bytes
+/// in binary files, v / 255 in ASCII ones (6 significant digits).
+#[test]
+fn one_component_color_scalars_are_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("c.vtk");
+    let bytes: Vec<u8> = (0..24).map(|i| (i * 11) as u8).collect();
+    let want: Vec<f32> = bytes.iter().map(|&b| f32::from(b)).collect();
+    let mut file = format!("{}COLOR_SCALARS scalars 1\n", head("BINARY")).into_bytes();
+    file.extend(&bytes);
+    file.push(b'\n');
+    std::fs::write(&p, &file).unwrap();
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want);
+    assert_eq!(
+        open_path(&p, &OpenOptions::default()).unwrap().dtype(),
+        Some(Dtype::U8)
+    );
+    let text: Vec<String> = bytes
+        .iter()
+        .map(|&b| format!("{:.6}", f64::from(b) / 255.0))
+        .collect();
+    let file = format!(
+        "{}COLOR_SCALARS scalars 1\n{}\n",
+        head("ASCII"),
+        text.join(" ")
+    );
+    std::fs::write(&p, file).unwrap();
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want);
+    // A color array before the wanted one is skipped.
+    let mut file = format!("{}COLOR_SCALARS c 1\n", head("BINARY")).into_bytes();
+    file.extend([9u8; 24]);
+    file.extend(b"\nSCALARS s unsigned_char\nLOOKUP_TABLE default\n");
+    file.extend(&bytes);
+    std::fs::write(&p, &file).unwrap();
+    let named = OpenOptions {
+        array: Some("s".into()),
+        ..Default::default()
+    };
+    assert_eq!(read_all(&p, &named).unwrap(), want);
+}
+
 #[test]
 fn bad_files_give_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("bad.vtk");
     let cases: Vec<(Vec<u8>, &str)> = vec![
+        (
+            format!("{}COLOR_SCALARS rgb 3\n", head("BINARY")).into_bytes(),
+            "line 9: expected COLOR_SCALARS with 1 component (isostream meshes one scalar; save one component of the colors as SCALARS), found \"COLOR_SCALARS rgb 3\"",
+        ),
         (
             b"hello\n".to_vec(),
             "line 1: expected \"# vtk DataFile Version x.x\", found \"hello\"",
