@@ -302,6 +302,8 @@ struct Doc {
     /// Scalars attribute of PointData.
     scalars: Option<String>,
     arrays: Vec<Tag>,
+    /// Names of CellData arrays, to tell a file of cell data why it is refused.
+    cell_arrays: Vec<String>,
     /// File offset just after the `_` that starts appended data, and whether it is raw.
     appended: Option<(usize, bool)>,
 }
@@ -320,6 +322,7 @@ impl Doc {
         let mut image = None;
         let (mut pieces, mut scalars, mut arrays, mut appended) = (0, None, Vec::new(), None);
         let mut in_point_data = false;
+        let (mut in_cell_data, mut cell_arrays) = (false, Vec::new());
         for tag in Tags::new(map) {
             let tag = tag.map_err(bad)?;
             if root.is_none() {
@@ -346,7 +349,11 @@ impl Doc {
                         scalars = tag.attr("Scalars").map(str::to_string);
                     }
                 }
+                ("CellData", closing) => in_cell_data = !closing,
                 ("DataArray", false) if in_point_data => arrays.push(tag),
+                ("DataArray", false) if in_cell_data => {
+                    cell_arrays.push(tag.attr("Name").unwrap_or("").to_string())
+                }
                 ("AppendedData", false) => {
                     let raw = tag.attr("encoding") == Some("raw");
                     let underscore =
@@ -382,6 +389,7 @@ impl Doc {
             pieces,
             scalars,
             arrays,
+            cell_arrays,
             appended,
         })
     }
@@ -398,6 +406,18 @@ impl Doc {
             Some(w) => self.arrays.iter().find(|a| a.attr("Name") == Some(w)),
             None => self.arrays.first(),
         };
+        let in_cells = match want {
+            Some(w) => self.cell_arrays.iter().any(|c| c == w),
+            None => !self.cell_arrays.is_empty(),
+        };
+        if found.is_none() && in_cells {
+            return Err(VolumeError::format(
+                path,
+                "CellData",
+                "point data (isostream meshes values at the grid's points; convert the cells with VTK's vtkCellDataToPointData)",
+                format!("cell data arrays [{}]", self.cell_arrays.join(", ")),
+            ));
+        }
         found.cloned().ok_or_else(|| {
             VolumeError::format(
                 path,

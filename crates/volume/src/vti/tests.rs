@@ -305,6 +305,13 @@ fn bad_files_give_one_line_errors() {
             "PointData: expected a DataArray named \"w\", found \"arrays [first, v]\"",
         ),
         (
+            s(base("ascii", false))
+                .replace("<PointData Scalars=\"v\">", "<CellData Scalars=\"v\">")
+                .replace("</PointData>", "</CellData>")
+                .into_bytes(),
+            "CellData: expected point data (isostream meshes values at the grid's points; convert the cells with VTK's vtkCellDataToPointData), found \"cell data arrays [first, v]\"",
+        ),
+        (
             s(base("binary", false))
                 .replace("WholeExtent=\"1 3", "WholeExtent=\"1 1")
                 .into_bytes(),
