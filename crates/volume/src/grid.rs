@@ -35,11 +35,8 @@ impl Grid {
                 "dims {d} overflow a 64-bit voxel count; check the dims"
             )));
         }
-        if spacing.iter().any(|s| !s.is_finite() || *s <= 0.0) {
-            return Err(bad(format!(
-                "spacing {:?} must be finite and > 0 on every axis; check the spacing",
-                spacing
-            )));
+        if let Some(problem) = spacing_problem(spacing, "check the spacing") {
+            return Err(bad(problem));
         }
         if origin.iter().any(|o| !o.is_finite()) {
             return Err(bad(format!(
@@ -82,6 +79,14 @@ impl Grid {
             );
         extent.length()
     }
+}
+
+/// Why `spacing` cannot be a grid's (not finite and > 0 on every axis), ending with `fix`.
+pub(crate) fn spacing_problem(spacing: [f64; 3], fix: &str) -> Option<String> {
+    spacing
+        .iter()
+        .any(|s| !s.is_finite() || *s <= 0.0)
+        .then(|| format!("spacing {spacing:?} must be finite and > 0 on every axis; {fix}"))
 }
 
 /// "256x256x128": how dims appear in every message.

@@ -1,6 +1,7 @@
 //! What a job file can say about an input besides its path: raw layout (a raw file has no header)
 //! and overrides for header-carrying formats.
 
+use crate::grid::spacing_problem;
 use crate::{Dtype, Endian, Grid, VolumeError};
 use std::path::Path;
 
@@ -45,7 +46,9 @@ impl OpenOptions {
         })
     }
 
-    /// Builds the grid of a file from its header values and these overrides.
+    /// Builds the grid of a file from its header values and these overrides. A header's spacing
+    /// that no grid can have (a zero `pixdim`, a degenerate sform) names `[input] spacing`, the
+    /// way to run the file without editing it.
     pub(crate) fn grid(
         &self,
         path: &Path,
@@ -53,6 +56,16 @@ impl OpenOptions {
         spacing: [f64; 3],
         origin: [f64; 3],
     ) -> Result<Grid, VolumeError> {
+        let header_problem = match self.spacing {
+            None => spacing_problem(spacing, "fix the header or set [input] spacing"),
+            Some(_) => None,
+        };
+        if let Some(problem) = header_problem {
+            return Err(VolumeError::Grid {
+                origin: path.display().to_string(),
+                problem: format!("the header's {problem}"),
+            });
+        }
         Grid::new(
             dims,
             self.spacing.unwrap_or(spacing),
@@ -110,6 +123,29 @@ mod tests {
             .grid(Path::new("a"), [2, 3, 4], [1.0; 3], [5.0; 3])
             .unwrap();
         assert_eq!((g.spacing, g.origin), ([2.0; 3], [5.0; 3]));
+    }
+
+    /// A header's impossible spacing names the override; the override itself is checked as any
+    /// grid's.
+    #[test]
+    fn a_bad_header_spacing_names_the_override() {
+        let none = OpenOptions::default();
+        let e = none
+            .grid(Path::new("a.nii"), [2; 3], [1.0, 0.0, 1.0], [0.0; 3])
+            .unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "a.nii: the header's spacing [1.0, 0.0, 1.0] must be finite and > 0 on every axis; fix the header or set [input] spacing"
+        );
+        let given = OpenOptions {
+            spacing: Some([1.0; 3]),
+            ..Default::default()
+        };
+        assert!(
+            given
+                .grid(Path::new("a.nii"), [2; 3], [1.0, 0.0, 1.0], [0.0; 3])
+                .is_ok()
+        );
     }
 
     #[test]

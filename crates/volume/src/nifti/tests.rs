@@ -271,7 +271,7 @@ fn bad_files_give_one_line_errors() {
         (
             "a.nii",
             with(&|h| h.pixdim[2] = 0.0),
-            "spacing [0.5, 0.0, 1.5] must be finite and > 0 on every axis; check the spacing",
+            "the header's spacing [0.5, 0.0, 1.5] must be finite and > 0 on every axis; fix the header or set [input] spacing",
         ),
         (
             "a.nii",
