@@ -10,7 +10,7 @@
 //! | `.nrrd` / `.nhdr` (raw, gzip, ascii; `data file` lists) | NRRD | raw single file mapped, else two slices |
 //! | `.vtk` legacy `STRUCTURED_POINTS` (binary, ascii) | VTK | binary mapped, ascii two slices |
 //! | `.vti` (ascii, base64, appended; zlib) | VTK XML | appended raw mapped, else two slices + one 32 KiB block; the mapped file's pages are released as the stream passes them |
-//! | `.nii` / `.nii.gz` / `.hdr`+`.img` | NIfTI-1 | `.nii` mapped, `.nii.gz` two slices |
+//! | `.nii` / `.nii.gz` / `.hdr`+`.img` / `.hdr.gz`+`.img.gz` | NIfTI-1 | `.nii` and `.img` mapped, gzip two slices |
 //! | `.tif` / `.tiff` / a directory of them | TIFF stack | one page |
 //! | a directory with `zarr.json` (or that file): Zarr v3, OME-Zarr v0.5 | Zarr | one row of chunks |
 //!

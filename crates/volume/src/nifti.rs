@@ -1,4 +1,4 @@
-//! NIfTI-1 single files (`.nii`, `.nii.gz`) and `.hdr`/`.img` pairs, with `scl_slope` /
+//! NIfTI-1 single files (`.nii`, `.nii.gz`) and `.hdr`/`.img` pairs (or `.hdr.gz`/`.img.gz`), with `scl_slope` /
 //! `scl_inter` scaling and `pixdim` voxel sizes.
 //!
 //! The header is a fixed 348-byte struct, so we read the dozen fields we need by offset instead
@@ -18,7 +18,7 @@ use crate::stream::{Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
 use crate::{Dtype, Endian, Grid, OpenOptions, Orientation, VolumeError, VolumeSource};
 use flate2::read::MultiGzDecoder;
 use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const HEADER: usize = 348;
 
@@ -57,24 +57,27 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     }
     let h = parse(path, &bytes)?;
     let grid = opts.grid(path, h.dims, h.spacing, h.origin)?;
-    let inner: Box<dyn VolumeSource> = if h.pair {
-        let img = path.with_extension("img");
-        Box::new(raw(&img, &h, grid)?)
-    } else if gz {
-        let owned: PathBuf = path.to_path_buf();
+    // A pair's voxels are in the `.img` beside the `.hdr`, both gzipped when the header is
+    // (nibabel writes `.hdr.gz` with `.img.gz`).
+    let data = match (h.pair, gz) {
+        (false, _) => path.to_path_buf(),
+        (true, false) => path.with_extension("img"),
+        (true, true) => path.with_extension("").with_extension("img.gz"),
+    };
+    let inner: Box<dyn VolumeSource> = if gz {
         let skip = h.vox_offset;
         Box::new(StreamVolume::new(StreamSpec {
-            path: path.to_path_buf(),
+            path: data.clone(),
             what: "gzip NIfTI voxels",
             grid,
             dtype: h.dtype,
             stored: h.dtype,
             endian: h.endian,
             open: Box::new(move || {
-                let mut s: Stream = Box::new(MultiGzDecoder::new(open_at(&owned, 0)?));
+                let mut s: Stream = Box::new(MultiGzDecoder::new(open_at(&data, 0)?));
                 skip_bytes(&mut s, skip).map_err(|e| {
                     VolumeError::format(
-                        &owned,
+                        &data,
                         "vox_offset",
                         format!("{skip} header bytes"),
                         e.to_string(),
@@ -86,7 +89,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             orientation: h.orientation,
         })?)
     } else {
-        Box::new(raw(path, &h, grid)?)
+        Box::new(raw(&data, &h, grid)?)
     };
     // scl_slope 0 means "no scaling" in NIfTI-1; identity scaling is skipped for speed.
     if h.slope == 0.0 || !h.slope.is_finite() || (h.slope == 1.0 && h.inter == 0.0) {

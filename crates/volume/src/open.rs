@@ -88,6 +88,7 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         (".nii", Format::Nifti),
         (".nii.gz", Format::Nifti),
         (".hdr", Format::Nifti),
+        (".hdr.gz", Format::Nifti),
         (".tif", Format::Tiff),
         (".tiff", Format::Tiff),
     ];
@@ -126,9 +127,26 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
     })
 }
 
+fn starts_with_gzip(path: &Path) -> bool {
+    let mut head = [0u8; 2];
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .is_ok_and(|()| head == [0x1f, 0x8b])
+}
+
 fn open_raw(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
     opts.reject_array(path, "raw")?;
     let (Some(dims), Some(dtype)) = (opts.dims, opts.dtype) else {
+        // A gzip file of no known name (a pair's `.img.gz`, a `.raw.gz`) is no raw volume:
+        // asking for dims would mislead.
+        if starts_with_gzip(path) {
+            return Err(VolumeError::Format {
+                file: path.display().to_string(),
+                at: "input".into(),
+                expected: "a volume format (gzip is read in .nii.gz, a .hdr.gz with its .img.gz, and NRRD)".into(),
+                found: "a gzip file; for a NIfTI pair give its .hdr.gz, else decompress it (gunzip) and set [input] dims and dtype".into(),
+            });
+        }
         return Err(VolumeError::Grid {
             origin: path.display().to_string(),
             problem: "a raw file (or one of unknown format) has no header; set [input] dims and dtype (and endian, header_bytes if needed)".to_string(),
@@ -158,6 +176,21 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "/tmp/x.raw: a raw file (or one of unknown format) has no header; set [input] dims and dtype (and endian, header_bytes if needed)"
+        );
+    }
+
+    #[test]
+    fn gzip_of_unknown_format_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("v.img.gz");
+        std::fs::write(&p, crate::testutil::gzip(&[0u8; 8])).unwrap();
+        let e = open_path(&p, &OpenOptions::default())
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("found a gzip file; for a NIfTI pair give its .hdr.gz") && !e.contains('\n'),
+            "{e}"
         );
     }
 

@@ -208,6 +208,17 @@ fn scaling_origin_and_pairs() {
         read_all(&dir.path().join("p.hdr"), &OpenOptions::default()).unwrap(),
         want
     );
+    // nibabel's gzipped pair: both parts gzipped.
+    std::fs::write(dir.path().join("g.hdr.gz"), gzip(&h.bytes()[..348])).unwrap();
+    std::fs::write(
+        dir.path().join("g.img.gz"),
+        gzip(&encode(Dtype::I16, Endian::Little, &values)),
+    )
+    .unwrap();
+    assert_eq!(
+        read_all(&dir.path().join("g.hdr.gz"), &OpenOptions::default()).unwrap(),
+        want
+    );
 }
 
 #[test]
