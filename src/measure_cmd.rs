@@ -29,7 +29,7 @@ pub fn measure(
         },
         None,
     );
-    let mesh = isostream_smesh::read_indexed(mesh_path)?;
+    let mut mesh = isostream_smesh::read_indexed(mesh_path)?;
     let quality = mesh_quality(&mesh.positions, &mesh.triangles);
     let run = run_summary(mesh_path).filter(|run| describes(run, mesh_path, &quality));
     let defaults = MeasureOptions::default();
@@ -55,6 +55,13 @@ pub fn measure(
                     job: job_path.display().to_string(),
                     read,
                 })?;
+            }
+            // The volume is extracted in the coordinates its axis flips are undone from
+            // (`isostream_pipeline::Mirror`): the mesh is taken there too, for the distances and
+            // the attributes (a reflection changes neither).
+            let mirror = isostream_pipeline::Mirror::of(source.as_ref());
+            for p in &mut mesh.positions {
+                *p = mirror.position(*p);
             }
             let context = || format!("measuring {}", mesh_path.display());
             let halves = MeasureHalves {

@@ -208,40 +208,137 @@ fn nan_voxels_are_outside_and_counted() {
 
 /// An LPS NRRD (x and y step backwards from the origin): the dropped flips are one warning in
 /// the run summary, and a warning line of `validate`.
+/// An LPS NRRD (x and y stepping backwards from the origin) is meshed where its header puts
+/// it: the same surface as the same voxels stored aligned (reversed along x and y, from the
+/// box's low corner), oriented the same way, no warning; `measure --volume` finds the output
+/// on its full surface.
 #[test]
-fn dropped_axis_flips_are_warned_about() {
+fn axis_flips_are_applied() {
     let dir = tempfile::tempdir().unwrap();
-    let vol = random_blobs([12, 12, 12], 1, 3);
-    let mut nrrd = b"NRRD0004\ntype: float\ndimension: 3\nsizes: 12 12 12\nendian: little\nencoding: raw\nspace: left-posterior-superior\nspace directions: (-0.5,0,0) (0,-0.8,0) (0,0,1.2)\nspace origin: (10,-5,3)\n\n".to_vec();
-    nrrd.extend(vol.data.iter().flat_map(|v| v.to_le_bytes()));
-    std::fs::write(dir.path().join("lps.nrrd"), nrrd).unwrap();
-    let job = write_job(
-        dir.path(),
-        &format!(
-            "[input]\npath = \"lps.nrrd\"\n[extract]\niso = {}\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n",
-            vol.iso
-        ),
+    let n = 12;
+    let vol = random_blobs([n, n, n], 1, 3);
+    let write = |name: &str, directions: &str, origin: &str, data: &[f32]| {
+        let mut nrrd = format!(
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: {n} {n} {n}\nendian: little\nencoding: raw\n\
+             space: left-posterior-superior\nspace directions: {directions}\nspace origin: {origin}\n\n"
+        )
+        .into_bytes();
+        nrrd.extend(data.iter().flat_map(|v| v.to_le_bytes()));
+        std::fs::write(dir.path().join(name), nrrd).unwrap();
+        let job = dir.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &job,
+            format!(
+                "[input]\npath = \"{name}\"\n[extract]\niso = {}\n[simplify]\nmode = \"none\"\n[output]\npath = \"{name}.smb\"\n",
+                vol.iso
+            ),
+        )
+        .unwrap();
+        job.to_string_lossy().into_owned()
+    };
+    let flipped = write(
+        "lps.nrrd",
+        "(-0.5,0,0) (0,-0.8,0) (0,0,1.2)",
+        "(10,-5,3)",
+        &vol.data,
     );
-    let o = isostream(&["validate", &job]);
-    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    let n = n as usize;
+    let reversed: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, i / n % n, i / (n * n));
+            vol.data[(n - 1 - x) + n * ((n - 1 - y) + n * z)]
+        })
+        .collect();
+    let aligned = write(
+        "aligned.nrrd",
+        "(0.5,0,0) (0,0.8,0) (0,0,1.2)",
+        "(4.5,-13.8,3)",
+        &reversed,
+    );
+    // x alone flipped (an odd number of flips: the winding is swapped back too).
+    let y_reversed: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let (x, y, z) = (i % n, i / n % n, i / (n * n));
+            vol.data[x + n * ((n - 1 - y) + n * z)]
+        })
+        .collect();
+    let las = write(
+        "las.nrrd",
+        "(-0.5,0,0) (0,0.8,0) (0,0,1.2)",
+        "(10,-13.8,3)",
+        &y_reversed,
+    );
+    let o = isostream(&["validate", &flipped]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let warning: Vec<&str> = out.lines().filter(|l| l.contains(": warning: ")).collect();
-    assert_eq!(warning.len(), 1, "{out}");
-    assert!(
-        warning[0].contains("lps.nrrd: the header flips axis x, y"),
-        "{out}"
-    );
-    let o = isostream(&["run", &job]);
+    assert!(!String::from_utf8_lossy(&o.stdout).contains("warning"));
+    let mut meshes = Vec::new();
+    for (job, mesh) in [
+        (&flipped, "lps.nrrd.smb"),
+        (&aligned, "aligned.nrrd.smb"),
+        (&las, "las.nrrd.smb"),
+    ] {
+        let o = isostream(&["run", job]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join(format!("{mesh}.run.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(
+            summary["warnings"].as_array().unwrap().len(),
+            0,
+            "{summary}"
+        );
+        meshes.push(Mesh::read(&dir.path().join(mesh)));
+    }
+    let bbox = |m: &Mesh| {
+        (0..3)
+            .map(|k| {
+                let c = m.positions.iter().map(|p| p[k]);
+                (
+                    c.clone().fold(f64::INFINITY, f64::min),
+                    c.fold(f64::NEG_INFINITY, f64::max),
+                )
+            })
+            .collect::<Vec<_>>()
+    };
+    let b = bbox(&meshes[1]);
+    for a in [bbox(&meshes[0]), bbox(&meshes[2])] {
+        for k in 0..3 {
+            assert!(
+                (a[k].0 - b[k].0).abs() < 1e-4 && (a[k].1 - b[k].1).abs() < 1e-4,
+                "{a:?} {b:?}"
+            );
+        }
+        assert!(a[0].0 >= 4.5 - 1e-6 && a[0].1 <= 10.0 + 1e-6, "{a:?}");
+    }
+    // Signed volume: the same sign (orientation) and about the same size.
+    let volume = |m: &Mesh| -> f64 {
+        m.triangles
+            .iter()
+            .map(|t| {
+                let [p, q, r] = t.map(|i| m.positions[i as usize]);
+                p[0] * (q[1] * r[2] - q[2] * r[1]) - p[1] * (q[0] * r[2] - q[2] * r[0])
+                    + p[2] * (q[0] * r[1] - q[1] * r[0])
+            })
+            .sum::<f64>()
+            / 6.0
+    };
+    let vb = volume(&meshes[1]);
+    for va in [volume(&meshes[0]), volume(&meshes[2])] {
+        assert!(
+            va * vb > 0.0 && (va - vb).abs() < 0.02 * vb.abs(),
+            "{va} {vb}"
+        );
+    }
+    let out = dir
+        .path()
+        .join("lps.nrrd.smb")
+        .to_string_lossy()
+        .into_owned();
+    let o = isostream(&["measure", "--volume", &flipped, &out, "--json"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("o.smb.run.json")).unwrap())
-            .unwrap();
-    let warnings = summary["warnings"].as_array().unwrap();
-    assert_eq!(warnings.len(), 1, "{summary}");
-    assert!(
-        warnings[0].as_str().unwrap().contains("mirrored on x, y"),
-        "{summary}"
-    );
+    let m: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(m["distances"]["hausdorff"].as_f64().unwrap() < 1e-3, "{m}");
 }
 
 #[test]

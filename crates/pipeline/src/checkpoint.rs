@@ -83,8 +83,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// simplifier's fronts within a slab; 31: a cascade's rear with rows; 32: a free vertex slot's
 /// position NaN, read by the dense scan of positions; 33: the guard's cell lists in blocks of
 /// one pool; 34: the costs' tie-break by edge length, so the queued costs of a 33 are not this
-/// build's; 35: the extraction's count of non-finite attribute values).
-const FORMAT: u32 = 35;
+/// build's; 35: the extraction's count of non-finite attribute values; 36: axis flips applied,
+/// so a flipped input's half-written output of a 35 is in other coordinates).
+const FORMAT: u32 = 36;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -13,6 +13,7 @@ mod error;
 mod extract_pool;
 mod flow;
 mod index_limit;
+mod mirror;
 mod monitor;
 mod output;
 mod range;
@@ -44,6 +45,7 @@ pub use config::{
     Mode, OutputConfig, PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
+pub use mirror::Mirror;
 pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
 pub use output::{OutputLock, lock_output, lock_path, one_file, stale_temp_files};
 pub use rss::{current_rss_bytes, peak_rss_bytes};
@@ -193,6 +195,8 @@ fn run_job(
     // Said at the start (the mesh of a long run is in the wrong place from its first slab), and
     // kept for the summary's warnings.
     let dropped_orientation = orientation_warning(source.as_ref());
+    // The input's axis flips, undone on the way out (`mirror.rs`).
+    let mirror = Mirror::of(source.as_ref());
     if let Some(w) = &dropped_orientation {
         warn!("{w}");
     }
@@ -316,7 +320,7 @@ fn run_job(
                 checkpoint = %ckpt_path.display(),
                 "resuming from the checkpoint"
             );
-            let sink = sink::Sink::resume(&job.output.path, &header, parts.sink)?;
+            let sink = sink::Sink::resume(&job.output.path, &header, mirror, parts.sink)?;
             let resume = stages::Resume {
                 reader: parts.reader,
                 extract: parts.extract,
@@ -324,7 +328,7 @@ fn run_job(
             };
             (sink, Some(resume))
         }
-        _ => (sink::Sink::create(&job.output.path, &header)?, None),
+        _ => (sink::Sink::create(&job.output.path, &header, mirror)?, None),
     };
     let mut reader = SliceReader::new(source, attribute_sources).rows_on_demand();
     if job.extract.skip_empty {

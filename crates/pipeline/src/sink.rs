@@ -7,6 +7,7 @@ use isostream_simplify::{OutBatch, OutElement};
 use isostream_smesh::{ConvertOptions, Header, MeshSink, SinkState, WriteStats};
 
 use crate::error::RunError;
+use crate::mirror::Mirror;
 
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct SinkStats {
@@ -23,26 +24,35 @@ pub(crate) struct Sink {
     attributes: usize,
     path: PathBuf,
     triangles: u64,
+    /// The input's axis flips, undone on every position and triangle written.
+    mirror: Mirror,
 }
 
 impl Sink {
-    pub fn create(path: &Path, header: &Header) -> Result<Self, RunError> {
+    pub fn create(path: &Path, header: &Header, mirror: Mirror) -> Result<Self, RunError> {
         Ok(Self {
             inner: isostream_smesh::create_sink(path, header, &ConvertOptions::default())?,
             attributes: header.attribute_names.len(),
             path: path.to_path_buf(),
             triangles: 0,
+            mirror,
         })
     }
 
     /// Continues the sink a checkpoint saved (its temporary files cut back to the saved lengths).
-    pub fn resume(path: &Path, header: &Header, state: SinkState) -> Result<Self, RunError> {
+    pub fn resume(
+        path: &Path,
+        header: &Header,
+        mirror: Mirror,
+        state: SinkState,
+    ) -> Result<Self, RunError> {
         let triangles = state.triangles();
         Ok(Self {
             inner: isostream_smesh::resume_sink(path, header, &ConvertOptions::default(), state)?,
             attributes: header.attribute_names.len(),
             path: path.to_path_buf(),
             triangles,
+            mirror,
         })
     }
 
@@ -65,10 +75,14 @@ impl Sink {
                         0 => &[][..],
                         _ => attrs.next().unwrap_or(&[]),
                     };
-                    self.inner.vertex(pos.as_vec3().to_array(), a)?;
+                    // Negating an f64 and rounding it is rounding and negating: the f32 the
+                    // simplifier placed, mirrored exactly.
+                    let p = self.mirror.position(pos.to_array()).map(|x| x as f32);
+                    self.inner.vertex(p, a)?;
                 }
                 OutElement::Triangle { v, last_use } => {
-                    self.inner.triangle(*v, *last_use)?;
+                    self.inner
+                        .triangle(self.mirror.corners(*v), self.mirror.corners(*last_use))?;
                     self.triangles += 1;
                 }
             }

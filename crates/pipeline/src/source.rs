@@ -8,7 +8,7 @@ use crate::error::RunError;
 /// Opens the volume a job names: a procedural shape, or a file in any format `volume` reads,
 /// seen through `upsample` when the job asks for it.
 pub fn open_source(input: &InputConfig) -> Result<Box<dyn VolumeSource>, RunError> {
-    let source = open_stored(input)?;
+    let source = crate::mirror::Mirrored::wrap(open_stored(input)?);
     check_slice_memory(source.as_ref(), crate::rss::physical_memory_bytes())?;
     let source = upsampled(source, input)?;
     check_f32_positions(&source.grid()).map_err(|problem| VolumeError::Grid {
@@ -31,9 +31,8 @@ pub fn preflight(job: &JobConfig) -> Result<Box<dyn VolumeSource>, RunError> {
     Ok(source)
 }
 
-/// The warning for what of the input's header orientation the grid dropped (axis flips, a
-/// rotation), `None` when nothing was: without it a flipped volume's mesh lands outside the
-/// volume's physical box and nobody notices. `run` logs it and puts it in the run summary,
+/// The warning for a rotation of the input's header, which the grid drops (axis flips are
+/// applied, `mirror.rs`); `None` otherwise. `run` logs it and puts it in the run summary,
 /// `validate` prints it.
 pub fn orientation_warning(source: &dyn VolumeSource) -> Option<String> {
     let dropped = source.orientation().dropped()?;
@@ -185,10 +184,10 @@ mod tests {
     use super::*;
     use isostream_volume::{Orientation, Shape};
 
-    /// A procedural volume whose "header" flipped x.
-    struct Flipped(Procedural);
+    /// A procedural volume whose "header" said `orientation`.
+    struct Oriented(Procedural, Orientation);
 
-    impl VolumeSource for Flipped {
+    impl VolumeSource for Oriented {
         fn grid(&self) -> Grid {
             self.0.grid()
         }
@@ -199,24 +198,33 @@ mod tests {
             self.0.read_slice(z, out)
         }
         fn orientation(&self) -> Orientation {
-            Orientation::Flipped([true, false, false])
+            self.1
         }
     }
 
+    /// A rotation (not applied) is one warning naming the file; axis flips are applied, so
+    /// they are none.
     #[test]
-    fn a_dropped_flip_is_one_warning_naming_the_file() {
+    fn a_rotation_is_one_warning_naming_the_file_and_flips_none() {
         let sphere = || Procedural::new(Shape::Sphere, [8; 3], [1.0; 3], [0.0; 3]).unwrap();
         assert_eq!(orientation_warning(&sphere()), None);
-        let w = orientation_warning(&Flipped(sphere())).unwrap();
+        let flipped = Orientation::Flipped([true, false, false]);
+        assert_eq!(orientation_warning(&Oriented(sphere(), flipped)), None);
+        let w = orientation_warning(&Oriented(sphere(), Orientation::Rotated)).unwrap();
         assert!(
-            w.starts_with("lps.nrrd: the header flips axis x")
+            w.starts_with("lps.nrrd: the header rotates")
                 && w.ends_with("see config/README.md, Orientation")
                 && !w.contains('\n'),
             "{w}"
         );
         // Through `upsample` too.
-        let up: Box<dyn VolumeSource> =
-            Box::new(Upsampled::new(Box::new(Flipped(sphere())), [2, 1, 1]).unwrap());
+        let up: Box<dyn VolumeSource> = Box::new(
+            Upsampled::new(
+                Box::new(Oriented(sphere(), Orientation::Rotated)),
+                [2, 1, 1],
+            )
+            .unwrap(),
+        );
         assert!(orientation_warning(up.as_ref()).is_some());
     }
 
