@@ -330,6 +330,19 @@ fn axis_flips_are_applied() {
             "{va} {vb}"
         );
     }
+    // An attribute stored with other flips than the iso volume's would pair mirrored voxels.
+    let with_attribute = dir.path().join("attr.toml");
+    std::fs::write(
+        &with_attribute,
+        std::fs::read_to_string(&flipped).unwrap()
+            + "[[attributes]]\nname = \"a\"\npath = \"aligned.nrrd\"\n",
+    )
+    .unwrap();
+    assert_one_line_error(
+        &isostream(&["validate", &with_attribute.to_string_lossy()]),
+        2,
+        &["aligned.nrrd", "same axis directions"],
+    );
     let out = dir
         .path()
         .join("lps.nrrd.smb")

@@ -203,11 +203,14 @@ pub(crate) enum Source {
     Gradient,
 }
 
-/// Opens every attribute's volume and checks that its grid matches the iso volume's.
+/// Opens every attribute's volume and checks that its grid matches the iso volume's: the same
+/// dims and the same axis flips (values are paired by voxel index, and an attribute stored
+/// with other flips than the iso volume's would pair mirrored voxels).
 pub(crate) fn open(
     attributes: &[AttributeConfig],
     input: &InputConfig,
     grid: Grid,
+    orientation: isostream_volume::Orientation,
 ) -> Result<Vec<Source>, RunError> {
     attributes
         .iter()
@@ -246,6 +249,17 @@ pub(crate) fn open(
                         a.name,
                         source.grid().dims,
                         grid.dims
+                    ),
+                }));
+            }
+            if source.orientation() != orientation {
+                return Err(RunError::Volume(isostream_volume::VolumeError::Grid {
+                    origin: path.display().to_string(),
+                    problem: format!(
+                        "attribute `{}` has orientation {:?} but the iso volume has {:?}; attributes need the same axis directions (resample one onto the other's)",
+                        a.name,
+                        source.orientation(),
+                        orientation
                     ),
                 }));
             }
@@ -380,7 +394,7 @@ impl SliceReader {
             job.attributes.len(),
             crate::rss::physical_memory_bytes(),
         )?;
-        let attributes = open(&job.attributes, &job.input, iso.grid())?;
+        let attributes = open(&job.attributes, &job.input, iso.grid(), iso.orientation())?;
         Ok(Self::new(iso, attributes))
     }
 

@@ -265,7 +265,8 @@ fn run_job(
         }
         false => None,
     };
-    let attribute_sources = attributes::open(&job.attributes, &job.input, grid)?;
+    let attribute_sources =
+        attributes::open(&job.attributes, &job.input, grid, source.orientation())?;
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),

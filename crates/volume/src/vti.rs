@@ -165,7 +165,15 @@ fn image_grid(
             0
         }
     });
-    let origin = [0, 1, 2].map(|a| origin[a] + spacing[a] * extent[2 * a]);
+    // Voxel (0, 0, 0) is the extent's first point: VTK puts point (x0, y0, z0) at `Origin +
+    // Direction (Spacing * (x0, y0, z0))`, so on a flipped axis the extent's start steps
+    // backwards too (cropped or `vtkExtractVOI` output; the flip is applied downstream).
+    let origin = [0, 1, 2].map(|a| {
+        origin[a]
+            + (0..3)
+                .map(|b| direction[3 * a + b] * spacing[b] * extent[2 * b])
+                .sum::<f64>()
+    });
     let grid = opts.grid(path, dims, [spacing[0], spacing[1], spacing[2]], origin)?;
     Ok((grid, orientation))
 }

@@ -227,17 +227,21 @@ fn direction_is_reported() {
         endian: Endian::Little,
     };
     let base = vti(Dtype::U8, "UInt8", &sample_values(Dtype::U8, 24), c);
-    for (direction, want) in [
+    // The extent starts at (1, 0, 2), Origin (10, 0, 0), Spacing (2, 1, 0.5): voxel (0, 0, 0)
+    // is `Origin + Direction (Spacing * start)`, backwards on a flipped axis.
+    for (direction, want, origin) in [
         (
             "-1 0 0 0 1 0 0 0 1",
             Orientation::Flipped([true, false, false]),
+            [8.0, 0.0, 1.0],
         ),
         (
             "1 0 0 0 -1 0 0 0 -1",
             Orientation::Flipped([false, true, true]),
+            [12.0, 0.0, -1.0],
         ),
-        ("0 1 0 1 0 0 0 0 1", Orientation::Rotated),
-        ("1 0 0 0 1 0 0 0 1", Orientation::Aligned),
+        ("0 1 0 1 0 0 0 0 1", Orientation::Rotated, [10.0, 2.0, 1.0]),
+        ("1 0 0 0 1 0 0 0 1", Orientation::Aligned, [12.0, 0.0, 1.0]),
     ] {
         let file = Bytes(base.clone())
             .replace("Spacing=", &format!("Direction=\"{direction}\" Spacing="))
@@ -245,7 +249,7 @@ fn direction_is_reported() {
         std::fs::write(&p, file).unwrap();
         let v = open_path(&p, &OpenOptions::default()).unwrap();
         assert_eq!(v.orientation(), want, "{direction}");
-        assert_eq!(v.grid().origin, [12.0, 0.0, 1.0], "{direction}");
+        assert_eq!(v.grid().origin, origin, "{direction}");
     }
 }
 
