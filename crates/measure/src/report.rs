@@ -240,6 +240,17 @@ mod tests {
     /// Two tetrahedra sharing one vertex (a bowtie), and an icosahedron with one face flipped:
     /// no boundary edge, yet not closed manifolds. The text said "NOT closed" beside "0 boundary
     /// edges"; it now says what is wrong, and the JSON has the counts.
+    /// The text report of a mesh's quality alone.
+    fn quality_text(quality: MeshQuality) -> String {
+        MeasureReport {
+            quality,
+            distances: None,
+            shape_error: None,
+            attributes: Vec::new(),
+        }
+        .to_text()
+    }
+
     #[test]
     fn a_mesh_without_boundary_that_is_not_a_closed_manifold_says_why() {
         let tetra = |o: [f64; 3], s: f64| {
@@ -267,13 +278,7 @@ mod tests {
         let q = mesh_quality(&p, &t);
         assert_eq!((q.boundary_edges, q.non_manifold_vertices), (0, 1), "{q:?}");
         assert!(!q.closed && q.edge_manifold && q.oriented && !q.vertex_manifold);
-        let text = MeasureReport {
-            quality: q,
-            distances: None,
-            shape_error: None,
-            attributes: Vec::new(),
-        }
-        .to_text();
+        let text = quality_text(q);
         assert!(
             text.contains("topology: no boundary edges, but NOT a closed manifold: edge-manifold, NOT vertex-manifold (1 non-manifold vertices), oriented, 0 zero-area triangles"),
             "{text}"
@@ -289,13 +294,7 @@ mod tests {
             (json["closed"].clone(), json["boundary_edges"].clone()),
             (false.into(), 0.into())
         );
-        let text = MeasureReport {
-            quality: q,
-            distances: None,
-            shape_error: None,
-            attributes: Vec::new(),
-        }
-        .to_text();
+        let text = quality_text(q);
         assert!(
             text.contains("no boundary edges, but NOT a closed manifold: edge-manifold, vertex-manifold, NOT oriented (3 misoriented edges)"),
             "{text}"
