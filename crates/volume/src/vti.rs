@@ -150,8 +150,11 @@ fn image_grid(
         "1 0 0 0 1 0 0 0 1",
         "d00 d01 d02 d10 d11 d12 d20 d21 d22",
     )?;
+    // Axis k steps by `Direction` column k times `Spacing[k]`: a negative spacing (how VTK
+    // before 9 wrote a flipped axis) flips it like a negative direction.
     let orientation = Orientation::of_columns(
-        [0, 1, 2].map(|k| [direction[k], direction[3 + k], direction[6 + k]]),
+        [0, 1, 2]
+            .map(|k| [direction[k], direction[3 + k], direction[6 + k]].map(|d| d * spacing[k])),
     );
     if doc.pieces != 1 {
         return Err(err("exactly one Piece", &doc.pieces.to_string()));
@@ -174,7 +177,12 @@ fn image_grid(
                 .map(|b| direction[3 * a + b] * spacing[b] * extent[2 * b])
                 .sum::<f64>()
     });
-    let grid = opts.grid(path, dims, [spacing[0], spacing[1], spacing[2]], origin)?;
+    let grid = opts.grid(
+        path,
+        dims,
+        [spacing[0].abs(), spacing[1].abs(), spacing[2].abs()],
+        origin,
+    )?;
     Ok((grid, orientation))
 }
 

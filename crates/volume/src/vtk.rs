@@ -32,7 +32,10 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     opts.reject_raw_params(path, "VTK legacy")?;
     let want = opts.array.clone();
     let (h, mut reader) = locate(path, want.as_deref())?;
-    let grid = opts.grid(path, h.dims, h.spacing, h.origin)?;
+    // A negative SPACING is how VTK before 9 stored a flipped axis (the origin is voxel 0's
+    // position, the axis steps backwards): the grid takes its length, the pipeline the flip.
+    let orientation = Orientation::from_flips(h.spacing.map(|s| s < 0.0));
+    let grid = opts.grid(path, h.dims, h.spacing.map(f64::abs), h.origin)?;
     if h.binary {
         let offset = reader
             .stream_position()
@@ -45,8 +48,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             offset,
             trailing_ok: true,
             hint: "check the DIMENSIONS and SCALARS lines against the data",
-            // Legacy structured points have no direction.
-            orientation: Orientation::Aligned,
+            orientation,
         })?));
     }
     drop(reader);
@@ -68,7 +70,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             }) as Stream)
         }),
         exact_end: false,
-        orientation: Orientation::Aligned,
+        orientation,
     })?))
 }
 

@@ -251,6 +251,16 @@ fn direction_is_reported() {
         assert_eq!(v.orientation(), want, "{direction}");
         assert_eq!(v.grid().origin, origin, "{direction}");
     }
+    // A negative Spacing (how VTK before 9 wrote a flip) flips its axis like a negative
+    // Direction: the grid takes the length, voxel 0 steps back from Origin by the start.
+    let file = Bytes(base.clone())
+        .replace("Spacing=\"2 1 0.5\"", "Spacing=\"-2 1 0.5\"")
+        .into_bytes();
+    std::fs::write(&p, file).unwrap();
+    let v = open_path(&p, &OpenOptions::default()).unwrap();
+    assert_eq!(v.orientation(), Orientation::Flipped([true, false, false]));
+    assert_eq!(v.grid().spacing, [2.0, 1.0, 0.5]);
+    assert_eq!(v.grid().origin, [8.0, 0.0, 1.0]);
 }
 
 #[test]

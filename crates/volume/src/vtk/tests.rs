@@ -222,3 +222,36 @@ pub(crate) fn samples() -> Vec<(&'static str, Vec<u8>)> {
     let ascii = format!("{}SCALARS s float\n{}\n", head("ASCII"), text.join(" "));
     vec![("sample.vtk", binary), ("sample.vtk", ascii.into_bytes())]
 }
+
+/// A negative SPACING (how VTK before 9 wrote a flipped axis) is a flip: the grid takes its
+/// length, the source reports the flip, in binary and ASCII files alike.
+#[test]
+fn negative_spacing_is_a_flip() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("f.vtk");
+    let values = sample_values(Dtype::F32, 24);
+    for mode in ["BINARY", "ASCII"] {
+        let mut file = format!("{}SCALARS s float\nLOOKUP_TABLE default\n", head(mode))
+            .replace("SPACING 1 2 0.5", "SPACING -1 2 -0.5")
+            .into_bytes();
+        match mode {
+            "BINARY" => file.extend(encode(Dtype::F32, Endian::Big, &values)),
+            _ => file.extend(
+                values
+                    .iter()
+                    .map(|v| format!("{v} "))
+                    .collect::<String>()
+                    .bytes(),
+            ),
+        }
+        std::fs::write(&p, &file).unwrap();
+        let v = open_path(&p, &OpenOptions::default()).unwrap();
+        assert_eq!(v.grid().spacing, [1.0, 2.0, 0.5], "{mode}");
+        assert_eq!(v.grid().origin, [-1.0, 0.0, 1.0], "{mode}");
+        assert_eq!(
+            v.orientation(),
+            Orientation::Flipped([true, false, true]),
+            "{mode}"
+        );
+    }
+}
