@@ -312,19 +312,8 @@ fn axis_flips_are_applied() {
         assert!(a[0].0 >= 4.5 - 1e-6 && a[0].1 <= 10.0 + 1e-6, "{a:?}");
     }
     // Signed volume: the same sign (orientation) and about the same size.
-    let volume = |m: &Mesh| -> f64 {
-        m.triangles
-            .iter()
-            .map(|t| {
-                let [p, q, r] = t.map(|i| m.positions[i as usize]);
-                p[0] * (q[1] * r[2] - q[2] * r[1]) - p[1] * (q[0] * r[2] - q[2] * r[0])
-                    + p[2] * (q[0] * r[1] - q[1] * r[0])
-            })
-            .sum::<f64>()
-            / 6.0
-    };
-    let vb = volume(&meshes[1]);
-    for va in [volume(&meshes[0]), volume(&meshes[2])] {
+    let vb = meshes[1].signed_volume();
+    for va in [meshes[0].signed_volume(), meshes[2].signed_volume()] {
         assert!(
             va * vb > 0.0 && (va - vb).abs() < 0.02 * vb.abs(),
             "{va} {vb}"

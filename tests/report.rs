@@ -241,14 +241,17 @@ fn bad_files_give_one_line_and_no_page() {
         2,
         &["gyroid.smb", "not an isostream run summary", "run.json"],
     );
-    let o = isostream(&[
-        "report",
-        &run_json.to_string_lossy(),
-        "-o",
-        &out,
-        "--measure",
-        &run_json.to_string_lossy(),
-    ]);
+    let with_measure = |measure: &std::path::Path| {
+        isostream(&[
+            "report",
+            &run_json.to_string_lossy(),
+            "-o",
+            &out,
+            "--measure",
+            &measure.to_string_lossy(),
+        ])
+    };
+    let o = with_measure(&run_json);
     assert_one_line_error(&o, 2, &["gyroid.smb.run.json", "not a measure report"]);
     // The measure of another mesh (one triangle) beside this run's: refused, naming both files
     // and both counts; the page showed "2016 written" beside "measured mesh 4348 triangles".
@@ -258,14 +261,7 @@ fn bad_files_give_one_line_and_no_page() {
     assert!(o.status.success(), "{}", stderr(&o));
     let other_measure = dir.path().join("other.json");
     std::fs::write(&other_measure, &o.stdout).unwrap();
-    let o = isostream(&[
-        "report",
-        &run_json.to_string_lossy(),
-        "-o",
-        &out,
-        "--measure",
-        &other_measure.to_string_lossy(),
-    ]);
+    let o = with_measure(&other_measure);
     let written = summary["faces_written"].to_string();
     assert_one_line_error(
         &o,

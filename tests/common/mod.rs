@@ -64,6 +64,19 @@ impl Mesh {
         isostream_meshcheck::check(&self.positions, &self.triangles)
     }
 
+    /// The signed volume the triangles enclose: positive when they face out.
+    pub fn signed_volume(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [p, q, r] = t.map(|i| self.positions[i as usize]);
+                p[0] * (q[1] * r[2] - q[2] * r[1]) - p[1] * (q[0] * r[2] - q[2] * r[0])
+                    + p[2] * (q[0] * r[1] - q[1] * r[0])
+            })
+            .sum::<f64>()
+            / 6.0
+    }
+
     /// Vertices on boundary edges (edges of one triangle) that lie on no face of the box of
     /// a volume of `dims` voxels (origin 0, spacing 1): an iso-surface's boundary is its cut by
     /// the box, and simplification may shorten the cut but never move it off the box.
