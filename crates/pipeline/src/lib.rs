@@ -204,7 +204,11 @@ fn run_job(
         warn!(input = %input, "the input's encoding forces decoding the whole volume at once (one chunk spans every slice): memory grows with the volume; re-chunk it along z");
     }
 
+    // What `preflight` checks, checked before the first pass of `[output] faces` (a bad
+    // attribute file failed only after it).
     index_limit::check_job(job, grid.voxel_count())?;
+    let attribute_sources =
+        attributes::open(&job.attributes, &job.input, grid, source.orientation())?;
     let rate = job.simplify.rate();
     let prune = NonZeroU64::new(job.simplify.min_component_faces);
     // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts,
@@ -265,8 +269,6 @@ fn run_job(
         }
         false => None,
     };
-    let attribute_sources =
-        attributes::open(&job.attributes, &job.input, grid, source.orientation())?;
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
