@@ -78,6 +78,10 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
         .or(file.state)
         .or_else(|| std::env::var_os("STATE_DIRECTORY").map(PathBuf::from))
         .unwrap_or_else(|| PathBuf::from("isostream-state"));
+    // Absolute from here on, for the job log files too: the service stores paths under it
+    // (`Store::open` makes it canonical once it exists).
+    let state_dir = std::path::absolute(&state_dir)
+        .with_context(|| format!("--state {}", state_dir.display()))?;
     crate::logging::init(
         &LogConfig {
             format,

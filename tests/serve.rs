@@ -56,8 +56,19 @@ impl Server {
         Self::start_under(nohup, state, args)
     }
 
+    /// Started in `cwd`, where a relative `state` is.
+    fn start_in(cwd: &Path, state: &Path, args: &[&str]) -> Server {
+        let mut command = Command::new(BIN);
+        command.current_dir(cwd);
+        Self::start_under(command, state, args)
+    }
+
     fn start_under(mut command: Command, state: &Path, args: &[&str]) -> Server {
-        let log = state.with_extension("log");
+        let log = match command.get_current_dir() {
+            Some(cwd) => cwd.join(state),
+            None => state.to_path_buf(),
+        }
+        .with_extension("log");
         let mut child = command
             .arg("serve")
             .arg("--state")
@@ -1085,4 +1096,66 @@ fn a_job_killed_with_the_service_resumes_from_its_checkpoint() {
     let served = output_bytes(&s, &id);
     // Without checkpoints: the bytes do not depend on them either.
     assert_same_as_a_direct_run(dir.path(), &long_job("gyroid.ply"), "gyroid.ply", &served);
+}
+
+/// A relative `--state` (the default `./isostream-state` is one) is made absolute at start:
+/// the outputs stored in the jobs stay in their job folders when the service is restarted from
+/// another working directory, and a job stored by an older service with an output relative to
+/// its working directory is put back into its folder too.
+#[test]
+fn a_relative_state_folder_survives_a_restart_from_another_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let (first_cwd, second_cwd) = (dir.path().join("a"), dir.path().join("b"));
+    std::fs::create_dir(&first_cwd).unwrap();
+    std::fs::create_dir(&second_cwd).unwrap();
+    let (running, queued) = {
+        let s = Server::start_in(&first_cwd, Path::new("st"), &[]);
+        let running = submit(&s, &long_job("g.smb"));
+        wait_for(&s, &running, "running", |v| v["state"] == "running");
+        let queued = submit(&s, SPHERE);
+        // Drop sends SIGKILL: the running job runs again at the next start.
+        drop(s);
+        (running, queued)
+    };
+    let state = first_cwd.join("st").canonicalize().unwrap();
+    let job_file = |id: &str| state.join("jobs").join(id).join("job.toml");
+    let stored = std::fs::read_to_string(job_file(&running)).unwrap();
+    let absolute = state.join("jobs").join(&running).join("output.smb");
+    assert!(
+        stored.contains(&format!("path = \"{}\"", absolute.display())),
+        "{stored}"
+    );
+    // What an older service stored: the output relative to its working directory.
+    let stored = std::fs::read_to_string(job_file(&queued)).unwrap();
+    let absolute = state.join("jobs").join(&queued).join("output.smb");
+    let relative = format!("st/jobs/{queued}/output.smb");
+    std::fs::write(
+        job_file(&queued),
+        stored.replace(&absolute.display().to_string(), &relative),
+    )
+    .unwrap();
+    assert!(
+        std::fs::read_to_string(job_file(&queued))
+            .unwrap()
+            .contains(&relative)
+    );
+
+    let s = Server::start_in(&second_cwd, &state, &[]);
+    for id in [&running, &queued] {
+        let done = wait_for(&s, id, "done", |v| v["state"] == "done");
+        let output = state.join("jobs").join(id).join("output.smb");
+        assert_eq!(
+            done["summary"]["output"].as_str(),
+            Some(output.to_str().unwrap()),
+            "{done}"
+        );
+        assert_eq!(output_bytes(&s, id), std::fs::read(&output).unwrap());
+        let (code, body) = send(agent().get(&s.url(&format!("/jobs/{id}/report"))), None);
+        assert_eq!(code, 200, "{body}");
+    }
+    assert_eq!(
+        files_in(&second_cwd),
+        Vec::<String>::new(),
+        "nothing written elsewhere"
+    );
 }

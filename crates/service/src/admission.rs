@@ -205,11 +205,15 @@ fn output_name(requested: &Path) -> String {
     }
 }
 
-/// Reads a stored job back (restart): the same checks but no confinement, which was done at
-/// submission and is already in the stored paths.
-pub(crate) fn reload(text: &str) -> Result<JobConfig, String> {
+/// Reads a stored job back (restart): the same checks but no confinement of the inputs, which
+/// was done at submission and is already in the stored paths. The output is not trusted to be
+/// where the stored file says: it is always `output.<ext>` in `job_dir`, so it is derived again
+/// (a service before the state folder was made absolute stored it relative to its working
+/// directory, and a restart elsewhere wrote it there).
+pub(crate) fn reload(text: &str, job_dir: &Path) -> Result<JobConfig, String> {
     let origin = Path::new(ORIGIN);
-    let job = JobConfig::parse(text, origin).map_err(|e| e.to_string())?;
+    let mut job = JobConfig::parse(text, origin).map_err(|e| e.to_string())?;
+    job.output.path = job_dir.join(output_name(&job.output.path));
     job.validate(origin).map_err(|e| e.to_string())?;
     Ok(job)
 }
@@ -233,8 +237,18 @@ mod tests {
         let a = admit(SPHERE, &job_dir, &Roots::default()).unwrap();
         assert_eq!(a.job.output.path, job_dir.join("output.ply"));
         assert!(a.toml.contains("output.ply"), "{}", a.toml);
-        let again = reload(&a.toml).unwrap();
+        let again = reload(&a.toml, &job_dir).unwrap();
         assert_eq!(again.output.path, a.job.output.path);
+    }
+
+    /// A job stored with its output relative to the working directory of the service that
+    /// admitted it is put back into its own folder.
+    #[test]
+    fn a_reloaded_job_writes_into_its_folder_whatever_was_stored() {
+        let job_dir = Path::new("/srv/state/jobs/abc");
+        let stored = SPHERE.replace("/etc/evil/out.ply", "st/jobs/abc/output.ply");
+        let job = reload(&stored, job_dir).unwrap();
+        assert_eq!(job.output.path, job_dir.join("output.ply"));
     }
 
     /// `isostream validate`'s checks past the job file: an output that cannot index what the

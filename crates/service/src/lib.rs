@@ -35,7 +35,8 @@ pub use joblog::JobLogLayer;
 /// How `isostream serve` was started (the command line, already parsed).
 #[derive(Debug, Clone)]
 pub struct ServeConfig {
-    /// Folder holding `jobs/{id}/`; created when missing.
+    /// Folder holding `jobs/{id}/`; created when missing, and made canonical at start (a
+    /// relative one is relative to the working directory the service starts in).
     pub state_dir: PathBuf,
     pub listen: SocketAddr,
     /// Folders job inputs may be read from; inputs elsewhere are refused. Empty: procedural
@@ -66,6 +67,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
     }
     let roots = Arc::new(admission::Roots::new(&config.allow_input)?);
     let store = store::Store::open(&config.state_dir)?;
+    let state_dir = store.root().to_path_buf();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .thread_name("isostream-serve")
@@ -103,7 +105,7 @@ pub fn serve(config: ServeConfig, ready: impl FnOnce(SocketAddr)) -> Result<(), 
             metrics,
             shutdown: shutdown.clone(),
         });
-        info!(%addr, state = %config.state_dir.display(), "listening");
+        info!(%addr, state = %state_dir.display(), "listening");
         ready(addr);
         // Running jobs are interrupted as soon as the service stops, while the requests in
         // flight get their grace (`listen::serve`), not after it.

@@ -190,7 +190,7 @@ impl Queue {
         for (mut record, text) in store.load_all() {
             let mut config = None;
             if !record.state.is_final() {
-                match admission::reload(&text) {
+                match admission::reload(&text, &store.job_dir(&record.id)) {
                     Ok(job) => config = Some(Arc::new(job)),
                     Err(e) => {
                         warn!(id = %record.id, error = %e, "stored job no longer valid");

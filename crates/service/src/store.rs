@@ -86,6 +86,8 @@ pub(crate) fn now_ms() -> u64 {
 
 #[derive(Debug)]
 pub(crate) struct Store {
+    /// The state folder, canonical (see [`Store::open`]).
+    root: PathBuf,
     jobs: PathBuf,
     /// Held for the store's life: two services on one state folder would run the same jobs and
     /// overwrite each other's states. The OS drops the lock when the process dies, even by
@@ -94,20 +96,26 @@ pub(crate) struct Store {
 }
 
 impl Store {
+    /// Opens (creating it when missing) and locks the state folder, made canonical once here:
+    /// every path the service stores or uses (the output in each `job.toml`, the run summary's)
+    /// is then absolute. A relative `--state` (the default `./isostream-state`) was stored as
+    /// given, so a service restarted from another working directory wrote the outputs of the
+    /// jobs it resumed under that directory, outside their job folders.
     pub fn open(state_dir: &Path) -> Result<Self, ServiceError> {
-        let jobs = state_dir.join("jobs");
         let fail = |e: std::io::Error| ServiceError::State {
             path: state_dir.to_path_buf(),
             reason: e.to_string(),
         };
-        std::fs::create_dir_all(&jobs).map_err(fail)?;
+        std::fs::create_dir_all(state_dir.join("jobs")).map_err(fail)?;
+        let root = state_dir.canonicalize().map_err(fail)?;
+        let jobs = root.join("jobs");
         // Probe writability now rather than at the first submission.
         tempfile::NamedTempFile::new_in(&jobs).map_err(fail)?;
         let lock = std::fs::OpenOptions::new()
             .create(true)
             .truncate(false)
             .write(true)
-            .open(state_dir.join("lock"))
+            .open(root.join("lock"))
             .map_err(fail)?;
         // `flock` (std's `File::try_lock`, as the run's output lock): the OS drops it when the
         // process dies, even by `kill -9`.
@@ -120,7 +128,16 @@ impl Store {
             }
             Err(std::fs::TryLockError::Error(e)) => return Err(fail(e)),
         }
-        Ok(Self { jobs, _lock: lock })
+        Ok(Self {
+            root,
+            jobs,
+            _lock: lock,
+        })
+    }
+
+    /// The state folder, absolute and canonical.
+    pub fn root(&self) -> &Path {
+        &self.root
     }
 
     pub fn job_dir(&self, id: &str) -> PathBuf {
@@ -306,6 +323,16 @@ mod tests {
         );
         let left: Vec<_> = std::fs::read_dir(store.job_dir(BB)).unwrap().collect();
         assert_eq!(left.len(), 2, "only job.toml and state.json stay");
+    }
+
+    #[test]
+    fn the_state_folder_is_made_canonical() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("made")).unwrap();
+        let store = Store::open(&dir.path().join("made/../state")).unwrap();
+        let root = dir.path().canonicalize().unwrap().join("state");
+        assert_eq!(store.root(), root);
+        assert_eq!(store.job_dir(AA), root.join("jobs").join(AA));
     }
 
     #[test]
