@@ -382,6 +382,15 @@ fn bad_jobs_and_foreign_inputs_are_refused() {
     let line = String::from_utf8_lossy(&validate.stderr).trim().to_string();
     let prefix = format!("error: {}/", dir.path().display());
     assert_eq!(line.strip_prefix(&prefix), Some(reason.as_str()));
+    // `[log]` too, although the service logs its own way: the job is checked as submitted.
+    let bad = format!("{SPHERE}\n[log]\nlevel = \"debugg\"\n");
+    let (code, body) = send(agent().post(&s.url("/jobs")), Some(&bad));
+    assert_eq!(code, 400, "{body}");
+    std::fs::write(&job_file, &bad).unwrap();
+    let validate = isostream(&["validate", &job_file.to_string_lossy()]);
+    assert_eq!(validate.status.code(), Some(2));
+    let line = String::from_utf8_lossy(&validate.stderr).trim().to_string();
+    assert_eq!(line.strip_prefix(&prefix), Some(error_of(&body).as_str()));
 
     let (code, body) = send(
         agent().post(&s.url("/jobs")),
@@ -433,7 +442,7 @@ fn bad_jobs_and_foreign_inputs_are_refused() {
         "{metrics}"
     );
     assert!(
-        metrics.contains("isostream_errors_total{kind=\"bad_job\"} 2"),
+        metrics.contains("isostream_errors_total{kind=\"bad_job\"} 3"),
         "{metrics}"
     );
     // Nothing was queued.

@@ -162,17 +162,6 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
     }
     let requested = job.output.path.clone();
     job.output.path = job_dir.join(output_name(&requested));
-    // The service keeps every run summary and does its own logging (format, level); a job only
-    // chooses how often its progress is logged, at most once a second.
-    job.output.summary = true;
-    job.log = LogConfig {
-        // 0 (none) stays; a bad value stays too, for validation to name it.
-        progress_seconds: match job.log.progress_seconds {
-            s if s > 0.0 => s.max(MIN_PROGRESS_SECONDS),
-            s => s,
-        },
-        ..LogConfig::default()
-    };
     // Errors name the output as the client wrote it, not the folder it was moved to.
     let rewritten = job.output.path.display().to_string();
     job.validate(origin).map_err(|e| {
@@ -189,6 +178,18 @@ pub(crate) fn admit(text: &str, job_dir: &Path, roots: &Roots) -> Result<Admitte
                 .replace(&rewritten, &requested.display().to_string()),
         )
     })?;
+    // Only now, so that the job is checked as `isostream validate` checks it (its `[log]`
+    // included: a bad `level` was dropped here before validation saw it, and the job admitted).
+    // The service keeps every run summary and does its own logging (format, level); a job only
+    // chooses how often its progress is logged, at most once a second (0: never).
+    job.output.summary = true;
+    job.log = LogConfig {
+        progress_seconds: match job.log.progress_seconds {
+            s if s > 0.0 => s.max(MIN_PROGRESS_SECONDS),
+            s => s,
+        },
+        ..LogConfig::default()
+    };
     let toml = toml::to_string(&job)
         .map_err(|e| ApiError::internal(format!("cannot store the job: {e}")))?;
     Ok(Admitted { job, toml })
@@ -282,6 +283,23 @@ mod tests {
             err.reason.contains("/etc/evil/out.xyz") && !err.reason.contains("nonexistent"),
             "the output as written: {err:?}"
         );
+    }
+
+    /// The whole job is validated as submitted, `[log]` included, although the service then
+    /// logs its own way: `isostream validate` refuses this job, so the service must too.
+    #[test]
+    fn a_bad_log_level_is_refused_like_validate_does() {
+        let text = format!("{SPHERE}[log]\nlevel = \"debugg\"\n");
+        let err = admit(&text, Path::new("/nonexistent"), &Roots::default()).unwrap_err();
+        assert_eq!(err.status, StatusCode::BAD_REQUEST);
+        assert!(
+            err.reason.starts_with("job.toml: `log.level`") && err.reason.contains("debugg"),
+            "{err:?}"
+        );
+        let text = format!("{SPHERE}[log]\nlevel = \"debug\"\nprogress_seconds = 0.01\n");
+        let a = admit(&text, Path::new("/nonexistent"), &Roots::default()).unwrap();
+        assert_eq!(a.job.log.level, None, "the service's level, not the job's");
+        assert_eq!(a.job.log.progress_seconds, MIN_PROGRESS_SECONDS);
     }
 
     #[test]
