@@ -64,12 +64,7 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
         args.token_file.as_ref().or(file.token_file.as_ref()),
     ) {
         (Some(token), _) => Some(token.clone()),
-        (None, Some(file)) => Some(
-            std::fs::read_to_string(file)
-                .with_context(|| format!("--token-file {}", file.display()))?
-                .trim()
-                .to_string(),
-        ),
+        (None, Some(file)) => Some(isostream_service::read_token_file(file)?),
         (None, None) => None,
     };
     // systemd's StateDirectory= exports the folder it made for us.

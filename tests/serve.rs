@@ -648,6 +648,38 @@ fn an_open_address_without_token_is_refused() {
     );
 }
 
+/// A token file that cannot be read is a configuration to fix, as an empty token is: exit
+/// code 2 (the systemd unit does not restart on it), one line saying what to give.
+#[test]
+fn a_missing_token_file_is_a_bad_configuration() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("serve.toml");
+    std::fs::write(&config, "token_file = \"no-token\"\n").unwrap();
+    let missing = dir.path().join("nonexistent");
+    for args in [
+        vec!["--token-file", missing.to_str().unwrap()],
+        vec!["--config", config.to_str().unwrap()],
+    ] {
+        let o = Command::new(BIN)
+            .arg("serve")
+            .args(&args)
+            .arg("--state")
+            .arg(dir.path().join("state"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+        assert_eq!(lines.len(), 1, "{err}");
+        assert!(
+            lines[0].contains("--token-file")
+                && (lines[0].contains("nonexistent") || lines[0].contains("no-token"))
+                && lines[0].contains("give a readable file"),
+            "{err}"
+        );
+    }
+}
+
 /// What a web page on another site can make a browser send is refused: a cross-site `POST`
 /// (a form or `fetch` with `text/plain` needs no preflight) and, without a token, a request
 /// under a name that is not loopback (DNS rebinding). Unknown routes and methods answer JSON.

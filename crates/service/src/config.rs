@@ -53,6 +53,20 @@ pub fn parse_listen(text: &str) -> Result<SocketAddr, String> {
         })
 }
 
+/// The token in `--token-file` (surrounding whitespace, such as a final newline, dropped).
+///
+/// # Errors
+/// A file that cannot be read is a configuration to fix ([`ServiceError::is_bad_config`]), as
+/// an empty token is: a supervisor restarting the service would only fail again.
+pub fn read_token_file(path: &Path) -> Result<String, ServiceError> {
+    std::fs::read_to_string(path)
+        .map(|t| t.trim().to_string())
+        .map_err(|e| ServiceError::TokenFile {
+            path: path.to_path_buf(),
+            reason: e.to_string(),
+        })
+}
+
 fn listen_address<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<SocketAddr>, D::Error> {
     let text = String::deserialize(d)?;
     parse_listen(&text)
@@ -117,6 +131,23 @@ mod tests {
         assert_eq!(
             (f.max_parallel_jobs, f.max_queued_jobs, f.log_format),
             (Some(2), Some(7), Some(LogFormat::Json))
+        );
+    }
+
+    #[test]
+    fn a_token_file_is_trimmed_and_a_missing_one_is_a_configuration_to_fix() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("token");
+        std::fs::write(&path, "  s3cret\n").unwrap();
+        assert_eq!(read_token_file(&path).unwrap(), "s3cret");
+        let err = read_token_file(&dir.path().join("none")).unwrap_err();
+        assert!(err.is_bad_config(), "{err}");
+        let text = err.to_string();
+        assert!(
+            text.starts_with("--token-file ")
+                && text.contains("none")
+                && text.contains("give a readable file"),
+            "{text}"
         );
     }
 

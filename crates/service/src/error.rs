@@ -20,6 +20,11 @@ pub enum ServiceError {
     ExposedWithoutToken { addr: SocketAddr },
     #[error("the token is empty: put a long random string in --token-file")]
     EmptyToken,
+    #[error(
+        "--token-file {}: {reason}; give a readable file holding the token (a long random string)",
+        path.display()
+    )]
+    TokenFile { path: PathBuf, reason: String },
     #[error("--max-parallel-jobs must be at least 1")]
     NoParallelism,
     #[error("--max-queued-jobs must be at least 1")]
@@ -53,6 +58,7 @@ impl ServiceError {
             self,
             ServiceError::ExposedWithoutToken { .. }
                 | ServiceError::EmptyToken
+                | ServiceError::TokenFile { .. }
                 | ServiceError::NoParallelism
                 | ServiceError::NoQueue
                 | ServiceError::AllowInput { .. }

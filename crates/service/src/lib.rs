@@ -28,7 +28,7 @@ use std::sync::Arc;
 use tokio_util::sync::CancellationToken;
 use tracing::info;
 
-pub use config::{ServeFile, parse_listen};
+pub use config::{ServeFile, parse_listen, read_token_file};
 pub use error::ServiceError;
 pub use joblog::JobLogLayer;
 
