@@ -320,7 +320,11 @@ async fn delete(State(s): State<AppState>, Path(id): Path<String>) -> Result<Res
     let outcome = tokio::task::spawn_blocking(move || queue.delete(&job))
         .await
         .map_err(|e| ApiError::internal(e.to_string()))?
-        .map_err(|e| ApiError::internal(format!("cannot change the job's folder: {e}")))?;
+        .map_err(|e| {
+            ApiError::internal(format!(
+                "job {id} is unchanged: cannot write to its folder ({e}); free space on the disk of the service's state folder, or make it writable"
+            ))
+        })?;
     match outcome {
         DeleteOutcome::Cancelled(view) => Ok((StatusCode::OK, Json(view)).into_response()),
         DeleteOutcome::Stopping(view) => Ok((StatusCode::ACCEPTED, Json(view)).into_response()),

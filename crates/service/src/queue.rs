@@ -82,8 +82,6 @@ struct Job {
     config: Option<Arc<JobConfig>>,
     progress: ProgressView,
     cancel: Arc<AtomicBool>,
-    /// Set by `DELETE`: an interrupted run becomes `cancelled` rather than being requeued.
-    cancelled_by_user: bool,
     events: watch::Sender<JobView>,
 }
 
@@ -96,7 +94,6 @@ impl Job {
             config,
             progress,
             cancel: Arc::new(AtomicBool::new(false)),
-            cancelled_by_user: false,
         }
     }
 
@@ -188,6 +185,16 @@ impl Queue {
     ) -> Arc<Self> {
         let mut table = Table::default();
         for (mut record, text) in store.load_all() {
+            if record.state == JobState::Running && record.cancel_requested {
+                // Cancelled by a client (`Queue::delete` wrote that first), and the service
+                // stopped before the end of the run was recorded: cancelled, as it was told.
+                info!(id = %record.id, "a job cancelled while running stays cancelled");
+                record.state = JobState::Cancelled;
+                record.finished_unix_ms = Some(now_ms());
+                if let Err(e) = store.clear_outputs(&record.id, &[]) {
+                    warn!(id = %record.id, error = %e, "cannot remove the partial output");
+                }
+            }
             let mut config = None;
             if !record.state.is_final() {
                 match admission::reload(&text, &store.job_dir(&record.id)) {
@@ -288,6 +295,7 @@ impl Queue {
             finished_unix_ms: None,
             attempts: 0,
             crashes: 0,
+            cancel_requested: false,
             output,
             error: None,
             summary: None,
@@ -340,6 +348,11 @@ impl Queue {
     /// `DELETE /jobs/{id}`: cancels a queued or running job, removes a finished one. Without
     /// removal a long-running service kept every output it ever made, and only deleting job
     /// folders by hand behind its back (which a running service does not notice) freed the disk.
+    ///
+    /// Each change is written to the job's folder before it is made in memory, and an error
+    /// (the state folder's disk full) leaves the job as it was, in memory as on disk: a queued
+    /// job stays queued, a running one keeps running. A cancel answered but not written came
+    /// back at the next start (a running job's even counted as a crash).
     pub fn delete(&self, id: &str) -> std::io::Result<DeleteOutcome> {
         let mut t = self.lock();
         let Some(job) = t.jobs.get_mut(id) else {
@@ -347,27 +360,35 @@ impl Queue {
         };
         match job.record.state {
             JobState::Queued => {
-                job.record.state = JobState::Cancelled;
-                job.record.finished_unix_ms = Some(now_ms());
+                let mut record = job.record.clone();
+                record.state = JobState::Cancelled;
+                record.finished_unix_ms = Some(now_ms());
+                self.store.save(&record)?;
+                job.record = record;
                 job.config = None;
-                self.store.save(&job.record)?;
                 job.publish();
                 info!(%id, "queued job cancelled");
                 Ok(DeleteOutcome::Cancelled(job.view()))
             }
             JobState::Running => {
-                job.cancelled_by_user = true;
+                if !job.record.cancel_requested {
+                    let mut record = job.record.clone();
+                    record.cancel_requested = true;
+                    self.store.save(&record)?;
+                    job.record = record;
+                    job.publish();
+                }
                 job.cancel.store(true, Ordering::Relaxed);
                 info!(%id, "cancelling a running job");
                 Ok(DeleteOutcome::Stopping(job.view()))
             }
             JobState::Done | JobState::Failed | JobState::Cancelled => {
                 // Its run has ended (the state turns final under this lock, once the run has
-                // returned), so nothing writes in the folder any more. Forgotten first: the
-                // event streams following it end as its sender goes.
+                // returned), so nothing writes in the folder any more. Forgotten once its state
+                // file is gone (the event streams following it end as its sender goes).
+                self.store.remove(id)?;
                 t.jobs.remove(id);
                 t.order.retain(|x| x != id);
-                self.store.remove(id)?;
                 info!(%id, "finished job removed");
                 Ok(DeleteOutcome::Removed)
             }
@@ -540,7 +561,7 @@ impl Queue {
                 );
             }
             Err(RunError::Cancelled | RunError::Interrupted { .. })
-                if shutting_down && !job.cancelled_by_user =>
+                if shutting_down && !job.record.cancel_requested =>
             {
                 // Interrupted by the service stopping, not by a client: run it again next start
                 // (from its checkpoint, which `clear_outputs` below keeps).
@@ -642,6 +663,105 @@ fn run_error_kind(e: &RunError) -> &'static str {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const SPHERE: &str = "[input]\nshape = \"sphere\"\nsize = [16, 16, 16]\n[extract]\niso = 0.0\n[output]\npath = \"output.smb\"\n";
+    const QUEUED: &str = "aa000000000000000000000000000000";
+    const RUNNING: &str = "bb000000000000000000000000000000";
+
+    fn queue(state: &Path) -> Arc<Queue> {
+        Queue::recover(
+            Store::open(state).unwrap(),
+            Arc::default(),
+            Limits {
+                running: 1,
+                queued: 10,
+            },
+            Arc::new(Metrics::new()),
+            CancellationToken::new(),
+        )
+    }
+
+    fn stored_state(state: &Path, id: &str) -> serde_json::Value {
+        let text = std::fs::read(state.join("jobs").join(id).join("state.json")).unwrap();
+        serde_json::from_slice(&text).unwrap()
+    }
+
+    /// A `DELETE` whose change cannot be written (here `state.json` is a folder, as a full
+    /// disk would fail it) changes nothing, in memory as on disk; one that can be is kept by
+    /// a restart, a running job's too, even when the end of its run was never recorded.
+    #[test]
+    fn a_cancel_that_cannot_be_written_changes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path();
+        {
+            let store = Store::open(state).unwrap();
+            for (seq, id) in [QUEUED, RUNNING].into_iter().enumerate() {
+                let record = JobRecord {
+                    id: id.into(),
+                    seq: seq as u64,
+                    state: JobState::Queued,
+                    submitted_unix_ms: now_ms(),
+                    started_unix_ms: None,
+                    finished_unix_ms: None,
+                    attempts: 0,
+                    crashes: 0,
+                    cancel_requested: false,
+                    output: "output.smb".into(),
+                    error: None,
+                    summary: None,
+                };
+                store.create(&record, SPHERE).unwrap();
+            }
+        }
+        let q = queue(state);
+        {
+            // As `start_ready` leaves it, without running anything.
+            let mut t = q.lock();
+            t.jobs.get_mut(RUNNING).unwrap().record.state = JobState::Running;
+            t.running += 1;
+            q.store.save(&t.jobs[RUNNING].record).unwrap();
+        }
+        let unwritable = |id: &str| {
+            let file = state.join("jobs").join(id).join("state.json");
+            std::fs::remove_file(&file).unwrap();
+            std::fs::create_dir(&file).unwrap();
+            file
+        };
+        let (queued_state, running_state) = (unwritable(QUEUED), unwritable(RUNNING));
+        assert!(q.delete(QUEUED).is_err());
+        assert!(q.delete(RUNNING).is_err());
+        assert_eq!(q.get(QUEUED).unwrap().record.state, JobState::Queued);
+        let running = q.get(RUNNING).unwrap().record;
+        assert_eq!(running.state, JobState::Running);
+        assert!(!running.cancel_requested);
+        assert!(
+            !q.lock().jobs[RUNNING].cancel.load(Ordering::Relaxed),
+            "not stopped"
+        );
+
+        std::fs::remove_dir(queued_state).unwrap();
+        std::fs::remove_dir(running_state).unwrap();
+        assert!(matches!(q.delete(QUEUED), Ok(DeleteOutcome::Cancelled(_))));
+        assert_eq!(stored_state(state, QUEUED)["state"], "cancelled");
+        assert!(matches!(q.delete(RUNNING), Ok(DeleteOutcome::Stopping(_))));
+        assert!(q.lock().jobs[RUNNING].cancel.load(Ordering::Relaxed));
+        let stored = stored_state(state, RUNNING);
+        assert_eq!(
+            (&stored["state"], &stored["cancel_requested"]),
+            (&"running".into(), &true.into())
+        );
+
+        // The service dies before the run's end is recorded.
+        drop(q);
+        let q = queue(state);
+        let cancelled = q.get(RUNNING).unwrap().record;
+        assert_eq!(
+            (cancelled.state, cancelled.crashes),
+            (JobState::Cancelled, 0),
+            "cancelled as the client was told, not a crash to run again"
+        );
+        assert_eq!(q.get(QUEUED).unwrap().record.state, JobState::Cancelled);
+    }
 
     #[test]
     fn errors_reach_clients_on_one_line_with_advice_they_can_follow() {

@@ -70,6 +70,11 @@ pub(crate) struct JobRecord {
     /// during them (a crash, `kill -9`, a power cut) rather than stopping them itself.
     #[serde(default)]
     pub crashes: u32,
+    /// A `DELETE` asked this running job to stop. Written before its run is told to, so that
+    /// a restart finds the job cancelled, as its client was told, even if the end of the run
+    /// could not be recorded (the service died, or the disk was full).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub cancel_requested: bool,
     /// The output's file name in the job folder (`output.smb`, ...).
     pub output: String,
     /// The one-line error of a failed run.
@@ -163,10 +168,14 @@ impl Store {
 
     /// Removes the job's folder. Its state goes first: a folder without one is an incomplete
     /// submission, which [`Store::load_all`] removes at the next start, so a crash in the
-    /// middle of the removal never brings the job back.
+    /// middle of the removal never brings the job back. A state already gone is a removal
+    /// that failed after it, tried again.
     pub fn remove(&self, id: &str) -> std::io::Result<()> {
         let dir = self.job_dir(id);
-        std::fs::remove_file(dir.join(STATE_FILE))?;
+        match std::fs::remove_file(dir.join(STATE_FILE)) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+            _ => {}
+        }
         std::fs::remove_dir_all(dir)
     }
 
@@ -277,6 +286,7 @@ mod tests {
             finished_unix_ms: None,
             attempts: 0,
             crashes: 0,
+            cancel_requested: false,
             output: "output.smb".into(),
             error: None,
             summary: None,
