@@ -168,16 +168,29 @@ fn job(s: &Server, id: &str) -> Value {
 
 /// Reads the job's Server-Sent Events until the stream ends; returns every event's JSON.
 fn follow(s: &Server, id: &str) -> Vec<Value> {
+    follow_live(s, id).iter().collect()
+}
+
+/// The job's Server-Sent Events as they come, read on a thread; the channel closes when the
+/// stream ends.
+fn follow_live(s: &Server, id: &str) -> mpsc::Receiver<Value> {
     let res = agent()
         .get(&s.url(&format!("/jobs/{id}/events")))
         .call()
         .unwrap();
     assert!(res.content_type().starts_with("text/event-stream"));
-    BufReader::new(res.into_reader())
-        .lines()
-        .map(|l| l.unwrap())
-        .filter_map(|l| l.strip_prefix("data:").map(|d| json(d.trim())))
-        .collect()
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(res.into_reader()).lines() {
+            let line = line.unwrap();
+            if let Some(data) = line.strip_prefix("data:")
+                && tx.send(json(data.trim())).is_err()
+            {
+                return;
+            }
+        }
+    });
+    rx
 }
 
 /// Polls until `pred` holds for the job, or panics after 60 s.
@@ -819,6 +832,9 @@ fn stop_with_a_signal_and_restart(signal: &str) {
     stalled
         .write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n")
         .unwrap();
+    let events = follow_live(&s, &id);
+    let first = events.recv_timeout(Duration::from_secs(10)).unwrap();
+    assert_eq!(first["state"], "running", "{first}");
     let term = Command::new("kill")
         .args([signal, &s.child.id().to_string()])
         .status()
@@ -841,6 +857,13 @@ fn stop_with_a_signal_and_restart(signal: &str) {
     );
     let stored = json(&std::fs::read_to_string(job_dir.join("state.json")).unwrap());
     assert_eq!(stored["state"], "queued", "{stored}");
+    // An event stream open at the stop ends with the job as saved, saying why it ends.
+    let last = events.iter().last().unwrap_or(first);
+    assert_eq!(
+        (&last["state"], &last["shutdown"]),
+        (&"queued".into(), &true.into()),
+        "{last}"
+    );
 
     let s = Server::start(&state, &[]);
     let last = follow(&s, &id).pop().unwrap();

@@ -337,26 +337,60 @@ async fn delete(State(s): State<AppState>, Path(id): Path<String>) -> Result<Res
     }
 }
 
-/// Server-Sent Events: the job's view now, then at every change, until a final state (or the
-/// service stops). A slow reader skips intermediate values instead of slowing the run.
+/// Where an event stream is: what it sends next.
+enum Follow {
+    First,
+    Change,
+    End,
+}
+
+/// Server-Sent Events: the job's view now, then at every change, until a final state. A slow
+/// reader skips intermediate values instead of slowing the run.
+///
+/// When the service stops, the stream ends with the job as it is saved for the next start,
+/// marked `"shutdown": true`: a running job is interrupted and saved `queued` (`Queue::drain`,
+/// within a slice), and the stream waits for that. It ended at once before, its last event
+/// `running` while the job was saved `queued`.
 async fn events(
     State(s): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let rx = s.queue.watch(&id).ok_or_else(|| ApiError::not_found(&id))?;
-    let stream =
-        futures_util::stream::unfold((rx, true, false), |(mut rx, first, ended)| async move {
-            if ended || (!first && rx.changed().await.is_err()) {
-                return None;
+    let stream = futures_util::stream::unfold(
+        (rx, Follow::First, s.shutdown.clone()),
+        |(mut rx, next, stop)| async move {
+            let stopping = match next {
+                Follow::End => return None,
+                Follow::First => false,
+                Follow::Change => tokio::select! {
+                    biased;
+                    () = stop.cancelled() => true,
+                    changed = rx.changed() => {
+                        changed.ok()?;
+                        false
+                    }
+                },
+            };
+            if stopping {
+                while rx.borrow_and_update().record.state == JobState::Running {
+                    rx.changed().await.ok()?;
+                }
             }
             let view = rx.borrow_and_update().clone();
-            let last = view.record.state.is_final();
-            let event = Event::default()
-                .json_data(&view)
-                .unwrap_or_else(|e| Event::default().comment(e.to_string()));
-            Some((Ok(event), (rx, false, last)))
-        });
-    let stream = stream.take_until(s.shutdown.clone().cancelled_owned());
+            let end = stopping || view.record.state.is_final();
+            let event = serde_json::to_value(&view)
+                .map_err(|e| e.to_string())
+                .and_then(|mut json| {
+                    if stopping {
+                        json["shutdown"] = true.into();
+                    }
+                    Event::default().json_data(json).map_err(|e| e.to_string())
+                })
+                .unwrap_or_else(|e| Event::default().comment(e));
+            let next = if end { Follow::End } else { Follow::Change };
+            Some((Ok(event), (rx, next, stop)))
+        },
+    );
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))
 }
 
