@@ -6,8 +6,8 @@ use std::sync::atomic::AtomicBool;
 
 use anyhow::Context;
 use isostream_measure::{
-    Distances, FullSurfaceDistances, MAX_SAMPLES, MIN_SAMPLES, MeasureOptions, MeasureReport,
-    MeshQuality, mesh_quality,
+    Distances, FirstPass, FullSurfaceDistances, MAX_SAMPLES, MIN_SAMPLES, MeasureOptions,
+    MeasureReport, MeshQuality, mesh_quality,
 };
 use isostream_pipeline::{
     JobConfig, LogConfig, MeasureHalves, open_source, summary_path, visit_surface,
@@ -76,7 +76,21 @@ pub fn measure(
             // on one thread through every voxel was most of the time.
             let never = AtomicBool::new(false);
             visit_surface(&job, source, &never, |batch| full.add(batch)).with_context(context)?;
-            let distances = full.finish().with_context(context)?;
+            let distances = match full.finish().with_context(context)? {
+                FirstPass::Done(distances) => distances,
+                // Output samples with nothing within the first pass's search radius: the
+                // surface once more, for them alone.
+                FirstPass::Again(mut again) => {
+                    tracing::info!(
+                        "{} output samples have no full-resolution point within the search radius: measuring them in a second pass",
+                        again.far_samples()
+                    );
+                    let source = open_source(&job.input)?;
+                    visit_surface(&job, source, &never, |batch| again.add(batch))
+                        .with_context(context)?;
+                    again.finish()
+                }
+            };
             if let Some(asked) = samples_per_area {
                 density_note(asked, &distances);
             }

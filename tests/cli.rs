@@ -466,3 +466,68 @@ fn measure_help_names_every_format() {
     let help = String::from_utf8_lossy(&o.stdout);
     assert!(help.contains(".stl, .glb"), "{help}");
 }
+
+/// Trial bug: `measure --volume` counted the output samples with no full-resolution point within
+/// its search radius (4 voxel diagonals) at the radius, so the Hausdorff distance and the
+/// "99.9 % within" were the radius, silently (19.07 on headsq at R = 0.01 where the exact
+/// distance is 24.85). A run's sphere plus a small tetrahedron near the box's corner, 9.6 to
+/// 10.2 voxels from the sphere (radius 8.05 around the centre 11.5): the output -> full
+/// direction and the undirected distances are the tetrahedron's, measured in a second pass.
+#[test]
+fn measure_finds_the_exact_distance_of_a_piece_farther_than_the_search_radius() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"sphere\"\nsize = [24, 24, 24]\n[extract]\niso = 0.0\n\
+         [simplify]\nrate = 0.2\n[output]\npath = \"out.smb\"\n",
+    );
+    let o = isostream(&["run", "--quiet", &job]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mesh = Mesh::read(&dir.path().join("out.smb"));
+    let mut obj = String::new();
+    let corner = [
+        [1.0, 1.0, 1.0],
+        [2.0, 1.0, 1.0],
+        [1.0, 2.0, 1.0],
+        [1.0, 1.0, 2.0],
+    ];
+    for p in mesh.positions.iter().chain(&corner) {
+        obj += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    let n = mesh.positions.len() as u32 + 1;
+    let tetra = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]].map(|t| t.map(|i| n + i));
+    for t in mesh.triangles.iter().map(|t| t.map(|i| i + 1)).chain(tetra) {
+        obj += &format!("f {} {} {}\n", t[0], t[1], t[2]);
+    }
+    let far = dir.path().join("far.obj");
+    std::fs::write(&far, obj).unwrap();
+    let far = far.to_string_lossy().into_owned();
+
+    let o = isostream(&["measure", "--volume", &job, &far, "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let d = &report["distances"];
+    let radius = d["max_distance"].as_f64().unwrap();
+    assert!((radius - 4.0 * 3f64.sqrt()).abs() < 1e-9, "{d}");
+    let o2f = &d["output_to_full"];
+    let hausdorff = o2f["hausdorff"].as_f64().unwrap();
+    // The tetrahedron's samples: farther than the radius, nearer than its farthest corner.
+    assert!((9.0..10.3).contains(&hausdorff), "{d}");
+    assert_eq!(d["hausdorff"].as_f64(), Some(hausdorff), "{d}");
+    // Its share of the samples (about 0.2 %) puts the 99.9th percentile on it too.
+    let p999 = d["p999"].as_f64().unwrap();
+    assert!(p999 > radius && p999 <= hausdorff, "{d}");
+    let far_samples = d["far_samples"].as_u64().unwrap();
+    assert!(far_samples > 0 && far_samples < 100, "{d}");
+
+    let o = isostream(&["measure", "--volume", &job, &far]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains(&format!(
+            "{far_samples} output samples had no full-resolution point within 6.928203: measured exactly in a second pass"
+        )),
+        "{text}"
+    );
+    assert!(!text.contains("lower bound"), "{text}");
+}

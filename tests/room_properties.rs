@@ -20,14 +20,14 @@ fn rms(vol: &common::TestVolume, simplify: &str, pipeline: &str) -> (f64, u64, u
     let summary = run_job(&job);
     let mesh = Mesh::read(&dir.path().join("out.smb"));
     let grid = Grid::new(vol.dims, [1.0; 3], [0.0; 3]).unwrap();
-    let mut source = MemoryVolume::new(grid, vol.data.clone()).unwrap();
+    let source = MemoryVolume::new(grid, vol.data.clone()).unwrap();
     let opts = MeasureOptions {
         samples_per_area: 20.0,
         seed: 7,
         max_distance: None,
     };
     let d = surface_distances(
-        &mut source,
+        || Ok(source.clone()),
         vol.iso,
         &mesh.positions,
         &mesh.triangles,

@@ -268,9 +268,8 @@ fn measure_through_the_pool_equals_one_thread_over_every_voxel() {
     let mesh = common::Mesh::read(&dir.path().join("out.smb"));
 
     let config = isostream_pipeline::JobConfig::load(&job).unwrap();
-    let mut source = isostream_pipeline::open_source(&config.input).unwrap();
     let expected = isostream_measure::surface_distances(
-        &mut *source,
+        || Ok(isostream_pipeline::open_source(&config.input).unwrap()),
         0.0,
         &mesh.positions,
         &mesh.triangles,

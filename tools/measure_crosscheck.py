@@ -23,7 +23,8 @@ distances object itself) and adds, for every mean/rms/hausdorff value, the relat
 |rust - open3d| / max(open3d, 1e-3 * diagonal). The exit status is 1 when a mean or RMS differs by
 more than --tolerance (Hausdorff distances are sample maxima and only reported: two independent
 sample sets legitimately disagree on them), and when the Rust side clipped output samples at its
-search radius (its output -> full values are then lower bounds).
+search radius (`clipped_samples`, written by versions before the second pass over the surface:
+its output -> full values are then lower bounds; `far_samples` are measured exactly).
 """
 
 import argparse

@@ -119,7 +119,7 @@ def run_one(binary: Path, work: Path, dataset: str, n: int, cond: str, e0: float
         "mean": d["mean"], "rms": d["rms"], "hausdorff": d["hausdorff"],
         "h_full_to_out": d["full_to_output"]["hausdorff"],
         "h_out_to_full": d["output_to_full"]["hausdorff"],
-        "clipped": d.get("clipped_samples", 0), "samples": d.get("samples_per_area", 0.0),
+        "far": d.get("far_samples", 0), "samples": d.get("samples_per_area", 0.0),
         "anisotropy": q["anisotropy"], "bias": q["directional_bias"],
         "shape_error": summary.get("shape_error", 0.0),
         "lag_violations": summary["simplify"].get("lag_violations", 0),
@@ -214,14 +214,14 @@ def checks(rows: list[dict], e0s: list[float], alphas: list[float], alpha_e0: fl
     worst = max(((r["shape_error"] - r["e0_phys"]) / r["e0_phys"] for r in rows
                  if r["condition"] != "full"), default=0.0)
     lag = sum(r["lag_violations"] for r in rows)
-    clipped = sum(r["clipped"] for r in rows)
+    far = sum(r["far"] for r in rows)
     euler = {r["dataset"]: r["euler"] for r in rows if r["condition"] == "full"}
     changed = [f"{r['dataset']} {r['condition']} E0 {r['e0']:g} alpha {r['alpha']:g}: "
                f"{euler[r['dataset']]} → {r['euler']}" for r in rows
                if r["dataset"] in euler and r["euler"] != euler[r["dataset"]]]
     out += [f"Largest (shape error − E0) / E0 over all runs: {worst:.2e} (must be ≤ 0); "
             f"lag violations over all runs: {lag}; output samples beyond the search radius "
-            f"(Hausdorff out→MC then a lower bound): {clipped}; runs whose Euler characteristic "
+            f"(measured in a second pass): {far}; runs whose Euler characteristic "
             f"differs from MC's: {len(changed)}" + (f" ({'; '.join(changed)})" if changed else "")
             + ".", ""]
     return out

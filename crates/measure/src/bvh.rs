@@ -13,19 +13,21 @@ use crate::triangle::{Triangle, closest_point};
 /// Triangles per leaf: small enough that leaves cost little, large enough to keep the tree shallow.
 const LEAF_SIZE: usize = 4;
 
+/// An axis-aligned box: the hierarchy's nodes, and the second pass's batches and blocks of far
+/// samples (`far`).
 #[derive(Debug, Clone, Copy)]
-struct Aabb {
+pub(crate) struct Aabb {
     min: DVec3,
     max: DVec3,
 }
 
 impl Aabb {
-    const EMPTY: Aabb = Aabb {
+    pub(crate) const EMPTY: Aabb = Aabb {
         min: DVec3::INFINITY,
         max: DVec3::NEG_INFINITY,
     };
 
-    fn grow(self, p: DVec3) -> Aabb {
+    pub(crate) fn grow(self, p: DVec3) -> Aabb {
         Aabb {
             min: self.min.min(p),
             max: self.max.max(p),
@@ -39,8 +41,14 @@ impl Aabb {
         }
     }
 
-    fn distance_squared(&self, p: DVec3) -> f64 {
+    pub(crate) fn distance_squared(&self, p: DVec3) -> f64 {
         let d = (self.min - p).max(p - self.max).max(DVec3::ZERO);
+        d.length_squared()
+    }
+
+    /// Squared distance between the two boxes: no point of one is nearer a point of the other.
+    pub(crate) fn gap_squared(&self, o: &Aabb) -> f64 {
+        let d = (self.min - o.max).max(o.min - self.max).max(DVec3::ZERO);
         d.length_squared()
     }
 }

@@ -15,7 +15,9 @@
 //!   found in its own slab prunes the others by their vertical gap. Batches entirely below the
 //!   lowest pending sample's `z - r` leave the window, and a batch enters it with only the
 //!   triangles within `r` across of a pending sample of its heights (`Reach`). Samples with
-//!   nothing within `r` are reported at `r` and counted as clipped.
+//!   nothing within `r` ("far") are set aside and measured exactly against the whole surface in
+//!   a second pass (`far`): counted at `r`, they made the Hausdorff distance and the 99.9th
+//!   percentile silent lower bounds.
 //!
 //! Measuring each sample against every batch as it passed would need no window at all, but then a
 //! sample meets the slabs below it first, with nothing but `r` to prune the search: on a 256^3
@@ -28,6 +30,7 @@ use serde::Serialize;
 
 use crate::MeasureError;
 use crate::bvh::Bvh;
+use crate::far::{FarSamples, Landmarks};
 use crate::halves::{Halves, InTurn};
 use crate::quantile::LogBins;
 use crate::sampling::{SplitMix64, sample_triangle};
@@ -53,8 +56,9 @@ pub const MAX_SAMPLES: f64 = 4_000_000.0;
 /// bonsai's surface took 1.6 billion of them and two minutes. Never reached when the full
 /// surface has less than four times the output's area.
 const FULL_SAMPLES_CAP: f64 = 4.0 * MAX_SAMPLES;
-/// Default search radius of the output -> full direction, in voxel diagonals. A simplified mesh
-/// within its error bound stays well inside a few voxels of the full-resolution surface.
+/// Default search radius of the first pass of the output -> full direction, in voxel diagonals.
+/// A simplified mesh within its error bound stays well inside a few voxels of the
+/// full-resolution surface; the few samples farther than that are measured in a second pass.
 pub const DEFAULT_SEARCH_VOXEL_DIAGONALS: f64 = 4.0;
 /// Most bins of each direction's distance histogram.
 pub const DISTANCE_BINS: usize = 20;
@@ -84,9 +88,10 @@ pub struct MeasureOptions {
     pub samples_per_area: f64,
     /// Seed of the sample positions; equal seeds give identical reports.
     pub seed: u64,
-    /// Search radius of the output -> full direction in the volume's units (default
-    /// [`DEFAULT_SEARCH_VOXEL_DIAGONALS`] voxel diagonals). Larger is exact for worse meshes but
-    /// slower: every sample is compared with all slabs within this distance.
+    /// Search radius of the first pass of the output -> full direction in the volume's units
+    /// (default [`DEFAULT_SEARCH_VOXEL_DIAGONALS`] voxel diagonals). It changes no distance, only
+    /// the work: every sample is compared with all slabs within it, and the samples with nothing
+    /// within it need a second pass over the surface.
     pub max_distance: Option<f64>,
 }
 
@@ -112,7 +117,8 @@ pub struct DirectedDistance {
     /// The distance 99.9 % of the samples are within: within `max_distance`, from bins 1/1024
     /// of an octave wide, never below the exact quantile of the samples and at most 0.1 % above
     /// it (and never above `hausdorff`); past `max_distance`, where the bins end, the exact
-    /// quantile of the distances there, or `hausdorff` when over a million were. Why beside the Hausdorff
+    /// quantile of the distances there, or `hausdorff` when over a million were (never below the
+    /// exact quantile either way). Why beside the Hausdorff
     /// distance: that is one sample's distance, and small changes of the order of contractions move it by a factor of two or three (engine
     /// at R = 0.2 in core: 0.063 to 0.197 % of the diagonal, docs/performance.md "Twenty-seventh
     /// session"), while the 99.9th percentile follows the surface as a whole.
@@ -122,8 +128,7 @@ pub struct DirectedDistance {
     pub samples: u64,
     /// `(bin start, samples counted by their weight)`: at most [`DISTANCE_BINS`] bins of equal
     /// width from 0 up to just past the largest distance (the width a multiple of `max_distance
-    /// / 4096`); distances past `max_distance` (clipped output samples included) count in the
-    /// last bin.
+    /// / 4096`); distances past `max_distance` count in the last bin.
     pub histogram: Vec<(f64, u64)>,
 }
 
@@ -149,10 +154,10 @@ pub struct Distances {
     /// once the full surface outgrew the output's sample budget (see `FULL_SAMPLES_CAP`), when
     /// its later parts were sampled that much more sparsely.
     pub full_sample_weight: u64,
-    /// Output samples with no full-resolution point within `max_distance`: counted at
-    /// `max_distance`, so output -> full is then a lower bound.
-    pub clipped_samples: u64,
-    /// The search radius used for output -> full.
+    /// Output samples with no full-resolution point within `max_distance`, measured exactly in a
+    /// second pass over the full-resolution surface (no distance is a bound).
+    pub far_samples: u64,
+    /// The search radius of the first pass of output -> full.
     pub max_distance: f64,
     /// The sampling density used, after clamping.
     pub samples_per_area: f64,
@@ -171,7 +176,7 @@ struct Accumulator {
     bin_width: f64,
     /// The histogram's bins.
     bins: Vec<u64>,
-    /// The distances up to the radius (clipped ones at it included), for the quantile.
+    /// The distances up to the radius, for the quantile.
     near: LogBins,
     /// The distances past the radius (which the last bin counts with the others) and their
     /// weights, for the quantile when it lies there; `None` once more than [`BEYOND_KEPT`].
@@ -208,7 +213,6 @@ impl Accumulator {
         self.samples += 1;
         let bin = (d / self.bin_width) as usize;
         self.bins[bin.min(FINE_BINS - 1)] += weight;
-        // Output samples clipped at the radius are not past it.
         if d <= self.radius {
             self.near.add(d, weight);
         } else if let Some(beyond) = &mut self.beyond {
@@ -289,7 +293,10 @@ pub(crate) struct DistanceStream {
     samples: Vec<DVec3>,
     next: usize,
     output_to_full: Accumulator,
-    clipped_samples: u64,
+    /// Output samples with nothing within the radius, sorted by z: for the second pass.
+    far: Vec<DVec3>,
+    /// Points of the full surface drawn so far: bounds for the far samples' second pass.
+    landmarks: Landmarks,
     window: VecDeque<WindowBatch>,
     full_triangles: u64,
     /// Area of the full-resolution triangles seen so far.
@@ -433,7 +440,8 @@ impl DistanceStream {
             samples,
             next: 0,
             output_to_full: Accumulator::new(radius),
-            clipped_samples: 0,
+            far: Vec::new(),
+            landmarks: Landmarks::new(radius),
             window: VecDeque::new(),
             full_triangles: 0,
             full_area: 0.0,
@@ -518,8 +526,9 @@ impl DistanceStream {
             .both(&mut || da = nearest(first, &mut hint_a), &mut || {
                 db = nearest(second, &mut hint_b)
             });
-        for (&(_, weight), d) in self.drawn.iter().zip(da.into_iter().chain(db)) {
+        for (&(p, weight), d) in self.drawn.iter().zip(da.into_iter().chain(db)) {
             self.full_to_output.add(d, weight);
+            self.landmarks.add(p);
         }
         self.output_hint = hint_b;
         self.drawn.clear();
@@ -546,9 +555,10 @@ impl DistanceStream {
                     }
                 }
             }
-            self.output_to_full.add(best, 1);
-            if best >= self.radius {
-                self.clipped_samples += 1;
+            if best < self.radius {
+                self.output_to_full.add(best, 1);
+            } else {
+                self.far.push(p);
             }
             self.next += 1;
         }
@@ -562,21 +572,96 @@ impl DistanceStream {
         &self.samples
     }
 
-    pub(crate) fn finish(mut self) -> Result<Distances, MeasureError> {
+    /// The end of the first pass: the distances, or the far samples' second pass.
+    pub(crate) fn finish(mut self) -> Result<Streamed, MeasureError> {
         self.advance(f64::INFINITY);
         if self.full_to_output.count == 0 {
             return Err(MeasureError::EmptySurface);
         }
-        let (f2o, o2f) = (self.full_to_output.finish(), self.output_to_full.finish());
+        let totals = Totals {
+            diagonal: (self.bounds.1 - self.bounds.0).length(),
+            full_triangles: self.full_triangles,
+            full_weight: self.full_weight,
+            far_samples: self.far.len() as u64,
+            radius: self.radius,
+            density: self.density,
+        };
+        let full_to_output = self.full_to_output.finish();
+        if self.far.is_empty() {
+            return Ok(Streamed::Done(
+                totals.distances(full_to_output, self.output_to_full.finish()),
+            ));
+        }
+        Ok(Streamed::Far(FarPass {
+            far: FarSamples::new(self.far, self.landmarks),
+            output_to_full: self.output_to_full,
+            full_to_output,
+            totals,
+        }))
+    }
+}
+
+/// What the first pass over the full-resolution surface ends with.
+#[derive(Debug)]
+pub(crate) enum Streamed {
+    /// Every output sample had a full-resolution point within the radius.
+    Done(Distances),
+    /// Some had none: the surface must go by again for them.
+    Far(FarPass),
+}
+
+/// The second pass: every distance of the first but the far output samples', which the
+/// full-resolution surface going by again gives exactly.
+#[derive(Debug)]
+pub(crate) struct FarPass {
+    far: FarSamples,
+    output_to_full: Accumulator,
+    full_to_output: DirectedDistance,
+    totals: Totals,
+}
+
+impl FarPass {
+    /// How many output samples had nothing within the radius.
+    pub(crate) fn far_samples(&self) -> u64 {
+        self.far.len() as u64
+    }
+
+    /// The next batch of the full-resolution surface (in any order).
+    pub(crate) fn add_batch(&mut self, batch: Vec<Triangle>) {
+        self.far.add_batch(batch);
+    }
+
+    /// The distances, once the whole surface went by again.
+    pub(crate) fn finish(mut self) -> Distances {
+        for d in self.far.into_distances() {
+            self.output_to_full.add(d, 1);
+        }
+        self.totals
+            .distances(self.full_to_output, self.output_to_full.finish())
+    }
+}
+
+/// What the report says besides the two directions.
+#[derive(Debug)]
+struct Totals {
+    diagonal: f64,
+    full_triangles: u64,
+    full_weight: u64,
+    far_samples: u64,
+    radius: f64,
+    density: f64,
+}
+
+impl Totals {
+    fn distances(self, f2o: DirectedDistance, o2f: DirectedDistance) -> Distances {
         let (mean, rms, hausdorff, p999) = (
             f2o.mean.max(o2f.mean),
             f2o.rms.max(o2f.rms),
             f2o.hausdorff.max(o2f.hausdorff),
             f2o.p999.max(o2f.p999),
         );
-        let diagonal = (self.bounds.1 - self.bounds.0).length();
-        let pct = |d: f64| 100.0 * d / diagonal;
-        Ok(Distances {
+        let pct = |d: f64| 100.0 * d / self.diagonal;
+        Distances {
             mean_pct: pct(mean),
             rms_pct: pct(rms),
             hausdorff_pct: pct(hausdorff),
@@ -587,13 +672,13 @@ impl DistanceStream {
             rms,
             hausdorff,
             p999,
-            diagonal,
+            diagonal: self.diagonal,
             full_resolution_triangles: self.full_triangles,
             full_sample_weight: self.full_weight,
-            clipped_samples: self.clipped_samples,
+            far_samples: self.far_samples,
             max_distance: self.radius,
             samples_per_area: self.density,
-        })
+        }
     }
 }
 
@@ -783,7 +868,18 @@ pub(crate) mod tests {
         for (k, b) in batches {
             s.add_batch(b, (k + 1) as f64 * slab);
         }
-        s.finish().unwrap()
+        both_passes(s, full)
+    }
+
+    /// The end of the first pass and, when there are far samples, the second over `full`.
+    pub(crate) fn both_passes(s: DistanceStream, full: &[Triangle]) -> Distances {
+        match s.finish().unwrap() {
+            Streamed::Done(d) => d,
+            Streamed::Far(mut far) => {
+                far.add_batch(full.to_vec());
+                far.finish()
+            }
+        }
     }
 
     fn sphere(radius: f64, levels: u32) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
@@ -819,7 +915,7 @@ pub(crate) mod tests {
             );
         }
         assert!((d.mean - 0.3).abs() < 1e-12 && (d.hausdorff - 0.3).abs() < 1e-12);
-        assert_eq!(d.clipped_samples, 0);
+        assert_eq!(d.far_samples, 0);
         assert_eq!(d.full_resolution_triangles, 800);
         assert!((d.diagonal - (200.0f64 + 0.09).sqrt()).abs() < 1e-12);
     }
@@ -867,7 +963,7 @@ pub(crate) mod tests {
             let mut s = DistanceStream::new(&op, &ot, &MeasureOptions::default(), 2.0).unwrap();
             s.set_halves(halves);
             s.add_batch(soup(&fp, &ft), f64::INFINITY);
-            s.finish().unwrap()
+            both_passes(s, &soup(&fp, &ft))
         };
         let (a, b) = (run(Box::new(InTurn)), run(Box::new(Reversed)));
         assert_eq!(a, b);
@@ -885,11 +981,15 @@ pub(crate) mod tests {
             1.0,
         );
         assert!(d.hausdorff < 1e-9, "{d:?}");
-        assert_eq!(d.clipped_samples, 0);
+        assert_eq!(d.far_samples, 0);
     }
 
+    /// Trial bug: samples with nothing within the radius were counted at it, and the Hausdorff
+    /// distance and the 99.9th percentile were silently the radius (19.07 on headsq at R = 0.01,
+    /// where the exact distance is 24.85). A plane 5 above the output plane, radius 2: every
+    /// output sample is far and measured at its exact distance in the second pass.
     #[test]
-    fn far_samples_are_clipped_at_the_radius() {
+    fn far_samples_are_measured_exactly() {
         let (op, ot) = plane(10.0, 2, 0.0);
         let (fp, ft) = plane(10.0, 2, 5.0);
         let d = stream(
@@ -899,9 +999,15 @@ pub(crate) mod tests {
             &MeasureOptions::default(),
             2.0,
         );
-        assert_eq!(d.clipped_samples, d.output_to_full.samples);
-        assert_eq!(d.output_to_full.hausdorff, 2.0);
+        assert_eq!(d.far_samples, d.output_to_full.samples);
+        let o2f = &d.output_to_full;
+        for x in [o2f.mean, o2f.rms, o2f.hausdorff, o2f.p999] {
+            assert!((x - 5.0).abs() < 1e-12, "{o2f:?}");
+        }
+        assert!((d.hausdorff - 5.0).abs() < 1e-12 && (d.p999 - 5.0).abs() < 1e-12);
         assert!((d.full_to_output.mean - 5.0).abs() < 1e-12);
+        // Past the radius: in the last bin.
+        assert_eq!(o2f.histogram.last().unwrap().1, o2f.samples);
     }
 
     /// The streamed, windowed output -> full direction equals a brute-force nearest search over
@@ -926,8 +1032,8 @@ pub(crate) mod tests {
                 .iter()
                 .map(|t| closest_point(*p, t).distance(*p))
                 .fold(f64::INFINITY, f64::min);
-            acc.add(d.min(radius), 1);
-            sorted.push(d.min(radius));
+            acc.add(d, 1);
+            sorted.push(d);
         }
         let brute = acc.finish();
         // The 99.9th percentile against a sort of the same samples: 0.1 % at most above it (it
@@ -992,7 +1098,7 @@ pub(crate) mod tests {
         let mut s = DistanceStream::new(&op, &ot, &MeasureOptions::default(), 1.0).unwrap();
         s.full_cap = 20_000.0;
         s.add_batch(soup(&fp, &ft), f64::INFINITY);
-        let d = s.finish().unwrap();
+        let d = both_passes(s, &soup(&fp, &ft));
         let f2o = &d.full_to_output;
         assert!(f2o.samples <= 30_000, "{}", f2o.samples);
         assert!(d.full_sample_weight >= 1 << 12, "{}", d.full_sample_weight);

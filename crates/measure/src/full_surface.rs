@@ -7,9 +7,9 @@
 
 use glam::DVec3;
 use isostream_extract::{CubeBatch, Extractor};
-use isostream_volume::{Grid, VolumeSource};
+use isostream_volume::{Grid, VolumeError, VolumeSource};
 
-use crate::distances::{DEFAULT_SEARCH_VOXEL_DIAGONALS, DistanceStream};
+use crate::distances::{DEFAULT_SEARCH_VOXEL_DIAGONALS, DistanceStream, FarPass, Streamed};
 use crate::halves::Halves;
 use crate::triangle::Triangle;
 use crate::{Distances, MeasureError, MeasureOptions};
@@ -24,31 +24,110 @@ const MAX_BATCH_TRIANGLES: usize = 1 << 18;
 /// 4 "Approximation error". A caller with its own extraction (`isostream measure` uses the
 /// pipeline's parallel one, which skips empty space) feeds [`FullSurfaceDistances`] instead.
 ///
-/// `volume` is read from slice 0; `positions`/`triangles` are the output mesh in the volume's
-/// physical coordinates.
-pub fn surface_distances(
-    volume: &mut dyn VolumeSource,
+/// `open` gives the volume to read from slice 0: once, or twice when output samples have no
+/// full-resolution point within the search radius (see [`FirstPass`]); `positions`/`triangles`
+/// are the output mesh in the volume's physical coordinates.
+pub fn surface_distances<V: VolumeSource>(
+    mut open: impl FnMut() -> Result<V, VolumeError>,
     iso: f32,
     positions: &[[f64; 3]],
     triangles: &[[u32; 3]],
     opts: &MeasureOptions,
 ) -> Result<Distances, MeasureError> {
+    let mut volume = open()?;
     let mut full = FullSurfaceDistances::new(volume.grid(), positions, triangles, opts)?;
-    feed(volume, iso, &mut full)?;
-    full.finish()
+    let max_batch = full.gather.max_batch;
+    feed(&mut volume, iso, max_batch, |batch| full.add(batch))?;
+    Ok(match full.finish()? {
+        FirstPass::Done(distances) => distances,
+        FirstPass::Again(mut again) => {
+            feed(&mut open()?, iso, max_batch, |batch| again.add(batch))?;
+            again.finish()
+        }
+    })
 }
 
 /// The distances of [`surface_distances`], taking the full-resolution surface as the batches
 /// of marching cubes over the volume's grid: every slab's batches after the previous slab's, as
 /// [`Extractor::extract_slab`] emits them (empty cubes may be left out). Only the triangles
-/// within the search radius of output samples still to measure are held.
+/// within the search radius of output samples still to measure are held. Output samples with no
+/// full-resolution point within that radius need the surface once more ([`FirstPass::Again`]).
 #[derive(Debug)]
 pub struct FullSurfaceDistances {
     stream: DistanceStream,
+    gather: Gather,
+}
+
+/// How the first pass over the full-resolution surface ends.
+#[derive(Debug)]
+pub enum FirstPass {
+    /// Every output sample had a full-resolution point within the search radius.
+    Done(Distances),
+    /// Some had none (a part of the mesh farther from the surface than the radius): they are
+    /// measured exactly against the whole surface, which must go by once more, the same
+    /// batches in the same order, through [`SecondPass::add`]. Counting them at the radius
+    /// made the Hausdorff distance and the 99.9th percentile silent lower bounds.
+    Again(SecondPass),
+}
+
+/// The second pass over the full-resolution surface, for the output samples the first found
+/// nothing within the search radius of: it holds them and one batch of the surface at a time.
+#[derive(Debug)]
+pub struct SecondPass {
+    far: FarPass,
+    gather: Gather,
+}
+
+impl SecondPass {
+    /// How many output samples had no full-resolution point within the search radius.
+    pub fn far_samples(&self) -> u64 {
+        self.far.far_samples()
+    }
+
+    /// The next batch of the full-resolution surface, as for [`FullSurfaceDistances::add`].
+    pub fn add(&mut self, batch: &CubeBatch) {
+        let far = &mut self.far;
+        self.gather
+            .add(batch, |triangles, _| far.add_batch(triangles));
+    }
+
+    /// The distances, once the whole surface went by again.
+    pub fn finish(mut self) -> Distances {
+        if let Some(rest) = self.gather.rest() {
+            self.far.add_batch(rest);
+        }
+        self.far.finish()
+    }
+}
+
+/// The batches' triangles gathered into slabs, or groups of `max_batch` triangles.
+#[derive(Debug)]
+struct Gather {
     grid: Grid,
-    /// Triangles gathered since the last hand-over to `stream`.
+    /// Triangles gathered since the last hand-over.
     pending: Vec<Triangle>,
     max_batch: usize,
+}
+
+impl Gather {
+    /// Hands the triangles on at the end of the batch's slab with the height of its top slice
+    /// (later triangles lie above it), or once `max_batch` wait with that of its bottom slice.
+    fn add(&mut self, batch: &CubeBatch, mut hand: impl FnMut(Vec<Triangle>, f64)) {
+        append_triangles(batch, &mut self.pending);
+        let slice_height = |k: u64| self.grid.position(0.0, 0.0, k as f64).z;
+        if batch.end_of_slab {
+            let top = slice_height(batch.slab + 1);
+            hand(std::mem::take(&mut self.pending), top);
+        } else if self.pending.len() >= self.max_batch {
+            let bottom = slice_height(batch.slab);
+            hand(std::mem::take(&mut self.pending), bottom);
+        }
+    }
+
+    /// The triangles not handed on yet.
+    fn rest(&mut self) -> Option<Vec<Triangle>> {
+        Some(std::mem::take(&mut self.pending)).filter(|rest| !rest.is_empty())
+    }
 }
 
 impl FullSurfaceDistances {
@@ -76,9 +155,11 @@ impl FullSurfaceDistances {
             .unwrap_or(DEFAULT_SEARCH_VOXEL_DIAGONALS * voxel_diagonal);
         Ok(Self {
             stream: DistanceStream::new(positions, triangles, opts, radius)?,
-            grid,
-            pending: Vec::new(),
-            max_batch,
+            gather: Gather {
+                grid,
+                pending: Vec::new(),
+                max_batch,
+            },
         })
     }
 
@@ -89,39 +170,35 @@ impl FullSurfaceDistances {
         self
     }
 
-    /// The next batch of the full-resolution surface. Handed on at the end of its slab (later
-    /// triangles lie above the slab's top slice) or once `max_batch` triangles wait (later ones
-    /// lie above its bottom slice).
+    /// The next batch of the full-resolution surface.
     pub fn add(&mut self, batch: &CubeBatch) {
-        append_triangles(batch, &mut self.pending);
-        let slice_height = |k: u64| self.grid.position(0.0, 0.0, k as f64).z;
-        if batch.end_of_slab {
-            let top = slice_height(batch.slab + 1);
-            self.stream
-                .add_batch(std::mem::take(&mut self.pending), top);
-        } else if self.pending.len() >= self.max_batch {
-            let bottom = slice_height(batch.slab);
-            self.stream
-                .add_batch(std::mem::take(&mut self.pending), bottom);
-        }
+        let stream = &mut self.stream;
+        self.gather
+            .add(batch, |triangles, front| stream.add_batch(triangles, front));
     }
 
-    /// The distances, once the whole surface went by.
-    pub fn finish(mut self) -> Result<Distances, MeasureError> {
-        if !self.pending.is_empty() {
-            let rest = std::mem::take(&mut self.pending);
+    /// The distances once the whole surface went by, or the second pass they still need.
+    pub fn finish(mut self) -> Result<FirstPass, MeasureError> {
+        if let Some(rest) = self.gather.rest() {
             self.stream.add_batch(rest, f64::INFINITY);
         }
-        self.stream.finish()
+        Ok(match self.stream.finish()? {
+            Streamed::Done(distances) => FirstPass::Done(distances),
+            Streamed::Far(far) => FirstPass::Again(SecondPass {
+                far,
+                gather: self.gather,
+            }),
+        })
     }
 }
 
-/// Extracts the volume slab by slab into `full`, in groups of rows of at least its `max_batch`
+/// Extracts the volume slab by slab into `add`, in groups of rows of at least `max_batch`
 /// triangles.
 fn feed(
     volume: &mut dyn VolumeSource,
     iso: f32,
-    full: &mut FullSurfaceDistances,
+    max_batch: usize,
+    mut add: impl FnMut(&CubeBatch),
 ) -> Result<(), MeasureError> {
     let grid = volume.grid();
     let mut extractor = Extractor::new(grid, iso);
@@ -130,8 +207,8 @@ fn feed(
     volume.read_slice(0, &mut lower)?;
     for z in 0..grid.dims[2].saturating_sub(1) {
         volume.read_slice(z + 1, &mut upper)?;
-        extractor.extract_slab(z, &lower, &upper, full.max_batch, |batch: CubeBatch| {
-            full.add(&batch);
+        extractor.extract_slab(z, &lower, &upper, max_batch, |batch: CubeBatch| {
+            add(&batch);
             Ok::<(), MeasureError>(())
         })?;
         std::mem::swap(&mut lower, &mut upper);
@@ -179,12 +256,12 @@ mod tests {
         let mut v = sphere_volume(24);
         let full = extract_indexed(&mut v, 0.0).unwrap();
         let p = full.position_arrays();
-        let mut v = sphere_volume(24);
-        let d = surface_distances(&mut v, 0.0, &p, &full.triangles, &MeasureOptions::default())
-            .unwrap();
+        let opts = MeasureOptions::default();
+        let d =
+            surface_distances(|| Ok(sphere_volume(24)), 0.0, &p, &full.triangles, &opts).unwrap();
         assert!(d.hausdorff < 1e-9, "{d:?}");
         assert_eq!(d.full_resolution_triangles, full.triangles.len() as u64);
-        assert_eq!(d.clipped_samples, 0);
+        assert_eq!(d.far_samples, 0);
         assert!(d.full_to_output.samples >= 9_000 && d.output_to_full.samples >= 9_000);
     }
 
@@ -206,13 +283,13 @@ mod tests {
             max_distance: Some(1.0),
             ..MeasureOptions::default()
         };
-        let d = surface_distances(&mut sphere_volume(n), 0.0, &positions, &f, &opts).unwrap();
+        let d = surface_distances(|| Ok(sphere_volume(n)), 0.0, &positions, &f, &opts).unwrap();
 
         // Re-draw the same output samples and measure them against the whole surface.
         let s = DistanceStream::new(&positions, &f, &opts, 1.0).unwrap();
         let (mut sum, mut max) = (0.0, 0.0f64);
         for p in s.samples() {
-            let dist = brute_nearest(*p, &full_positions, &full.triangles).min(1.0);
+            let dist = brute_nearest(*p, &full_positions, &full.triangles);
             sum += dist;
             max = max.max(dist);
         }
@@ -238,8 +315,9 @@ mod tests {
         #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
 
         /// On random small volumes, with batches cut mid-slab or not, the windowed output -> full
-        /// direction equals a brute-force search over the whole extracted surface, sample by
-        /// sample (mean, RMS, Hausdorff and clipping at the radius).
+        /// direction and the far samples' second pass equal a brute-force search over the whole
+        /// extracted surface, sample by sample (mean, RMS, Hausdorff, the 99.9th percentile),
+        /// whatever the radius: it was the distance of every sample farther than it.
         #[test]
         fn windowed_stream_equals_brute_force(
             dims in proptest::array::uniform3(3u64..7),
@@ -272,23 +350,33 @@ mod tests {
             ) else {
                 return Ok(()); // every jittered triangle degenerate: nothing to sample
             };
-            feed(&mut volume.clone(), 0.5, &mut stream).unwrap();
-            let expected: Vec<f64> = stream
+            feed(&mut volume.clone(), 0.5, max_batch, |b| stream.add(b)).unwrap();
+            let mut expected: Vec<f64> = stream
                 .stream
                 .samples()
                 .iter()
-                .map(|p| brute_nearest(*p, &full_positions, &full.triangles).min(radius))
+                .map(|p| brute_nearest(*p, &full_positions, &full.triangles))
                 .collect();
-            let d = stream.finish().unwrap();
+            let d = match stream.finish().unwrap() {
+                FirstPass::Done(d) => d,
+                FirstPass::Again(mut again) => {
+                    feed(&mut volume.clone(), 0.5, max_batch, |b| again.add(b)).unwrap();
+                    again.finish()
+                }
+            };
             let n = expected.len() as f64;
             let mean = expected.iter().sum::<f64>() / n;
             let rms = (expected.iter().map(|x| x * x).sum::<f64>() / n).sqrt();
             let max = expected.iter().cloned().fold(0.0, f64::max);
-            let clipped = expected.iter().filter(|&&x| x >= radius).count() as u64;
-            proptest::prop_assert!((d.output_to_full.mean - mean).abs() <= 1e-9 * mean.max(1e-9));
-            proptest::prop_assert!((d.output_to_full.rms - rms).abs() <= 1e-9 * rms.max(1e-9));
-            proptest::prop_assert_eq!(d.output_to_full.hausdorff, max);
-            proptest::prop_assert_eq!(d.clipped_samples, clipped);
+            let far = expected.iter().filter(|&&x| x >= radius).count() as u64;
+            expected.sort_unstable_by(f64::total_cmp);
+            let p999 = expected[(0.999 * n).ceil() as usize - 1];
+            let o2f = &d.output_to_full;
+            proptest::prop_assert!((o2f.mean - mean).abs() <= 1e-9 * mean.max(1e-9));
+            proptest::prop_assert!((o2f.rms - rms).abs() <= 1e-9 * rms.max(1e-9));
+            proptest::prop_assert_eq!(o2f.hausdorff, max);
+            proptest::prop_assert!(p999 <= o2f.p999 && o2f.p999 <= p999 * (1.0 + 1.0 / 1024.0));
+            proptest::prop_assert_eq!(d.far_samples, far);
             proptest::prop_assert_eq!(d.full_resolution_triangles, full.triangles.len() as u64);
         }
     }
@@ -296,9 +384,10 @@ mod tests {
     #[test]
     fn empty_iso_surface_is_an_error() {
         let grid = Grid::new([3, 3, 3], [1.0; 3], [0.0; 3]).unwrap();
-        let mut v = MemoryVolume::new(grid, vec![0.0; 27]).unwrap();
+        let v = MemoryVolume::new(grid, vec![0.0; 27]).unwrap();
         let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-        let err = surface_distances(&mut v, 5.0, &p, &[[0, 1, 2]], &MeasureOptions::default());
+        let opts = MeasureOptions::default();
+        let err = surface_distances(|| Ok(v.clone()), 5.0, &p, &[[0, 1, 2]], &opts);
         assert!(matches!(err, Err(MeasureError::EmptySurface)), "{err:?}");
     }
 }

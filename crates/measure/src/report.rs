@@ -138,11 +138,11 @@ fn write_distances(s: &mut String, d: &Distances) {
         );
     }
     s.push_str(&line("output -> full", &d.output_to_full));
-    if d.clipped_samples > 0 {
+    if d.far_samples > 0 {
         let _ = writeln!(
             s,
-            "  {} output samples had no full-resolution point within {:.6} and count at it: output -> full is a lower bound",
-            d.clipped_samples, d.max_distance
+            "  {} output samples had no full-resolution point within {:.6}: measured exactly in a second pass over the full-resolution surface",
+            d.far_samples, d.max_distance
         );
     }
     let _ = writeln!(
@@ -176,11 +176,11 @@ mod tests {
         }
     }
 
-    fn report(clipped: u64) -> MeasureReport {
-        report_weighted(clipped, 1)
+    fn report(far: u64) -> MeasureReport {
+        report_weighted(far, 1)
     }
 
-    fn report_weighted(clipped: u64, full_sample_weight: u64) -> MeasureReport {
+    fn report_weighted(far: u64, full_sample_weight: u64) -> MeasureReport {
         let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
         MeasureReport {
             quality: mesh_quality(&p, &[[0, 1, 2]]),
@@ -198,7 +198,7 @@ mod tests {
                 p999_pct: 5.0,
                 full_resolution_triangles: 7,
                 full_sample_weight,
-                clipped_samples: clipped,
+                far_samples: far,
                 max_distance: 0.2,
                 samples_per_area: 100.0,
             }),
@@ -224,12 +224,13 @@ mod tests {
         ] {
             assert!(text.contains(needle), "{needle:?} missing from\n{text}");
         }
-        assert!(!text.contains("lower bound") && !text.contains("sparsely"));
+        assert!(!text.contains("second pass") && !text.contains("sparsely"));
+        let far = report(3).to_text();
         assert!(
-            report(3)
-                .to_text()
-                .contains("3 output samples had no full-resolution point")
+            far.contains("3 output samples had no full-resolution point within 0.200000: measured exactly in a second pass"),
+            "{far}"
         );
+        assert!(!far.contains("lower bound"), "{far}");
         assert!(
             report_weighted(0, 16)
                 .to_text()
