@@ -76,6 +76,12 @@ pub struct Distances {
     /// Absent in reports of versions before the percentile existed.
     #[serde(default)]
     pub p999_pct: Option<f64>,
+    /// Output samples counted at the search radius by versions before the second pass over the
+    /// surface: their output -> full distances, and the Hausdorff distance and the 99.9 %
+    /// figure, are then lower bounds (the page says "at least"). Absent (0) in newer reports,
+    /// which measure those samples exactly (`far_samples`).
+    #[serde(default)]
+    pub clipped_samples: u64,
 }
 
 #[derive(Debug, Clone, Deserialize)]

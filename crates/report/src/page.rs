@@ -132,17 +132,19 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
             ),
         ));
         if let Some(d) = &m.distances {
+            let bound = at_least(d);
             rows.push((
                 "distance to the full surface",
                 format!(
-                    "RMS {:.4} %, Hausdorff {:.4} %{} of the diagonal (full -> output mean {:.4}, output -> full mean {:.4})",
+                    "RMS {bound}{:.4} %, Hausdorff {bound}{:.4} %{} of the diagonal (full -> output mean {:.4}, output -> full mean {bound}{:.4}){}",
                     d.rms_pct,
                     d.hausdorff_pct,
                     d.p999_pct
-                        .map(|p| format!(", 99.9 % of the samples within {p:.4} %"))
+                        .map(|p| format!(", 99.9 % of the samples within {bound}{p:.4} %"))
                         .unwrap_or_default(),
                     d.full_to_output.mean,
-                    d.output_to_full.mean
+                    d.output_to_full.mean,
+                    clipped_note(d)
                 ),
             ));
         }
@@ -152,6 +154,27 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
         let _ = writeln!(s, "<tr><th>{k}</th><td>{}</td></tr>", escape(&v));
     }
     s.push_str("</table>\n");
+}
+
+/// "at least " before the distances of a measure report that counted output samples at its
+/// search radius (an older version's: see `Distances::clipped_samples`).
+fn at_least(d: &crate::input::Distances) -> &'static str {
+    if d.clipped_samples > 0 {
+        "at least "
+    } else {
+        ""
+    }
+}
+
+/// Why [`at_least`] says so, and how to get exact values.
+fn clipped_note(d: &crate::input::Distances) -> String {
+    if d.clipped_samples == 0 {
+        return String::new();
+    }
+    format!(
+        "; {} output samples counted at the search radius {:.4}: lower bounds, measure again with this version for exact values",
+        d.clipped_samples, d.max_distance
+    )
 }
 
 fn measure_figures(s: &mut String, m: &Measure) -> Result<(), ReportError> {
@@ -169,16 +192,18 @@ fn measure_figures(s: &mut String, m: &Measure) -> Result<(), ReportError> {
     let Some(d) = &m.distances else {
         return Ok(());
     };
-    for (id, title, dir) in [
+    for (id, title, dir, bound) in [
         (
             "distances-full-to-output",
             "Distance from the full-resolution surface to the output",
             &d.full_to_output,
+            "",
         ),
         (
             "distances-output-to-full",
             "Distance from the output to the full-resolution surface",
             &d.output_to_full,
+            at_least(d),
         ),
     ] {
         if dir.histogram.is_empty() {
@@ -189,14 +214,19 @@ fn measure_figures(s: &mut String, m: &Measure) -> Result<(), ReportError> {
             id,
             &plots::histogram(title, "distance", &dir.histogram, "distance")?,
             &format!(
-                "Samples by distance (mean {:.4}, RMS {:.4}, Hausdorff {:.4}{}); the last bin also counts samples farther than the search radius {:.4}.",
+                "Samples by distance (mean {bound}{:.4}, RMS {bound}{:.4}, Hausdorff {bound}{:.4}{}); the last bin also counts samples farther than the search radius {:.4}{}.",
                 dir.mean,
                 dir.rms,
                 dir.hausdorff,
                 dir.p999
-                    .map(|p| format!(", 99.9 % within {p:.4}"))
+                    .map(|p| format!(", 99.9 % within {bound}{p:.4}"))
                     .unwrap_or_default(),
-                d.max_distance
+                d.max_distance,
+                if bound.is_empty() {
+                    String::new()
+                } else {
+                    clipped_note(d)
+                }
             ),
         );
     }
@@ -287,6 +317,43 @@ mod tests {
         // Self-contained: nothing to fetch (the SVG namespace URI is a name, not a resource).
         for fetches in ["<script", "<link", "src=", "href=", "url("] {
             assert!(!page.contains(fetches), "{fetches}");
+        }
+    }
+
+    /// A measure report of a version before the second pass over the surface counted output
+    /// samples at the search radius: the page showed its Hausdorff distance and 99.9 % figure
+    /// as they were. It now says "at least", and why; a report without them says nothing.
+    #[test]
+    fn a_measure_that_counted_samples_at_the_radius_shows_lower_bounds() {
+        let run: Run = serde_json::from_value(run_json(true)).unwrap();
+        let measure = |clipped: Option<u64>| -> Measure {
+            let directed = serde_json::json!({"mean": 0.5, "rms": 0.6, "hausdorff": 2.0,
+                "p999": 2.0, "histogram": [[0.0, 9], [1.0, 1]]});
+            let mut d = serde_json::json!({"full_to_output": directed,
+                "output_to_full": directed, "max_distance": 2.0, "rms_pct": 1.0,
+                "hausdorff_pct": 4.0, "p999_pct": 4.0});
+            if let Some(c) = clipped {
+                d["clipped_samples"] = c.into();
+            }
+            serde_json::from_value(serde_json::json!({"quality": {"triangles": 201,
+                "closed": true, "euler": 2, "min_angle_histogram": [[0.0, 201]]},
+                "distances": d}))
+            .unwrap()
+        };
+        let page = html(&run, Some(&measure(Some(7)))).unwrap();
+        assert!(
+            page.contains(
+                "Hausdorff at least 4.0000 %, 99.9 % of the samples within at least 4.0000 %"
+            ),
+            "{page}"
+        );
+        assert!(
+            page.contains("7 output samples counted at the search radius 2.0000: lower bounds")
+        );
+        assert!(page.contains("Hausdorff at least 2.0000, 99.9 % within at least 2.0000"));
+        for exact in [measure(Some(0)), measure(None)] {
+            let page = html(&run, Some(&exact)).unwrap();
+            assert!(!page.contains("at least") && !page.contains("lower bound"));
         }
     }
 
