@@ -144,7 +144,7 @@ pub fn convert_until(
             .retain(|t| t[0] != t[1] && t[1] != t[2] && t[2] != t[0]);
         let degenerate = (before - mesh.triangles.len()) as u64;
         let header = Header {
-            comments: Vec::new(),
+            comments: mesh.comments.clone(),
             attribute_names: mesh.attribute_names.clone(),
         };
         let mut sink = create_sink(output, &header, options)?;

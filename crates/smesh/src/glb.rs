@@ -431,6 +431,24 @@ fn local_matrix(path: &Path, node: &gltf::Node) -> Result<Matrix, SmeshError> {
     Ok(transform.matrix().map(|c| c.map(f64::from)))
 }
 
+/// The strings of `asset.extras.comments`, where [`GlbSink`] writes the header's comments (other
+/// values there, and comments other formats cannot hold, are passed over).
+fn comments(gltf: &gltf::Gltf) -> Vec<String> {
+    let Some(extras) = &gltf.as_json().asset.extras else {
+        return Vec::new();
+    };
+    let extras: serde_json::Value = serde_json::from_str(extras.get()).unwrap_or_default();
+    extras["comments"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter_map(|c| c.as_str())
+        .map(str::trim)
+        .filter(|c| crate::sma::free_comment(c))
+        .map(str::to_string)
+        .collect()
+}
+
 /// Loads a GLB file: every triangle primitive of every mesh instance of the scene, placed by
 /// its node's world transform (see [`instances`]; a mesh two nodes show comes out twice, each
 /// where its node puts it), with the `_NAME` float attributes of the first primitive as
@@ -440,13 +458,17 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     check_glb_header(path, &bytes)?;
     let gltf = gltf::Gltf::from_slice(&bytes)
         .map_err(|e| SmeshError::foreign(path, format!("invalid glTF: {e}")))?;
+    let comments = comments(&gltf);
     let blob = gltf.blob.as_deref();
     let buffers = |b: gltf::Buffer| match b.source() {
         gltf::buffer::Source::Bin => blob,
         gltf::buffer::Source::Uri(_) => None,
     };
     let bad = |m: String| SmeshError::foreign(path, m);
-    let mut mesh = IndexedMesh::default();
+    let mut mesh = IndexedMesh {
+        comments,
+        ..IndexedMesh::default()
+    };
     let mut first = true;
     let instances = instances(path, &gltf)?;
     let primitives = instances

@@ -14,6 +14,10 @@ pub struct IndexedMesh {
     pub attribute_names: Vec<String>,
     /// Per-vertex attributes, `attribute_names.len()` values per vertex.
     pub attrs: Vec<f32>,
+    /// The file's header comments, one line each (a run writes its provenance there:
+    /// `isostream VERSION`, `input PATH iso VALUE`), so that `convert` carries them on; only
+    /// those every format can store (`sma::free_comment`).
+    pub comments: Vec<String>,
 }
 
 /// In-memory load of a (small) mesh of any supported format: positions, triangles, per-vertex
@@ -57,6 +61,7 @@ fn read_stream(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let mut stream = CheckedStream::open(path)?;
     let mut mesh = IndexedMesh {
         attribute_names: stream.header().attribute_names.clone(),
+        comments: stream.header().comments.clone(),
         ..IndexedMesh::default()
     };
     while let Some(e) = stream.next_element() {

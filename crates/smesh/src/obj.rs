@@ -10,6 +10,10 @@ use crate::atomic::AtomicFile;
 use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
+/// The header comment saying which attributes were not written: a fact about this file, not a
+/// comment to carry on, so the reader leaves it out.
+const ATTRIBUTES_NOT_STORED: &str = "per-vertex attributes not stored (OBJ has none):";
+
 /// Streaming OBJ writer.
 pub struct ObjSink {
     core: SinkCore,
@@ -25,7 +29,7 @@ impl ObjSink {
         let mut text: String = header.comments.iter().map(|c| format!("# {c}\n")).collect();
         if !header.attribute_names.is_empty() {
             text.push_str(&format!(
-                "# per-vertex attributes not stored (OBJ has none): {}\n",
+                "# {ATTRIBUTES_NOT_STORED} {}\n",
                 header.attribute_names.join(" ")
             ));
         }
@@ -76,7 +80,9 @@ impl MeshSink for ObjSink {
 /// them (1-based, or negative: relative to the vertices read so far), whatever `g` and `o`
 /// groups the faces are in; `f` lines in any corner form (`v`, `v/vt`, `v//vn`, `v/vt/vn`),
 /// polygons fanned into triangles; lines continued by a trailing `\`. Vertices no face uses
-/// stay (and are dropped and counted by `convert`, as PLY's are).
+/// stay (and are dropped and counted by `convert`, as PLY's are). The `#` lines before the first
+/// statement are the header's comments, where the sink writes them (the run's provenance); a
+/// foreign file's are kept as comments too, and later `#` lines are not comments of the mesh.
 ///
 /// Written by hand: `tobj` numbered the vertices of each object or group apart, so an OBJ with
 /// groups came apart into pieces at the group borders (a tetrahedron in two groups measured 8
@@ -92,6 +98,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     };
     let mut statement = String::new();
     let mut first_line = 0;
+    let mut in_header = true;
     for (n, line) in std::io::BufReader::with_capacity(1 << 16, file)
         .split(b'\n')
         .enumerate()
@@ -101,6 +108,12 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
             first_line = n as u64 + 1;
         }
         let text = String::from_utf8_lossy(&line);
+        if in_header {
+            match text.trim().strip_prefix('#') {
+                Some(comment) => reader.header_comment(comment.trim()),
+                None => in_header = text.trim().is_empty(),
+            }
+        }
         // The comment first: a `\` ending a comment (`# C:\models\`) continues nothing.
         let text = text.split('#').next().unwrap_or_default().trim_end();
         match text.strip_suffix('\\') {
@@ -151,6 +164,14 @@ impl Reader<'_> {
                 found.trim()
             ),
         )
+    }
+
+    /// A `#` line of the header, unless it is the sink's note on attributes or a comment other
+    /// formats cannot hold.
+    fn header_comment(&mut self, comment: &str) {
+        if !comment.starts_with(ATTRIBUTES_NOT_STORED) && crate::sma::free_comment(comment) {
+            self.mesh.comments.push(comment.to_string());
+        }
     }
 
     /// One statement (a line, continuations joined, comments stripped).

@@ -291,7 +291,15 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let header = Parser::<Skip>::new()
         .read_header(&mut input)
         .map_err(invalid)?;
-    let mut mesh = IndexedMesh::default();
+    let mut mesh = IndexedMesh {
+        comments: header
+            .comments
+            .iter()
+            .map(|c| c.trim().to_string())
+            .filter(|c| crate::sma::free_comment(c))
+            .collect(),
+        ..IndexedMesh::default()
+    };
     let mut faces = Vec::new();
     let mut strips = Vec::new();
     let has_faces = header

@@ -29,6 +29,18 @@ const ATTRIBUTES_KEY: &str = "vertex_attributes";
 /// Header comment keys the reader interprets; a free comment must not start with one.
 const KEYS: [&str; 5] = ["nverts", "nfaces", "bb_min", "bb_max", ATTRIBUTES_KEY];
 
+/// Whether a comment read from another format's header (trimmed) can be carried into every
+/// format: one line, not empty, and not starting with a key SMA readers interpret, which the
+/// SMA writer refuses (a foreign PLY's `comment nverts 3` would otherwise fail a conversion
+/// to SMA that succeeded before comments were carried).
+pub(crate) fn free_comment(c: &str) -> bool {
+    !c.is_empty() && !c.contains(['\n', '\r']) && !starts_with_key(c)
+}
+
+fn starts_with_key(c: &str) -> bool {
+    KEYS.contains(&c.split_whitespace().next().unwrap_or(""))
+}
+
 /// Writes SMA; the reserved header block starts the file (offset 0).
 pub(crate) struct SmaEncoder;
 
@@ -62,8 +74,7 @@ fn reserved_block(counts: Option<(u64, u64)>, bbox: Option<([f32; 3], [f32; 3])>
 
 impl SmaEncoder {
     pub(crate) fn begin(out: &mut AtomicFile, header: &Header) -> Result<SmaEncoder, SmeshError> {
-        let keyword = |c: &String| KEYS.contains(&c.split_whitespace().next().unwrap_or(""));
-        if let Some(c) = header.comments.iter().find(|c| keyword(c)) {
+        if let Some(c) = header.comments.iter().find(|c| starts_with_key(c)) {
             return Err(SmeshError::Unsupported {
                 path: out.path().to_path_buf(),
                 message: format!("header comment {c:?} starts with a key SMA readers interpret"),

@@ -7,7 +7,7 @@
 //! identical corners back into shared vertices.
 
 use std::fs::File;
-use std::io::BufReader;
+use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
@@ -15,6 +15,10 @@ use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
 use crate::{Header, IndexedMesh, SmeshError, WriteStats};
 
 const COUNT_AT: u64 = 80;
+/// How the header of a binary STL this crate wrote begins; parts follow, each after `; `.
+const SIGNATURE: &str = "binary STL by isostream";
+/// The header part naming the attributes not written: a fact about this file, not a comment.
+const ATTRIBUTES_DROPPED: &str = "attributes dropped: ";
 
 /// Streaming binary STL writer. Attributes are dropped (STL has none); the header text names
 /// them, as OBJ's comment does, so the loss is visible in the file.
@@ -30,15 +34,20 @@ impl StlSink {
         let core = SinkCore::new(path, header)?;
         let mut out = AtomicFile::create(path)?;
         // Must not start with "solid": readers would take the file for ASCII STL.
-        let mut text = String::from("binary STL by isostream");
+        let mut text = String::from(SIGNATURE);
         // The loss is stated before the comments, which the 80 bytes may cut.
         if !header.attribute_names.is_empty() {
-            text.push_str("; attributes dropped: ");
+            text.push_str("; ");
+            text.push_str(ATTRIBUTES_DROPPED);
             text.push_str(&header.attribute_names.join(" "));
         }
+        // Each comment whole or not at all: `read` takes them back, and a cut one would come
+        // back as another comment (a path cut short).
         for c in &header.comments {
-            text.push_str("; ");
-            text.push_str(c);
+            if text.len() + 2 + c.len() <= 80 {
+                text.push_str("; ");
+                text.push_str(c);
+            }
         }
         let mut head = [b' '; 80];
         let n = text.len().min(80);
@@ -114,13 +123,20 @@ impl MeshSink for StlSink {
     }
 }
 
-/// Loads an STL file (ascii or binary) with identical corners welded.
+/// Loads an STL file (ascii or binary) with identical corners welded, and the comments of a
+/// header this crate wrote.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
-    let file = File::open(path).map_err(|e| SmeshError::io(path, "open", e))?;
-    let stl = stl_io::read_stl(&mut BufReader::new(file))
+    let mut input = BufReader::new(File::open(path).map_err(|e| SmeshError::io(path, "open", e))?);
+    let stl = stl_io::read_stl(&mut input)
         .map_err(|e| SmeshError::foreign(path, format!("invalid STL: {e}")))?;
+    let mut head = [0u8; 80];
+    input
+        .seek(SeekFrom::Start(0))
+        .and_then(|_| input.read_exact(&mut head))
+        .map_err(|e| SmeshError::io(path, "read", e))?;
     let mut mesh = IndexedMesh {
         positions: stl.vertices.iter().map(|v| v.0.map(f64::from)).collect(),
+        comments: comments(&head),
         ..IndexedMesh::default()
     };
     for f in &stl.faces {
@@ -136,4 +152,20 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         }
     }
     Ok(mesh)
+}
+
+/// The comments of an 80-byte header [`StlSink`] wrote (whole, each after `; `, the note on
+/// dropped attributes left out); none from another writer's, whose header is free bytes.
+fn comments(head: &[u8; 80]) -> Vec<String> {
+    let text = String::from_utf8_lossy(head);
+    let Some(parts) = text.trim_end().strip_prefix(SIGNATURE) else {
+        return Vec::new();
+    };
+    parts
+        .split("; ")
+        .skip(1)
+        .map(str::trim)
+        .filter(|c| !c.starts_with(ATTRIBUTES_DROPPED) && crate::sma::free_comment(c))
+        .map(str::to_string)
+        .collect()
 }

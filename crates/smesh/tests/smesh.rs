@@ -146,7 +146,7 @@ fn golden_ply_and_obj_are_what_conversion_writes() {
 
 /// Attributes survive conversion of the SMB fixture to SMA and ASCII PLY (byte for byte the
 /// hand-written fixtures) and back to SMB: byte for byte from SMA (a stream, piped as is), the
-/// same triangles and values from PLY (re-emitted in first-use order, without comments).
+/// same triangles and values from PLY (re-emitted in first-use order).
 #[test]
 fn golden_attribute_fixtures_convert_into_each_other() {
     let dir = tempfile::tempdir().unwrap();
@@ -179,6 +179,100 @@ fn golden_attribute_fixtures_convert_into_each_other() {
     let m = read_indexed(&data("tetrahedron_attrs.smb")).unwrap();
     assert_eq!(m.attribute_names, ["t", "grad"]);
     assert_eq!(m.attrs, [0.5, 1.0, 1.5, 2.0, -2.5, 0.25, 3.0, 1024.0]);
+}
+
+/// The comments of a header.
+fn comments(path: &Path) -> Vec<String> {
+    StreamReader::open(path).unwrap().header().comments.clone()
+}
+
+/// Trial bug: `convert` from PLY, OBJ, STL or GLB dropped the header's comments (a run's
+/// provenance: `isostream 0.1.0`, `input PATH iso VALUE`), so SMB -> PLY -> SMB had none
+/// left. Now A -> B -> A keeps them through every format B, with or without attributes (whose
+/// notes in OBJ and STL headers are not taken for comments), and B -> ASCII PLY writes them.
+#[test]
+fn comments_round_trip_through_every_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let provenance = vec![
+        "isostream 0.1.0".to_string(),
+        "input ../data/head.nhdr iso 1150".to_string(),
+    ];
+    let ascii = ConvertOptions {
+        ply_encoding: PlyEncoding::Ascii,
+        ..ConvertOptions::default()
+    };
+    for (ops, attribute_names) in [
+        (tetrahedron(), vec![]),
+        (
+            tetrahedron_attrs(),
+            vec!["t".to_string(), "grad".to_string()],
+        ),
+    ] {
+        let header = Header {
+            comments: provenance.clone(),
+            attribute_names,
+        };
+        let a = dir.path().join("a.smb");
+        write(&a, &header, &ops);
+        for name in ["b.sma", "b.ply", "b.obj", "b.stl", "b.glb"] {
+            // STL's 80 bytes hold the note on dropped attributes and the first comment only.
+            let kept = match (name, header.attribute_names.is_empty()) {
+                ("b.stl", false) => &provenance[..1],
+                _ => &provenance[..],
+            };
+            let b = dir.path().join(name);
+            convert(&a, &b).unwrap();
+            assert_eq!(read_indexed(&b).unwrap().comments, kept, "{b:?}");
+            let back = dir.path().join("back.smb");
+            convert(&b, &back).unwrap();
+            assert_eq!(comments(&back), kept, "{b:?}");
+            let ply = dir.path().join("back.ply");
+            convert_with(&b, &ply, &ascii).unwrap();
+            let text = String::from_utf8_lossy(&std::fs::read(&ply).unwrap()).into_owned();
+            let lines: String = kept.iter().map(|c| format!("comment {c}\n")).collect();
+            assert!(text.contains(&lines), "{b:?}: {text}");
+        }
+    }
+}
+
+/// STL's header holds 80 bytes: a comment that does not fit is left out whole (it came back cut
+/// short, as another comment), and those that fit come back.
+#[test]
+fn stl_keeps_the_comments_that_fit_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let long = format!("input /{} iso 1", "d/".repeat(40));
+    let header = Header {
+        comments: vec!["isostream 0.1.0".into(), long, "iso 1".into()],
+        attribute_names: vec![],
+    };
+    let (a, b) = (dir.path().join("a.smb"), dir.path().join("b.stl"));
+    write(&a, &header, &tetrahedron());
+    convert(&a, &b).unwrap();
+    assert_eq!(
+        read_indexed(&b).unwrap().comments,
+        ["isostream 0.1.0", "iso 1"]
+    );
+}
+
+/// A foreign OBJ's leading `#` lines are its comments; `#` lines after the first statement are
+/// not, and nothing in a comment is read as anything else (a key SMA readers interpret is left
+/// out, since the SMA writer refuses it).
+#[test]
+fn foreign_obj_comments_are_its_leading_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("f.obj");
+    std::fs::write(
+        &obj,
+        "# Blender 4.1\n#\n# nverts 7\n\nmtllib f.mtl\n# 4 vertices\nv 0 0 0\nv 1 0 0\n\
+         v 0 1 0\nv 0 0 1\n# f 9 9 9\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    let m = read_indexed(&obj).unwrap();
+    assert_eq!(m.comments, ["Blender 4.1"]);
+    assert_eq!(m.triangles.len(), 4);
+    let sma = dir.path().join("f.sma");
+    convert(&obj, &sma).unwrap();
+    assert_eq!(comments(&sma), ["Blender 4.1"]);
 }
 
 /// OBJ and STL have no per-vertex values: converting a mesh with attributes to them succeeds,
