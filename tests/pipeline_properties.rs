@@ -74,11 +74,11 @@ proptest! {
     fn simplified_random_fields_keep_topology(
         nx in 3u64..12, ny in 3u64..12, nz in 3u64..12,
         levels in 2u32..5, iso_pick in 0usize..4, seed in any::<u64>(),
-        rate in 0.05f64..1.0, batch in 1u64..400, lag in 1u32..4,
+        rate in 0.05f64..1.0, batch in 1u64..400,
     ) {
         let iso = [0.5f32, 1.0, 1.5, 2.0][iso_pick];
         let vol = random_levels([nx, ny, nz], levels, iso, seed);
-        let simplify = format!("mode = \"rate\"\nrate = {rate}\nbatch = {batch}\ninitial_rate = 0.5\nretire_lag = {lag}");
+        let simplify = format!("mode = \"rate\"\nrate = {rate}\nbatch = {batch}\ninitial_rate = 0.5");
         simplified_keeps_the_surface(&vol, &simplify)?;
     }
 

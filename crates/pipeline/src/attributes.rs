@@ -59,7 +59,8 @@ impl AttributeConfig {
     }
 }
 
-/// Checks `[[attributes]]` and the attribute keys of `[simplify]`.
+/// Checks `[[attributes]]` and the values of the attribute keys of `[simplify]` (where each
+/// applies is checked with every key the mode or priority reads: `SimplifyConfig::scoped_keys`).
 pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError> {
     let bad = |key: String, expected: &str, got: String| ConfigError::Invalid {
         path: origin.to_path_buf(),
@@ -125,29 +126,11 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
         }
     }
     let s = &job.simplify;
-    if let Some(lambda) = s.lambda {
-        if s.priority != PriorityKind::DataDependent {
-            return Err(bad(
-                "simplify.lambda".into(),
-                "absent unless priority = \"data-dependent\" (it would be ignored: remove it or \
-                 set the priority)",
-                lambda.to_string(),
-            ));
-        }
-        if !(0.0..=1.0).contains(&lambda) {
-            return Err(bad(
-                "simplify.lambda".into(),
-                "a value in [0, 1]",
-                lambda.to_string(),
-            ));
-        }
-    }
-    if s.attribute_weights.is_some() && s.priority != PriorityKind::AttributeQuadric {
+    if let Some(lambda) = s.lambda.filter(|l| !(0.0..=1.0).contains(l)) {
         return Err(bad(
-            "simplify.attribute_weights".into(),
-            "absent unless priority = \"attribute-quadric\" (they would be ignored: remove them \
-             or set the priority)",
-            format!("{:?}", s.attribute_weights.as_deref().unwrap_or_default()),
+            "simplify.lambda".into(),
+            "a value in [0, 1]",
+            lambda.to_string(),
         ));
     }
     if let Some(w) = &s.attribute_weights {
@@ -170,7 +153,7 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
             ));
         }
     }
-    if s.priority == PriorityKind::AttributeQuadric && job.attributes.is_empty() {
+    if s.priority() == PriorityKind::AttributeQuadric && job.attributes.is_empty() {
         return Err(bad(
             "simplify.priority".into(),
             "\"attribute-quadric\" only with at least one [[attributes]] entry",
@@ -183,7 +166,7 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
 /// The simplifier's priority for a job.
 pub(crate) fn priority(job: &JobConfig) -> Priority {
     let s = &job.simplify;
-    match s.priority {
+    match s.priority() {
         PriorityKind::Geometric => Priority::Geometric,
         PriorityKind::DataDependent => Priority::DataDependent {
             lambda: s.lambda.unwrap_or(crate::config::DEFAULT_LAMBDA),

@@ -105,7 +105,10 @@ pub enum Mode {
     Classical,
 }
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// The keys a mode or priority reads only where it applies are `Option`s, `None` when the job
+/// leaves them out, so that a key given where it would be ignored can be refused
+/// ([`SimplifyConfig::scoped_keys`]); their defaults are in the accessors.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimplifyConfig {
     #[serde(default)]
@@ -117,25 +120,25 @@ pub struct SimplifyConfig {
     /// end, so that every contraction is chosen among as much of the surface as memory holds
     /// (a cascade's first stage decimates every [`FIRST_STAGE_BATCH`] faces).
     pub batch: Option<u64>,
-    /// R_i: decimation rate of the initial phase, used while R < R_i.
-    #[serde(default = "default_initial_rate")]
-    pub initial_rate: f64,
-    /// Slabs a vertex stays editable behind the front before it is retired and written.
-    #[serde(default = "default_retire_lag")]
-    pub retire_lag: u32,
+    /// R_i: decimation rate of the initial phase, used while R < R_i
+    /// ([`DEFAULT_INITIAL_RATE`] when not given).
+    pub initial_rate: Option<f64>,
+    /// Modes "error" and "classical": slabs a vertex stays editable behind the front before it
+    /// is retired and written, and the bound on a preimage's span, `2 retire_lag + 2` slabs
+    /// ([`DEFAULT_RETIRE_LAG`] when not given).
+    pub retire_lag: Option<u32>,
     /// E0 for mode = "error": the bound on the shape measure eps0, a length in the volume's
     /// physical units.
     pub error: Option<f64>,
-    /// Mode "error": delay contractions whose patch reaches beyond the front (Tandem time-lag).
-    #[serde(default = "yes")]
-    pub time_lag: bool,
-    /// Mode "error": isotropy parameter alpha in [0, 1]; 0 is pure shape measure.
-    #[serde(default)]
-    pub isotropy: f64,
-    /// Order of contractions: the mode's geometric cost, seed 001's data-dependent weight, or
-    /// quadrics over position and attributes.
-    #[serde(default)]
-    pub priority: PriorityKind,
+    /// Mode "error": delay contractions whose patch reaches beyond the front (Tandem time-lag;
+    /// on when not given).
+    pub time_lag: Option<bool>,
+    /// Modes "error" and "classical": isotropy parameter alpha in [0, 1]; 0 (when not given) is
+    /// pure shape measure.
+    pub isotropy: Option<f64>,
+    /// Order of contractions: the mode's geometric cost (when not given), seed 001's
+    /// data-dependent weight, or quadrics over position and attributes.
+    pub priority: Option<PriorityKind>,
     /// `priority = "data-dependent"`: weight of curvature against the attribute gradient
     /// ([`DEFAULT_LAMBDA`] when not given).
     pub lambda: Option<f64>,
@@ -178,12 +181,10 @@ const DEFAULT_RATE: f64 = 0.2;
 /// B of a cascade's first stage when `batch` is unset: its output is intermediate, and it
 /// must pass its faces on steadily for the second stage to work alongside.
 pub(crate) const FIRST_STAGE_BATCH: u64 = 10_000;
-fn default_initial_rate() -> f64 {
-    0.5
-}
-fn default_retire_lag() -> u32 {
-    8
-}
+/// R_i when `initial_rate` is not given.
+const DEFAULT_INITIAL_RATE: f64 = 0.5;
+/// `retire_lag` when not given: the time-lag's patches reach about 8 slabs at moderate E0.
+const DEFAULT_RETIRE_LAG: u32 = 8;
 
 impl SimplifyConfig {
     /// `rate`, or its default.
@@ -191,31 +192,162 @@ impl SimplifyConfig {
         self.rate.unwrap_or(DEFAULT_RATE)
     }
 
+    /// `initial_rate`, or its default.
+    pub fn initial_rate(&self) -> f64 {
+        self.initial_rate.unwrap_or(DEFAULT_INITIAL_RATE)
+    }
+
+    /// `retire_lag`, or its default.
+    pub fn retire_lag(&self) -> u32 {
+        self.retire_lag.unwrap_or(DEFAULT_RETIRE_LAG)
+    }
+
+    /// `time_lag`, or its default (on).
+    pub fn time_lag(&self) -> bool {
+        self.time_lag.unwrap_or(true)
+    }
+
+    /// `isotropy`, or its default (0: the pure shape measure).
+    pub fn isotropy(&self) -> f64 {
+        self.isotropy.unwrap_or(0.0)
+    }
+
+    /// `priority`, or its default (geometric).
+    pub fn priority(&self) -> PriorityKind {
+        self.priority.unwrap_or_default()
+    }
+
     /// `boundary`, or its default: planar unless the priority has no boundary cost.
     pub fn boundary(&self) -> BoundaryKind {
-        self.boundary.unwrap_or(match self.priority {
+        self.boundary.unwrap_or(match self.priority() {
             PriorityKind::AttributeQuadric => BoundaryKind::Exact,
             _ => BoundaryKind::Planar,
         })
     }
+
+    /// Every key that only some modes or priorities read, with its value when the job gives it
+    /// and where it is read (by `simplifier_config` in `lib.rs`: the policy of mode `rate`
+    /// takes `rate`, `batch` and `initial_rate`; that of `error` takes `error`, `time_lag` and
+    /// `isotropy`, and `classical` the same without the time-lag; both bound preimages by
+    /// `retire_lag`, which mode `rate` replaces by its face budget; mode `none` contracts
+    /// nothing, so no priority or boundary rule applies). The one list
+    /// [`JobConfig::validate`] refuses keys from: a key given where it is not read would be
+    /// silently ignored (`time_lag = false` in mode `rate` wrote the same bytes as without it).
+    fn scoped_keys(&self) -> [(&'static str, Option<String>, Reads); 11] {
+        use Mode::{Classical, Error, Rate};
+        const CONTRACTING: Reads = Reads::Modes(&[Rate, Error, Classical]);
+        const SHAPE: Reads = Reads::Modes(&[Error, Classical]);
+        let shown = |v: Option<f64>| v.map(|v| v.to_string());
+        [
+            ("rate", shown(self.rate), Reads::Modes(&[Rate])),
+            (
+                "batch",
+                self.batch.map(|b| b.to_string()),
+                Reads::Modes(&[Rate]),
+            ),
+            (
+                "initial_rate",
+                shown(self.initial_rate),
+                Reads::Modes(&[Rate]),
+            ),
+            ("error", shown(self.error), SHAPE),
+            ("retire_lag", self.retire_lag.map(|l| l.to_string()), SHAPE),
+            (
+                "time_lag",
+                self.time_lag.map(|t| t.to_string()),
+                Reads::Modes(&[Error]),
+            ),
+            ("isotropy", shown(self.isotropy), SHAPE),
+            (
+                "priority",
+                self.priority.map(|p| format!("{:?}", p.name())),
+                CONTRACTING,
+            ),
+            (
+                "boundary",
+                self.boundary.map(|b| format!("{:?}", b.name())),
+                CONTRACTING,
+            ),
+            (
+                "lambda",
+                shown(self.lambda),
+                Reads::Priority(PriorityKind::DataDependent),
+            ),
+            (
+                "attribute_weights",
+                self.attribute_weights.as_ref().map(|w| format!("{w:?}")),
+                Reads::Priority(PriorityKind::AttributeQuadric),
+            ),
+        ]
+    }
+
+    /// The first key of [`SimplifyConfig::scoped_keys`] given where it is not read: its name,
+    /// its value and the error's "expected" part, which says what ignores it and the fix.
+    fn ignored_key(&self) -> Option<(&'static str, String, String)> {
+        self.scoped_keys().into_iter().find_map(|(key, value, reads)| {
+            let value = value?;
+            let (name, setting, here) = match reads {
+                Reads::Modes(modes) if !modes.contains(&self.mode) => (
+                    "mode",
+                    modes.iter().map(|m| m.name()).collect::<Vec<_>>(),
+                    self.mode.name(),
+                ),
+                Reads::Priority(p) if p != self.priority() => {
+                    ("priority", vec![p.name()], self.priority().name())
+                }
+                _ => return None,
+            };
+            let quoted: Vec<String> = setting.iter().map(|s| format!("{s:?}")).collect();
+            let wanted = match quoted.split_last() {
+                Some((last, [])) => last.clone(),
+                Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+                None => String::new(),
+            };
+            let expected = format!(
+                "absent unless {name} = {wanted} ({name} {here:?} ignores it: remove it, or use \
+                 {name} = {wanted} where it applies)"
+            );
+            Some((key, value, expected))
+        })
+    }
 }
 
-impl Default for SimplifyConfig {
-    fn default() -> Self {
-        Self {
-            mode: Mode::default(),
-            rate: None,
-            batch: None,
-            initial_rate: default_initial_rate(),
-            retire_lag: default_retire_lag(),
-            error: None,
-            time_lag: true,
-            isotropy: 0.0,
-            priority: PriorityKind::default(),
-            lambda: None,
-            attribute_weights: None,
-            min_component_faces: 0,
-            boundary: None,
+/// Where a key of [`SimplifyConfig::scoped_keys`] is read.
+#[derive(Debug, Clone, Copy)]
+enum Reads {
+    Modes(&'static [Mode]),
+    Priority(PriorityKind),
+}
+
+impl Mode {
+    /// The name a job file gives it.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Mode::Rate => "rate",
+            Mode::None => "none",
+            Mode::Error => "error",
+            Mode::Classical => "classical",
+        }
+    }
+}
+
+impl PriorityKind {
+    /// The name a job file gives it.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            PriorityKind::Geometric => "geometric",
+            PriorityKind::DataDependent => "data-dependent",
+            PriorityKind::AttributeQuadric => "attribute-quadric",
+        }
+    }
+}
+
+impl BoundaryKind {
+    /// The name a job file gives it.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            BoundaryKind::Planar => "planar",
+            BoundaryKind::Exact => "exact",
         }
     }
 }
@@ -657,11 +789,11 @@ impl JobConfig {
             }
             _ => {}
         }
-        if !(s.initial_rate > 0.0 && s.initial_rate <= 1.0) {
+        if let Some(r) = s.initial_rate.filter(|r| !(*r > 0.0 && *r <= 1.0)) {
             return Err(bad(
                 "simplify.initial_rate",
                 "a value in (0, 1]",
-                s.initial_rate.to_string(),
+                r.to_string(),
             ));
         }
         if matches!(s.mode, Mode::Error | Mode::Classical) {
@@ -677,32 +809,17 @@ impl JobConfig {
                 }
             }
         }
-        if let (Mode::Error | Mode::Classical | Mode::None, Some(rate)) = (s.mode, s.rate) {
-            return Err(bad(
-                "simplify.rate",
-                "absent unless mode = \"rate\" (this mode would ignore it: remove the key or set \
-                 mode = \"rate\")",
-                rate.to_string(),
-            ));
+        if let Some((key, value, expected)) = s.ignored_key() {
+            return Err(bad(&format!("simplify.{key}"), &expected, value));
         }
-        if let (Mode::Rate | Mode::None, Some(e)) = (s.mode, s.error) {
-            return Err(bad(
-                "simplify.error",
-                "absent unless mode = \"error\" or \"classical\" (rate mode is bounded by `rate`; remove the key or set mode = \"error\")",
-                e.to_string(),
-            ));
-        }
-        if !(0.0..=1.0).contains(&s.isotropy) {
-            return Err(bad(
-                "simplify.isotropy",
-                "a value in [0, 1]",
-                s.isotropy.to_string(),
-            ));
+        if let Some(a) = s.isotropy.filter(|a| !(0.0..=1.0).contains(a)) {
+            return Err(bad("simplify.isotropy", "a value in [0, 1]", a.to_string()));
         }
         if s.batch == Some(0) {
             return Err(bad("simplify.batch", "at least 1 face", "0".into()));
         }
-        if s.boundary == Some(BoundaryKind::Planar) && s.priority == PriorityKind::AttributeQuadric
+        if s.boundary == Some(BoundaryKind::Planar)
+            && s.priority() == PriorityKind::AttributeQuadric
         {
             return Err(bad(
                 "simplify.boundary",
@@ -875,7 +992,7 @@ impl JobConfig {
     }
 
     fn cascade_possible(&self) -> bool {
-        self.simplify.mode == Mode::Rate && self.simplify.priority == PriorityKind::Geometric
+        self.simplify.mode == Mode::Rate && self.simplify.priority() == PriorityKind::Geometric
     }
 
     /// When the default left a job that could run two simplifier stages on one because its
@@ -1041,6 +1158,126 @@ mod tests {
         let text = format!("{MINIMAL}\n[simplify]\nrate = 0.5\nerror = 0.1\n");
         let err = parse(&text).unwrap_err().to_string();
         assert!(err.contains("simplify.error"), "{err}");
+    }
+
+    /// A key the mode or priority does not read is refused, naming the key, what ignores it and
+    /// where it applies; where it is read it is accepted (the trial's ignored keys first, then
+    /// the rest of the audit).
+    #[test]
+    fn keys_the_mode_or_priority_ignores_are_refused() {
+        let job = |simplify: &str| parse(&format!("{MINIMAL}\n[simplify]\n{simplify}\n"));
+        let refused = [
+            (
+                "mode = \"error\"\nerror = 0.1\nbatch = 1000",
+                "batch",
+                "mode \"error\"",
+                "mode = \"rate\"",
+            ),
+            (
+                "mode = \"error\"\nerror = 0.1\ninitial_rate = 0.5",
+                "initial_rate",
+                "mode \"error\"",
+                "mode = \"rate\"",
+            ),
+            (
+                "time_lag = false",
+                "time_lag",
+                "mode \"rate\"",
+                "mode = \"error\"",
+            ),
+            (
+                "isotropy = 0.5",
+                "isotropy",
+                "mode \"rate\"",
+                "mode = \"error\" or \"classical\"",
+            ),
+            (
+                "retire_lag = 2",
+                "retire_lag",
+                "mode \"rate\"",
+                "mode = \"error\" or \"classical\"",
+            ),
+            (
+                "mode = \"classical\"\nerror = 0.1\ntime_lag = true",
+                "time_lag",
+                "mode \"classical\"",
+                "mode = \"error\"",
+            ),
+            (
+                "mode = \"none\"\nretire_lag = 8",
+                "retire_lag",
+                "mode \"none\"",
+                "mode = \"error\" or \"classical\"",
+            ),
+            (
+                "mode = \"none\"\npriority = \"geometric\"",
+                "priority",
+                "mode \"none\"",
+                "mode = \"rate\", \"error\" or \"classical\"",
+            ),
+            (
+                "mode = \"none\"\nboundary = \"exact\"",
+                "boundary",
+                "mode \"none\"",
+                "mode = \"rate\", \"error\" or \"classical\"",
+            ),
+            (
+                "mode = \"none\"\nbatch = 10",
+                "batch",
+                "mode \"none\"",
+                "mode = \"rate\"",
+            ),
+            (
+                "mode = \"none\"\nrate = 0.2",
+                "rate",
+                "mode \"none\"",
+                "mode = \"rate\"",
+            ),
+            (
+                "error = 0.1",
+                "error",
+                "mode \"rate\"",
+                "mode = \"error\" or \"classical\"",
+            ),
+            (
+                "lambda = 0.3",
+                "lambda",
+                "priority \"geometric\"",
+                "priority = \"data-dependent\"",
+            ),
+        ];
+        for (simplify, key, ignored_by, fix) in refused {
+            let err = job(simplify).unwrap_err().to_string();
+            assert!(
+                err.starts_with(&format!(
+                    "job.toml: `simplify.{key}` must be absent unless {fix} ("
+                )) && err.contains(&format!(
+                    "{ignored_by} ignores it: remove it, or use {fix} where it applies"
+                )) && !err.contains('\n'),
+                "{simplify}: {err}"
+            );
+        }
+        for read in [
+            "batch = 1000\ninitial_rate = 0.4\nboundary = \"exact\"\npriority = \"geometric\"",
+            "mode = \"error\"\nerror = 0.1\ntime_lag = false\nisotropy = 0.5\nretire_lag = 2",
+            "mode = \"classical\"\nerror = 0.1\nisotropy = 0.5\nretire_lag = 2\nboundary = \"exact\"",
+            "mode = \"none\"\nmin_component_faces = 10",
+            "priority = \"data-dependent\"\nlambda = 0.3",
+        ] {
+            job(read).unwrap_or_else(|e| panic!("{read}: {e}"));
+        }
+    }
+
+    /// The service stores a job as `toml::to_string` of its config and validates it again when it
+    /// restarts: keys left out must stay out, or every default would come back as a key its mode
+    /// ignores.
+    #[test]
+    fn a_stored_job_keeps_its_keys_left_out() {
+        let text = format!("{MINIMAL}\n[simplify]\nmode = \"error\"\nerror = 0.1\n");
+        let stored = toml::to_string(&parse(&text).unwrap()).unwrap();
+        let again = parse(&stored).unwrap_or_else(|e| panic!("{stored}: {e}"));
+        assert_eq!(again.simplify.initial_rate, None, "{stored}");
+        assert!(again.simplify.time_lag());
     }
 
     #[test]

@@ -693,21 +693,21 @@ fn simplifier_config(
             Mode::Rate => Policy::Rate {
                 rate,
                 batch: s.batch.unwrap_or(u64::MAX),
-                initial_rate: s.initial_rate,
+                initial_rate: s.initial_rate(),
             },
             Mode::Error => Policy::Error {
                 e0: s.error.unwrap_or(f64::INFINITY),
-                time_lag: s.time_lag,
-                isotropy: s.isotropy,
+                time_lag: s.time_lag(),
+                isotropy: s.isotropy(),
             },
             // Everything is modifiable when classical decimation starts: no front, no time-lag.
             Mode::Classical => Policy::Error {
                 e0: s.error.unwrap_or(f64::INFINITY),
                 time_lag: false,
-                isotropy: s.isotropy,
+                isotropy: s.isotropy(),
             },
         },
-        retire_lag: s.retire_lag,
+        retire_lag: s.retire_lag(),
         max_resident_faces: job.max_resident_faces(grid.dims, largest_slab),
         attributes: job.attributes.len(),
         cascade: Cascade::Single,
