@@ -160,6 +160,23 @@ pub(crate) fn validate(job: &JobConfig, origin: &Path) -> Result<(), ConfigError
             "no attributes".into(),
         ));
     }
+    // The data-dependent weight is lambda x angle deficit + (1 - lambda) x attribute gradient:
+    // without attributes the gradient is 0, so lambda > 0 orders by curvature alone (every such
+    // lambda gives the same bytes) and lambda = 0 weighs every edge 0, leaving the order to the
+    // queue's ties (engine at R = 0.1: 22 boundary edges left where the geometric order leaves
+    // 482). Only that combination means nothing.
+    if s.priority() == PriorityKind::DataDependent
+        && s.lambda == Some(0.0)
+        && job.attributes.is_empty()
+    {
+        return Err(bad(
+            "simplify.lambda".into(),
+            "above 0 with priority = \"data-dependent\" and no [[attributes]] entry (lambda = 0 \
+             weighs only the attributes' gradient, so every edge would weigh 0: raise lambda to \
+             order by curvature, or add an [[attributes]] entry)",
+            "0".into(),
+        ));
+    }
     Ok(())
 }
 

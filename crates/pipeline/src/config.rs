@@ -1268,6 +1268,28 @@ mod tests {
         }
     }
 
+    /// The data-dependent weight without attributes is lambda x curvature: lambda = 0 weighs
+    /// every edge 0 and is refused, naming the fixes; any other lambda, or attributes, are fine.
+    #[test]
+    fn data_dependent_without_attributes_needs_a_curvature_weight() {
+        let job = |lambda: &str, attributes: &str| {
+            parse(&format!(
+                "{MINIMAL}\n[simplify]\nrate = 0.1\npriority = \"data-dependent\"\n{lambda}\n{attributes}"
+            ))
+        };
+        let err = job("lambda = 0.0", "").unwrap_err().to_string();
+        assert!(
+            err.starts_with("job.toml: `simplify.lambda` must be above 0 with priority = \"data-dependent\" and no [[attributes]] entry")
+                && err.contains("raise lambda")
+                && err.contains("add an [[attributes]] entry"),
+            "{err}"
+        );
+        let gradient = "[[attributes]]\nname = \"g\"\nderive = \"gradient_magnitude\"";
+        for (lambda, attributes) in [("lambda = 0.0", gradient), ("lambda = 0.3", ""), ("", "")] {
+            job(lambda, attributes).unwrap_or_else(|e| panic!("{lambda} {attributes}: {e}"));
+        }
+    }
+
     /// The service stores a job as `toml::to_string` of its config and validates it again when it
     /// restarts: keys left out must stay out, or every default would come back as a key its mode
     /// ignores.
