@@ -12,7 +12,7 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     let job = JobConfig::load(job_path)?;
     // The input file (exists, size matches dims and type), the attributes' files (on the iso
     // volume's grid) and the output format's index limit, as `run` checks them.
-    let source = isostream_pipeline::preflight(&job)?;
+    let mut source = isostream_pipeline::preflight(&job)?;
     let grid = source.grid();
     println!(
         "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
@@ -27,6 +27,11 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     );
     if let Some(w) = isostream_pipeline::orientation_warning(source.as_ref()) {
         println!("{}: warning: {w}", job_path.display());
+    }
+    // `run` would refuse to start over a checkpoint without --resume or --restart: said here,
+    // with which of the two it can take, as a note (the job itself is fine).
+    if let Some(note) = isostream_pipeline::checkpoint_note(&job, source.as_mut())? {
+        println!("{}: note: {note}", job_path.display());
     }
     Ok(())
 }

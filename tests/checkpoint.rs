@@ -301,7 +301,7 @@ fn a_real_volume_resumes_to_the_same_bytes() {
 
 /// Without `--resume` a checkpoint is reported, not overwritten; `--restart` starts over; a
 /// changed job or input is refused; a corrupt or truncated checkpoint is one line, and nothing
-/// is touched.
+/// is touched. `validate` passes the job and notes which of the flags `run` needs.
 #[test]
 fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     let dir = tempfile::tempdir().unwrap();
@@ -329,6 +329,25 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     let o = isostream(&["run", "--quiet", &job_arg]);
     assert_one_line_error(&o, 2, &["found a checkpoint at", "add --resume"]);
     assert_eq!(hidden_files(dir.path()), before);
+    let validate_notes = |needles: &[&str]| {
+        let o = isostream(&["validate", &job_arg]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let out = String::from_utf8_lossy(&o.stdout);
+        let note =
+            format!("{job_arg}: note: a checkpoint of an interrupted run of this output exists (");
+        assert!(
+            out.lines()
+                .any(|l| l.starts_with(&note) && needles.iter().all(|n| l.contains(n))),
+            "{needles:?} in {out}"
+        );
+        assert_eq!(hidden_files(dir.path()), before, "validate touched files");
+    };
+    validate_notes(&[
+        " %, ",
+        ".out.smb.ckpt",
+        "`run` needs --resume to continue it",
+        "--restart",
+    ]);
 
     // Another iso value is another job.
     load(dir.path(), "job.toml", &text("iso = 0.1"));
@@ -338,6 +357,7 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
         2,
         &["the job file changed since the checkpoint", "--restart"],
     );
+    validate_notes(&["but the job file changed since the checkpoint: `run` needs --restart"]);
     load(dir.path(), "job.toml", &text("iso = 0.0"));
 
     // Corrupt (one bit), truncated, of another version, not a checkpoint.
@@ -356,6 +376,7 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
         let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
         assert_one_line_error(&o, 1, &[needle, ".out.smb.ckpt", "--restart"]);
         assert_eq!(hidden_files(dir.path()), before, "{needle}: files touched");
+        validate_notes(&["but cannot be resumed (", needle, "`run` needs --restart"]);
         assert_eq!(std::fs::read(&ckpt).unwrap(), bytes, "{needle}");
         assert!(!dir.path().join("out.smb").exists());
     }
@@ -386,6 +407,8 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!ckpt.exists());
     assert_eq!(hidden_files(dir.path()), Vec::<String>::new());
+    let o = isostream(&["validate", &job_arg]);
+    assert!(o.status.success() && !String::from_utf8_lossy(&o.stdout).contains("note:"));
 }
 
 /// `kill -9` of `isostream run` at random moments, then `isostream run --resume` until done:

@@ -53,6 +53,7 @@ use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
 
+use isostream_volume::VolumeSource;
 use twox_hash::XxHash64;
 
 use serde::{Deserialize, Serialize, de::DeserializeOwned};
@@ -262,7 +263,22 @@ pub(crate) struct InputIdentity {
 }
 
 impl InputIdentity {
-    pub fn of(job: &JobConfig, describe: String, dims: [u64; 3], first_slice: u64) -> Self {
+    /// The identity of `job`'s input as `source` reads it now: what a run saves and what a
+    /// resume ([`verify`]) and `isostream validate` ([`checkpoint_note`]) compare with it.
+    pub fn read(job: &JobConfig, source: &mut dyn VolumeSource) -> Result<Self, RunError> {
+        let grid = source.grid();
+        let first_slice = match source.slice_rows(0, None)? {
+            Some(rows) => crate::attributes::hash_rows(rows.as_ref(), &grid),
+            None => {
+                let mut first = vec![0f32; grid.slice_len()];
+                source.read_slice(0, &mut first)?;
+                hash_slice(&first)
+            }
+        };
+        Ok(Self::of(job, source.describe(), grid.dims, first_slice))
+    }
+
+    fn of(job: &JobConfig, describe: String, dims: [u64; 3], first_slice: u64) -> Self {
         let paths = job
             .input
             .path
@@ -584,6 +600,49 @@ pub(crate) fn verify(
         });
     }
     Ok(())
+}
+
+/// What `isostream validate` says of the checkpoint an interrupted run of `job`'s output left
+/// (`None` without one): `validate` checks the job, not the command, so this is a note, but
+/// `run` refuses to start while it is there, and only the run's own checks ([`read`], then
+/// [`verify`] against the job and the input `source` reads now) say whether `--resume` can
+/// continue it or only `--restart` will do.
+pub fn checkpoint_note(
+    job: &JobConfig,
+    source: &mut dyn VolumeSource,
+) -> Result<Option<String>, RunError> {
+    let path = path_for(&job.output.path);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let found = |at: String| {
+        format!(
+            "a checkpoint of an interrupted run of this output exists ({at}{})",
+            path.display()
+        )
+    };
+    let ckpt = match read(&path) {
+        Ok(ckpt) => ckpt,
+        Err(RunError::Checkpoint { reason, .. }) => {
+            return Ok(Some(format!(
+                "{} but cannot be resumed ({reason}); `run` needs --restart",
+                found(String::new())
+            )));
+        }
+        Err(e) => return Err(e),
+    };
+    let found = found(format!("{:.0} %, ", ckpt.percent()));
+    let input = InputIdentity::read(job, source)?;
+    Ok(Some(match verify(&path, &ckpt, job, &input) {
+        Ok(()) => format!(
+            "{found}; `run` needs --resume to continue it (the job and its input are unchanged) \
+             or --restart to start over"
+        ),
+        Err(RunError::ResumeMismatch { what, .. }) => {
+            format!("{found}, but {what}: `run` needs --restart (it starts over)")
+        }
+        Err(e) => return Err(e),
+    }))
 }
 
 /// Removes a checkpoint and the temporary files it refers to (a run starting over, or done).

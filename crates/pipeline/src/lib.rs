@@ -39,7 +39,7 @@ use serde::Serialize;
 use tracing::{info, warn};
 
 pub use attributes::{AttributeConfig, Derived, SliceReader, Slices};
-pub use checkpoint::{path_for as checkpoint_path, resumable_files};
+pub use checkpoint::{checkpoint_note, path_for as checkpoint_path, resumable_files};
 pub use config::{
     CheckpointConfig, CheckpointEvery, ExtractConfig, InputConfig, JobConfig, LogConfig, LogFormat,
     Mode, OutputConfig, PipelineConfig, PriorityKind, SimplifyConfig,
@@ -251,22 +251,7 @@ fn run_job(
     let mut second = second_config.as_ref().map(new_simplifier).transpose()?;
     let every = job.pipeline.checkpoint.every(grid.voxel_count());
     let identity = match every.is_some() || saved.is_some() {
-        true => {
-            let first = match source.slice_rows(0, None)? {
-                Some(rows) => attributes::hash_rows(rows.as_ref(), &grid),
-                None => {
-                    let mut first = vec![0f32; grid.slice_len()];
-                    source.read_slice(0, &mut first)?;
-                    checkpoint::hash_slice(&first)
-                }
-            };
-            Some(checkpoint::InputIdentity::of(
-                job,
-                input.clone(),
-                grid.dims,
-                first,
-            ))
-        }
+        true => Some(checkpoint::InputIdentity::read(job, source.as_mut())?),
         false => None,
     };
     let header = Header {
