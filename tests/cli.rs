@@ -187,8 +187,9 @@ fn unwritable_output_fails_before_work() {
     assert_one_line_error(&isostream(&["run", &job]), 2, &["output.path", "/proc"]);
 }
 
+/// NaN voxels are outside the surface, counted in the run summary and warned about.
 #[test]
-fn nan_voxels_are_outside_and_counted() {
+fn nan_voxels_are_outside_counted_and_warned() {
     let dir = tempfile::tempdir().unwrap();
     let mut vol = random_blobs([16, 16, 16], 1, 7);
     for v in vol.data.iter_mut().step_by(97) {
@@ -202,6 +203,23 @@ fn nan_voxels_are_outside_and_counted() {
             .unwrap();
     let nan = summary["extract"]["non_finite_voxels"].as_u64().unwrap();
     assert!(nan > 0, "{summary}");
+    // Said, not only counted: a mostly non-finite volume made a mesh of something else
+    // silently.
+    let said = format!("{nan} of the 4096 voxels");
+    assert!(
+        summary["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains(&said)),
+        "{summary}"
+    );
+    let log = stderr(&o);
+    assert!(
+        log.lines()
+            .any(|l| l.contains("WARN") && l.contains(&said) && l.contains("treated as outside")),
+        "{log}"
+    );
     let r = Mesh::read(&dir.path().join("o.smb")).check();
     assert!(r.is_valid_manifold(), "{r:?}");
 }

@@ -384,6 +384,7 @@ fn run_job(
         .into_iter()
         .chain(front_stretched(job, budget_faces, &outputs.simplify))
         .chain(faces_past_the_surface(job, faces_kept))
+        .chain(non_finite_voxels(&outputs.extract, grid.voxel_count()))
         .chain(non_finite_attributes(&outputs.extract))
         .collect();
     if let Some(p) = &outputs.prune {
@@ -756,6 +757,20 @@ fn rate_missed(
             stats.rejected_flip,
             stats.rejected_intersection,
             stats.rejected_unguarded,
+        )
+    })
+}
+
+/// Voxels of the iso volume that were NaN or infinite. They are treated as outside, so a surface
+/// is made around them and the run succeeds; but a volume mostly non-finite (masked data, a
+/// header scale that overflows) gave a mesh of something else with no word said, which the
+/// user must hear about (an all-non-finite volume is refused as empty before this).
+fn non_finite_voxels(extract: &ExtractStats, voxels: u64) -> Option<String> {
+    let n = extract.non_finite_voxels;
+    (n > 0).then(|| {
+        format!(
+            "{n} of the {voxels} voxels ({:.1} %) of the volume were NaN or infinite and were treated as outside, the surface going around them (extract.non_finite_voxels); fill those voxels in the input, or fix its header's scaling, if they belong inside",
+            100.0 * n as f64 / voxels.max(1) as f64
         )
     })
 }
