@@ -372,7 +372,7 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
                 files = data_files(value, dir, &lines[i..]).ok_or_else(|| {
                     err(
                         n,
-                        "a file name, \"LIST\" or \"name.%d first last step\"",
+                        "a file name, \"LIST\" or \"name.%d first last step\" (a %Nd width of at most 255)",
                         value,
                     )
                 })?;
@@ -490,7 +490,12 @@ fn data_files(value: &str, dir: &Path, rest: &[String]) -> Option<Vec<PathBuf>> 
     Some(names.into_iter().map(|n| dir.join(n)).collect())
 }
 
-/// Substitutes `v` for the single `%d`, `%Nd` or `%0Nd` in `pattern`.
+/// The widest `%Nd` a file name can hold: no file system takes a longer name, and `format!`
+/// panics past `u16::MAX` ("Formatting argument out of range").
+const MAX_NAME_WIDTH: usize = 255;
+
+/// Substitutes `v` for the single `%d`, `%Nd` or `%0Nd` in `pattern`; `None` for a width past
+/// [`MAX_NAME_WIDTH`].
 fn printf_d(pattern: &str, v: i64) -> Option<String> {
     let start = pattern.find('%')?;
     let rest = &pattern[start + 1..];
@@ -500,7 +505,7 @@ fn printf_d(pattern: &str, v: i64) -> Option<String> {
     let width: usize = if spec.is_empty() {
         0
     } else {
-        spec.parse().ok()?
+        spec.parse().ok().filter(|&w| w <= MAX_NAME_WIDTH)?
     };
     let num = if zero {
         format!("{v:0width$}")

@@ -224,6 +224,18 @@ fn printf_forms() {
     assert_eq!(printf_d("a%03d.raw", 7).as_deref(), Some("a007.raw"));
     assert_eq!(printf_d("a%3d", 7).as_deref(), Some("a  7"));
     assert_eq!(printf_d("nopattern", 7), None);
+    assert_eq!(printf_d("a%0255d", 7).map(|n| n.len()), Some(256));
+    // Widths past what `format!` takes panicked ("Formatting argument out of range").
+    for width in [
+        "256",
+        "100000000",
+        "2147483648",
+        "4294967296",
+        "99999999999999999999",
+    ] {
+        assert_eq!(printf_d(&format!("a.%{width}d"), 7), None, "{width}");
+        assert_eq!(printf_d(&format!("a.%0{width}d"), 7), None, "{width}");
+    }
 }
 
 /// Writes `file` as an attached NRRD and returns the outcome with the temp path replaced by DIR.
