@@ -97,6 +97,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     }
     Ok(Box::new(Scaled {
         inner,
+        path: path.to_path_buf(),
         slope: h.slope,
         inter: if h.inter.is_finite() { h.inter } else { 0.0 },
     }))
@@ -261,9 +262,14 @@ fn qform_orientation(f64_at: &dyn Fn(usize) -> f64) -> Orientation {
     }))
 }
 
-/// Applies `value * slope + inter` (NIfTI's scl_slope / scl_inter) to every voxel.
+/// Applies `value * slope + inter` (NIfTI's scl_slope / scl_inter) to every voxel, and refuses
+/// a scaling that overflows `f32` on a finite stored value: those voxels became infinite and
+/// were meshed as outside (a scl_slope of 1e38 made 96 % of a volume so, with exit 0), when the
+/// header, not the data, is wrong.
 struct Scaled {
     inner: Box<dyn VolumeSource>,
+    /// The header, named in the error.
+    path: std::path::PathBuf,
     slope: f32,
     inter: f32,
 }
@@ -277,10 +283,27 @@ impl VolumeSource for Scaled {
     }
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
         self.inner.read_slice(z, out)?;
+        let mut overflow = None;
         for v in out.iter_mut() {
-            *v = *v * self.slope + self.inter;
+            let scaled = *v * self.slope + self.inter;
+            if overflow.is_none() && !scaled.is_finite() && v.is_finite() {
+                overflow = Some(*v);
+            }
+            *v = scaled;
         }
-        Ok(())
+        match overflow {
+            None => Ok(()),
+            Some(stored) => Err(VolumeError::format(
+                &self.path,
+                "header field scl_slope",
+                format!(
+                    "a scaling that keeps every voxel within f32's 3.4e38 (with scl_inter {}, \
+                     the stored value {stored} of slice {z} becomes infinite)",
+                    self.inter
+                ),
+                format!("{:e}", self.slope),
+            )),
+        }
     }
     fn dtype(&self) -> Option<Dtype> {
         self.inner.dtype()

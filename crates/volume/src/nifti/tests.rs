@@ -174,6 +174,38 @@ fn every_type_endian_and_compression() {
     }
 }
 
+/// A scl_slope that overflows f32 on stored values made them infinite, meshed as outside with
+/// exit 0: refused, naming the field.
+#[test]
+fn scaling_past_f32_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut h = Hdr::new(Dtype::F32, Endian::Little);
+    h.slope = 1e38;
+    let values: Vec<f64> = (0..24).map(|i| i as f64 * 0.25).collect();
+    let mut file = h.bytes();
+    file.extend(encode(Dtype::F32, Endian::Little, &values));
+    let p = dir.path().join("s.nii");
+    std::fs::write(&p, &file).unwrap();
+    let err = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("s.nii: header field scl_slope: expected a scaling that keeps every voxel")
+            && err.contains("the stored value 3.5 of slice 2 becomes infinite")
+            && err.ends_with("found \"1e38\""),
+        "{err}"
+    );
+    // Stored infinities stay what they are: the scaling did not make them.
+    h.slope = 2.0;
+    let mut file = h.bytes();
+    let mut values = values;
+    values[3] = f64::INFINITY;
+    file.extend(encode(Dtype::F32, Endian::Little, &values));
+    std::fs::write(&p, &file).unwrap();
+    let read = read_all(&p, &OpenOptions::default()).unwrap();
+    assert!(read[3].is_infinite() && read[4] == 2.0, "{read:?}");
+}
+
 #[test]
 fn scaling_origin_and_pairs() {
     let dir = tempfile::tempdir().unwrap();
