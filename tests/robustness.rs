@@ -493,6 +493,38 @@ fn fifo_input_is_refused_not_waited_on() {
     assert!(leftovers(dir.path(), &["v.raw", "v.nhdr"]).is_empty());
 }
 
+/// A FIFO given to `convert`, `check` or `measure` blocked in `open` (deaf to Ctrl-C and
+/// SIGTERM, its output's lock held until `kill -9`); a device was read by its size (`/dev/zero`
+/// "is empty"). Both are refused before anything opens them, as `run` refuses them.
+#[cfg(unix)]
+#[test]
+fn mesh_commands_refuse_a_fifo_or_a_device() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["m.smb", "m.obj", "m.ply"] {
+        let fifo = dir.path().join(name);
+        assert!(
+            Command::new("mkfifo")
+                .arg(&fifo)
+                .status()
+                .unwrap()
+                .success()
+        );
+        let fifo = fifo.to_string_lossy().into_owned();
+        let out = dir.path().join("o.stl").to_string_lossy().into_owned();
+        for args in [
+            vec!["convert", &fifo, &out],
+            vec!["check", &fifo],
+            vec!["measure", &fifo],
+        ] {
+            let o = wait_at_most(bin().args(&args).spawn().unwrap(), 20);
+            assert_one_line_error(&o, 2, &[name, "expected a regular file, found a FIFO"]);
+        }
+    }
+    let o = wait_at_most(bin().args(["check", "/dev/zero"]).spawn().unwrap(), 20);
+    assert_one_line_error(&o, 2, &["/dev/zero", "found a character device"]);
+    assert!(leftovers(dir.path(), &["m.smb", "m.obj", "m.ply"]).is_empty());
+}
+
 fn sphere_job(dir: &Path, output: &str, extra: &str) -> String {
     write_job(
         dir,

@@ -23,6 +23,7 @@ pub struct IndexedMesh {
 /// In-memory load of a (small) mesh of any supported format: positions, triangles, per-vertex
 /// attributes. Streaming inputs are checked against the streaming rules on the way.
 pub fn read_indexed(path: &Path) -> Result<IndexedMesh, SmeshError> {
+    crate::input::regular_file(path)?;
     let mesh = match Format::from_path(path)? {
         Format::Sma | Format::Smb => return read_stream(path),
         Format::Ply => ply::read(path),

@@ -23,6 +23,7 @@ mod format;
 mod glb;
 mod index;
 mod indexed;
+mod input;
 mod obj;
 mod ply;
 mod reader;

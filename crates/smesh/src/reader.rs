@@ -66,6 +66,7 @@ impl StreamReader {
     /// Opens `path`; the format comes from the extension (.sma, .smb) or, for other names, from the
     /// first bytes (an SMB magic, otherwise SMA).
     pub fn open(path: &Path) -> Result<StreamReader, SmeshError> {
+        crate::input::regular_file(path)?;
         let mut file = File::open(path).map_err(|e| SmeshError::io(path, "open", e))?;
         let format = match Format::from_path(path) {
             Ok(f @ (Format::Sma | Format::Smb)) => f,
