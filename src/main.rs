@@ -3,7 +3,8 @@
 //! Errors reach the user as one line (`error: ...`) naming the file and the fix, with a
 //! non-zero exit code: 2 for a bad job or bad input (a mesh given to check, convert, measure or
 //! report included, and a service configuration `serve` refuses), 130 for Ctrl-C, SIGTERM or
-//! SIGHUP, 1 otherwise.
+//! SIGHUP, 1 otherwise (a failed write of the answer to stdout included, `> /dev/full`). A stdout
+//! whose reader closed it (`| head`) ends the command quietly with 0.
 
 #![deny(unsafe_code)]
 
@@ -13,6 +14,7 @@ mod measure_cmd;
 mod progress;
 mod run_cmd;
 mod serve_cmd;
+mod stdout;
 
 use std::process::ExitCode;
 
@@ -97,6 +99,17 @@ fn main() -> ExitCode {
     };
     match cli.command.execute() {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader of stdout went away (`| head`): the work is done and nobody is left to
+        // read an error line, so exit quietly with 0, as ripgrep does (a shell's `cat`, killed
+        // by SIGPIPE, gives 141; Rust ignores SIGPIPE, and the answer was only cut short).
+        Err(err)
+            if err.chain().any(|c| {
+                c.downcast_ref::<stdout::StdoutError>()
+                    .is_some_and(stdout::StdoutError::is_closed_pipe)
+            }) =>
+        {
+            ExitCode::SUCCESS
+        }
         Err(err) => {
             let code = exit_code(&err);
             eprintln!("{}", logging::error_line(&one_line(&err), code));

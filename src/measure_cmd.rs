@@ -112,9 +112,9 @@ pub fn measure(
         attributes,
     };
     if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        crate::stdout::line(serde_json::to_string_pretty(&report)?)?;
     } else {
-        print!("{}", report.to_text());
+        crate::stdout::text_as_is(report.to_text())?;
     }
     Ok(())
 }

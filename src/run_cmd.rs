@@ -14,7 +14,7 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     // volume's grid) and the output format's index limit, as `run` checks them.
     let mut source = isostream_pipeline::preflight(&job)?;
     let grid = source.grid();
-    println!(
+    crate::stdout::line(format_args!(
         "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
         job_path.display(),
         source.describe(),
@@ -24,9 +24,9 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
         job.extract.iso,
         job.simplify.mode,
         job.output.path.display()
-    );
+    ))?;
     if let Some(w) = isostream_pipeline::orientation_warning(source.as_ref()) {
-        println!("{}: warning: {w}", job_path.display());
+        crate::stdout::line(format_args!("{}: warning: {w}", job_path.display()))?;
     }
     // `run` would refuse to start over a checkpoint without --resume or --restart: said here,
     // with which of the two it can take, as a note (the job itself is fine).
@@ -84,7 +84,13 @@ pub fn run(
         crate::progress::finish(bar);
     }
     let summary = summary?;
-    report(&summary);
+    // The output is complete by now: the error says so, or it reads like a failed run.
+    report(&summary).with_context(|| {
+        format!(
+            "{}: written, but not its summary line",
+            normalised(&summary.output).display()
+        )
+    })?;
     Ok(())
 }
 
@@ -135,8 +141,8 @@ fn normalised(path: &Path) -> std::path::PathBuf {
 
 /// The `job done` line: numbers as numbers (a JSON log reader got `"seconds":"6.443"`), rounded
 /// to what is worth reading (seconds to the millisecond, MiB to a tenth); an unknown peak RSS is
-/// left out rather than logged as NaN.
-fn report(s: &RunSummary) {
+/// left out rather than logged as NaN. Then the one line on stdout.
+fn report(s: &RunSummary) -> Result<(), crate::stdout::StdoutError> {
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
     let ms = |x: f64| (x * 1000.0).round() / 1000.0;
     tracing::info!(
@@ -159,14 +165,14 @@ fn report(s: &RunSummary) {
             p.faces_pruned, p.components_pruned, p.min_component_faces
         )
     });
-    println!(
+    crate::stdout::line(format_args!(
         "{}: {} -> {} faces{pruned} in {:.2} s, peak RSS {:.1} MiB",
         normalised(&s.output).display(),
         s.faces_extracted,
         s.faces_written,
         s.seconds,
         s.peak_rss_bytes.map(mib).unwrap_or(f64::NAN)
-    );
+    ))
 }
 
 /// `isostream report`: the run summary (and a measure report) as one HTML page.
@@ -189,12 +195,12 @@ pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow:
     };
     let page = isostream_report::html(&summary, measure.as_ref())?;
     isostream_report::write(output, &page)?;
-    println!(
+    crate::stdout::line(format_args!(
         "{}: report of {} ({} bytes)",
         normalised(output).display(),
         run.display(),
         page.len()
-    );
+    ))?;
     Ok(())
 }
 
@@ -283,7 +289,7 @@ pub fn convert(
             "dropped_vertices": stats.dropped_vertices,
             "dropped_triangles": stats.dropped_triangles,
         });
-        println!("{v}");
+        crate::stdout::line(v)?;
         return Ok(());
     }
     let mut line = format!(
@@ -312,7 +318,7 @@ pub fn convert(
             stats.dropped_vertices
         ));
     }
-    println!("{line}");
+    crate::stdout::line(line)?;
     Ok(())
 }
 
@@ -321,9 +327,10 @@ pub fn check(mesh: &Path, json: bool) -> anyhow::Result<()> {
         Ok(r) => r,
         Err(e) => {
             // A script reading stdout gets an answer too, not only the error line on stderr.
+            // The mesh's error is the answer: a failure to write this one is not reported over it.
             if json {
                 let v = serde_json::json!({ "path": mesh, "valid": false, "error": e.to_string() });
-                println!("{v}");
+                let _ = crate::stdout::line(v);
             }
             return Err(e.into());
         }
@@ -340,7 +347,7 @@ pub fn check(mesh: &Path, json: bool) -> anyhow::Result<()> {
             "attributes": r.header.attribute_names,
             "comments": r.header.comments,
         });
-        println!("{v}");
+        crate::stdout::line(v)?;
         return Ok(());
     }
     let format = format!("{:?}", r.format).to_uppercase();
@@ -358,6 +365,6 @@ pub fn check(mesh: &Path, json: bool) -> anyhow::Result<()> {
             r.header.attribute_names.join(", ")
         ));
     }
-    println!("{line}");
+    crate::stdout::line(line)?;
     Ok(())
 }

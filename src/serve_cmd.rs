@@ -1,7 +1,6 @@
 //! `serve`: merges the flags with `--config FILE` into an `isostream_service::ServeConfig` and
 //! runs the service.
 
-use std::io::Write;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 
@@ -106,9 +105,9 @@ pub fn serve(args: ServeArgs) -> anyhow::Result<()> {
             .unwrap_or(DEFAULT_MAX_QUEUED),
     };
     isostream_service::serve(config, |addr| {
-        // One line on stdout that scripts (and the tests) wait for; logs go to stderr.
-        println!("isostream serve: listening on http://{addr}");
-        let _ = std::io::stdout().flush();
+        // One line on stdout that scripts (and the tests) wait for; logs go to stderr. A
+        // stdout nobody reads (closed, full) must not stop the service: the line is a courtesy.
+        let _ = crate::stdout::line(format_args!("isostream serve: listening on http://{addr}"));
     })?;
     Ok(())
 }

@@ -549,3 +549,55 @@ fn measure_finds_the_exact_distance_of_a_piece_farther_than_the_search_radius() 
     );
     assert!(!text.contains("lower bound"), "{text}");
 }
+
+/// A failed write of a command's answer to stdout panicked (exit 101 and a backtrace): on a
+/// full disk (`> /dev/full`) it is one error line and exit 1, after the work (the run's mesh is
+/// written); a reader that closed the pipe (`| head -c 10`) ends the command quietly, exit 0.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_failed_write_to_stdout_is_an_error_not_a_panic() {
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"sphere\"\nsize = [12, 12, 12]\n[extract]\niso = 0.0\n[output]\npath = \"o.smb\"\n",
+    );
+    let mesh = dir.path().join("o.smb").to_string_lossy().into_owned();
+    let ply = dir.path().join("o.ply").to_string_lossy().into_owned();
+    let bin = || {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_isostream"));
+        c.env("RUST_LOG", "warn").stderr(Stdio::piped());
+        c
+    };
+    let full = || Stdio::from(std::fs::File::create("/dev/full").unwrap());
+    let o = bin()
+        .args(["run", "--quiet", &job])
+        .stdout(full())
+        .output()
+        .unwrap();
+    assert_one_line_error(
+        &o,
+        1,
+        &[
+            "o.smb: written, but not its summary line: cannot write to standard output: No space left on device",
+        ],
+    );
+    assert!(Mesh::read(Path::new(&mesh)).check().is_valid_manifold());
+    let commands: [&[&str]; 5] = [
+        &["validate", &job],
+        &["check", &mesh, "--json"],
+        &["measure", &mesh, "--json"],
+        &["measure", &mesh],
+        &["convert", &mesh, &ply, "--json"],
+    ];
+    for args in commands {
+        let o = bin().args(args).stdout(full()).output().unwrap();
+        assert_one_line_error(&o, 1, &["cannot write to standard output: No space left"]);
+        // The reader gone before the answer comes.
+        let mut child = bin().args(args).stdout(Stdio::piped()).spawn().unwrap();
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {}", stderr(&o));
+        assert_eq!(stderr(&o), "", "{args:?}");
+    }
+}
