@@ -76,21 +76,37 @@ fn kill(child: &Child, signal: &str) {
 #[cfg(target_os = "linux")]
 #[test]
 fn write_error_mid_run_is_reported_not_a_deadlock() {
-    use std::os::unix::process::CommandExt;
     let dir = tempfile::tempdir().unwrap();
     let job = big_job(dir.path(), "out.sma");
     let mut cmd = bin();
     cmd.args(["run", &job]);
-    // SAFETY (why this test needs unsafe): `pre_exec` runs in the forked child before exec, where
-    // only async-signal-safe calls are allowed; setrlimit and signal are. The file-size limit
-    // (64 KiB) makes the output's writes fail with EFBIG once SIGXFSZ is ignored (it would
-    // otherwise kill the child, which is not what a full disk does).
+    let o = wait_at_most(
+        with_file_size_limit(&mut cmd, 64 * 1024).spawn().unwrap(),
+        60,
+    );
+    assert_one_line_error(&o, 1, &["out.sma", "File too large|No space left"]);
+    assert!(
+        leftovers(dir.path(), &[]).is_empty(),
+        "{:?}",
+        leftovers(dir.path(), &[])
+    );
+}
+
+/// `cmd` whose writes past `bytes` in one file fail with EFBIG, as a full disk's fail with
+/// ENOSPC.
+#[cfg(target_os = "linux")]
+fn with_file_size_limit(cmd: &mut Command, bytes: u64) -> &mut Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY (why these tests need unsafe): `pre_exec` runs in the forked child before exec,
+    // where only async-signal-safe calls are allowed; setrlimit and signal are. The file-size
+    // limit makes writes fail with EFBIG once SIGXFSZ is ignored (it would otherwise kill the
+    // child, which is not what a full disk does).
     #[allow(unsafe_code)]
     unsafe {
-        cmd.pre_exec(|| {
+        cmd.pre_exec(move || {
             let lim = libc::rlimit {
-                rlim_cur: 64 * 1024,
-                rlim_max: 64 * 1024,
+                rlim_cur: bytes,
+                rlim_max: bytes,
             };
             if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
                 return Err(std::io::Error::last_os_error());
@@ -99,12 +115,42 @@ fn write_error_mid_run_is_reported_not_a_deadlock() {
             Ok(())
         });
     }
-    let o = wait_at_most(cmd.spawn().unwrap(), 60);
-    assert_one_line_error(&o, 1, &["out.sma", "File too large|No space left"]);
-    assert!(
-        leftovers(dir.path(), &[]).is_empty(),
-        "{:?}",
-        leftovers(dir.path(), &[])
+    cmd
+}
+
+/// A checkpoint that could not be written (a full disk) said "Io { inner: Os { code: 28, .. },
+/// index: 720866 }" and "run with --restart", though the checkpoint saved before it is kept and
+/// `--resume` after freeing space finishes with the same bytes: the error is a sentence with
+/// that fix, and following it gives the output an uninterrupted run gives.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_checkpoint_write_failure_says_to_resume_from_the_one_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    // The output stays small (mode rate writes at the end) while each checkpoint holds the
+    // resident surface: the one of slab 10 is 3.4 MB, the one of slab 20 5.8 MB.
+    let body = |output: &str| {
+        format!(
+            "[input]\nshape = \"gyroid\"\nsize = [60, 60, 60]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.1\n[output]\npath = \"{output}\"\n[pipeline]\ncheckpoint = {{ every_slabs = 10 }}\n"
+        )
+    };
+    let reference = write_job(dir.path(), &body("ref.smb"));
+    assert!(bin().args(["run", &reference]).status().unwrap().success());
+    let job = write_job(dir.path(), &body("m.smb"));
+    let mut cmd = bin();
+    cmd.args(["run", &job]);
+    let o = wait_at_most(with_file_size_limit(&mut cmd, 4 << 20).spawn().unwrap(), 60);
+    assert_one_line_error(
+        &o,
+        1,
+        &[
+            ".m.smb.ckpt: cannot write the checkpoint: File too large (os error 27); free space on that disk, then run with --resume (the checkpoint of slab 10 of 59 is kept)",
+        ],
+    );
+    let o = bin().args(["run", "--resume", &job]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(dir.path().join("m.smb")).unwrap(),
+        std::fs::read(dir.path().join("ref.smb")).unwrap()
     );
 }
 

@@ -390,12 +390,12 @@ impl Partial {
         );
         let mut tmp = isostream_smesh::output_builder(&prefix)
             .tempfile_in(dir_of(path))
-            .map_err(|e| write_error(path, &e))?;
+            .map_err(|e| write_error(path, e))?;
         // The lengths are filled in by `finish`.
         tmp.write_all(&head([0; 3]))
-            .map_err(|e| write_error(path, &e))?;
+            .map_err(|e| write_error(path, e))?;
         let (hasher, simplify) = encode_hashed(tmp.as_file_mut(), XxHash64::with_seed(0), simplify)
-            .map_err(|e| write_error(path, &e))?;
+            .map_err(|e| write_error(path, e))?;
         Ok(Self {
             path: path.to_path_buf(),
             tmp,
@@ -415,7 +415,7 @@ impl Partial {
     pub fn append_second<T: Serialize + ?Sized>(&mut self, second: &T) -> Result<u64, RunError> {
         let hasher = std::mem::replace(&mut self.hasher, XxHash64::with_seed(0));
         let (hasher, len) = encode_hashed(self.tmp.as_file_mut(), hasher, second)
-            .map_err(|e| write_error(&self.path, &e))?;
+            .map_err(|e| write_error(&self.path, e))?;
         self.hasher = hasher;
         self.second += len;
         Ok(len)
@@ -431,7 +431,7 @@ impl Partial {
             simplify,
             second,
         } = self;
-        let fail = |e: std::io::Error| write_error(&path, &e);
+        let fail = |e: std::io::Error| write_error(&path, e);
         let (hasher, rest) = encode_hashed(tmp.as_file_mut(), hasher, ckpt).map_err(fail)?;
         let file = tmp.as_file_mut();
         file.write_all(&hasher.finish().to_le_bytes())
@@ -462,16 +462,23 @@ fn encode_hashed<T: Serialize + ?Sized>(
         hasher,
         len: 0,
     };
-    bincode::serde::encode_into_std_write(value, &mut w, config())
-        .map_err(|e| std::io::Error::other(e.to_string()))?;
+    // bincode wraps the writer's error: its Display was the Debug of the io::Error ("Io {
+    // inner: Os { code: 28, kind: StorageFull, .. }, index: 720866 }").
+    bincode::serde::encode_into_std_write(value, &mut w, config()).map_err(|e| match e {
+        bincode::error::EncodeError::Io { inner, .. } => inner,
+        other => std::io::Error::other(other.to_string()),
+    })?;
     w.flush()?;
     Ok((w.hasher, w.len))
 }
 
-fn write_error(path: &Path, e: &dyn std::fmt::Display) -> RunError {
-    RunError::Checkpoint {
+/// A checkpoint not written; the one saved before (a failed write never touches it) is named
+/// with its slab, read back now: this is the error path, once per run.
+fn write_error(path: &Path, source: std::io::Error) -> RunError {
+    RunError::CheckpointWrite {
         path: path.to_path_buf(),
-        reason: format!("cannot write the checkpoint: {e}"),
+        source,
+        kept: read(path).ok().map(|c| (c.slabs_done(), c.slabs_total)),
     }
 }
 
@@ -702,6 +709,25 @@ fn dir_of(path: &Path) -> &Path {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// bincode's error around the disk's was shown as Debug; the disk's own error comes out,
+    /// and the message says to resume, not to restart.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_full_disk_is_the_disk_s_error_and_the_fix_is_to_resume() {
+        let mut full = File::options().write(true).open("/dev/full").unwrap();
+        let e = encode_hashed(&mut full, XxHash64::with_seed(0), &vec![7u64; 1 << 16]).unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::StorageFull, "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(".o.smb.ckpt");
+        let msg = write_error(&path, e).to_string();
+        assert!(
+            msg.ends_with(
+                ".o.smb.ckpt: cannot write the checkpoint: No space left on device (os error 28); free space on that disk, then run with --resume (no checkpoint was saved before: it starts from the beginning)"
+            ),
+            "{msg}"
+        );
+    }
 
     fn sample() -> Checkpoint {
         Checkpoint {

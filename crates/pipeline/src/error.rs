@@ -100,6 +100,24 @@ pub enum RunError {
     },
     #[error("{}: {reason}; run with --restart to start over", path.display())]
     Checkpoint { path: PathBuf, reason: String },
+    /// Saving a checkpoint failed (a full disk): the run stops, and the checkpoint saved before
+    /// it, if any, is left as it was, so the fix is to resume, not to start over.
+    #[error(
+        "{}: cannot write the checkpoint: {source}; {}, then run with --resume ({})",
+        path.display(),
+        write_fix(source),
+        kept.map_or_else(
+            || "no checkpoint was saved before: it starts from the beginning".to_string(),
+            |(done, total)| format!("the checkpoint of slab {done} of {total} is kept")
+        )
+    )]
+    CheckpointWrite {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+        /// The slabs done and in all of the checkpoint saved before, if there is one.
+        kept: Option<(u64, u64)>,
+    },
     #[error("{}: {what}; run with --restart instead of --resume to start over", path.display())]
     ResumeMismatch { path: PathBuf, what: String },
     #[error(
@@ -108,4 +126,15 @@ pub enum RunError {
     InputChanged { input: String, what: String },
     #[error("internal error in the {stage} stage: {reason}; please report it with the job file")]
     Internal { stage: &'static str, reason: String },
+}
+
+/// What to do about a checkpoint that could not be written.
+fn write_fix(e: &std::io::Error) -> &'static str {
+    use std::io::ErrorKind;
+    match e.kind() {
+        ErrorKind::StorageFull | ErrorKind::QuotaExceeded | ErrorKind::FileTooLarge => {
+            "free space on that disk"
+        }
+        _ => "fix that",
+    }
 }

@@ -664,6 +664,7 @@ fn run_error_kind(e: &RunError) -> &'static str {
         RunError::Cancelled | RunError::Interrupted { .. } => "run_cancelled",
         RunError::CheckpointFound { .. }
         | RunError::Checkpoint { .. }
+        | RunError::CheckpointWrite { .. }
         | RunError::ResumeMismatch { .. }
         | RunError::InputChanged { .. } => "run_checkpoint",
         RunError::Internal { .. } => "run_internal",
