@@ -95,6 +95,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         path,
         mesh: IndexedMesh::default(),
         farthest: None,
+        unknown: None,
     };
     let mut statement = String::new();
     let mut first_line = 0;
@@ -104,6 +105,10 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         .enumerate()
     {
         let line = line.map_err(|e| SmeshError::io(path, "read", e))?;
+        // No text has a NUL byte: a PNG or an SMB renamed .obj read as an empty mesh.
+        if line.contains(&0) {
+            return Err(not_obj(path, format!("binary data on line {}", n + 1)));
+        }
         if statement.is_empty() {
             first_line = n as u64 + 1;
         }
@@ -132,6 +137,58 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     reader.finish()
 }
 
+/// The statements of the OBJ specification (Wavefront's Appendix B1), kept (`v`, `f`) or passed
+/// over (the rest).
+const STATEMENTS: &[&str] = &[
+    "v",
+    "vt",
+    "vn",
+    "vp",
+    "f",
+    "fo",
+    "l",
+    "p",
+    "g",
+    "o",
+    "s",
+    "mg",
+    "mtllib",
+    "usemtl",
+    "usemap",
+    "maplib",
+    "cstype",
+    "deg",
+    "bmat",
+    "step",
+    "curv",
+    "curv2",
+    "surf",
+    "parm",
+    "trim",
+    "hole",
+    "scrv",
+    "sp",
+    "end",
+    "con",
+    "bevel",
+    "c_interp",
+    "d_interp",
+    "lod",
+    "shadow_obj",
+    "trace_obj",
+    "ctech",
+    "stech",
+    "call",
+    "csh",
+];
+
+fn not_obj(path: &Path, found: String) -> SmeshError {
+    SmeshError::foreign(
+        path,
+        format!("not an OBJ file ({found}); is it another format renamed .obj?"),
+    )
+}
+
 /// A coordinate as `f32` reads it (what the mesh keeps), or, past `f32`'s range, the `f64`
 /// value, so that the range check names it as too large rather than as infinite.
 fn coordinate(word: &str) -> Option<f64> {
@@ -149,6 +206,11 @@ struct Reader<'a> {
     mesh: IndexedMesh,
     /// (0-based vertex, line of the face naming it).
     farthest: Option<(u64, u64)>,
+    /// The first statement that is none of [`STATEMENTS`] (its line and its start). Passed over
+    /// in a file with vertices (exporters add their own); in a file without, it says the file
+    /// is not an OBJ (a text file "hello" read as an empty mesh). Text that is not UTF-8 is
+    /// judged the same way: real OBJs have Latin-1 names and comments.
+    unknown: Option<(u64, String)>,
 }
 
 impl Reader<'_> {
@@ -207,6 +269,9 @@ impl Reader<'_> {
                     self.mesh.triangles.push(t);
                 }
             }
+            Some(word) if self.unknown.is_none() && !STATEMENTS.contains(&word) => {
+                self.unknown = Some((line, text.trim().chars().take(40).collect()));
+            }
             _ => {}
         }
         Ok(())
@@ -245,6 +310,13 @@ impl Reader<'_> {
 
     fn finish(self) -> Result<IndexedMesh, SmeshError> {
         let n = self.mesh.positions.len() as u64;
+        let empty = n == 0 && self.mesh.triangles.is_empty();
+        if let (true, Some((line, found))) = (empty, &self.unknown) {
+            return Err(not_obj(
+                self.path,
+                format!("found {found:?} on line {line}, and not one vertex or face"),
+            ));
+        }
         match self.farthest {
             Some((v, line)) if v >= n => Err(self.invalid(
                 line,
@@ -313,6 +385,36 @@ mod tests {
         );
         let e = read_text("v 1 2 3 0\n").unwrap_err();
         assert!(e.contains("line 1: a vertex of weight 0"), "{e}");
+    }
+
+    /// Files that are not OBJs (binary, or text without one OBJ statement) read as an empty
+    /// mesh, exit 0; OBJs with statements of their own still read.
+    #[test]
+    fn a_file_that_is_not_an_obj_is_refused() {
+        let e = read_text("\u{89}PNG\r\n\u{1a}\n\0\0\0\rIHDR").unwrap_err();
+        assert_eq!(
+            e,
+            "not an OBJ file (binary data on line 3); is it another format renamed .obj?"
+        );
+        let e = read_text("hello\n").unwrap_err();
+        assert_eq!(
+            e,
+            "not an OBJ file (found \"hello\" on line 1, and not one vertex or face); is it another format renamed .obj?"
+        );
+        let e = read_text("# a comment\n\nmtllib a.mtl\nply\nformat ascii 1.0\n").unwrap_err();
+        assert!(e.contains("found \"ply\" on line 4"), "{e}");
+        // Exporters' own statements pass, and so do Latin-1 names and an empty file.
+        let m = read_text("mtllib a.mtl\nusemtl caf\u{e9}\nexporter_tag 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\ns off\nl 1 2\np 3\nf 1 2 3\n")
+            .unwrap();
+        assert_eq!(m.triangles.len(), 1);
+        read_text("v 0 0 0\nfoo bar\n").unwrap();
+        assert!(read_text("").unwrap().positions.is_empty());
+        assert!(
+            read_text("# only a comment\ng empty\n")
+                .unwrap()
+                .positions
+                .is_empty()
+        );
     }
 
     #[test]
