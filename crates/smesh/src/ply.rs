@@ -8,11 +8,11 @@
 //! final bytes. Per-vertex attributes become extra `float` vertex properties.
 
 use std::fs::File;
-use std::io::{BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 
 use ply_rs_bw::parser::{Parser, Reader};
-use ply_rs_bw::ply::{Property, PropertyAccess, PropertyAccessResult, PropertyType};
+use ply_rs_bw::ply::{Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyType};
 
 use crate::atomic::{AtomicFile, Spill};
 use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
@@ -370,6 +370,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
             }
         }
     }
+    past_the_elements(path, input.get_mut(), header.encoding == Encoding::Ascii)?;
     let n = mesh.positions.len();
     let vertex = |what: &str, i: usize, v: i64| match usize::try_from(v) {
         Ok(v) if v < n => Ok(v as u32),
@@ -427,6 +428,32 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     Ok(mesh)
 }
 
+/// Refuses data after the last element the header declares: a header that undercounts its
+/// faces (`element face 15331` for 215331) gave the first 15331 faces, exit 0. In ASCII, lines
+/// left that are not blank; in binary, any byte left.
+fn past_the_elements(path: &Path, rest: &mut impl BufRead, ascii: bool) -> Result<(), SmeshError> {
+    let read = |e| SmeshError::io(path, "read", e);
+    let (left, unit) = if ascii {
+        let mut lines = 0u64;
+        for line in rest.split(b'\n') {
+            lines += u64::from(!line.map_err(read)?.trim_ascii().is_empty());
+        }
+        (lines, if lines == 1 { "line" } else { "lines" })
+    } else {
+        let bytes = std::io::copy(rest, &mut std::io::sink()).map_err(read)?;
+        (bytes, if bytes == 1 { "byte" } else { "bytes" })
+    };
+    match left {
+        0 => Ok(()),
+        _ => Err(SmeshError::foreign(
+            path,
+            format!(
+                "{left} {unit} after the last element the header declares: the header's element counts are wrong; fix its `element` lines"
+            ),
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -439,6 +466,49 @@ mod tests {
         let text = format!("ply\nformat ascii 1.0\n{elements}end_header\n{body}");
         std::fs::write(&p, text).unwrap();
         read(&p).map_err(|e| e.to_string().replace(&format!("{}: ", p.display()), ""))
+    }
+
+    /// A header counting fewer faces than the file holds gave the ones it counted, exit 0.
+    #[test]
+    fn data_after_the_declared_elements_is_refused() {
+        let tetra = "0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+        let header = |faces: usize| {
+            format!(
+                "element vertex 4\n{XYZ}element face {faces}\nproperty list uchar int vertex_indices\n"
+            )
+        };
+        let e = read_text(&header(2), tetra).unwrap_err();
+        assert_eq!(
+            e,
+            "2 lines after the last element the header declares: the header's element counts are wrong; fix its `element` lines"
+        );
+        // Blank lines at the end are no data.
+        assert_eq!(
+            read_text(&header(4), &format!("{tetra}\n  \r\n"))
+                .unwrap()
+                .triangles
+                .len(),
+            4
+        );
+        // Binary: the bytes left.
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("b.ply");
+        let mut file = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex 3\n{XYZ}element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        )
+        .into_bytes();
+        for c in [0f32, 0., 0., 1., 0., 0., 0., 1., 0.] {
+            file.extend(c.to_le_bytes());
+        }
+        let face: Vec<u8> = std::iter::once(3)
+            .chain([0i32, 1, 2].into_iter().flat_map(i32::to_le_bytes))
+            .collect();
+        file.extend(face.repeat(2));
+        std::fs::write(&p, &file).unwrap();
+        let e = read(&p).unwrap_err().to_string();
+        assert!(e.ends_with("b.ply: 13 bytes after the last element the header declares: the header's element counts are wrong; fix its `element` lines"), "{e}");
+        std::fs::write(&p, &file[..file.len() - 13]).unwrap();
+        assert_eq!(read(&p).unwrap().triangles, [[0, 1, 2]]);
     }
 
     /// `convert` turned a double attribute of 1e300 into inf without a word.
