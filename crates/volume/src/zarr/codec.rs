@@ -344,7 +344,7 @@ fn inflate<'d>(
         .map_err(bad)?
         .take(limit as u64 + 1)
         .read_to_end(&mut out)
-        .map_err(|e| bad(e.to_string()))?;
+        .map_err(|e| bad(innermost(&e)))?;
     if out.len() > limit {
         return Err(VolumeError::format(
             file,
@@ -354,6 +354,25 @@ fn inflate<'d>(
         ));
     }
     Ok(out)
+}
+
+/// A decoder's read error in words: ruzstd's own Display shows its inner errors in Debug form
+/// ("BlockContentReadError(Error { ..."), so the innermost cause is said instead, and a chunk
+/// that ends early as such.
+fn innermost(e: &std::io::Error) -> String {
+    let mut cause: &dyn std::error::Error = e;
+    while let Some(next) = cause.source() {
+        cause = next;
+    }
+    match cause
+        .downcast_ref::<std::io::Error>()
+        .map(std::io::Error::kind)
+    {
+        Some(std::io::ErrorKind::UnexpectedEof) => {
+            "data that ends early (a truncated chunk)".into()
+        }
+        _ => cause.to_string(),
+    }
 }
 
 /// Checks and strips the little-endian CRC-32C that the `crc32c` codec appends.
@@ -448,6 +467,35 @@ fn untranspose(data: &[u8], enc_shape: &[u64], order: &[usize], elem: usize) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A truncated zstd chunk's error was ruzstd's Debug text ("BlockContentReadError(Error {
+    /// ...").
+    #[test]
+    fn a_truncated_zstd_chunk_is_said_in_words() {
+        let values: Vec<u8> = (0..4096u32).map(|i| (i * 7 % 251) as u8).collect();
+        let frame = ruzstd::encoding::compress_to_vec(
+            &values[..],
+            ruzstd::encoding::CompressionLevel::Fastest,
+        );
+        let cut = &frame[..frame.len() / 2];
+        let e = inflate(
+            Path::new("c/0/0/0"),
+            "zstd",
+            1 << 20,
+            |d| {
+                Ok(Box::new(
+                    ruzstd::decoding::StreamingDecoder::new(d).unwrap(),
+                ))
+            },
+            cut,
+        )
+        .unwrap_err()
+        .to_string();
+        assert_eq!(
+            e,
+            r#"c/0/0/0: zstd chunk: expected valid zstd data, found "data that ends early (a truncated chunk)""#
+        );
+    }
 
     #[test]
     fn crc32c_check_value() {
