@@ -157,8 +157,11 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | RunError::IndexLimit { .. }
                 | RunError::SliceMemory { .. }
                 // The command asks for what cannot be done: a flag to add (`--resume` or
-                // `--restart`), or a resume of a job or input that changed since.
+                // `--restart`), or a resume of a job or input that changed since, or of a
+                // checkpoint that is truncated, corrupt or not one (`--restart` is the fix in
+                // every case; a checkpoint that could not be written is a failure, 1).
                 | RunError::CheckpointFound { .. }
+                | RunError::Checkpoint { .. }
                 | RunError::ResumeMismatch { .. }
                 | RunError::InputChanged { .. } => 2,
                 _ => 1,

@@ -374,7 +374,7 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     ] {
         std::fs::write(&ckpt, &bytes).unwrap();
         let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
-        assert_one_line_error(&o, 1, &[needle, ".out.smb.ckpt", "--restart"]);
+        assert_one_line_error(&o, 2, &[needle, ".out.smb.ckpt", "--restart"]);
         assert_eq!(hidden_files(dir.path()), before, "{needle}: files touched");
         validate_notes(&["but cannot be resumed (", needle, "`run` needs --restart"]);
         assert_eq!(std::fs::read(&ckpt).unwrap(), bytes, "{needle}");
