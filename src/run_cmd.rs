@@ -31,7 +31,7 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     // `run` would refuse to start over a checkpoint without --resume or --restart: said here,
     // with which of the two it can take, as a note (the job itself is fine).
     if let Some(note) = isostream_pipeline::checkpoint_note(&job, source.as_mut())? {
-        println!("{}: note: {note}", job_path.display());
+        crate::stdout::line(format_args!("{}: note: {note}", job_path.display()))?;
     }
     Ok(())
 }
