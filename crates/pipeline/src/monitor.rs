@@ -140,10 +140,6 @@ pub(crate) struct Monitor<'a> {
 struct State {
     series: SeriesBuilder,
     last_log: Instant,
-    /// Voxels read before this process's first slab: a run resumed from a checkpoint at slab
-    /// 320 of 765 counted those 320 slabs against the seconds since the restart, and its
-    /// progress lines promised the end in 3 s of 40.
-    voxels_before: Option<u64>,
 }
 
 impl<'a> Monitor<'a> {
@@ -163,7 +159,6 @@ impl<'a> Monitor<'a> {
             state: Mutex::new(State {
                 series: SeriesBuilder::new(MAX_SERIES_POINTS),
                 last_log: started,
-                voxels_before: None,
             }),
         }
     }
@@ -176,10 +171,9 @@ impl<'a> Monitor<'a> {
         let rss_bytes = current_rss_bytes();
         {
             let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
-            // The first slab this process sees: 0, or the slab after a resumed checkpoint's.
-            let before = *state
-                .voxels_before
-                .get_or_insert(p.slabs_done * self.voxels_per_slab);
+            // Read before this run: a run resumed at slab 320 of 765 counted those slabs against
+            // the seconds since the restart, and its progress lines promised the end in 3 s of 40.
+            let before = p.slabs_at_start * self.voxels_per_slab;
             state.series.push(SeriesPoint {
                 slab: p.slabs_done,
                 slabs: 1,
@@ -253,27 +247,9 @@ mod tests {
     #[test]
     fn a_resumed_run_paces_by_the_slabs_it_read() {
         // 1,000-voxel slices, 100 slabs; resumed at slab 40, slab 50 done 10 s later.
-        let grid = Grid::new([10, 100, 100], [1.0; 3], [0.0; 3]).unwrap();
-        let monitor = Monitor::new(grid, None, &|_| {});
-        let progress = |slabs_done| Progress {
-            slabs_done,
-            slabs_total: 100,
-            faces_in: 0,
-            faces_out: 0,
-            resident_faces: 0,
-            queued: [0; 3],
-        };
-        monitor.observe(&progress(40));
-        monitor.observe(&progress(50));
-        let before = monitor.state.lock().unwrap().voxels_before;
-        assert_eq!(before, Some(40_000));
         let (rate, eta) = pace(51_000, 40_000, 100_000, 10.0);
         assert_eq!(rate, 1_100.0);
         assert!((eta - 49_000.0 / 1_100.0).abs() < 1e-9, "{eta}");
-        // A fresh run starts at slab 0.
-        let fresh = Monitor::new(grid, None, &|_| {});
-        fresh.observe(&progress(0));
-        assert_eq!(fresh.state.lock().unwrap().voxels_before, Some(0));
     }
 
     fn point(slab: u64, resident: u64) -> SeriesPoint {

@@ -31,6 +31,9 @@ use crate::sink::Sink;
 #[derive(Debug, Clone, Copy)]
 pub struct Progress {
     pub slabs_done: u64,
+    /// Slabs done before this run started: past 0 when it resumed a checkpoint (a rate or an
+    /// ETA counts the slabs done since, over the time since the start).
+    pub slabs_at_start: u64,
     pub slabs_total: u64,
     pub faces_in: u64,
     pub faces_out: u64,
@@ -208,6 +211,7 @@ impl Stages<'_> {
                     checkpoint: plan.map(|p| p.path.as_path()),
                     front: None,
                     last_front: u32::try_from(first).unwrap_or(u32::MAX),
+                    first_front: first,
                     slabs_total,
                     log_every: (slabs_total / 20).max(1),
                     depth,
@@ -222,6 +226,7 @@ impl Stages<'_> {
                         simplifier,
                         faces_in: 0,
                         slabs_total: grid.dims[2] - 1,
+                        first_front: first,
                         depth,
                         observer,
                         last,
@@ -659,6 +664,8 @@ struct SimplifyStep<'a> {
     /// The front of the delta added last, whose batch is still open.
     front: Option<Front>,
     last_front: u32,
+    /// The front where this run started (the resumed checkpoint's, or 0).
+    first_front: u64,
     slabs_total: u64,
     log_every: u64,
     depth: &'a Depths,
@@ -699,6 +706,7 @@ impl SimplifyStep<'_> {
             };
             let progress = Progress {
                 slabs_done: u64::from(front),
+                slabs_at_start: self.first_front,
                 slabs_total: self.slabs_total,
                 faces_in: st.faces_in,
                 faces_out,
@@ -798,6 +806,8 @@ struct SecondStep<'a> {
     /// Faces extracted so far, from the first stage's hand-offs.
     faces_in: u64,
     slabs_total: u64,
+    /// The front where this run started (see `SimplifyStep::first_front`).
+    first_front: u64,
     depth: &'a Depths,
     observer: &'a (dyn Fn(&Progress) + Sync),
     last: &'a dyn Join,
@@ -852,6 +862,7 @@ impl Step for SecondStep<'_> {
         let st = self.simplifier.stats();
         (self.observer)(&Progress {
             slabs_done: self.slabs_total,
+            slabs_at_start: self.first_front,
             slabs_total: self.slabs_total,
             faces_in: self.faces_in,
             faces_out: st.faces_out,

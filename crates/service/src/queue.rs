@@ -28,7 +28,7 @@ use crate::store::{JobRecord, JobState, Store, now_ms};
 pub(crate) struct ProgressView {
     pub slabs_done: u64,
     pub slabs_total: u64,
-    /// Slabs done before this attempt's first (a run resumed from a checkpoint starts past 0):
+    /// Slabs done before this attempt (a run resumed from a checkpoint starts past 0):
     /// the status page's ETA paces by the slabs done since, over the time since
     /// `started_unix_ms` (counting the checkpoint's slabs too promised 10 s of 40).
     pub slabs_at_start: u64,
@@ -61,7 +61,7 @@ impl From<&Progress> for ProgressView {
         Self {
             slabs_done: p.slabs_done,
             slabs_total: p.slabs_total,
-            slabs_at_start: p.slabs_done,
+            slabs_at_start: p.slabs_at_start,
             faces_in: p.faces_in,
             faces_out: p.faces_out,
             resident_faces: p.resident_faces,
@@ -533,11 +533,7 @@ impl Queue {
     fn progress(&self, id: &str, p: &Progress) {
         let mut t = self.lock();
         if let Some(job) = t.jobs.get_mut(id) {
-            let mut now = ProgressView::from(p);
-            // The attempt's first slab (`progress` is reset when a run starts).
-            if job.progress.slabs_total != 0 {
-                now.slabs_at_start = job.progress.slabs_at_start;
-            }
+            let now = ProgressView::from(p);
             self.metrics.faces(
                 now.faces_in.saturating_sub(job.progress.faces_in),
                 now.faces_out.saturating_sub(job.progress.faces_out),
@@ -775,28 +771,6 @@ mod tests {
             "cancelled as the client was told, not a crash to run again"
         );
         assert_eq!(q.get(QUEUED).unwrap().record.state, JobState::Cancelled);
-    }
-
-    /// A run resumed at slab 40 says so, so that the page's ETA paces by the slabs it did.
-    #[test]
-    fn progress_keeps_the_attempts_first_slab() {
-        let dir = tempfile::tempdir().unwrap();
-        let store = Store::open(dir.path()).unwrap();
-        store.create(&queued(RUNNING, 0), SPHERE).unwrap();
-        drop(store);
-        let q = queue(dir.path());
-        let at = |slabs_done| Progress {
-            slabs_done,
-            slabs_total: 100,
-            faces_in: 0,
-            faces_out: 0,
-            resident_faces: 0,
-            queued: [0; 3],
-        };
-        q.progress(RUNNING, &at(40));
-        q.progress(RUNNING, &at(50));
-        let p = q.get(RUNNING).unwrap().progress;
-        assert_eq!((p.slabs_at_start, p.slabs_done), (40, 50));
     }
 
     #[test]
