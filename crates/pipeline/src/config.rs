@@ -1034,6 +1034,20 @@ impl JobConfig {
         }
     }
 
+    /// The smallest `memory_budget_mib` (at least this job's) whose face budget on a volume of
+    /// `dims` voxels ([`JobConfig::max_resident_faces`]) holds `faces`: what a warning suggests
+    /// when the simplifier held more, so that the run at it holds them. Scaling the budget by
+    /// the faces' ratio instead counted the fixed part and the slices' share as faces too.
+    pub fn budget_holding(&self, dims: [u64; 3], largest_slab: Option<u64>, faces: usize) -> u64 {
+        let mut job = self.clone();
+        (self.pipeline.memory_budget_mib..)
+            .find(|&mib| {
+                job.pipeline.memory_budget_mib = mib;
+                job.max_resident_faces(dims, largest_slab) >= faces
+            })
+            .unwrap_or(u64::MAX)
+    }
+
     /// Faces the budget holds at `bytes` per face: the budget less the fixed part and
     /// `set_aside` bytes, of which at most a quarter of the budget (past that the slices alone
     /// fill the budget, the front stretches it, and the faces behind the front still need room:
@@ -1503,6 +1517,27 @@ mod tests {
             two.max_resident_faces([256, 256, 64], None),
             (48 * mib / BYTES_PER_FACE_CASCADE) as usize,
             "a cascade's bytes per face were measured with its slices"
+        );
+    }
+
+    /// The budget a warning suggests holds the faces asked for, and is the smallest that does.
+    #[test]
+    fn the_budget_holding_some_faces_is_the_least_that_holds_them() {
+        let job = parse(MINIMAL).unwrap();
+        let dims = [511, 511, 128];
+        let held = job.max_resident_faces(dims, None);
+        assert_eq!(job.budget_holding(dims, None, held), 64);
+        let want = 2 * held;
+        let mib = job.budget_holding(dims, None, want);
+        let at = |mib: u64| {
+            let mut j = job.clone();
+            j.pipeline.memory_budget_mib = mib;
+            j.max_resident_faces(dims, None)
+        };
+        assert!(at(mib) >= want && at(mib - 1) < want, "{mib} MiB");
+        assert!(
+            mib < 128,
+            "the fixed part is not scaled with the faces: {mib} MiB"
         );
     }
 

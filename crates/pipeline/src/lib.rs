@@ -382,7 +382,13 @@ fn run_job(
             )
         })
         .into_iter()
-        .chain(front_stretched(job, budget_faces, &outputs.simplify))
+        .chain(front_stretched(
+            job,
+            budget_faces,
+            &outputs.simplify,
+            peak_rss_bytes().map(|b| b as f64 / (1024.0 * 1024.0)),
+            |faces| job.budget_holding(grid.dims, largest_slab, faces),
+        ))
         .chain(faces_past_the_surface(job, faces_kept))
         .chain(non_finite_voxels(&outputs.extract, grid.voxel_count()))
         .chain(non_finite_attributes(&outputs.extract))
@@ -795,38 +801,47 @@ fn faces_past_the_surface(job: &JobConfig, faces_kept: u64) -> Option<String> {
     ))
 }
 
-/// The sweep front took more than half of the memory budget, which then stretched to hold it
-/// (`isostream_simplify::Simplifier`'s budget). When the process went over
-/// `memory_budget_mib` for it, a warning says so with the budget that would have held the front;
-/// within it (cthead at R = 0.2: 58 of 64 MiB), an info line.
+/// The simplifier held more faces than the memory budget's (`isostream_simplify::Simplifier`'s
+/// budget): the sweep front's faces (not modifiable yet) and those of the last two slabs behind
+/// it, whose contractions wait for the front to pass, are never written out for memory. When the
+/// process went over `memory_budget_mib` for it, a warning says so with the budget whose faces
+/// (`budget_holding`) hold them; within it (cthead at R = 0.2: 58 of 64 MiB), an info line.
+/// What stretches it is mostly a slab crowded with surface behind the front, not the front:
+/// engine upsampled to 511 x 511 x 128 puts 138 k faces of its flat top into slab 108, and
+/// mode `error` held 153 k faces while the front held 8.3 k (the warning said "the sweep front
+/// held up to 8274 faces, more than half of the 78684" and suggested scaling the whole budget,
+/// fixed part included, by the faces: 125 MiB).
 fn front_stretched(
     job: &JobConfig,
     faces: usize,
     stats: &isostream_simplify::SimplifyStats,
+    peak_mib: Option<f64>,
+    budget_holding: impl FnOnce(usize) -> u64,
 ) -> Option<String> {
     let stretch = stats.front_stretch_faces;
     if stretch == 0 {
         return None;
     }
     let mib = job.pipeline.memory_budget_mib;
-    let need = (mib as f64 * (faces + stretch) as f64 / faces.max(1) as f64).ceil();
-    let peak_mib = peak_rss_bytes().map(|b| b as f64 / (1024.0 * 1024.0));
     if peak_mib.is_some_and(|p| p <= mib as f64) {
         info!(
             front_faces = stats.peak_front_faces,
             stretch_faces = stretch,
-            "the sweep front took more than half of the face budget, which stretched within memory_budget_mib"
+            "the simplifier held more faces than the face budget (the sweep front and the two slabs behind it), within memory_budget_mib"
         );
         return None;
     }
-    let rss = peak_mib.map_or(String::new(), |p| format!(" (peak RSS {p:.1} MiB)"));
+    let rss = peak_mib.map_or(String::new(), |p| format!(", peak RSS {p:.1} MiB"));
+    let held = faces + stretch;
     Some(format!(
-        "the sweep front held up to {} faces, more than half of the {faces} that [pipeline] \
-         memory_budget_mib = {mib} holds for this volume: the budget stretched by up to {stretch} \
-         faces so that the surface behind the front could still be simplified{rss}, since memory \
-         follows the front and these slabs hold much surface (large slices or a dense surface); \
-         memory_budget_mib = {need} or more holds the front without stretching",
+        "the simplifier held up to {held} faces, {stretch} more than the {faces} that \
+         [pipeline] memory_budget_mib = {mib} holds for this volume{rss}: the faces of the sweep \
+         front (up to {} not modifiable yet) and of the last two slabs behind it are never \
+         written out for memory, since their contractions wait for the front to pass, and these \
+         slabs hold much surface (a slab crowded with surface, such as a flat face across the \
+         sweep, or large slices); memory_budget_mib = {} or more holds them",
         stats.peak_front_faces,
+        budget_holding(held),
     ))
 }
 
@@ -891,6 +906,40 @@ mod tests {
             "{budget}"
         );
         assert!(!budget.contains("allows no fewer"), "{budget}");
+    }
+
+    /// What stretched the budget is told as it was: the faces held past it (the front and the
+    /// two slabs behind it), the front's own count, and the budget that holds them all.
+    #[test]
+    fn a_stretched_budget_names_the_faces_held_and_a_budget_that_holds_them() {
+        let job = JobConfig::parse(
+            "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0\n\
+             [output]\npath = \"o.smb\"\n",
+            Path::new("job.toml"),
+        )
+        .unwrap();
+        let stats = isostream_simplify::SimplifyStats {
+            front_stretch_faces: 74_081,
+            peak_front_faces: 8_274,
+            ..Default::default()
+        };
+        let within = front_stretched(&job, 78_684, &stats, Some(60.0), |_| unreachable!());
+        assert_eq!(within, None, "within the budget: an info line");
+        let mut asked = None;
+        let w = front_stretched(&job, 78_684, &stats, Some(74.5), |f| {
+            asked = Some(f);
+            111
+        })
+        .unwrap();
+        assert_eq!(asked, Some(78_684 + 74_081));
+        assert!(
+            w.contains("held up to 152765 faces, 74081 more than the 78684")
+                && w.contains("up to 8274 not modifiable yet")
+                && w.contains("the last two slabs behind it")
+                && w.contains("memory_budget_mib = 111 or more holds them")
+                && !w.contains("more than half"),
+            "{w}"
+        );
     }
 
     /// With threads the halves run on two (one of them this one), without them both on this

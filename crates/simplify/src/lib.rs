@@ -265,8 +265,10 @@ pub struct SimplifyStats {
     pub rejected_other: u64,
     /// Vertices retired early for the memory budget.
     pub forced_retirements: u64,
-    /// Most faces the budget was stretched by to hold the sweep front with room behind it
-    /// (0 when the front never took more than half of it; see `Stage::budget`).
+    /// Most faces held past this stage's share of the budget: the sweep front's where it took
+    /// more than half of it (`Stage::budget`), and the last two slabs behind the front, which
+    /// are never retired for memory (`Stage::retire_for_memory`; a slab crowded with surface
+    /// stretches it while the front itself is small).
     pub front_stretch_faces: usize,
     /// Most faces the sweep front held at the end of a batch (`faces_unmodifiable`).
     pub peak_front_faces: usize,
