@@ -616,6 +616,36 @@ const CASCADE_CUBES_PER_FACE: f64 = 1.2;
 /// slabs: 56-75 MiB, engine still at 75 (the rear stays two slabs behind the crowded slab while
 /// its 90 k faces pass; "Fortieth session"). So the share stays, for the memory.
 const CASCADE_SLAB_SHARE: u64 = 4;
+/// Bytes per resident face that `[[attributes]]` add whatever the priority, besides
+/// [`ATTRIBUTE_BYTES_PER_FACE_EACH`] per attribute: half a vertex's boxed `f32` values (the
+/// pointer and the allocation with its header, the same for 1 to 4 values). Measured as the
+/// growth of peak RSS with the resident faces between `memory_budget_mib = 32` and 64 (engine
+/// and bonsai at R = 0.2 and 0.05, geometric priority, two stages: 33-35 k against 84-90 k
+/// faces held): 0.9-1.0 MiB more for 51-55 k more faces with one attribute, 18-20 bytes a face,
+/// and no more with four (`python3 /tmp/wt-mem-meas/meas.py BIN TAG attr`, the grid of
+/// docs/performance.md, "Fifty-fifth session").
+const ATTRIBUTE_BYTES_PER_FACE: u64 = 24;
+/// Bytes per resident face per attribute (see [`ATTRIBUTE_BYTES_PER_FACE`]).
+const ATTRIBUTE_BYTES_PER_FACE_EACH: u64 = 2;
+/// Bytes per resident face of the attribute quadric (`priority = "attribute-quadric"`), per
+/// `f64` of its `(3 + m)^2 + (3 + m)` (m attributes): half a vertex's quadric.
+const ATTRIBUTE_QUADRIC_BYTES_PER_ENTRY: u64 = 4;
+/// Bytes per resident face of the attribute quadric besides its entries: half a vertex's two
+/// vectors and their allocations. With [`ATTRIBUTE_QUADRIC_BYTES_PER_ENTRY`] that is 144, 184
+/// and 288 bytes a face for 1, 2 and 4 attributes; measured as above (one stage, 33-35 k
+/// against 89-90 k faces held), peak RSS grew by 140-150, 173-187 and 293-298 bytes a face
+/// (the quadric: 8 bytes an entry per vertex, about two faces a vertex).
+const ATTRIBUTE_QUADRIC_BYTES_PER_FACE: u64 = 64;
+/// Bytes per cube of a slice that each attribute adds outside the faces, set aside from the
+/// budget: its slices in flight with the slabs being extracted, and the values the batches
+/// carry to the simplifier. Once more half of it for the first attribute's company (a derived
+/// gradient reads an iso slice ahead and keeps one behind; an upsampled input then gives its
+/// iso slices whole instead of rows). Measured on engine and bonsai (256^2 slices, 65 k cubes)
+/// at the same faces held, against no attributes: 1, 2 and 4 attributes (the first one a
+/// derived gradient, the others a volume file) took 3.4-4.0, 5.8-5.9 and 9.4-10.5 MiB more at
+/// `memory_budget_mib = 32`, whatever the priority once its faces are counted: 36 bytes a cube
+/// per attribute and half of it once; 40 and 20 hold them all.
+const ATTRIBUTE_SLICE_BYTES_PER_CUBE: u64 = 40;
 /// What the process needs besides the resident surface: code, two slices, channels, the
 /// detector's front map (measured: 15 MiB on the volumes in `../shared/data`).
 const FIXED_MIB: u64 = 16;
@@ -982,13 +1012,13 @@ impl JobConfig {
             true => slice_cubes(dims).saturating_mul(CASCADE_SLICE_BYTES_PER_CUBE),
             false => 0,
         };
-        self.faces_held(BYTES_PER_FACE_CASCADE, set_aside)
+        self.faces_held(dims, BYTES_PER_FACE_CASCADE, set_aside)
     }
 
     /// Slices small enough for two stages whatever their surface.
     fn small_slices(&self, dims: [u64; 3]) -> bool {
         slice_cubes(dims) as f64
-            <= CASCADE_CUBES_PER_FACE * self.faces_held(BYTES_PER_FACE_CASCADE, 0) as f64
+            <= CASCADE_CUBES_PER_FACE * self.faces_held(dims, BYTES_PER_FACE_CASCADE, 0) as f64
     }
 
     fn cascade_possible(&self) -> bool {
@@ -1028,6 +1058,7 @@ impl JobConfig {
             self.cascade_faces(dims)
         } else {
             self.faces_held(
+                dims,
                 BYTES_PER_FACE_ALONE,
                 slice_cubes(dims).saturating_mul(SLICE_BYTES_PER_CUBE),
             )
@@ -1053,12 +1084,45 @@ impl JobConfig {
     /// fill the budget, the front stretches it, and the faces behind the front still need room:
     /// bonsai upsampled to 2041^3 would otherwise hold 20 k faces behind a 33 k-face front), and
     /// at least a quarter of the budget is left to the faces.
-    fn faces_held(&self, bytes: u64, set_aside: u64) -> usize {
+    ///
+    /// `[[attributes]]` cost more per face and per slice ([`JobConfig::attribute_bytes`]); their
+    /// share is taken from the faces' (down to an eighth of the budget): with it counted as
+    /// faces, engine with four attributes at the attribute quadric peaked at 45.7 MiB in a
+    /// budget of 32 and 79.8 MiB in 64.
+    fn faces_held(&self, dims: [u64; 3], bytes: u64, set_aside: u64) -> usize {
         let budget = self.pipeline.memory_budget_mib * 1024 * 1024;
+        let (per_face, per_cube) = self.attribute_bytes();
         let held = budget
             .saturating_sub(FIXED_MIB * 1024 * 1024 + set_aside.min(budget / 4))
             .max(budget / 4);
-        (held / bytes) as usize
+        let held = match per_cube {
+            0 => held,
+            _ => held
+                .saturating_sub(slice_cubes(dims).saturating_mul(per_cube))
+                .max(budget / 8),
+        };
+        (held / (bytes + per_face)) as usize
+    }
+
+    /// What `[[attributes]]` add: bytes per resident face (their values, and with the attribute
+    /// quadric its `(3 + m)^2 + (3 + m)` entries) and bytes per cube of a slice (their slices
+    /// in flight), both 0 without attributes.
+    fn attribute_bytes(&self) -> (u64, u64) {
+        let m = self.attributes.len() as u64;
+        if m == 0 {
+            return (0, 0);
+        }
+        let quadric = match self.simplify.priority {
+            PriorityKind::AttributeQuadric => {
+                let n = 3 + m;
+                (n * n + n) * ATTRIBUTE_QUADRIC_BYTES_PER_ENTRY + ATTRIBUTE_QUADRIC_BYTES_PER_FACE
+            }
+            PriorityKind::Geometric | PriorityKind::DataDependent => 0,
+        };
+        (
+            ATTRIBUTE_BYTES_PER_FACE + m * ATTRIBUTE_BYTES_PER_FACE_EACH + quadric,
+            ATTRIBUTE_SLICE_BYTES_PER_CUBE * m + ATTRIBUTE_SLICE_BYTES_PER_CUBE / 2,
+        )
     }
 }
 
@@ -1518,6 +1582,38 @@ mod tests {
             (48 * mib / BYTES_PER_FACE_CASCADE) as usize,
             "a cascade's bytes per face were measured with its slices"
         );
+    }
+
+    /// `[[attributes]]` are charged per face (more with the attribute quadric, whose size grows
+    /// with their square) and per slice; a job without them keeps its faces.
+    #[test]
+    fn attributes_cost_faces_by_their_count_and_the_priority() {
+        let with = |n: usize, priority: &str| {
+            let attrs = "[[attributes]]\nname = \"g\"\nderive = \"gradient_magnitude\"\n";
+            let text = format!(
+                "{MINIMAL}\n[simplify]\npriority = \"{priority}\"\n\
+                 [pipeline]\nsimplify_stages = 1\n{}",
+                attrs.repeat(n)
+            );
+            let job = JobConfig::parse(&text, Path::new("job.toml")).unwrap();
+            job.max_resident_faces([256, 256, 128], None)
+        };
+        let mib = 1024 * 1024;
+        let plain = ((48 * mib - 255 * 255 * SLICE_BYTES_PER_CUBE) / BYTES_PER_FACE_ALONE) as usize;
+        assert_eq!(with(0, "geometric"), plain);
+        let slices = |m: u64| 255 * 255 * (ATTRIBUTE_SLICE_BYTES_PER_CUBE * m + 20);
+        let one =
+            (48 * mib - 255 * 255 * SLICE_BYTES_PER_CUBE - slices(1)) / (BYTES_PER_FACE_ALONE + 26);
+        assert_eq!(with(1, "geometric"), one as usize);
+        assert!(
+            with(4, "geometric") < with(2, "geometric")
+                && with(2, "geometric") < with(1, "geometric")
+        );
+        let quadric = |m: u64| ((3 + m) * (3 + m) + 3 + m) * 4 + 64;
+        let four = (48 * mib - 255 * 255 * SLICE_BYTES_PER_CUBE - slices(4))
+            / (BYTES_PER_FACE_ALONE + 32 + quadric(4));
+        assert_eq!(with(4, "attribute-quadric"), four as usize);
+        assert_eq!(quadric(4), 288, "the measured 293-298 bytes a face");
     }
 
     /// The budget a warning suggests holds the faces asked for, and is the smallest that does.
