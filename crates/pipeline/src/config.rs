@@ -622,8 +622,8 @@ const CASCADE_SLAB_SHARE: u64 = 4;
 /// growth of peak RSS with the resident faces between `memory_budget_mib = 32` and 64 (engine
 /// and bonsai at R = 0.2 and 0.05, geometric priority, two stages: 33-35 k against 84-90 k
 /// faces held): 0.9-1.0 MiB more for 51-55 k more faces with one attribute, 18-20 bytes a face,
-/// and no more with four (`python3 /tmp/wt-mem-meas/meas.py BIN TAG attr`, the grid of
-/// docs/performance.md, "Fifty-fifth session").
+/// and no more with four (`isostream run` of each job of the grid in docs/performance.md,
+/// "Fifty-fifth session", its summary's `peak_rss_bytes` and `peak_resident_faces`).
 const ATTRIBUTE_BYTES_PER_FACE: u64 = 24;
 /// Bytes per resident face per attribute (see [`ATTRIBUTE_BYTES_PER_FACE`]).
 const ATTRIBUTE_BYTES_PER_FACE_EACH: u64 = 2;
