@@ -1112,7 +1112,7 @@ impl JobConfig {
         if m == 0 {
             return (0, 0);
         }
-        let quadric = match self.simplify.priority {
+        let quadric = match self.simplify.priority() {
             PriorityKind::AttributeQuadric => {
                 let n = 3 + m;
                 (n * n + n) * ATTRIBUTE_QUADRIC_BYTES_PER_ENTRY + ATTRIBUTE_QUADRIC_BYTES_PER_FACE
