@@ -292,20 +292,7 @@ impl Queue {
         if waiting >= self.limits.queued {
             return Err(SubmitError::Full(waiting));
         }
-        let record = JobRecord {
-            id: id.clone(),
-            seq: t.next_seq,
-            state: JobState::Queued,
-            submitted_unix_ms: now_ms(),
-            started_unix_ms: None,
-            finished_unix_ms: None,
-            attempts: 0,
-            crashes: 0,
-            cancel_requested: false,
-            output,
-            error: None,
-            summary: None,
-        };
+        let record = JobRecord::queued(id.clone(), t.next_seq, output);
         self.store
             .create(&record, &admitted.toml)
             .map_err(SubmitError::Io)?;
@@ -688,23 +675,6 @@ mod tests {
         )
     }
 
-    fn queued(id: &str, seq: u64) -> JobRecord {
-        JobRecord {
-            id: id.into(),
-            seq,
-            state: JobState::Queued,
-            submitted_unix_ms: now_ms(),
-            started_unix_ms: None,
-            finished_unix_ms: None,
-            attempts: 0,
-            crashes: 0,
-            cancel_requested: false,
-            output: "output.smb".into(),
-            error: None,
-            summary: None,
-        }
-    }
-
     fn stored_state(state: &Path, id: &str) -> serde_json::Value {
         let text = std::fs::read(state.join("jobs").join(id).join("state.json")).unwrap();
         serde_json::from_slice(&text).unwrap()
@@ -720,7 +690,12 @@ mod tests {
         {
             let store = Store::open(state).unwrap();
             for (seq, id) in [QUEUED, RUNNING].into_iter().enumerate() {
-                store.create(&queued(id, seq as u64), SPHERE).unwrap();
+                store
+                    .create(
+                        &JobRecord::queued(id.into(), seq as u64, "output.smb".into()),
+                        SPHERE,
+                    )
+                    .unwrap();
             }
         }
         let q = queue(state);

@@ -83,6 +83,26 @@ pub(crate) struct JobRecord {
     pub summary: Option<serde_json::Value>,
 }
 
+impl JobRecord {
+    /// A job just submitted, waiting in the queue.
+    pub(crate) fn queued(id: String, seq: u64, output: String) -> Self {
+        Self {
+            id,
+            seq,
+            state: JobState::Queued,
+            submitted_unix_ms: now_ms(),
+            started_unix_ms: None,
+            finished_unix_ms: None,
+            attempts: 0,
+            crashes: 0,
+            cancel_requested: false,
+            output,
+            error: None,
+            summary: None,
+        }
+    }
+}
+
 pub(crate) fn now_ms() -> u64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -277,20 +297,7 @@ mod tests {
     use super::*;
 
     fn record(id: &str, seq: u64) -> JobRecord {
-        JobRecord {
-            id: id.into(),
-            seq,
-            state: JobState::Queued,
-            submitted_unix_ms: now_ms(),
-            started_unix_ms: None,
-            finished_unix_ms: None,
-            attempts: 0,
-            crashes: 0,
-            cancel_requested: false,
-            output: "output.smb".into(),
-            error: None,
-            summary: None,
-        }
+        JobRecord::queued(id.into(), seq, "output.smb".into())
     }
 
     const AA: &str = "aa000000000000000000000000000000";
