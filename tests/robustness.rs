@@ -500,19 +500,19 @@ fn raw_input_truncated_mid_run_is_an_error() {
     assert!(leftovers(dir.path(), &["v.raw"]).is_empty());
 }
 
+#[cfg(unix)]
+fn mkfifo(path: &Path) {
+    let made = Command::new("mkfifo").arg(path).status().unwrap();
+    assert!(made.success(), "mkfifo {}", path.display());
+}
+
 /// A FIFO as input is refused at once by validate and run, instead of blocking on open.
 #[cfg(unix)]
 #[test]
 fn fifo_input_is_refused_not_waited_on() {
     let dir = tempfile::tempdir().unwrap();
     let fifo = dir.path().join("v.raw");
-    assert!(
-        Command::new("mkfifo")
-            .arg(&fifo)
-            .status()
-            .unwrap()
-            .success()
-    );
+    mkfifo(&fifo);
     let job = write_job(
         dir.path(),
         "[input]\npath = \"v.raw\"\ndims = [4, 4, 4]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"o.smb\"\n",
@@ -548,13 +548,7 @@ fn mesh_commands_refuse_a_fifo_or_a_device() {
     let dir = tempfile::tempdir().unwrap();
     for name in ["m.smb", "m.obj", "m.ply"] {
         let fifo = dir.path().join(name);
-        assert!(
-            Command::new("mkfifo")
-                .arg(&fifo)
-                .status()
-                .unwrap()
-                .success()
-        );
+        mkfifo(&fifo);
         let fifo = fifo.to_string_lossy().into_owned();
         let out = dir.path().join("o.stl").to_string_lossy().into_owned();
         for args in [
