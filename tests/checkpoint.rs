@@ -515,3 +515,27 @@ fn a_resumed_run_reports_where_it_started() {
         "{seen:?}"
     );
 }
+
+/// A resume of a changed job is refused before the first pass of `[output] faces` (which ran to
+/// its end first): with the cancel flag already raised, the refusal comes, not a cancellation.
+#[test]
+fn a_changed_job_is_refused_before_the_first_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = |faces: u32| {
+        format!(
+            "[input]\nshape = \"gyroid\"\nsize = [24, 24, 29]\n\n[extract]\niso = 0.0\n\n[output]\npath = \"out.smb\"\nfaces = {faces}\n\n[pipeline]\ncheckpoint = {{ every_slabs = 1 }}\n"
+        )
+    };
+    let job = load(dir.path(), "job.toml", &text(800));
+    assert!(matches!(
+        run_until(&job, Start::Fresh, |p| p.slabs_done >= 12),
+        Err(RunError::Interrupted { .. })
+    ));
+    let changed = load(dir.path(), "job.toml", &text(900));
+    let cancel = AtomicBool::new(true);
+    let refused = run_from(&changed.0, &changed.1, Start::Resume, &cancel, &|_| {});
+    assert!(
+        matches!(refused, Err(RunError::ResumeMismatch { .. })),
+        "{refused:?}"
+    );
+}

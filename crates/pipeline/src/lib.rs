@@ -209,6 +209,16 @@ fn run_job(
     index_limit::check_job(job, grid.voxel_count())?;
     let attribute_sources =
         attributes::open(&job.attributes, &job.input, grid, source.orientation())?;
+    // A resume of a changed job or input is refused before the first pass of `[output] faces`
+    // (it ran to its end first).
+    let every = job.pipeline.checkpoint.every(grid.voxel_count());
+    let identity = match every.is_some() || saved.is_some() {
+        true => Some(checkpoint::InputIdentity::read(job, source.as_mut())?),
+        false => None,
+    };
+    if let (Some(saved), Some(identity)) = (&saved, &identity) {
+        checkpoint::verify(ckpt_path, saved, job, identity)?;
+    }
     let rate = job.simplify.rate();
     let prune = NonZeroU64::new(job.simplify.min_component_faces);
     // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts,
@@ -249,11 +259,6 @@ fn run_job(
     };
     let mut simplifier = new_simplifier(&config)?;
     let mut second = second_config.as_ref().map(new_simplifier).transpose()?;
-    let every = job.pipeline.checkpoint.every(grid.voxel_count());
-    let identity = match every.is_some() || saved.is_some() {
-        true => Some(checkpoint::InputIdentity::read(job, source.as_mut())?),
-        false => None,
-    };
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
@@ -270,8 +275,7 @@ fn run_job(
         })
     })?;
     let (sink, resume) = match (saved, &identity) {
-        (Some(saved), Some(identity)) => {
-            checkpoint::verify(ckpt_path, &saved, job, identity)?;
+        (Some(saved), Some(_)) => {
             let restore = |config: &SimplifierConfig, saved: Simplifier| {
                 Simplifier::restore(config, saved).map_err(|e| RunError::ResumeMismatch {
                     path: ckpt_path.to_path_buf(),
