@@ -548,6 +548,21 @@ fn check_log_filter(level: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// The text of a TOML error's span, run on to the end of the token it starts: a number too
+/// large for its type is reported with a span of its first digit (`(at `9`)` for
+/// 99999999999999999999999).
+fn quoted_token(text: &str, span: std::ops::Range<usize>) -> Option<String> {
+    let rest = text.get(span.end..)?;
+    let more = rest
+        .find(|c: char| !(c.is_ascii_alphanumeric() || "_.+-".contains(c)))
+        .unwrap_or(rest.len());
+    let token = match text.get(span.clone())? {
+        s if s.ends_with(|c: char| c.is_ascii_alphanumeric()) => &text[span.start..span.end + more],
+        s => s,
+    };
+    Some(token.trim().to_string())
+}
+
 /// Bytes of simplifier state per resident face of a cascade: the face, half a vertex with its
 /// quadric, heap entries and the intersection index's record and cells, counted over both stages
 /// (which share the budget). Measured after the allocator fix (`src/main.rs`): peak RSS 55-61
@@ -676,8 +691,7 @@ impl JobConfig {
             reason: e.message().to_string(),
             key: e
                 .span()
-                .and_then(|s| text.get(s))
-                .map(|s| s.trim().to_string())
+                .and_then(|s| quoted_token(text, s))
                 .unwrap_or_default(),
             line: e
                 .span()
@@ -1152,6 +1166,20 @@ mod tests {
         assert_eq!(job.simplify.mode, Mode::Rate);
         assert_eq!(job.pipeline.channel_capacity, 8);
         assert_eq!(job.input.spacing, None);
+    }
+
+    #[test]
+    fn a_number_too_large_is_quoted_whole() {
+        let text = "[input]\nshape = \"sphere\"\nsize = [16, 16, 99999999999999999999999]\n[extract]\niso = 0.0\n[output]\npath = \"o.smb\"\n";
+        let e = JobConfig::parse(text, Path::new("job.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("(at `99999999999999999999999`)"), "{e}");
+        // A key's span is the key, as before.
+        let e = JobConfig::parse("[input]\nbogus = 1\n", Path::new("job.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("(at `bogus`)"), "{e}");
     }
 
     #[test]
