@@ -75,9 +75,9 @@ DATASETS = {
 }
 
 CONDITIONS = {
-    "classical": 'mode = "classical"\nerror = {e0}\nisotropy = {alpha}',
-    "tandem": 'mode = "error"\nerror = {e0}\nisotropy = {alpha}\ntime_lag = false',
-    "tandem+lag": 'mode = "error"\nerror = {e0}\nisotropy = {alpha}\ntime_lag = true',
+    "classical": 'mode = "classical"\nerror = {e0}\nisotropy = {alpha}\nretire_lag = 12',
+    "tandem": 'mode = "error"\nerror = {e0}\nisotropy = {alpha}\ntime_lag = false\nretire_lag = 12',
+    "tandem+lag": 'mode = "error"\nerror = {e0}\nisotropy = {alpha}\ntime_lag = true\nretire_lag = 12',
 }
 
 
@@ -85,7 +85,8 @@ def job_text(dataset: str, n: int, simplify: str, out: Path) -> str:
     inp, iso, _, _ = DATASETS[dataset]
     return (
         f"[input]\n{inp.format(n=n)}\n\n[extract]\niso = {iso}\n\n[simplify]\n{simplify}\n"
-        f"retire_lag = 12\n\n[output]\npath = \"{out}\"\n\n"
+        # retire_lag = 12 is in each condition: mode "none" (the full surface) refuses it.
+        f"\n[output]\npath = \"{out}\"\n\n"
         # classical holds the whole surface: give it room (the budget only bounds the resident
         # surface; tandem runs stay far below it)
         "[pipeline]\nmemory_budget_mib = 8192\n\n[log]\nlevel = \"warn\"\n"

@@ -217,6 +217,43 @@ impl SimplifyConfig {
         self.priority.unwrap_or_default()
     }
 
+    /// These settings with the keys an earlier version always wrote out (before a key could be
+    /// left out) filled with their values: what a checkpoint's job hash is taken of, so that a
+    /// checkpoint of an earlier build resumes the same job (with `null` for them, it was
+    /// refused as a changed job file).
+    pub(crate) fn as_written_before(&self) -> Self {
+        Self {
+            initial_rate: Some(self.initial_rate()),
+            retire_lag: Some(self.retire_lag()),
+            time_lag: Some(self.time_lag()),
+            isotropy: Some(self.isotropy()),
+            priority: Some(self.priority()),
+            ..self.clone()
+        }
+    }
+
+    /// Leaves out every key the mode or priority ignores. A job stored by a service before such
+    /// keys were refused has each of them written out (`retire_lag = 8` in mode rate), and its
+    /// reload must not fail it for what did nothing.
+    pub fn drop_ignored_keys(&mut self) {
+        while let Some((key, ..)) = self.ignored_key() {
+            match key {
+                "rate" => self.rate = None,
+                "batch" => self.batch = None,
+                "initial_rate" => self.initial_rate = None,
+                "error" => self.error = None,
+                "retire_lag" => self.retire_lag = None,
+                "time_lag" => self.time_lag = None,
+                "isotropy" => self.isotropy = None,
+                "priority" => self.priority = None,
+                "boundary" => self.boundary = None,
+                "lambda" => self.lambda = None,
+                "attribute_weights" => self.attribute_weights = None,
+                _ => return,
+            }
+        }
+    }
+
     /// `boundary`, or its default: planar unless the priority has no boundary cost.
     pub fn boundary(&self) -> BoundaryKind {
         self.boundary.unwrap_or(match self.priority() {

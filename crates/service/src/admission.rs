@@ -215,6 +215,9 @@ pub(crate) fn reload(text: &str, job_dir: &Path) -> Result<JobConfig, String> {
     let origin = Path::new(ORIGIN);
     let mut job = JobConfig::parse(text, origin).map_err(|e| e.to_string())?;
     job.output.path = job_dir.join(output_name(&job.output.path));
+    // A service before ignored keys were refused stored every default (`retire_lag = 8` in
+    // mode rate): those did nothing, and failing the job at a restart for them would lose it.
+    job.simplify.drop_ignored_keys();
     job.validate(origin).map_err(|e| e.to_string())?;
     Ok(job)
 }
@@ -229,6 +232,20 @@ mod tests {
         format!(
             "[input]\npath = \"{path}\"\ndims = [2, 2, 2]\ndtype = \"u8\"\n[extract]\niso = 0.5\n[output]\npath = \"x.smb\"\n"
         )
+    }
+
+    /// A job stored by a service before ignored keys were refused has every default written out;
+    /// its reload keeps it (it was failed at the restart after an upgrade).
+    #[test]
+    fn a_job_stored_with_every_default_written_reloads() {
+        let dir = tempfile::tempdir().unwrap();
+        let stored = "[input]\nshape = \"sphere\"\nsize = [16, 16, 16]\n[extract]\niso = 0.0\n[simplify]\nmode = \"rate\"\nrate = 0.2\ninitial_rate = 0.5\nretire_lag = 8\ntime_lag = true\nisotropy = 0.0\npriority = \"geometric\"\n[output]\npath = \"output.smb\"\n";
+        let job = reload(stored, dir.path()).unwrap();
+        assert_eq!(job.simplify.retire_lag, None);
+        assert_eq!(job.simplify.initial_rate, Some(0.5), "read in mode rate");
+        // A new submission with such a key is still refused.
+        let refused = admit(stored, dir.path(), &Roots::default()).unwrap_err();
+        assert!(format!("{refused:?}").contains("retire_lag"), "{refused:?}");
     }
 
     #[test]
