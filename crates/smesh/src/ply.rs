@@ -430,7 +430,8 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
 
 /// Refuses data after the last element the header declares: a header that undercounts its
 /// faces (`element face 15331` for 215331) gave the first 15331 faces, exit 0. In ASCII, lines
-/// left that are not blank; in binary, any byte left.
+/// left that are not blank; in binary, bytes left that are not ASCII whitespace (some writers
+/// end a binary file with a newline, which an undercount would not leave alone).
 fn past_the_elements(path: &Path, rest: &mut impl BufRead, ascii: bool) -> Result<(), SmeshError> {
     let read = |e| SmeshError::io(path, "read", e);
     let (left, unit) = if ascii {
@@ -440,7 +441,18 @@ fn past_the_elements(path: &Path, rest: &mut impl BufRead, ascii: bool) -> Resul
         }
         (lines, if lines == 1 { "line" } else { "lines" })
     } else {
-        let bytes = std::io::copy(rest, &mut std::io::sink()).map_err(read)?;
+        let (mut bytes, mut data) = (0u64, false);
+        loop {
+            let chunk = rest.fill_buf().map_err(read)?;
+            if chunk.is_empty() {
+                break;
+            }
+            data |= chunk.iter().any(|b| !b.is_ascii_whitespace());
+            bytes += chunk.len() as u64;
+            let n = chunk.len();
+            rest.consume(n);
+        }
+        let bytes = if data { bytes } else { 0 };
         (bytes, if bytes == 1 { "byte" } else { "bytes" })
     };
     match left {
@@ -508,6 +520,11 @@ mod tests {
         let e = read(&p).unwrap_err().to_string();
         assert!(e.ends_with("b.ply: 13 bytes after the last element the header declares: the header's element counts are wrong; fix its `element` lines"), "{e}");
         std::fs::write(&p, &file[..file.len() - 13]).unwrap();
+        assert_eq!(read(&p).unwrap().triangles, [[0, 1, 2]]);
+        // A newline some writers end a binary file with is no data.
+        let mut newline = file[..file.len() - 13].to_vec();
+        newline.extend(b"\r\n");
+        std::fs::write(&p, &newline).unwrap();
         assert_eq!(read(&p).unwrap().triangles, [[0, 1, 2]]);
     }
 

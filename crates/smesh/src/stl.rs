@@ -129,10 +129,11 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let mut input = BufReader::new(File::open(path).map_err(|e| SmeshError::io(path, "open", e))?);
     let stl = stl_io::read_stl(&mut input)
         .map_err(|e| SmeshError::foreign(path, format!("invalid STL: {e}")))?;
-    let mut head = [0u8; 80];
+    // Up to 80 bytes: an ASCII STL may be shorter (`solid t\nendsolid t\n`).
+    let mut head = Vec::with_capacity(80);
     input
         .seek(SeekFrom::Start(0))
-        .and_then(|_| input.read_exact(&mut head))
+        .and_then(|_| (&mut input).take(80).read_to_end(&mut head))
         .map_err(|e| SmeshError::io(path, "read", e))?;
     let mut mesh = IndexedMesh {
         positions: stl.vertices.iter().map(|v| v.0.map(f64::from)).collect(),
@@ -156,7 +157,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
 
 /// The comments of an 80-byte header [`StlSink`] wrote (whole, each after `; `, the note on
 /// dropped attributes left out); none from another writer's, whose header is free bytes.
-fn comments(head: &[u8; 80]) -> Vec<String> {
+fn comments(head: &[u8]) -> Vec<String> {
     let text = String::from_utf8_lossy(head);
     let Some(parts) = text.trim_end().strip_prefix(SIGNATURE) else {
         return Vec::new();

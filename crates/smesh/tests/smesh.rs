@@ -254,6 +254,17 @@ fn stl_keeps_the_comments_that_fit_whole() {
     );
 }
 
+/// An ASCII STL shorter than the 80 bytes of a binary header reads (an empty one failed with
+/// "failed to fill whole buffer" once the header was read for comments).
+#[test]
+fn a_short_ascii_stl_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("tiny.stl");
+    std::fs::write(&p, "solid t\nendsolid t\n").unwrap();
+    let mesh = read_indexed(&p).unwrap();
+    assert!(mesh.triangles.is_empty() && mesh.comments.is_empty());
+}
+
 /// A foreign OBJ's leading `#` lines are its comments; `#` lines after the first statement are
 /// not, and nothing in a comment is read as anything else (a key SMA readers interpret is left
 /// out, since the SMA writer refuses it).
