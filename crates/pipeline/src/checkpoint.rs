@@ -487,9 +487,10 @@ fn write_error(path: &Path, source: std::io::Error) -> RunError {
 /// file), then decodes the rest; the simplifier's section is decoded later, from the file
 /// ([`decode_section`]).
 pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
-    let cannot = |e: std::io::Error| RunError::Checkpoint {
+    let cannot = |source| RunError::CheckpointIo {
         path: path.to_path_buf(),
-        reason: format!("cannot read the checkpoint: {e}"),
+        what: "read",
+        source,
     };
     let mut file = File::open(path).map_err(cannot)?;
     let size = file.metadata().map_err(cannot)?.len();
@@ -572,9 +573,10 @@ pub(crate) fn decode_section<T: DeserializeOwned>(
     section: Section,
 ) -> Result<T, RunError> {
     let Section { offset, len } = section;
-    let mut file = File::open(path).map_err(|e| RunError::Checkpoint {
+    let mut file = File::open(path).map_err(|source| RunError::CheckpointIo {
         path: path.to_path_buf(),
-        reason: format!("cannot read the checkpoint: {e}"),
+        what: "read",
+        source,
     })?;
     file.seek(SeekFrom::Start(offset))
         .map_err(|e| corrupt(path, &e.to_string()))?;
@@ -664,9 +666,10 @@ pub(crate) fn discard(path: &Path) -> Result<(), RunError> {
             let _ = std::fs::remove_file(f);
         }
     }
-    std::fs::remove_file(path).map_err(|e| RunError::Checkpoint {
+    std::fs::remove_file(path).map_err(|source| RunError::CheckpointIo {
         path: path.to_path_buf(),
-        reason: format!("cannot remove the checkpoint: {e}"),
+        what: "remove",
+        source,
     })
 }
 
@@ -674,10 +677,13 @@ pub(crate) fn discard(path: &Path) -> Result<(), RunError> {
 /// removed by the sink).
 pub(crate) fn remove(path: &Path) -> Result<(), RunError> {
     match std::fs::remove_file(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(RunError::Checkpoint {
-            path: path.to_path_buf(),
-            reason: format!("cannot remove the checkpoint of the completed run: {e}"),
-        }),
+        Err(source) if source.kind() != std::io::ErrorKind::NotFound => {
+            Err(RunError::CheckpointIo {
+                path: path.to_path_buf(),
+                what: "remove (the run completed)",
+                source,
+            })
+        }
         _ => Ok(()),
     }
 }
@@ -710,6 +716,23 @@ fn dir_of(path: &Path) -> &Path {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A checkpoint that cannot be read (here a folder) is a file to fix, not one to throw away
+    /// with `--restart` (which would fail to remove it too): its own error, exit 1.
+    #[test]
+    fn an_unreadable_checkpoint_is_an_io_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = read(dir.path()).unwrap_err();
+        assert!(
+            matches!(e, RunError::CheckpointIo { what: "read", .. }),
+            "{e:?}"
+        );
+        let msg = e.to_string();
+        assert!(
+            msg.contains("cannot read the checkpoint") && !msg.contains("--restart"),
+            "{msg}"
+        );
+    }
 
     /// A checkpoint of a build before keys could be left out holds the hash of the job with
     /// them written (`initial_rate = 0.5`, ...): the same job with them left out hashes alike,

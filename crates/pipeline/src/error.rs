@@ -100,6 +100,17 @@ pub enum RunError {
     },
     #[error("{}: {reason}; run with --restart to start over", path.display())]
     Checkpoint { path: PathBuf, reason: String },
+    /// The checkpoint file could not be read or removed (permissions, a failing disk): not a
+    /// checkpoint to throw away with `--restart`, which removes it too, but the file to fix.
+    #[error(
+        "{}: cannot {what} the checkpoint: {source}; check that file's folder and disk, then run again",
+        path.display()
+    )]
+    CheckpointIo {
+        path: PathBuf,
+        what: &'static str,
+        source: std::io::Error,
+    },
     /// Saving a checkpoint failed (a full disk): the run stops, and the checkpoint saved before
     /// it, if any, is left as it was, so the fix is to resume, not to start over.
     #[error(

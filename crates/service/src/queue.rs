@@ -497,6 +497,7 @@ impl Queue {
                     e @ (RunError::InputChanged { .. }
                     | RunError::ResumeMismatch { .. }
                     | RunError::Checkpoint { .. }
+                    | RunError::CheckpointIo { .. }
                     | RunError::Output(_)),
                 ) if !progressed.load(Ordering::Relaxed) => {
                     warn!(error = %e, "the checkpoint cannot be resumed; starting the job over");
@@ -647,6 +648,7 @@ fn run_error_kind(e: &RunError) -> &'static str {
         RunError::Cancelled | RunError::Interrupted { .. } => "run_cancelled",
         RunError::CheckpointFound { .. }
         | RunError::Checkpoint { .. }
+        | RunError::CheckpointIo { .. }
         | RunError::CheckpointWrite { .. }
         | RunError::ResumeMismatch { .. }
         | RunError::InputChanged { .. } => "run_checkpoint",
