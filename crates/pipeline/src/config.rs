@@ -329,6 +329,12 @@ impl SimplifyConfig {
                     modes.iter().map(|m| m.name()).collect::<Vec<_>>(),
                     self.mode.name(),
                 ),
+                // Mode none reads no priority: the mode is what to change, not the priority.
+                Reads::Priority(_) if self.mode == Mode::None => (
+                    "mode",
+                    vec![Mode::Rate.name(), Mode::Error.name(), Mode::Classical.name()],
+                    self.mode.name(),
+                ),
                 Reads::Priority(p) if p != self.priority() => {
                     ("priority", vec![p.name()], self.priority().name())
                 }
@@ -1203,6 +1209,14 @@ mod tests {
         assert_eq!(job.simplify.mode, Mode::Rate);
         assert_eq!(job.pipeline.channel_capacity, 8);
         assert_eq!(job.input.spacing, None);
+    }
+
+    #[test]
+    fn a_priority_key_in_mode_none_names_the_mode() {
+        let e = parse("[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0.0\n[simplify]\nmode = \"none\"\nlambda = 0.3\n[output]\npath = \"o.smb\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("`simplify.lambda` must be absent unless mode = \"rate\", \"error\" or \"classical\""), "{e}");
     }
 
     #[test]
