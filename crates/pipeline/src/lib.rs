@@ -955,16 +955,20 @@ mod tests {
         assert!(!budget.contains("allows no fewer"), "{budget}");
     }
 
+    /// An 8^3 sphere job with `extra` appended (the budget warnings read only its config).
+    fn small_sphere(extra: &str) -> JobConfig {
+        let text = format!(
+            "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0\n\
+             [output]\npath = \"o.smb\"\n{extra}"
+        );
+        JobConfig::parse(&text, Path::new("job.toml")).unwrap()
+    }
+
     /// What stretched the budget is told as it was: the faces held past it (the front and the
     /// two slabs behind it), the front's own count, and the budget that holds them all.
     #[test]
     fn a_stretched_budget_names_the_faces_held_and_a_budget_that_holds_them() {
-        let job = JobConfig::parse(
-            "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0\n\
-             [output]\npath = \"o.smb\"\n",
-            Path::new("job.toml"),
-        )
-        .unwrap();
+        let job = small_sphere("");
         let stats = isostream_simplify::SimplifyStats {
             front_stretch_faces: 74_081,
             peak_front_faces: 8_274,
@@ -1003,12 +1007,7 @@ mod tests {
     /// own warning), it does not.
     #[test]
     fn a_run_over_its_budget_warns_without_a_stretch() {
-        let job = JobConfig::parse(
-            "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\n[extract]\niso = 0\n\
-             [output]\npath = \"o.smb\"\n[pipeline]\nmemory_budget_mib = 20\n",
-            Path::new("job.toml"),
-        )
-        .unwrap();
+        let job = small_sphere("[pipeline]\nmemory_budget_mib = 20\n");
         let mut stats = isostream_simplify::SimplifyStats {
             peak_resident_faces: 7_000,
             ..Default::default()
