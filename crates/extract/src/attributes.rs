@@ -3,12 +3,12 @@
 //! An attribute is a second field on the same grid (another volume, another array of the same
 //! file, or one derived from the iso volume such as [`gradient_magnitude_slice`]). At a vertex on
 //! the grid edge from voxel `a` to voxel `b` it takes the value `f_a + t (f_b - f_a)` with the same
-//! `t` that placed the vertex ([`crate::interp::crossing`]), so an attribute equal to the iso
+//! `t` that placed the vertex ([`EdgePlacement::crossing`]), so an attribute equal to the iso
 //! field itself is exactly the iso value everywhere, and a field linear along the edge is exact.
 
 use isostream_volume::{Grid, SlabBounds};
 
-use crate::interp::crossing;
+use crate::interp::EdgePlacement;
 use crate::slab::{CubeBatch, Extractor};
 
 /// One attribute's values on the two slices of a slab (each `grid.slice_len()` values).
@@ -35,8 +35,8 @@ impl Extractor {
         max_triangles: usize,
         mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
     ) -> Result<(), E> {
-        let (grid, iso) = (self.grid(), self.iso());
-        let n = grid.slice_len();
+        let place = *self.placement();
+        let n = place.grid().slice_len();
         assert!(
             attributes
                 .iter()
@@ -47,7 +47,7 @@ impl Extractor {
         let done =
             self.extract_slab_skipping(z, lower, upper, bounds, max_triangles, |mut batch| {
                 if !attributes.is_empty() {
-                    replaced += sample(&grid, iso, z, [lower, upper], attributes, &mut batch);
+                    replaced += sample(&place, z, [lower, upper], attributes, &mut batch);
                 }
                 emit(batch)
             });
@@ -64,19 +64,19 @@ impl Extractor {
 /// of the edge's finite end stands in, or 0 when neither end is finite; the run summary counts
 /// them and warns.
 fn sample(
-    grid: &Grid,
-    iso: f32,
+    place: &EdgePlacement,
     z: u64,
     iso_slices: [&[f32]; 2],
     attributes: &[AttributeSlab<'_>],
     batch: &mut CubeBatch,
 ) -> u64 {
     let mut replaced = 0;
-    let nx = grid.dims[0] as usize;
+    let dims = place.grid().dims;
+    let nx = dims[0] as usize;
     batch.attrs.clear();
     batch.attrs.reserve(batch.vertices.len() * attributes.len());
     for v in &batch.vertices {
-        let ([x, y, vz], axis) = v.key.decode(grid.dims);
+        let ([x, y, vz], axis) = v.key.decode(dims);
         let (x, y) = (x as usize, y as usize);
         // Ends of the edge: (slice, index) with slice 0 = lower, 1 = upper.
         let upper = usize::from(vz > z);
@@ -86,7 +86,7 @@ fn sample(
             1 => (upper, a.1 + nx),
             _ => (1, a.1),
         };
-        let t = crossing(iso_slices[a.0][a.1], iso_slices[b.0][b.1], iso);
+        let t = place.crossing(axis, iso_slices[a.0][a.1], iso_slices[b.0][b.1]);
         for attr in attributes {
             let s = [attr.lower, attr.upper];
             let (fa, fb) = (f64::from(s[a.0][a.1]), f64::from(s[b.0][b.1]));

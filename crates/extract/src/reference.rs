@@ -11,7 +11,7 @@ use glam::DVec3;
 use isostream_volume::{VolumeError, VolumeSource};
 
 use crate::cube::{corner_offset, edge_axis, edge_corners};
-use crate::interp::{edge_position, is_inside};
+use crate::interp::{EdgePlacement, is_inside};
 use crate::key::EdgeKey;
 use crate::table;
 
@@ -39,6 +39,7 @@ pub fn extract_indexed(
     iso: f32,
 ) -> Result<IndexedSurface, VolumeError> {
     let grid = volume.grid();
+    let place = EdgePlacement::new(grid, iso);
     let [nx, ny, nz] = grid.dims;
     let mut surface = IndexedSurface::default();
     if nx < 2 || ny < 2 || nz < 2 {
@@ -70,7 +71,7 @@ pub fn extract_indexed(
                         let key = EdgeKey::new(voxel[0], voxel[1], voxel[2], axis, grid.dims);
                         *index_of.entry(key).or_insert_with(|| {
                             surface.keys.push(key);
-                            let pos = edge_position(&grid, voxel, axis, value(a), value(b), iso);
+                            let pos = place.position(voxel, axis, value(a), value(b));
                             surface.positions.push(pos);
                             u32::try_from(surface.keys.len() - 1)
                                 .expect("the reference holds fewer than 2^32 vertices")

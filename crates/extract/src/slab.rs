@@ -16,7 +16,7 @@ use isostream_volume::{Grid, SlabBounds};
 use serde::Serialize;
 
 use crate::cube::{corner_offset, edge_axis, edge_corners};
-use crate::interp::{edge_position, is_inside};
+use crate::interp::{EdgePlacement, is_inside};
 use crate::key::EdgeKey;
 use crate::table;
 
@@ -177,8 +177,8 @@ impl std::ops::AddAssign for ExtractStats {
 /// The streaming marching-cubes extractor of one volume at one iso value.
 #[derive(Debug, Clone)]
 pub struct Extractor {
-    grid: Grid,
-    iso: f32,
+    /// The grid, the iso value and where vertices go on a crossing edge.
+    place: EdgePlacement,
     stats: ExtractStats,
     /// Per-row scratch: the inside bits of each column of four voxels (reused, never shrinks).
     columns: Vec<u8>,
@@ -227,8 +227,7 @@ impl SlabRows for WholeSlices<'_> {
 impl Extractor {
     pub fn new(grid: Grid, iso: f32) -> Self {
         Extractor {
-            grid,
-            iso,
+            place: EdgePlacement::new(grid, iso),
             stats: ExtractStats::default(),
             columns: Vec::new(),
             batch_sizes: [0; 3],
@@ -310,7 +309,7 @@ impl Extractor {
         max_triangles: usize,
         emit: impl FnMut(CubeBatch) -> Result<(), E>,
     ) -> Result<(), E> {
-        let n = self.grid.slice_len();
+        let n = self.grid().slice_len();
         assert!(
             lower.len() == n && upper.len() == n,
             "slices must hold {n} values"
@@ -318,7 +317,7 @@ impl Extractor {
         let mut rows = WholeSlices {
             lower,
             upper,
-            nx: self.grid.dims[0] as usize,
+            nx: self.grid().dims[0] as usize,
         };
         self.extract_slab_rows(z, &mut rows, bounds, max_triangles, emit)
     }
@@ -337,7 +336,7 @@ impl Extractor {
         max_triangles: usize,
         mut emit: impl FnMut(CubeBatch) -> Result<(), E>,
     ) -> Result<(), E> {
-        let [nx, ny, nz] = self.grid.dims;
+        let [nx, ny, nz] = self.grid().dims;
         assert!(z + 1 < nz, "slab {z} outside a grid of {nz} slices");
         self.stats.cubes += nx.saturating_sub(1) * ny.saturating_sub(1);
 
@@ -352,7 +351,7 @@ impl Extractor {
             // non-finite voxel leaves its blocks unbounded, so every row of cubes holding one is
             // asked for (block bounds include their border rows).
             if let Some(b) = bounds
-                && !b.row_may_cross((y / b.block()[1]) as usize, self.iso)
+                && !b.row_may_cross((y / b.block()[1]) as usize, self.iso())
             {
                 self.stats.skipped_cubes += nx.saturating_sub(1);
                 continue;
@@ -410,11 +409,16 @@ impl Extractor {
     }
 
     pub fn grid(&self) -> Grid {
-        self.grid
+        self.place.grid()
     }
 
     pub fn iso(&self) -> f32 {
-        self.iso
+        self.place.iso()
+    }
+
+    /// Where this extractor's vertices go on their edges (the attributes are sampled there).
+    pub(crate) fn placement(&self) -> &EdgePlacement {
+        &self.place
     }
 
     /// Counters over every slab extracted so far.
@@ -442,7 +446,7 @@ impl Extractor {
         let bw = bw as usize;
         let mut bx = 0;
         while bx < bounds.count()[0] {
-            let active = |b: usize| bounds.may_cross(b, by, self.iso);
+            let active = |b: usize| bounds.may_cross(b, by, self.iso());
             let first = bx;
             while bx < bounds.count()[0] && active(bx) == active(first) {
                 bx += 1;
@@ -460,7 +464,7 @@ impl Extractor {
     /// Appends the non-empty cubes of the row of cubes whose voxels `quad` holds, starting at
     /// voxel `start`.
     fn extract_row(&mut self, start: [u64; 3], quad: RowQuad<'_>, batch: &mut CubeBatch) {
-        let iso = self.iso;
+        let iso = self.iso();
         // The case index is built incrementally along x: the inside bits of the four voxels of
         // column x, placed at the corner bits of a cube's x = 0 face (corner 2j for row j), are
         // computed once and serve as the x = 1 face (shifted left by one) of cube x - 1 and the
@@ -495,7 +499,7 @@ impl Extractor {
                     self.stats.triangles += table::case(index).triangles().len() as u64;
                 } else {
                     let coord = [start[0] + x as u64, start[1], start[2]];
-                    push_cube(&self.grid, iso, (coord, x), index, &quad, batch);
+                    push_cube(&self.place, (coord, x), index, &quad, batch);
                 }
             }
             x += 1;
@@ -511,8 +515,7 @@ const ALL_INSIDE_RUN: u64 = u64::from_le_bytes([0b0101_0101; 8]);
 /// Appends one non-empty cube (its minimum voxel, and its x in `quad`): its crossing edges'
 /// vertices and its triangles.
 fn push_cube(
-    grid: &Grid,
-    iso: f32,
+    place: &EdgePlacement,
     (coord, x): ([u64; 3], usize),
     index: u8,
     quad: &RowQuad<'_>,
@@ -527,8 +530,8 @@ fn push_cube(
         let voxel = [0, 1, 2].map(|i| coord[i] + u64::from(o[i]));
         let axis = edge_axis(e);
         batch.vertices.push(EdgeVertex {
-            key: EdgeKey::new(voxel[0], voxel[1], voxel[2], axis, grid.dims),
-            pos: edge_position(grid, voxel, axis, value(a), value(b), iso),
+            key: EdgeKey::new(voxel[0], voxel[1], voxel[2], axis, place.grid().dims),
+            pos: place.position(voxel, axis, value(a), value(b)),
         });
     }
     let first_triangle = batch.triangles.len();
