@@ -110,6 +110,26 @@ impl Job {
     fn publish(&self) {
         self.events.send_replace(self.view());
     }
+
+    /// Makes `change` to a copy of the record, writes that to the job's `state.json`, and only
+    /// then makes it the job's and publishes it: a write that fails (the state folder's disk
+    /// full or unwritable) leaves the job as it was, in memory as on disk, so what a client saw
+    /// is what a restart finds. A job that turns final drops its config: it never runs again.
+    fn change(
+        &mut self,
+        store: &Store,
+        change: impl FnOnce(&mut JobRecord),
+    ) -> std::io::Result<()> {
+        let mut record = self.record.clone();
+        change(&mut record);
+        store.save(&record)?;
+        if record.state.is_final() {
+            self.config = None;
+        }
+        self.record = record;
+        self.publish();
+        Ok(())
+    }
 }
 
 fn view_of(record: &JobRecord, progress: ProgressView) -> JobView {
@@ -353,23 +373,16 @@ impl Queue {
         };
         match job.record.state {
             JobState::Queued => {
-                let mut record = job.record.clone();
-                record.state = JobState::Cancelled;
-                record.finished_unix_ms = Some(now_ms());
-                self.store.save(&record)?;
-                job.record = record;
-                job.config = None;
-                job.publish();
+                job.change(&self.store, |r| {
+                    r.state = JobState::Cancelled;
+                    r.finished_unix_ms = Some(now_ms());
+                })?;
                 info!(%id, "queued job cancelled");
                 Ok(DeleteOutcome::Cancelled(job.view()))
             }
             JobState::Running => {
                 if !job.record.cancel_requested {
-                    let mut record = job.record.clone();
-                    record.cancel_requested = true;
-                    self.store.save(&record)?;
-                    job.record = record;
-                    job.publish();
+                    job.change(&self.store, |r| r.cancel_requested = true)?;
                 }
                 job.cancel.store(true, Ordering::Relaxed);
                 info!(%id, "cancelling a running job");
