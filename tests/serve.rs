@@ -596,6 +596,67 @@ fn jobs_are_cancelled_queued_or_running() {
     assert_eq!(files_in(&state.join("jobs")), [second.as_str()]);
 }
 
+/// Makes the job's `state.json` impossible to rewrite, as a full disk would: a new state is
+/// renamed over it, which fails on a folder. Returns the folder, to remove to undo it.
+fn block_state(state: &Path, id: &str) -> PathBuf {
+    let file = state.join("jobs").join(id).join("state.json");
+    std::fs::remove_file(&file).unwrap();
+    std::fs::create_dir(&file).unwrap();
+    file
+}
+
+/// The job's state as `state.json` holds it.
+fn stored_state(state: &Path, id: &str) -> Value {
+    json(&std::fs::read_to_string(state.join("jobs").join(id).join("state.json")).unwrap())
+}
+
+/// Polls the service's log until it holds `text`, or panics after 60 s.
+fn wait_for_log(s: &Server, text: &str) {
+    let start = Instant::now();
+    while !s.log().contains(text) {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "never logged {text:?}:\n{}",
+            s.log()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// A job whose `running` state cannot be written when its turn comes is not started: it stays
+/// queued, as its `state.json` says, and starts once the state can be written. It was failed in
+/// memory while the disk still said queued: clients were told it failed, and a restart ran it.
+#[test]
+fn a_job_whose_start_cannot_be_written_stays_queued_and_starts_later() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &[]);
+    let first = submit(&s, &long_job("a.smb"));
+    let second = submit(&s, SPHERE);
+    wait_for(&s, &first, "running", |v| v["state"] == "running");
+    let blocked = block_state(&state, &second);
+    // Its turn comes once the first job is cancelled.
+    let (code, _) = send(agent().delete(&s.url(&format!("/jobs/{first}"))), None);
+    assert_eq!(code, 202);
+    wait_for_log(&s, "it stays queued");
+    let waiting = job(&s, &second);
+    assert_eq!(
+        (&waiting["state"], &waiting["attempts"], &waiting["error"]),
+        (&"queued".into(), &0.into(), &Value::Null),
+        "{waiting}"
+    );
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    assert!(
+        metrics.contains("isostream_errors_total{kind=\"state_io\"}"),
+        "{metrics}"
+    );
+
+    std::fs::remove_dir(blocked).unwrap();
+    let done = wait_for(&s, &second, "done", |v| v["state"] == "done");
+    assert_eq!(done["attempts"], 1, "{done}");
+    assert_eq!(stored_state(&state, &second)["state"], "done");
+}
+
 #[test]
 fn at_most_max_parallel_jobs_run_at_once() {
     let dir = tempfile::tempdir().unwrap();

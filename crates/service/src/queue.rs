@@ -172,6 +172,20 @@ pub(crate) enum DeleteOutcome {
 /// only ran beside it once finish.
 const MAX_CRASHES: u32 = 3;
 
+/// How long a change of state that could not be written (the state folder's disk full or
+/// unwritable) waits before it is tried again: a long-running service outlives a full disk, so
+/// the change is made once the disk takes it rather than given up, and a small write every few
+/// seconds costs nothing meanwhile.
+const STATE_RETRY: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Whether [`Queue::start_ready`] started what it could, or stopped at a job whose state
+/// could not be written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Starts {
+    Started,
+    WaitForDisk,
+}
+
 /// How many jobs may run, and wait, at once.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Limits {
@@ -402,18 +416,25 @@ impl Queue {
     }
 
     /// Starts queued jobs, oldest first, while fewer than `max_parallel` run; wakes up on every
-    /// submission and every finished run, until shutdown.
+    /// submission and every finished run, until shutdown, and every [`STATE_RETRY`] while a
+    /// start waits for its state to be written.
     pub async fn schedule(self: Arc<Self>) {
         loop {
-            self.start_ready();
+            let waiting = self.start_ready() == Starts::WaitForDisk;
             tokio::select! {
                 _ = self.wake.notified() => {}
+                () = tokio::time::sleep(STATE_RETRY), if waiting => {}
                 _ = self.shutdown.cancelled() => return,
             }
         }
     }
 
-    fn start_ready(self: &Arc<Self>) {
+    /// A job starts only once its `running` state is written. When it cannot be (the state
+    /// folder's disk full or unwritable), the job stays queued, as its `state.json` says, and
+    /// nothing starts until it can: failing it instead told clients it had failed while the
+    /// disk still said queued, so the next start ran it anyway. Its turn is kept (the next jobs
+    /// share its disk, and would jump the queue), and the write is tried again.
+    fn start_ready(self: &Arc<Self>) -> Starts {
         let mut t = self.lock();
         while t.running < self.limits.running && !self.shutdown.is_cancelled() {
             let next = t
@@ -437,27 +458,28 @@ impl Queue {
             // Every queued job has its config (it is dropped only in final states); should that
             // ever break, fail the job rather than stall the queue behind it.
             let Some(config) = job.config.clone() else {
-                job.record.state = JobState::Failed;
-                job.record.error = Some("internal error: the job's config was lost".into());
-                job.publish();
-                continue;
+                let failed = job.change(&self.store, |r| {
+                    r.state = JobState::Failed;
+                    r.error = Some("internal error: the job's config was lost".into());
+                    r.finished_unix_ms = Some(now_ms());
+                });
+                match failed {
+                    Ok(()) => continue,
+                    Err(e) => return self.wait_for_disk(&id, &e),
+                }
             };
             if let Err(e) = self.store.clear_outputs(&id, &resumable(Some(&config))) {
                 warn!(%id, error = %e, "cannot clear the job folder before its run");
             }
-            job.record.state = JobState::Running;
-            job.record.started_unix_ms = Some(now_ms());
-            job.record.attempts += 1;
             job.progress = ProgressView::default();
-            if let Err(e) = self.store.save(&job.record) {
-                error!(%id, error = %e, "cannot write the job state; not starting it");
-                job.record.state = JobState::Failed;
-                job.record.error = Some(format!("cannot write the job state: {e}"));
-                job.publish();
-                self.metrics.error("state_io");
-                continue;
+            let started = job.change(&self.store, |r| {
+                r.state = JobState::Running;
+                r.started_unix_ms = Some(now_ms());
+                r.attempts += 1;
+            });
+            if let Err(e) = started {
+                return self.wait_for_disk(&id, &e);
             }
-            job.publish();
             let cancel = Arc::clone(&job.cancel);
             t.running += 1;
             let span = info_span!("job", id = %id);
@@ -465,6 +487,20 @@ impl Queue {
             self.runs
                 .spawn(queue.run(id, config, cancel, span.clone()).instrument(span));
         }
+        Starts::Started
+    }
+
+    /// Logs and counts a queued job's change that could not be written; the scheduler tries
+    /// again in [`STATE_RETRY`].
+    fn wait_for_disk(&self, id: &str, e: &std::io::Error) -> Starts {
+        self.metrics.error("state_io");
+        error!(
+            %id,
+            error = %e,
+            retry_seconds = STATE_RETRY.as_secs(),
+            "cannot write the job's state: it stays queued, and no job starts until it can be written; free space on the disk of the service's state folder, or make it writable"
+        );
+        Starts::WaitForDisk
     }
 
     async fn run(
