@@ -657,6 +657,35 @@ fn a_job_whose_start_cannot_be_written_stays_queued_and_starts_later() {
     assert_eq!(stored_state(&state, &second)["state"], "done");
 }
 
+/// A run whose end cannot be written shows `running`, as its `state.json` says, until the
+/// write, tried again, succeeds; nothing else starts meanwhile. It was shown done (or failed)
+/// while the disk said running, so a restart ran the finished job again.
+#[test]
+fn the_end_of_a_run_is_shown_once_it_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &[]);
+    let first = submit(&s, &long_job("a.smb"));
+    let second = submit(&s, SPHERE);
+    wait_for(&s, &first, "running", |v| v["state"] == "running");
+    let blocked = block_state(&state, &first);
+    wait_for_log(&s, "cannot write the end of the run");
+    let unwritten = job(&s, &first);
+    assert_eq!(unwritten["state"], "running", "{unwritten}");
+    let (code, _) = send(agent().get(&s.url(&format!("/jobs/{first}/output"))), None);
+    assert_eq!(code, 409);
+    assert_eq!(
+        job(&s, &second)["state"],
+        "queued",
+        "its slot is still taken"
+    );
+
+    std::fs::remove_dir(blocked).unwrap();
+    wait_for(&s, &first, "done", |v| v["state"] == "done");
+    assert_eq!(stored_state(&state, &first)["state"], "done");
+    wait_for(&s, &second, "done", |v| v["state"] == "done");
+}
+
 #[test]
 fn at_most_max_parallel_jobs_run_at_once() {
     let dir = tempfile::tempdir().unwrap();

@@ -350,15 +350,16 @@ enum Follow {
 /// When the service stops, the stream ends with the job as it is saved for the next start,
 /// marked `"shutdown": true`: a running job is interrupted and saved `queued` (`Queue::drain`,
 /// within a slice), and the stream waits for that. It ended at once before, its last event
-/// `running` while the job was saved `queued`.
+/// `running` while the job was saved `queued`. A run whose end cannot be written stays
+/// `running`, as saved: the stream waits for the drain, not for the job to leave `running`.
 async fn events(
     State(s): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let rx = s.queue.watch(&id).ok_or_else(|| ApiError::not_found(&id))?;
     let stream = futures_util::stream::unfold(
-        (rx, Follow::First, s.shutdown.clone()),
-        |(mut rx, next, stop)| async move {
+        (rx, Follow::First, s.shutdown.clone(), Arc::clone(&s.queue)),
+        |(mut rx, next, stop, queue)| async move {
             let stopping = match next {
                 Follow::End => return None,
                 Follow::First => false,
@@ -372,9 +373,7 @@ async fn events(
                 },
             };
             if stopping {
-                while rx.borrow_and_update().record.state == JobState::Running {
-                    rx.changed().await.ok()?;
-                }
+                queue.drained().await;
             }
             let view = rx.borrow_and_update().clone();
             let end = stopping || view.record.state.is_final();
@@ -388,7 +387,7 @@ async fn events(
                 })
                 .unwrap_or_else(|e| Event::default().comment(e));
             let next = if end { Follow::End } else { Follow::Change };
-            Some((Ok(event), (rx, next, stop)))
+            Some((Ok(event), (rx, next, stop, queue)))
         },
     );
     Ok(Sse::new(stream).keep_alive(KeepAlive::default()))

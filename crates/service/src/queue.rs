@@ -186,6 +186,25 @@ enum Starts {
     WaitForDisk,
 }
 
+/// How a run ended, as its job's record says once that is written ([`Queue::finish`]).
+struct RunEnd {
+    state: JobState,
+    finished_unix_ms: Option<u64>,
+    /// The one-line error of a failed run.
+    error: Option<String>,
+    /// The run summary of a done one.
+    summary: Option<serde_json::Value>,
+}
+
+impl RunEnd {
+    fn apply(&self, record: &mut JobRecord) {
+        record.state = self.state;
+        record.finished_unix_ms = self.finished_unix_ms;
+        record.error.clone_from(&self.error);
+        record.summary.clone_from(&self.summary);
+    }
+}
+
 /// How many jobs may run, and wait, at once.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Limits {
@@ -211,6 +230,9 @@ pub(crate) struct Queue {
     metrics: Arc<Metrics>,
     shutdown: CancellationToken,
     runs: TaskTracker,
+    /// Cancelled once [`Queue::drain`] is over: every run has stopped and its job is as saved
+    /// for the next start.
+    drained: CancellationToken,
 }
 
 impl Queue {
@@ -294,6 +316,7 @@ impl Queue {
             metrics,
             shutdown,
             runs: TaskTracker::new(),
+            drained: CancellationToken::new(),
         })
     }
 
@@ -562,7 +585,7 @@ impl Queue {
                 reason: format!("the run panicked: {e}"),
             })
         });
-        self.finish(&id, outcome);
+        self.finish(&id, outcome).await;
         self.wake.notify_one();
     }
 
@@ -580,22 +603,49 @@ impl Queue {
         }
     }
 
-    fn finish(&self, id: &str, outcome: Result<RunSummary, RunError>) {
-        let mut t = self.lock();
-        t.running -= 1;
-        let shutting_down = self.shutdown.is_cancelled();
-        let Some(job) = t.jobs.get_mut(id) else {
+    /// Records the end of a run. Until it is written the job stays `running`, as its
+    /// `state.json` says, and keeps its slot: a write that fails (the state folder's disk full)
+    /// is tried again every [`STATE_RETRY`], and once more when the service stops. Shown
+    /// unwritten, the end told clients a job had failed (or was done) while the disk still said
+    /// running, and the next start ran it again.
+    async fn finish(&self, id: &str, outcome: Result<RunSummary, RunError>) {
+        let Some(end) = self.end_of_run(id, outcome) else {
             return;
         };
-        job.record.finished_unix_ms = Some(now_ms());
+        while !self.record_end(id, &end) {
+            if self.shutdown.is_cancelled() {
+                error!(
+                    "the service stops before the end of this run could be written: its state.json still says running, and the next start runs it again"
+                );
+                return;
+            }
+            tokio::select! {
+                () = tokio::time::sleep(STATE_RETRY) => {}
+                () = self.shutdown.cancelled() => {}
+            }
+        }
+    }
+
+    /// What the run's outcome makes of its job, counted and logged, its partial files removed
+    /// (all but a checkpoint it may resume from): the end [`Queue::record_end`] writes.
+    fn end_of_run(&self, id: &str, outcome: Result<RunSummary, RunError>) -> Option<RunEnd> {
+        let mut t = self.lock();
+        let shutting_down = self.shutdown.is_cancelled();
+        let job = t.jobs.get_mut(id)?;
+        // The run's memory is gone, whether or not its end can be written yet.
+        job.progress.resident_faces = 0;
+        let mut end = RunEnd {
+            state: JobState::Failed,
+            finished_unix_ms: Some(now_ms()),
+            error: None,
+            summary: None,
+        };
         match outcome {
             Ok(summary) => {
                 self.metrics.stage_seconds(&summary.stage_seconds);
                 self.metrics.voxels(summary.voxels);
-                job.record.state = JobState::Done;
-                job.record.summary = summary_without_series(&summary);
-                job.progress.resident_faces = 0;
-                job.config = None;
+                end.state = JobState::Done;
+                end.summary = summary_without_series(&summary);
                 info!(
                     faces_in = summary.faces_extracted,
                     faces_out = summary.faces_written,
@@ -608,40 +658,56 @@ impl Queue {
             {
                 // Interrupted by the service stopping, not by a client: run it again next start
                 // (from its checkpoint, which `clear_outputs` below keeps).
-                job.record.state = JobState::Queued;
-                job.record.finished_unix_ms = None;
+                end.state = JobState::Queued;
+                end.finished_unix_ms = None;
                 info!("run interrupted by shutdown; it stays queued");
             }
             Err(RunError::Cancelled | RunError::Interrupted { .. }) => {
-                job.record.state = JobState::Cancelled;
-                job.config = None;
+                end.state = JobState::Cancelled;
                 info!("run cancelled");
             }
             Err(e) => {
                 self.metrics.error(run_error_kind(&e));
-                job.record.state = JobState::Failed;
-                job.record.error = Some(for_a_client(&e.to_string()));
-                job.config = None;
+                end.error = Some(for_a_client(&e.to_string()));
                 warn!(error = %e, "run failed");
             }
         }
-        let keep = match job.record.state {
+        let keep = match end.state {
             JobState::Queued => resumable(job.config.as_deref()),
             _ => Vec::new(),
         };
-        if job.record.state != JobState::Done
+        if end.state != JobState::Done
             && let Err(e) = self.store.clear_outputs(id, &keep)
         {
             warn!(error = %e, "cannot remove the partial output");
         }
-        if let Err(e) = self.store.save(&job.record) {
-            self.metrics.error("state_io");
-            error!(error = %e, "cannot write the job state");
-        }
-        job.publish();
+        Some(end)
     }
 
-    /// After shutdown: interrupt running jobs and wait until their runs have cleaned up.
+    /// Writes the end of the job's run and only then makes it the job's, freeing its slot;
+    /// false (logged and counted) while it cannot be written.
+    fn record_end(&self, id: &str, end: &RunEnd) -> bool {
+        let mut t = self.lock();
+        let written = match t.jobs.get_mut(id) {
+            Some(job) => job.change(&self.store, |r| end.apply(r)),
+            None => Ok(()),
+        };
+        if let Err(e) = written {
+            self.metrics.error("state_io");
+            error!(
+                error = %e,
+                state = end.state.name(),
+                retry_seconds = STATE_RETRY.as_secs(),
+                "cannot write the end of the run: the job shows running until it is written; free space on the disk of the service's state folder, or make it writable"
+            );
+            return false;
+        }
+        t.running -= 1;
+        true
+    }
+
+    /// After shutdown: interrupt running jobs and wait until their runs have cleaned up and
+    /// their ends are written, or given up (see [`Queue::finish`]).
     pub async fn drain(&self) {
         {
             let t = self.lock();
@@ -653,6 +719,12 @@ impl Queue {
         }
         self.runs.close();
         self.runs.wait().await;
+        self.drained.cancel();
+    }
+
+    /// Returns once [`Queue::drain`] is over: the jobs are as the next start finds them.
+    pub async fn drained(&self) {
+        self.drained.cancelled().await;
     }
 }
 
