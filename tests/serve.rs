@@ -686,6 +686,58 @@ fn the_end_of_a_run_is_shown_once_it_is_written() {
     wait_for(&s, &second, "done", |v| v["state"] == "done");
 }
 
+/// A service stopped while the end of a run cannot be written leaves the job `running` on
+/// disk, and says so (an event stream ends with it as saved); its next start finds the run
+/// completed (its output and run summary whole) and shows it done, not run again.
+#[test]
+fn a_completed_run_whose_end_was_not_written_is_done_at_the_next_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let mut s = Server::start(&state, &[]);
+    let job_text = long_job("a.smb");
+    let id = submit(&s, &job_text);
+    wait_for(&s, &id, "running", |v| v["state"] == "running");
+    let state_file = state.join("jobs").join(&id).join("state.json");
+    let running = std::fs::read(&state_file).unwrap();
+    let blocked = block_state(&state, &id);
+    wait_for_log(&s, "cannot write the end of the run");
+    let events = follow_live(&s, &id);
+    let term = Command::new("kill")
+        .args(["-TERM", &s.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    assert!(s.child.wait().unwrap().success(), "{}", s.log());
+    let last = events.iter().last().unwrap();
+    assert_eq!(
+        (&last["state"], &last["shutdown"]),
+        (&"running".into(), &true.into()),
+        "{last}"
+    );
+    assert!(
+        s.log()
+            .contains("the service stops before the end of this run could be written")
+    );
+    // What the disk holds once the folder is gone: the job's last state written.
+    std::fs::remove_dir(blocked).unwrap();
+    std::fs::write(&state_file, running).unwrap();
+
+    let s = Server::start(&state, &[]);
+    let found = job(&s, &id);
+    assert_eq!(
+        (&found["state"], &found["attempts"], &found["crashes"]),
+        (&"done".into(), &1.into(), &0.into()),
+        "done, not run again: {found}\n{}",
+        s.log()
+    );
+    assert!(
+        found["summary"]["faces_written"].as_u64().unwrap() > 0,
+        "{found}"
+    );
+    assert_eq!(stored_state(&state, &id)["state"], "done");
+    assert_same_as_a_direct_run(dir.path(), &job_text, "a.smb", &output_bytes(&s, &id));
+}
+
 #[test]
 fn at_most_max_parallel_jobs_run_at_once() {
     let dir = tempfile::tempdir().unwrap();

@@ -8,7 +8,7 @@
 //! output and its run summary), so a restarted service picks up where the last one stopped: queued
 //! jobs stay queued and a job that was running starts again, from its last checkpoint when it
 //! saved one, else from the beginning (the pipeline is deterministic, so the bytes are the same
-//! as an uninterrupted run's).
+//! as an uninterrupted run's), unless its run had completed and only its end was not written.
 #![deny(unsafe_code)]
 
 mod admission;

@@ -237,7 +237,8 @@ pub(crate) struct Queue {
 
 impl Queue {
     /// Loads the stored jobs: queued ones stay queued, one that was running is queued again (its
-    /// partial output removed), finished ones are kept for clients to read.
+    /// partial output removed) unless its run had completed ([`completed_run`]), finished ones
+    /// are kept for clients to read.
     pub fn recover(
         store: Store,
         roots: Arc<admission::Roots>,
@@ -247,6 +248,17 @@ impl Queue {
     ) -> Arc<Self> {
         let mut table = Table::default();
         for (mut record, text) in store.load_all() {
+            if record.state == JobState::Running
+                && let Some((summary, ended)) =
+                    completed_run(&store.job_dir(&record.id), &record.output)
+            {
+                // Its run completed, but its end was not written: done, as it would have been
+                // shown (even with a cancel requested: the run finished before it was heard).
+                info!(id = %record.id, "a job whose end was not written had completed: done");
+                record.state = JobState::Done;
+                record.summary = Some(summary);
+                record.finished_unix_ms = Some(ended);
+            }
             if record.state == JobState::Running && record.cancel_requested {
                 // Cancelled by a client (`Queue::delete` wrote that first), and the service
                 // stopped before the end of the run was recorded: cancelled, as it was told.
@@ -607,7 +619,9 @@ impl Queue {
     /// `state.json` says, and keeps its slot: a write that fails (the state folder's disk full)
     /// is tried again every [`STATE_RETRY`], and once more when the service stops. Shown
     /// unwritten, the end told clients a job had failed (or was done) while the disk still said
-    /// running, and the next start ran it again.
+    /// running, and the next start ran it again. A service that stops before the write succeeds
+    /// leaves the job `running` on disk: its next start finds a completed run done
+    /// ([`completed_run`]) and runs any other again.
     async fn finish(&self, id: &str, outcome: Result<RunSummary, RunError>) {
         let Some(end) = self.end_of_run(id, outcome) else {
             return;
@@ -615,7 +629,7 @@ impl Queue {
         while !self.record_end(id, &end) {
             if self.shutdown.is_cancelled() {
                 error!(
-                    "the service stops before the end of this run could be written: its state.json still says running, and the next start runs it again"
+                    "the service stops before the end of this run could be written: its state.json still says running; the next start finds it done if its output and run summary are complete, else runs it again"
                 );
                 return;
             }
@@ -645,7 +659,7 @@ impl Queue {
                 self.metrics.stage_seconds(&summary.stage_seconds);
                 self.metrics.voxels(summary.voxels);
                 end.state = JobState::Done;
-                end.summary = summary_without_series(&summary);
+                end.summary = serde_json::to_value(&summary).ok().map(without_series);
                 info!(
                     faces_in = summary.faces_extracted,
                     faces_out = summary.faces_written,
@@ -746,12 +760,40 @@ fn resumable(config: Option<&JobConfig>) -> Vec<std::path::PathBuf> {
 
 /// The run summary as `state.json`, the job views and every event carry it: without its time
 /// series (up to a thousand points), which only the report reads, from `<output>.run.json`.
-fn summary_without_series(summary: &RunSummary) -> Option<serde_json::Value> {
-    let mut value = serde_json::to_value(summary).ok()?;
-    if let Some(map) = value.as_object_mut() {
+fn without_series(mut summary: serde_json::Value) -> serde_json::Value {
+    if let Some(map) = summary.as_object_mut() {
         map.remove("series");
     }
-    Some(value)
+    summary
+}
+
+/// The summary (without its series) and end time of the completed run of a job found
+/// `running`: its end was never written (the state folder's disk full until the service
+/// stopped, or a crash just after the run), and running it again would redo finished work
+/// under a client who may have its output already.
+///
+/// Sound because of the order of the files: the pipeline fsyncs the output and renames it to
+/// its final name, then writes the summary as its last step, its `sink.bytes` the output's
+/// size; and the service removes both before every run. A summary there whose `sink.bytes` is
+/// the output's size is this job's last run's, and that run completed. Anything less (no
+/// summary, a torn one, an output of another size) is a run to do again.
+fn completed_run(dir: &Path, output: &str) -> Option<(serde_json::Value, u64)> {
+    let output = dir.join(output);
+    let summary_file = isostream_pipeline::summary_path(&output);
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&summary_file).ok()?).ok()?;
+    let written = std::fs::metadata(&output).ok()?.len();
+    if summary["sink"]["bytes"].as_u64() != Some(written) {
+        return None;
+    }
+    let ended = std::fs::metadata(&summary_file).and_then(|m| m.modified());
+    let ended_ms = ended
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok());
+    Some((
+        without_series(summary),
+        ended_ms.map_or_else(now_ms, |d| d.as_millis() as u64),
+    ))
 }
 
 fn run_error_kind(e: &RunError) -> &'static str {
@@ -869,6 +911,34 @@ mod tests {
             "cancelled as the client was told, not a crash to run again"
         );
         assert_eq!(q.get(QUEUED).unwrap().record.state, JobState::Cancelled);
+    }
+
+    /// A job found `running` is done only when its run summary is whole and names the
+    /// output's size: the pipeline writes it last, once the output is complete.
+    #[test]
+    fn only_a_whole_summary_of_the_output_as_it_is_makes_a_completed_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let summary = dir.path().join("output.smb.run.json");
+        let completed = || completed_run(dir.path(), "output.smb");
+        std::fs::write(dir.path().join("output.smb"), b"12345").unwrap();
+        assert!(completed().is_none(), "no summary: killed before the end");
+        std::fs::write(&summary, br#"{"sink": {"bytes": 5}, "#).unwrap();
+        assert!(completed().is_none(), "a torn summary");
+        std::fs::write(
+            &summary,
+            br#"{"sink": {"bytes": 5}, "faces_written": 2, "series": [1, 2]}"#,
+        )
+        .unwrap();
+        let (kept, ended) = completed().unwrap();
+        assert_eq!(
+            kept,
+            serde_json::json!({"sink": {"bytes": 5}, "faces_written": 2})
+        );
+        assert!(ended > 0 && ended <= now_ms());
+        std::fs::write(dir.path().join("output.smb"), b"1234").unwrap();
+        assert!(completed().is_none(), "an output of another size");
+        std::fs::remove_file(dir.path().join("output.smb")).unwrap();
+        assert!(completed().is_none(), "no output");
     }
 
     #[test]
