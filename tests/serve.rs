@@ -738,6 +738,116 @@ fn a_completed_run_whose_end_was_not_written_is_done_at_the_next_start() {
     assert_same_as_a_direct_run(dir.path(), &job_text, "a.smb", &output_bytes(&s, &id));
 }
 
+/// A file the service cannot delete, in a folder of its own (`held/`) planted in `dir`, as an
+/// administrator's lock or a failing disk would leave one: immutable (`chattr +i`) where the
+/// test may set that (root, whom permissions do not stop), else in a read-only folder. `None`
+/// where neither holds (a file system without the attribute, and root). Undone when dropped.
+#[cfg(unix)]
+struct Undeletable {
+    file: PathBuf,
+}
+
+#[cfg(unix)]
+impl Undeletable {
+    fn plant(dir: &Path) -> Option<Self> {
+        use std::os::unix::fs::PermissionsExt;
+        let folder = dir.join("held");
+        std::fs::create_dir(&folder).unwrap();
+        let file = folder.join("file");
+        std::fs::write(&file, b"held").unwrap();
+        let immutable = Command::new("chattr")
+            .arg("+i")
+            .arg(&file)
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        let held = Undeletable { file };
+        if immutable {
+            return Some(held);
+        }
+        std::fs::set_permissions(&folder, std::fs::Permissions::from_mode(0o555)).unwrap();
+        // Root writes in a read-only folder, and would delete the file as well.
+        let probe = folder.join("probe");
+        match std::fs::write(&probe, b"") {
+            Ok(()) => {
+                std::fs::remove_file(probe).unwrap();
+                None
+            }
+            Err(_) => Some(held),
+        }
+    }
+}
+
+#[cfg(unix)]
+impl Drop for Undeletable {
+    fn drop(&mut self) {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = Command::new("chattr")
+            .arg("-i")
+            .arg(&self.file)
+            .stderr(Stdio::null())
+            .status();
+        if let Some(folder) = self.file.parent() {
+            let _ = std::fs::set_permissions(folder, std::fs::Permissions::from_mode(0o755));
+        }
+    }
+}
+
+/// A `DELETE` of a finished job tells the truth about what is left. Its state file decides:
+/// when that cannot be removed, nothing is (`500`, the job as it was); once it is, the job is
+/// gone (`200`, as a restart finds it), and the files that could not be deleted are named in
+/// a `warning` and deleted at the next start. Such a removal answered "unchanged" and kept the
+/// job listed, while a restart found it gone.
+#[cfg(unix)]
+#[test]
+fn a_removal_that_fails_says_what_is_left() {
+    let dir = tempfile::tempdir().unwrap();
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &[]);
+    let id = submit(&s, SPHERE);
+    wait_for(&s, &id, "done", |v| v["state"] == "done");
+    let job_dir = state.join("jobs").join(&id);
+    let remove = || send(agent().delete(&s.url(&format!("/jobs/{id}"))), None);
+
+    let done = std::fs::read(job_dir.join("state.json")).unwrap();
+    let blocked = block_state(&state, &id);
+    let (code, body) = remove();
+    assert_eq!(code, 500, "{body}");
+    assert!(error_of(&body).contains("unchanged"), "{body}");
+    assert_eq!(job(&s, &id)["state"], "done");
+    assert!(!output_bytes(&s, &id).is_empty());
+    std::fs::remove_dir(blocked).unwrap();
+    std::fs::write(job_dir.join("state.json"), done).unwrap();
+
+    let Some(held) = Undeletable::plant(&job_dir) else {
+        eprintln!("skipped the second half: no file can be made undeletable here");
+        return;
+    };
+    let (code, body) = remove();
+    assert_eq!(code, 200, "{body}");
+    let removed = json(&body);
+    assert_eq!(removed["removed"], true, "{body}");
+    let warning = removed["warning"].as_str().unwrap_or_default();
+    assert!(
+        warning.contains("not deleted whole") && warning.contains(&*job_dir.to_string_lossy()),
+        "{body}"
+    );
+    let (code, _) = send(agent().get(&s.url(&format!("/jobs/{id}"))), None);
+    assert_eq!(code, 404, "gone, as a restart finds it");
+    assert!(!job_dir.join("state.json").exists());
+    assert!(job_dir.join("held").exists());
+
+    drop(s);
+    drop(held);
+    let s = Server::start(&state, &[]);
+    let (code, _) = send(agent().get(&s.url(&format!("/jobs/{id}"))), None);
+    assert_eq!(code, 404);
+    assert!(
+        files_in(&state.join("jobs")).is_empty(),
+        "what was left is deleted"
+    );
+}
+
 #[test]
 fn at_most_max_parallel_jobs_run_at_once() {
     let dir = tempfile::tempdir().unwrap();

@@ -328,11 +328,13 @@ async fn delete(State(s): State<AppState>, Path(id): Path<String>) -> Result<Res
     match outcome {
         DeleteOutcome::Cancelled(view) => Ok((StatusCode::OK, Json(view)).into_response()),
         DeleteOutcome::Stopping(view) => Ok((StatusCode::ACCEPTED, Json(view)).into_response()),
-        DeleteOutcome::Removed => Ok((
-            StatusCode::OK,
-            Json(serde_json::json!({ "id": id, "removed": true })),
-        )
-            .into_response()),
+        DeleteOutcome::Removed { leftover } => {
+            let mut removed = serde_json::json!({ "id": id, "removed": true });
+            if let Some(leftover) = leftover {
+                removed["warning"] = format!("job {id} is removed, but {leftover}").into();
+            }
+            Ok((StatusCode::OK, Json(removed)).into_response())
+        }
         DeleteOutcome::NotFound => Err(ApiError::not_found(&id)),
     }
 }

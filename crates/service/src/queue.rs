@@ -21,7 +21,7 @@ use tracing::{Instrument, error, info, info_span, warn};
 
 use crate::admission::{self, Admitted};
 use crate::metrics::{Metrics, Snapshot};
-use crate::store::{JobRecord, JobState, Store, now_ms};
+use crate::store::{JobRecord, JobState, RemoveError, Store, now_ms};
 
 /// Progress of a run as clients see it (the pipeline's `Progress` without its channel details).
 #[derive(Debug, Clone, Copy, Default, Serialize)]
@@ -159,8 +159,10 @@ pub(crate) enum DeleteOutcome {
     /// The job is running; its run stops at the next slice and it then becomes `cancelled`.
     Stopping(JobView),
     /// The job had finished (done, failed or cancelled): it and its folder, output included,
-    /// are gone.
-    Removed,
+    /// are gone, but for the files `leftover` says could not be deleted (the next start does).
+    Removed {
+        leftover: Option<String>,
+    },
     NotFound,
 }
 
@@ -440,12 +442,21 @@ impl Queue {
             JobState::Done | JobState::Failed | JobState::Cancelled => {
                 // Its run has ended (the state turns final under this lock, once the run has
                 // returned), so nothing writes in the folder any more. Forgotten once its state
-                // file is gone (the event streams following it end as its sender goes).
-                self.store.remove(id)?;
+                // file is gone, as the next start would (the event streams following it end as
+                // its sender goes), even when the rest of its folder is not: answered
+                // "unchanged", it was still listed while a restart found it gone.
+                let leftover = match self.store.remove(id) {
+                    Ok(()) => None,
+                    Err(RemoveError::Kept(e)) => return Err(e),
+                    Err(e @ RemoveError::Leftover { .. }) => Some(e.to_string()),
+                };
                 t.jobs.remove(id);
                 t.order.retain(|x| x != id);
-                info!(%id, "finished job removed");
-                Ok(DeleteOutcome::Removed)
+                match &leftover {
+                    None => info!(%id, "finished job removed"),
+                    Some(e) => warn!(%id, error = %e, "finished job removed, not all of its files"),
+                }
+                Ok(DeleteOutcome::Removed { leftover })
             }
         }
     }

@@ -186,17 +186,17 @@ impl Store {
         write_atomic(&self.job_dir(&record.id).join(STATE_FILE), &bytes)
     }
 
-    /// Removes the job's folder. Its state goes first: a folder without one is an incomplete
-    /// submission, which [`Store::load_all`] removes at the next start, so a crash in the
-    /// middle of the removal never brings the job back. A state already gone is a removal
-    /// that failed after it, tried again.
-    pub fn remove(&self, id: &str) -> std::io::Result<()> {
+    /// Removes the job's folder. Its state goes first, and decides: a folder without one is not
+    /// a job, and [`Store::load_all`] removes it at the next start, so a crash or a failure in
+    /// the middle of the removal never brings the job back, and the error says which side of
+    /// that step it happened on. A state already gone (by hand) keeps nothing from going.
+    pub fn remove(&self, id: &str) -> Result<(), RemoveError> {
         let dir = self.job_dir(id);
         match std::fs::remove_file(dir.join(STATE_FILE)) {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(RemoveError::Kept(e)),
             _ => {}
         }
-        std::fs::remove_dir_all(dir)
+        std::fs::remove_dir_all(&dir).map_err(|source| RemoveError::Leftover { dir, source })
     }
 
     /// Removes everything but the job file, the state, the log and `keep` (a checkpoint and its
@@ -241,7 +241,8 @@ impl Store {
                 continue;
             }
             if !state.exists() {
-                warn!(dir = %dir.display(), "removing an incomplete submission");
+                // A submission or a removal that did not complete.
+                warn!(dir = %dir.display(), "removing a job folder without a state");
                 if let Err(e) = std::fs::remove_dir_all(&dir) {
                     warn!(dir = %dir.display(), error = %e, "cannot remove it");
                 }
@@ -268,6 +269,21 @@ impl Store {
         out.sort_by_key(|(r, _)| r.seq);
         out
     }
+}
+
+/// Why [`Store::remove`] did not remove a job whole.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum RemoveError {
+    /// Its state file is still there: nothing was removed, the job is as it was.
+    #[error("cannot remove its state file: {0}")]
+    Kept(std::io::Error),
+    /// Its state file is gone, hence the job, but not the whole of its folder: the next start
+    /// removes what is left.
+    #[error("its folder {} was not deleted whole ({source}); the service deletes what is left at its next start", dir.display())]
+    Leftover {
+        dir: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Whether `name` is a job id as the service makes them (`http::new_id`: 32 hexadecimal
