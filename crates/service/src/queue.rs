@@ -152,6 +152,16 @@ struct Table {
     next_seq: u64,
 }
 
+impl Table {
+    /// The job whose run is `id`'s: only a finished job leaves the table (`Queue::delete`),
+    /// and a running one is finished by its run alone, once its end is written.
+    fn running_job(&mut self, id: &str) -> &mut Job {
+        self.jobs
+            .get_mut(id)
+            .expect("a running job stays in the table until its end is written")
+    }
+}
+
 /// What `DELETE /jobs/{id}` did.
 pub(crate) enum DeleteOutcome {
     /// The job was queued and is now cancelled.
@@ -634,9 +644,7 @@ impl Queue {
     /// leaves the job `running` on disk: its next start finds a completed run done
     /// ([`completed_run`]) and runs any other again.
     async fn finish(&self, id: &str, outcome: Result<RunSummary, RunError>) {
-        let Some(end) = self.end_of_run(id, outcome) else {
-            return;
-        };
+        let end = self.end_of_run(id, outcome);
         while !self.record_end(id, &end) {
             if self.shutdown.is_cancelled() {
                 error!(
@@ -653,10 +661,10 @@ impl Queue {
 
     /// What the run's outcome makes of its job, counted and logged, its partial files removed
     /// (all but a checkpoint it may resume from): the end [`Queue::record_end`] writes.
-    fn end_of_run(&self, id: &str, outcome: Result<RunSummary, RunError>) -> Option<RunEnd> {
+    fn end_of_run(&self, id: &str, outcome: Result<RunSummary, RunError>) -> RunEnd {
         let mut t = self.lock();
         let shutting_down = self.shutdown.is_cancelled();
-        let job = t.jobs.get_mut(id)?;
+        let job = t.running_job(id);
         // The run's memory is gone, whether or not its end can be written yet.
         job.progress.resident_faces = 0;
         let mut end = RunEnd {
@@ -706,18 +714,15 @@ impl Queue {
         {
             warn!(error = %e, "cannot remove the partial output");
         }
-        Some(end)
+        end
     }
 
     /// Writes the end of the job's run and only then makes it the job's, freeing its slot;
     /// false (logged and counted) while it cannot be written.
     fn record_end(&self, id: &str, end: &RunEnd) -> bool {
         let mut t = self.lock();
-        let written = match t.jobs.get_mut(id) {
-            Some(job) => job.change(&self.store, |r| end.apply(r)),
-            None => Ok(()),
-        };
-        if let Err(e) = written {
+        let job = t.running_job(id);
+        if let Err(e) = job.change(&self.store, |r| end.apply(r)) {
             self.metrics.error("state_io");
             error!(
                 error = %e,
