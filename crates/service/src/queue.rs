@@ -701,7 +701,7 @@ impl Queue {
             }
             Err(e) => {
                 self.metrics.error(run_error_kind(&e));
-                end.error = Some(for_a_client(&e.to_string()));
+                end.error = Some(for_a_client(&e));
                 warn!(error = %e, "run failed");
             }
         }
@@ -758,12 +758,35 @@ impl Queue {
     }
 }
 
+/// The fix a client can follow when the service's disk is full or unwritable: it chose no
+/// output folder (the service's is its state) and cannot pass `--resume`.
+const STATE_DISK_FIX: &str = "free space on the disk of the service's state folder";
+
 /// A run's error as a client of the service reads it: one line, and without advice only the
-/// command line can follow (a client chooses no output folder: the service's is its state).
-fn for_a_client(error: &str) -> String {
-    error.replace('\n', " ").replace(
+/// command line can follow. A failed job keeps none of its files (`end_of_run`), so the command
+/// line's "run with --resume (the checkpoint ... is kept)" after a failed checkpoint write and
+/// "the mesh itself was written complete" after a failed summary write are false here: those two
+/// are said again for the service.
+fn for_a_client(error: &RunError) -> String {
+    let line = match error {
+        RunError::CheckpointWrite { path, source, .. } => format!(
+            "{}: cannot write the checkpoint: {source}; {STATE_DISK_FIX}, then submit the job again",
+            path.display()
+        ),
+        RunError::Summary { path, reason } => format!(
+            "{}: cannot write run summary: {reason}; {STATE_DISK_FIX}, then submit the job again",
+            path.display()
+        ),
+        e => e.to_string(),
+    };
+    one_line(&line)
+}
+
+/// `text` on one line, the command line's advice about the output folder said for the service.
+fn one_line(text: &str) -> String {
+    text.replace('\n', " ").replace(
         "free space on that disk or choose another output folder",
-        "free space on the disk of the service's state folder",
+        STATE_DISK_FIX,
     )
 }
 
@@ -961,8 +984,28 @@ mod tests {
     fn errors_reach_clients_on_one_line_with_advice_they_can_follow() {
         let full = "out/output.smb: cannot write: No space left on device; free space on that disk or choose another output folder\nmore";
         assert_eq!(
-            for_a_client(full),
+            one_line(full),
             "out/output.smb: cannot write: No space left on device; free space on the disk of the service's state folder more"
         );
+        // A failed job keeps no checkpoint and no mesh: no `--resume`, no "written complete".
+        let checkpoint = RunError::CheckpointWrite {
+            path: "jobs/1/.output.smb.ckpt".into(),
+            source: std::io::Error::new(std::io::ErrorKind::StorageFull, "No space left on device"),
+            kept: Some((60, 255)),
+        };
+        let summary = RunError::Summary {
+            path: "jobs/1/output.smb.run.json".into(),
+            reason: "No space left on device".into(),
+        };
+        for e in [checkpoint, summary] {
+            let line = for_a_client(&e);
+            assert!(
+                line.contains(STATE_DISK_FIX) && line.ends_with("submit the job again"),
+                "{line}"
+            );
+            for cli_only in ["--resume", "is kept", "written complete", "summary = false"] {
+                assert!(!line.contains(cli_only), "{line}");
+            }
+        }
     }
 }
