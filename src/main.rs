@@ -20,23 +20,36 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
-/// Keeps glibc from serving regrown large vectors out of its never-returned heap. glibc raises
-/// its mmap threshold each time a large mmapped block is freed, so the simplifier's vectors,
-/// regrown all run long, ended up in the main heap, and peak RSS crept up by 10 MiB at a
-/// constant resident surface (engine at R = 0.2 in two stages: 68 MiB; with the threshold fixed
-/// at 128 KiB, 58 MiB). mimalloc, tried instead, held 170 MiB.
+/// glibc's allocator tuned for a bounded-memory run.
+///
+/// The mmap threshold is fixed: glibc raises it each time a large mmapped block is freed, so
+/// the simplifier's vectors, regrown all run long, ended up in the main heap, and peak RSS
+/// crept up by 10 MiB at a constant resident surface (engine at R = 0.2 in two stages: 68 MiB;
+/// with the threshold fixed at 128 KiB, 58 MiB). mimalloc, tried instead, held 170 MiB.
+///
+/// The arenas are as many as the cores: glibc makes up to 8 per core, one per thread that
+/// allocates, each reserving 64 MiB of address space, so bonsai's default job (48 MiB
+/// resident) reserved 623 MB and an address-space cap (`ulimit -v 400000`, as HPC schedulers
+/// set) aborted it in the allocator. With 2 arenas on 2 cores it reserves 154 MB at the same
+/// peak RSS; no more threads than cores run at once, so they wait on an arena little (the
+/// run's futex calls: 3,045 with glibc's default, 3,339 with 2).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
-fn fixed_mmap_threshold() {
-    // SAFETY: `mallopt` only sets an allocator tunable; it is called first thing in `main`,
+fn tune_allocator() {
+    let arenas = std::thread::available_parallelism().map_or(2, |n| n.get());
+    // SAFETY: `mallopt` only sets allocator tunables; it is called first thing in `main`,
     // before any other thread exists.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
+        libc::mallopt(
+            libc::M_ARENA_MAX,
+            libc::c_int::try_from(arenas).unwrap_or(libc::c_int::MAX),
+        );
     }
 }
 
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn fixed_mmap_threshold() {}
+fn tune_allocator() {}
 
 /// Whether SIGHUP was ignored when the process started (`nohup`, or a supervisor that sets it
 /// so): then a closed terminal must not stop it, though the handlers installed later (ctrlc's
@@ -80,7 +93,7 @@ pub(crate) fn keep_hangup_ignored() {
 pub(crate) fn keep_hangup_ignored() {}
 
 fn main() -> ExitCode {
-    fixed_mmap_threshold();
+    tune_allocator();
     let _ = HANGUP_IGNORED.set(hangup_ignored_at_start());
     let cli = match cli::Cli::try_parse() {
         Ok(cli) => cli,

@@ -601,3 +601,30 @@ fn a_failed_write_to_stdout_is_an_error_not_a_panic() {
         assert_eq!(stderr(&o), "", "{args:?}");
     }
 }
+
+/// Under an address-space cap (`ulimit -v`, as HPC schedulers set) a small job runs: glibc made
+/// an arena of 64 MiB of address space for each thread that allocates, so a job resident in 48
+/// MiB reserved over 600 MB and a 400 MB cap aborted it in the allocator (exit 134, its
+/// temporary files left). The arenas are capped at the core count (`main.rs`).
+#[test]
+fn a_job_runs_under_an_address_space_cap() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"gyroid\"\nsize = [96, 96, 96]\n[extract]\niso = 0.0\n[simplify]\nrate = 0.2\n[output]\npath = \"capped.smb\"\n",
+    );
+    let cores = std::thread::available_parallelism().map_or(2, |n| n.get()) as u64;
+    let cap_kib = (160 + 64 * cores) * 1024;
+    let o = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -v {cap_kib} && exec \"$0\" run --quiet \"$1\"",
+        ))
+        .arg(env!("CARGO_BIN_EXE_isostream"))
+        .arg(&job)
+        .env("RUST_LOG", "warn")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "cap {cap_kib} KiB: {}", stderr(&o));
+    assert!(dir.path().join("capped.smb").is_file());
+}
