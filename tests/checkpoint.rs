@@ -516,6 +516,58 @@ fn a_resumed_run_reports_where_it_started() {
     );
 }
 
+/// The voxels saturated to f32's range (an f64 volume's 1e40, in the iso volume and in an
+/// attribute volume) are counted once however many runs the job took: the counts come with the
+/// checkpoint, and the slices read again on resume (the checkpoint's carried slice, and the
+/// look-behind of a derived gradient) are not counted again.
+#[test]
+fn saturated_voxels_are_counted_once_across_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let n = 14u64;
+    // A rod of 1e40 along z inside a cylinder of positive values.
+    let values: Vec<f64> = (0..n * n * n)
+        .map(|i| {
+            let (x, y) = ((i % n) as f64 - 6.5, (i / n % n) as f64 - 6.5);
+            let r = (x * x + y * y).sqrt();
+            if r < 2.0 { 1e40 } else { 5.0 - r }
+        })
+        .collect();
+    let core = values.iter().filter(|&&v| v == 1e40).count() as u64;
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("rod.raw"), bytes).unwrap();
+    let raw = format!("path = \"rod.raw\"\ndims = [{n}, {n}, {n}]\ndtype = \"f64\"\n");
+    let text = |output: &str, pipeline: &str| {
+        format!(
+            "[input]\n{raw}\n[extract]\niso = 0.5\n\n[simplify]\nmode = \"none\"\n\n[output]\npath = \"{output}\"\n\n[pipeline]\n{pipeline}\n\n[[attributes]]\nname = \"grad\"\nderive = \"gradient_magnitude\"\n\n[[attributes]]\nname = \"same\"\n{raw}"
+        )
+    };
+    let reference = load(dir.path(), "ref.toml", &text("ref.smb", "threads = 1"));
+    let whole = run(&reference, Start::Fresh, None).unwrap();
+    assert_eq!(whole.extract.saturated_voxels, core);
+    assert_eq!(whole.extract.saturated_attribute_voxels, core);
+    let job = load(
+        dir.path(),
+        "job.toml",
+        &text("out.smb", "threads = 2\ncheckpoint = { every_slabs = 1 }"),
+    );
+    let mut start = Start::Fresh;
+    for stop in [3, 8] {
+        match run(&job, start, Some(stop)) {
+            Err(RunError::Interrupted { .. }) => {}
+            other => panic!("stop at {stop}: {other:?}"),
+        }
+        start = Start::Resume;
+    }
+    let summary = run(&job, Start::Resume, None).unwrap();
+    assert!(summary.resumed_at_slab.is_some_and(|z| z > 0));
+    assert_eq!(summary.extract.saturated_voxels, core);
+    assert_eq!(summary.extract.saturated_attribute_voxels, core);
+    assert_eq!(
+        std::fs::read(dir.path().join("out.smb")).unwrap(),
+        std::fs::read(dir.path().join("ref.smb")).unwrap()
+    );
+}
+
 /// A resume of a changed job is refused before the first pass of `[output] faces` (which ran to
 /// its end first): with the cancel flag already raised, the refusal comes, not a cancellation.
 #[test]

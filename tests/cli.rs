@@ -224,6 +224,129 @@ fn nan_voxels_are_outside_counted_and_warned() {
     assert!(r.is_valid_manifold(), "{r:?}");
 }
 
+/// Finite f64 values beyond f32's range (a core of 1e40) were made infinite: meshed as
+/// outside (a spurious inner surface) and warned about as "NaN or infinite", which the file
+/// does not hold. They read as ±f32::MAX, are counted and warned about naming the file, through
+/// every wrapper of a source (a flipped NRRD, an upsampled input, an attribute volume), and the
+/// mesh is that of the same data with the core at any large f32 value.
+#[test]
+fn f64_beyond_f32_is_saturated_counted_and_warned() {
+    let dir = tempfile::tempdir().unwrap();
+    let n = 14u64;
+    let field = |core: f64| -> Vec<f64> {
+        (0..n * n * n)
+            .map(|i| {
+                let p = [i % n, i / n % n, i / (n * n)].map(|c| c as f64 - 6.5);
+                let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                if r < 2.5 { core } else { 6.0 - r }
+            })
+            .collect()
+    };
+    let values = field(1e40);
+    let core = values.iter().filter(|&&v| v == 1e40).count() as u64;
+    let le: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("core.raw"), &le).unwrap();
+    let twin: Vec<u8> = field(1e6).iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(dir.path().join("twin.raw"), &twin).unwrap();
+    let mut nrrd = format!(
+        "NRRD0004\ntype: double\ndimension: 3\nsizes: {n} {n} {n}\nendian: big\nencoding: raw\n\
+         space: left-posterior-superior\nspace directions: (-1,0,0) (0,-1,0) (0,0,1)\nspace origin: (0,0,0)\n\n"
+    )
+    .into_bytes();
+    nrrd.extend(values.iter().flat_map(|v| v.to_be_bytes()));
+    std::fs::write(dir.path().join("core.nrrd"), nrrd).unwrap();
+    let raw = |name: &str| format!("path = \"{name}\"\ndims = [{n}, {n}, {n}]\ndtype = \"f64\"\n");
+    let run = |name: &str, input: &str, extra: &str| {
+        let job = dir.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &job,
+            format!(
+                "[input]\n{input}[extract]\niso = 0.5\n[simplify]\nmode = \"none\"\n[output]\npath = \"{name}.smb\"\n{extra}"
+            ),
+        )
+        .unwrap();
+        let o = isostream(&["run", &job.to_string_lossy()]);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+        let summary: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.path().join(format!("{name}.smb.run.json"))).unwrap(),
+        )
+        .unwrap();
+        let mesh = Mesh::read(&dir.path().join(format!("{name}.smb")));
+        (summary, stderr(&o), mesh)
+    };
+    let said = |summary: &serde_json::Value, log: &str, needle: &str| {
+        let warnings = summary["warnings"].as_array().unwrap();
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.as_str().unwrap().contains(needle)),
+            "{needle}: {summary}"
+        );
+        assert!(
+            !warnings
+                .iter()
+                .any(|w| w.as_str().unwrap().contains("NaN or infinite")),
+            "{summary}"
+        );
+        assert!(
+            log.lines()
+                .any(|l| l.contains("WARN") && l.contains(needle)),
+            "{log}"
+        );
+    };
+    let (_, _, want) = run("twin", &raw("twin.raw"), "");
+    let attribute = format!("[[attributes]]\nname = \"a\"\n{}", raw("core.raw"));
+    for (name, input, extra) in [
+        ("raw", raw("core.raw"), String::new()),
+        ("nrrd", "path = \"core.nrrd\"\n".to_string(), String::new()),
+        (
+            "upsampled",
+            raw("core.raw") + "upsample = [2, 2, 2]\n",
+            String::new(),
+        ),
+        ("attribute", raw("core.raw"), attribute),
+    ] {
+        let (summary, log, mesh) = run(name, &input, &extra);
+        let extract = &summary["extract"];
+        assert_eq!(extract["non_finite_voxels"], 0, "{name}: {summary}");
+        assert_eq!(extract["saturated_voxels"], core, "{name}: {summary}");
+        let file = match name {
+            "nrrd" => "core.nrrd",
+            // Counted in the source's voxels.
+            "upsampled" => "core.raw upsampled 2x2x2",
+            _ => "core.raw",
+        };
+        said(
+            &summary,
+            &log,
+            &format!("{file}: {core} voxels hold finite values beyond f32's range"),
+        );
+        // One closed surface: no inner one around the core.
+        let report = mesh.check();
+        assert!(report.is_valid_manifold(), "{name}: {report:?}");
+        assert_eq!(report.components.len(), 1, "{name}: {report:?}");
+        assert_eq!(report.boundary_edges, 0, "{name}: {report:?}");
+        match name {
+            "raw" => {
+                assert_eq!(mesh.positions, want.positions);
+                assert_eq!(mesh.triangles, want.triangles);
+            }
+            "attribute" => {
+                assert_eq!(
+                    extract["saturated_attribute_voxels"], core,
+                    "{name}: {summary}"
+                );
+                said(
+                    &summary,
+                    &log,
+                    &format!("{core} voxels of the attribute volumes (`a` ("),
+                );
+            }
+            _ => {}
+        }
+    }
+}
+
 /// An LPS NRRD (x and y step backwards from the origin): the dropped flips are one warning in
 /// the run summary, and a warning line of `validate`.
 /// An LPS NRRD (x and y stepping backwards from the origin) is meshed where its header puts

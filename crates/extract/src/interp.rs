@@ -9,7 +9,8 @@ use isostream_volume::Grid;
 ///
 /// Values equal to iso are outside, so the classification is a plain deterministic comparison
 /// (a vertex may then sit exactly on a corner, and stays an edge vertex). NaN and ±inf are
-/// outside too: a hole or a saturated voxel in the data never produces an inside region.
+/// outside too: a hole or an infinite voxel in the data never produces an inside region (the
+/// readers give finite values beyond f32's range as `±f32::MAX`, not infinite).
 #[inline]
 pub fn is_inside(value: f32, iso: f32) -> bool {
     // `>` is false for NaN; -inf is never above iso; +inf is excluded explicitly.

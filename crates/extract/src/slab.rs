@@ -138,6 +138,13 @@ pub struct ExtractStats {
     /// Attribute values at vertices that came out NaN or infinite and were replaced (see
     /// `attributes::sample`): the attribute volumes' own non-finite voxels next to the surface.
     pub non_finite_attribute_values: u64,
+    /// Voxels of the iso volume whose stored values were finite but beyond f32's range (an f64
+    /// volume's 1e40), read as `±f32::MAX`: counted by the reader as it converts them (the
+    /// extractor sees only f32, where they are ordinary values), with the slab of their slice
+    /// like `non_finite_voxels`.
+    pub saturated_voxels: u64,
+    /// The same in the attribute volumes, all of them together.
+    pub saturated_attribute_voxels: u64,
     /// The most triangles one slab had: the size of the sweep front a simplifier holds at once
     /// (a flat face across the sweep puts a whole slice's worth of surface in one slab).
     pub max_slab_triangles: u64,
@@ -154,6 +161,9 @@ impl std::ops::Sub for ExtractStats {
             non_finite_voxels: self.non_finite_voxels - o.non_finite_voxels,
             non_finite_attribute_values: self.non_finite_attribute_values
                 - o.non_finite_attribute_values,
+            saturated_voxels: self.saturated_voxels - o.saturated_voxels,
+            saturated_attribute_voxels: self.saturated_attribute_voxels
+                - o.saturated_attribute_voxels,
             skipped_cubes: self.skipped_cubes - o.skipped_cubes,
             // One slab's own triangles are its largest slab.
             max_slab_triangles: self.triangles - o.triangles,
@@ -170,6 +180,8 @@ impl std::ops::AddAssign for ExtractStats {
         self.triangles += o.triangles;
         self.non_finite_voxels += o.non_finite_voxels;
         self.non_finite_attribute_values += o.non_finite_attribute_values;
+        self.saturated_voxels += o.saturated_voxels;
+        self.saturated_attribute_voxels += o.saturated_attribute_voxels;
         self.max_slab_triangles = self.max_slab_triangles.max(o.max_slab_triangles);
     }
 }
@@ -431,6 +443,14 @@ impl Extractor {
         self.stats.non_finite_attribute_values += n;
     }
 
+    /// Counts the voxels the reader saturated in a slab's slices
+    /// ([`ExtractStats::saturated_voxels`], [`ExtractStats::saturated_attribute_voxels`]), so
+    /// that they are summed and checkpointed with the slab's other counters.
+    pub fn add_saturated_voxels(&mut self, iso: u64, attributes: u64) {
+        self.stats.saturated_voxels += iso;
+        self.stats.saturated_attribute_voxels += attributes;
+    }
+
     /// Appends the non-empty cubes of row `y` of slab `z` that lie in blocks of `bounds` that may
     /// cross the iso value (runs of such blocks at once).
     fn extract_row_blocks(
@@ -596,6 +616,8 @@ mod tests {
                 triangles: 8,
                 non_finite_voxels: 0,
                 non_finite_attribute_values: 0,
+                saturated_voxels: 0,
+                saturated_attribute_voxels: 0,
                 max_slab_triangles: 4,
             }
         );

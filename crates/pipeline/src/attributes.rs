@@ -281,6 +281,10 @@ pub struct Slices {
     /// The iso slice's value bounds per block ([`Slices::bounds`]), computed by the first of the
     /// two slabs it belongs to and merged by both.
     bounds: OnceLock<SlabBounds>,
+    /// Voxels of the iso slice, and of the attributes' slices together, whose finite values
+    /// were beyond f32's range and were saturated (`VolumeSource::saturated_voxels`).
+    pub(crate) saturated: u64,
+    pub(crate) saturated_attributes: u64,
 }
 
 impl Slices {
@@ -319,9 +323,10 @@ pub struct SliceReader {
     attributes: Vec<Source>,
     grid: Grid,
     next_z: u64,
-    /// Iso slices `next_z - 1` and `next_z` (and `next_z + 1` once read ahead).
+    /// Iso slices `next_z - 1` and `next_z` (and `next_z + 1` once read ahead, with the
+    /// voxels its read saturated).
     prev: Option<Vec<f32>>,
-    ahead: Option<Vec<f32>>,
+    ahead: Option<(Vec<f32>, u64)>,
     /// Empty-space skipping at this iso value: iso slices are exact only near the surface
     /// (`VolumeSource::read_slice_near`).
     near: Option<f32>,
@@ -373,13 +378,16 @@ impl SliceReader {
         Ok(self.iso.slab_bounds(z)?)
     }
 
-    fn read_iso(&mut self, z: u64) -> Result<Vec<f32>, RunError> {
+    /// Iso slice `z`, and how many of its voxels were saturated (`VolumeSource::saturated_voxels`
+    /// around this read; the reader reads each slice once in a sweep).
+    fn read_iso(&mut self, z: u64) -> Result<(Vec<f32>, u64), RunError> {
         let mut s = vec![0f32; self.grid.slice_len()];
+        let before = self.iso.saturated_voxels();
         match self.near {
             Some(iso) => self.iso.read_slice_near(z, iso, &mut s)?,
             None => self.iso.read_slice(z, &mut s)?,
         }
-        Ok(s)
+        Ok((s, self.iso.saturated_voxels() - before))
     }
 
     /// Opens a job's iso volume and attributes (`[input]`, `[[attributes]]`).
@@ -417,8 +425,9 @@ impl SliceReader {
             .attributes
             .iter()
             .any(|a| matches!(a, Source::Gradient));
+        // Slice z - 1's voxels were counted before the checkpoint.
         self.prev = match z {
-            1.. if gradient => Some(self.read_iso(z - 1)?),
+            1.. if gradient => Some(self.read_iso(z - 1)?.0),
             _ => None,
         };
         self.ahead = None;
@@ -436,6 +445,7 @@ impl SliceReader {
         if z >= nz {
             return Ok(None);
         }
+        let before = self.iso.saturated_voxels();
         if self.rows
             && let Some(rows) = self.iso.slice_rows(z, self.near)?
         {
@@ -446,9 +456,11 @@ impl SliceReader {
                 attrs: Vec::new(),
                 rows: Some(rows),
                 bounds: OnceLock::new(),
+                saturated: self.iso.saturated_voxels() - before,
+                saturated_attributes: 0,
             }));
         }
-        let cur = match self.ahead.take() {
+        let (cur, saturated) = match self.ahead.take() {
             Some(s) => s,
             None => self.read_iso(z)?,
         };
@@ -463,11 +475,14 @@ impl SliceReader {
         };
         let mut grad: Option<Vec<f32>> = None;
         let mut attrs = Vec::with_capacity(self.attributes.len());
+        let mut saturated_attributes = 0;
         for a in &mut self.attributes {
             match a {
                 Source::Volume(v) => {
                     let mut s = vec![0f32; self.grid.slice_len()];
+                    let before = v.saturated_voxels();
                     v.read_slice(z, &mut s)?;
+                    saturated_attributes += v.saturated_voxels() - before;
                     attrs.push(s);
                 }
                 Source::Gradient => {
@@ -477,7 +492,7 @@ impl SliceReader {
                             &self.grid,
                             self.prev.as_deref(),
                             &cur,
-                            next.as_deref(),
+                            next.as_ref().map(|(s, _)| s.as_slice()),
                             &mut out,
                         );
                         out
@@ -497,6 +512,8 @@ impl SliceReader {
             attrs,
             rows: None,
             bounds: OnceLock::new(),
+            saturated,
+            saturated_attributes,
         }))
     }
 }

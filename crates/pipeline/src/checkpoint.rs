@@ -85,8 +85,9 @@ const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
 /// position NaN, read by the dense scan of positions; 33: the guard's cell lists in blocks of
 /// one pool; 34: the costs' tie-break by edge length, so the queued costs of a 33 are not this
 /// build's; 35: the extraction's count of non-finite attribute values; 36: axis flips applied,
-/// so a flipped input's half-written output of a 35 is in other coordinates).
-const FORMAT: u32 = 36;
+/// so a flipped input's half-written output of a 35 is in other coordinates; 37: the
+/// extraction's and the data range's counts of voxels saturated to f32's range).
+const FORMAT: u32 = 37;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -422,6 +422,18 @@ impl Step for WorkStep {
             }
             _ => self.extract_slices(&job, &mut range, out)?,
         }
+        // The voxels the reader saturated, counted like the non-finite ones: slice 0 with slab
+        // 0, every other slice as the upper slice of its slab.
+        let slices = if job.z == 0 {
+            &[&job.lower, &job.upper][..]
+        } else {
+            &[&job.upper][..]
+        };
+        for s in slices {
+            self.extractor
+                .add_saturated_voxels(s.saturated, s.saturated_attributes);
+            range.add_saturated(s.saturated);
+        }
         let done = SlabReply::Done {
             stats: self.extractor.stats() - before,
             range,

@@ -402,6 +402,8 @@ fn run_job(
         .chain(faces_past_the_surface(job, faces_kept))
         .chain(non_finite_voxels(&outputs.extract, grid.voxel_count()))
         .chain(non_finite_attributes(&outputs.extract))
+        .chain(saturated_voxels(&outputs.extract, &input))
+        .chain(saturated_attribute_voxels(&outputs.extract, job))
         .collect();
     if let Some(p) = &outputs.prune {
         info!(
@@ -797,6 +799,48 @@ fn non_finite_attributes(extract: &ExtractStats) -> Option<String> {
     (n > 0).then(|| {
         format!(
             "{n} attribute values at surface vertices were NaN or infinite (the attribute volumes' own voxels) and were replaced by the edge's finite end, or 0 (extract.non_finite_attribute_values); fill those voxels in the attribute volume for values that mean something"
+        )
+    })
+}
+
+/// Voxels of the iso volume whose finite values were beyond f32's range (an f64 volume's 1e40),
+/// read as `±f32::MAX`. `as f32` made them infinite, meshed as outside (holes, and a spurious
+/// inner surface around a core of large values) and warned about as "NaN or infinite" though
+/// the file held none; saturated, they are inside or outside by their value, but the user
+/// must hear that the data went past what isostream computes in.
+fn saturated_voxels(extract: &ExtractStats, input: &str) -> Option<String> {
+    let n = extract.saturated_voxels;
+    (n > 0).then(|| {
+        format!(
+            "{input}: {n} voxels hold finite values beyond f32's range (magnitude above {:e}) and were read as ±{:e}, inside or outside by that value (extract.saturated_voxels); isostream computes in f32: scale the data down if the size of those values matters",
+            f32::MAX,
+            f32::MAX
+        )
+    })
+}
+
+/// The same for the attribute volumes, named (their count is one sum, as for the non-finite
+/// attribute values).
+fn saturated_attribute_voxels(extract: &ExtractStats, job: &JobConfig) -> Option<String> {
+    let n = extract.saturated_attribute_voxels;
+    let volumes: Vec<String> = job
+        .attributes
+        .iter()
+        .filter(|a| a.derive.is_none())
+        .map(|a| match (&a.path, &a.array, &job.input.path) {
+            (Some(p), _, _) => format!("`{}` ({})", a.name, p.display()),
+            (None, Some(array), Some(p)) => {
+                format!("`{}` ({} array {array})", a.name, p.display())
+            }
+            _ => format!("`{}`", a.name),
+        })
+        .collect();
+    (n > 0).then(|| {
+        format!(
+            "{n} voxels of the attribute volumes ({}) hold finite values beyond f32's range (magnitude above {:e}) and were read as ±{:e} (extract.saturated_attribute_voxels); scale those volumes down for values that mean something",
+            volumes.join(", "),
+            f32::MAX,
+            f32::MAX
         )
     })
 }

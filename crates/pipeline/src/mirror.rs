@@ -96,6 +96,9 @@ impl VolumeSource for Mirrored {
     fn loads_whole_volume(&self) -> bool {
         self.inner.loads_whole_volume()
     }
+    fn saturated_voxels(&self) -> u64 {
+        self.inner.saturated_voxels()
+    }
     fn slab_bounds(
         &mut self,
         z: u64,

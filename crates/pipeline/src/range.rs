@@ -1,11 +1,13 @@
 //! The values a run saw, for the error of an empty surface ("the data range is [0, 255]").
 
-/// Smallest and largest finite value, and how many voxels were NaN or infinite.
+/// Smallest and largest finite value, how many voxels were NaN or infinite, and how many were
+/// finite beyond f32's range and saturated to `±f32::MAX` when read.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(crate) struct DataRange {
     min: f32,
     max: f32,
     non_finite: u64,
+    saturated: u64,
 }
 
 impl Default for DataRange {
@@ -14,6 +16,7 @@ impl Default for DataRange {
             min: f32::INFINITY,
             max: f32::NEG_INFINITY,
             non_finite: 0,
+            saturated: 0,
         }
     }
 }
@@ -71,11 +74,18 @@ impl DataRange {
         }
     }
 
+    /// Voxels the reader saturated (`VolumeSource::saturated_voxels`): their values, `±f32::MAX`,
+    /// are in the range as any other, and the error says where they came from.
+    pub fn add_saturated(&mut self, n: u64) {
+        self.saturated += n;
+    }
+
     /// Both parts together (slabs seen by different extractors).
     pub fn merge(&mut self, o: &DataRange) {
         self.min = self.min.min(o.min);
         self.max = self.max.max(o.max);
         self.non_finite += o.non_finite;
+        self.saturated += o.saturated;
     }
 
     /// "[0, 255] (12 NaN or infinite voxels)", or what to say when no voxel was finite.
@@ -86,11 +96,31 @@ impl DataRange {
                 self.non_finite
             );
         }
-        let mut s = format!("the data range is [{}, {}]", self.min, self.max);
+        let mut s = format!(
+            "the data range is [{}, {}]",
+            value(self.min),
+            value(self.max)
+        );
         if self.non_finite > 0 {
             s.push_str(&format!(" ({} NaN or infinite voxels)", self.non_finite));
         }
+        if self.saturated > 0 {
+            s.push_str(&format!(
+                " ({} voxels finite beyond f32's range, read as ±{:e})",
+                self.saturated,
+                f32::MAX
+            ));
+        }
         s
+    }
+}
+
+/// A value as the messages show it: plainly, but in scientific notation where plain would be
+/// a row of zeros (f32::MAX is "340282350000000000000000000000000000000").
+pub(crate) fn value(v: f32) -> String {
+    match v.abs() {
+        a if a == 0.0 || (1e-4..1e16).contains(&a) => v.to_string(),
+        _ => format!("{v:e}"),
     }
 }
 
@@ -107,6 +137,7 @@ mod tests {
             min: finite.iter().copied().fold(f32::INFINITY, f32::min),
             max: finite.iter().copied().fold(f32::NEG_INFINITY, f32::max),
             non_finite: (values.len() - finite.len()) as u64,
+            saturated: 0,
         }
     }
 
@@ -143,6 +174,18 @@ mod tests {
             range.describe().contains("all 20 are NaN"),
             "{}",
             range.describe()
+        );
+    }
+
+    /// Saturated voxels are said, in scientific notation, where they make the range.
+    #[test]
+    fn saturated_voxels_are_said() {
+        let mut range = DataRange::default();
+        range.add(&[f32::MAX; 8]);
+        range.add_saturated(8);
+        assert_eq!(
+            range.describe(),
+            "the data range is [3.4028235e38, 3.4028235e38] (8 voxels finite beyond f32's range, read as ±3.4028235e38)"
         );
     }
 }

@@ -56,13 +56,14 @@ impl std::fmt::Display for Dtype {
     }
 }
 
-/// Converts `out.len()` voxels stored in `bytes` to f32.
+/// Converts `out.len()` voxels stored in `bytes` to f32, and returns how many were saturated
+/// ([`saturate_f64`]: finite f64 values beyond f32's range).
 ///
 /// `bytes.len()` must be `out.len() * dtype.size_bytes()`; callers size both from the grid, and a
 /// short `bytes` leaves the tail of `out` untouched rather than panicking. 32-bit integers and f64
 /// lose precision beyond f32's 24-bit mantissa; iso-surfaces of such data are still located to
 /// within that relative precision. NaN and infinities pass through unchanged.
-pub(crate) fn decode(dtype: Dtype, endian: Endian, bytes: &[u8], out: &mut [f32]) {
+pub(crate) fn decode(dtype: Dtype, endian: Endian, bytes: &[u8], out: &mut [f32]) -> u64 {
     macro_rules! convert {
         ($t:ty) => {{
             const N: usize = std::mem::size_of::<$t>();
@@ -85,8 +86,58 @@ pub(crate) fn decode(dtype: Dtype, endian: Endian, bytes: &[u8], out: &mut [f32]
         Dtype::U32 => convert!(u32),
         Dtype::I32 => convert!(i32),
         Dtype::F32 => convert!(f32),
-        Dtype::F64 => convert!(f64),
+        Dtype::F64 => {
+            convert!(f64);
+            return saturate_f64(out, |i| {
+                // Past a short `bytes`: left as it was.
+                let Some(a) = bytes.get(8 * i..8 * i + 8) else {
+                    return f64::INFINITY;
+                };
+                let a: [u8; 8] = a.try_into().unwrap_or_default();
+                match endian {
+                    Endian::Little => f64::from_le_bytes(a),
+                    Endian::Big => f64::from_be_bytes(a),
+                }
+            });
+        }
     }
+    0
+}
+
+/// After `out[i] = stored(i) as f32`: sets to `±f32::MAX` (the stored value's sign) every voxel
+/// whose stored f64 value is finite but beyond f32's range, which `as` made infinite, and returns
+/// how many. Such a voxel (1e40 in an f64 volume) is then finite, inside or outside by its value
+/// like any other, instead of infinite and so outside (a hole, and a spurious inner surface),
+/// and the surface is what f64 marching cubes gives at f32 precision: an edge from 1e40 to 0 has
+/// its crossing at the small end either way. NaN and infinities stored as such stay so.
+///
+/// A second pass rather than a clamp in the conversion loop: the usual slice has no infinity,
+/// and one vectorised scan of `out` for it costs a fraction of the conversion, where a clamp
+/// and count per value kept the loop from vectorising (0.07 -> 0.55 ns a value in cache,
+/// 0.13 with this scan; big-endian 0.35 -> 0.97, 0.41 with it).
+pub(crate) fn saturate_f64(out: &mut [f32], stored: impl Fn(usize) -> f64) -> u64 {
+    let infinite = out
+        .iter()
+        .fold(0u32, |n, f| n | u32::from(f.abs() == f32::INFINITY));
+    if infinite == 0 {
+        return 0;
+    }
+    let mut saturated = 0;
+    for (i, o) in out.iter_mut().enumerate() {
+        if o.is_infinite() && stored(i).is_finite() {
+            *o = f32::MAX.copysign(*o);
+            saturated += 1;
+        }
+    }
+    saturated
+}
+
+/// `v` as f32, saturated like [`saturate_f64`] (for single values: a fill value), and whether it
+/// was.
+pub(crate) fn saturated_f32(v: f64) -> (f32, bool) {
+    let mut out = [v as f32];
+    let n = saturate_f64(&mut out, |_| v);
+    (out[0], n > 0)
 }
 
 #[cfg(test)]
@@ -163,11 +214,50 @@ pub(crate) mod tests {
 
     #[test]
     fn non_finite_floats_pass_through() {
-        let bytes = encode(Dtype::F32, Endian::Big, &[f64::NAN, f64::INFINITY]);
-        let mut out = [0.0f32; 2];
-        decode(Dtype::F32, Endian::Big, &bytes, &mut out);
-        assert!(out[0].is_nan());
-        assert_eq!(out[1], f32::INFINITY);
+        for dtype in [Dtype::F32, Dtype::F64] {
+            let bytes = encode(
+                dtype,
+                Endian::Big,
+                &[f64::NAN, f64::INFINITY, f64::NEG_INFINITY],
+            );
+            let mut out = [0.0f32; 3];
+            assert_eq!(decode(dtype, Endian::Big, &bytes, &mut out), 0, "{dtype}");
+            assert!(out[0].is_nan());
+            assert_eq!(out[1..], [f32::INFINITY, f32::NEG_INFINITY], "{dtype}");
+        }
+    }
+
+    /// Finite f64 values beyond f32's range were made infinite (then meshed as outside, and
+    /// warned about as "NaN or infinite"): they are saturated to ±f32::MAX and counted, in both
+    /// byte orders, beside stored infinities and NaN, which stay.
+    #[test]
+    fn f64_beyond_f32_saturates_and_is_counted() {
+        let values = [
+            1e40,
+            -1e300,
+            f64::MAX,
+            f64::from(f32::MAX),
+            2.5,
+            f64::INFINITY,
+            f64::NAN,
+            -1e39,
+        ];
+        for endian in [Endian::Little, Endian::Big] {
+            let bytes = encode(Dtype::F64, endian, &values);
+            let mut out = [0.0f32; 8];
+            assert_eq!(
+                decode(Dtype::F64, endian, &bytes, &mut out),
+                4,
+                "{endian:?}"
+            );
+            let m = f32::MAX;
+            assert_eq!(out[..6], [m, -m, m, m, 2.5, f32::INFINITY], "{endian:?}");
+            assert!(out[6].is_nan());
+            assert_eq!(out[7], -m);
+        }
+        assert_eq!(saturated_f32(-1e40), (-f32::MAX, true));
+        assert_eq!(saturated_f32(1.5), (1.5, false));
+        assert_eq!(saturated_f32(f64::NEG_INFINITY), (f32::NEG_INFINITY, false));
     }
 
     #[test]

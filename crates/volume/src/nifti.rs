@@ -311,6 +311,9 @@ impl VolumeSource for Scaled {
     fn orientation(&self) -> Orientation {
         self.inner.orientation()
     }
+    fn saturated_voxels(&self) -> u64 {
+        self.inner.saturated_voxels()
+    }
 }
 
 #[cfg(test)]

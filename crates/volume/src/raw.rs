@@ -60,6 +60,8 @@ pub struct RawVolume {
     /// Bytes at the start of the map already handed back to the kernel.
     released: usize,
     orientation: Orientation,
+    /// Voxels saturated by the reads so far (`VolumeSource::saturated_voxels`).
+    saturated: u64,
 }
 
 impl RawVolume {
@@ -126,6 +128,7 @@ impl RawVolume {
             file,
             released: 0,
             orientation: p.orientation,
+            saturated: 0,
         })
     }
 
@@ -342,7 +345,7 @@ impl VolumeSource for RawVolume {
                 now,
             ));
         }
-        decode(
+        self.saturated += decode(
             self.dtype,
             self.endian,
             &self.map[start..start + self.slice_bytes],
@@ -354,6 +357,10 @@ impl VolumeSource for RawVolume {
 
     fn dtype(&self) -> Option<Dtype> {
         Some(self.dtype)
+    }
+
+    fn saturated_voxels(&self) -> u64 {
+        self.saturated
     }
 
     fn orientation(&self) -> Orientation {
@@ -384,6 +391,27 @@ mod tests {
         f.write_all(bytes).unwrap();
         f.flush().unwrap();
         f
+    }
+
+    /// Finite f64 values beyond f32's range read as ±f32::MAX and are counted, each read.
+    #[test]
+    fn f64_beyond_f32_is_saturated_and_counted() {
+        let (values, want, n) = crate::testutil::beyond_f32();
+        for endian in [Endian::Little, Endian::Big] {
+            let f = write(&encode(Dtype::F64, endian, &values));
+            let mut v = RawVolume::open(&spec(f.path(), [3, 2, 4], Dtype::F64, endian, 0)).unwrap();
+            let mut all = Vec::new();
+            let mut out = vec![0.0f32; 6];
+            for z in 0..4u64 {
+                v.read_slice(z, &mut out).unwrap();
+                all.extend_from_slice(&out);
+            }
+            assert!(crate::testutil::same_values(&all, &want), "{all:?}");
+            assert_eq!(v.saturated_voxels(), n, "{endian:?}");
+            // Slice 0 holds two: read again, counted again.
+            v.read_slice(0, &mut out).unwrap();
+            assert_eq!(v.saturated_voxels(), n + 2);
+        }
     }
 
     #[test]

@@ -25,6 +25,13 @@ pub trait VolumeSource: Send {
     fn orientation(&self) -> Orientation {
         Orientation::Aligned
     }
+    /// Voxels read so far whose stored values were finite but beyond f32's range (1e40 in an
+    /// f64 volume), saturated to `±f32::MAX` rather than made infinite. Every read counts (a
+    /// slice read twice, twice): a caller wanting each voxel once takes the difference around
+    /// its first read of each slice. 0 for sources whose values always fit f32.
+    fn saturated_voxels(&self) -> u64 {
+        0
+    }
     /// True when the encoding forces the reader to decode the whole volume up front, so the
     /// pipeline can warn that its memory bound does not hold for this input.
     fn loads_whole_volume(&self) -> bool {
@@ -81,6 +88,9 @@ impl VolumeSource for Box<dyn VolumeSource> {
     }
     fn orientation(&self) -> Orientation {
         (**self).orientation()
+    }
+    fn saturated_voxels(&self) -> u64 {
+        (**self).saturated_voxels()
     }
     fn loads_whole_volume(&self) -> bool {
         (**self).loads_whole_volume()

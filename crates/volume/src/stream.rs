@@ -37,6 +37,8 @@ pub(crate) struct StreamVolume {
     /// the one it just read (as a two-slice sweep may) gets it without reopening the stream.
     bytes: Vec<u8>,
     prev: Vec<u8>,
+    /// Voxels saturated by the reads so far (`VolumeSource::saturated_voxels`).
+    saturated: u64,
 }
 
 pub(crate) struct StreamSpec {
@@ -86,6 +88,7 @@ impl StreamVolume {
             next_z: 0,
             bytes: Vec::new(),
             prev: Vec::new(),
+            saturated: 0,
         };
         v.advance()?;
         Ok(v)
@@ -220,7 +223,7 @@ impl VolumeSource for StreamVolume {
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
         check_request(self, z, out)?;
         if z + 2 == self.next_z {
-            decode(self.dtype, self.endian, &self.prev, out);
+            self.saturated += decode(self.dtype, self.endian, &self.prev, out);
             return Ok(());
         }
         if z + 1 < self.next_z {
@@ -230,12 +233,16 @@ impl VolumeSource for StreamVolume {
         while self.next_z <= z {
             self.advance()?;
         }
-        decode(self.dtype, self.endian, &self.bytes, out);
+        self.saturated += decode(self.dtype, self.endian, &self.bytes, out);
         Ok(())
     }
 
     fn dtype(&self) -> Option<Dtype> {
         Some(self.stored)
+    }
+
+    fn saturated_voxels(&self) -> u64 {
+        self.saturated
     }
 
     fn orientation(&self) -> Orientation {

@@ -31,6 +31,8 @@ pub(crate) struct TiffStack {
     grid: Grid,
     dtype: Dtype,
     pages: Pages,
+    /// Voxels saturated by the reads so far (`VolumeSource::saturated_voxels`).
+    saturated: u64,
     /// What the other pages must match, for messages: "the first page" or the first file.
     like: String,
 }
@@ -64,12 +66,13 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     };
     // Only the type is needed now: no slice buffer sized from the header's claim (the decoder's
     // limits, scaled to the file, bound what decoding the page may allocate).
-    let dtype = read_page(&first, 0, &mut d, (w, h), &like, &mut [])?;
+    let (dtype, _) = read_page(&first, 0, &mut d, (w, h), &like, &mut [])?;
     Ok(Box::new(TiffStack {
         path: path.to_path_buf(),
         grid,
         dtype,
         pages,
+        saturated: 0,
         like,
     }))
 }
@@ -228,7 +231,7 @@ fn read_page(
     (w, h): (u32, u32),
     like: &str,
     out: &mut [f32],
-) -> Result<Dtype, VolumeError> {
+) -> Result<(Dtype, u64), VolumeError> {
     let at = || format!("page {page}");
     let size = d.dimensions().map_err(|e| page_err(path, page, e))?;
     if size != (w, h) {
@@ -289,10 +292,13 @@ fn read_page(
         DecodingResult::U32(v) => copy(v, out, |x| x as f32),
         DecodingResult::I32(v) => copy(v, out, |x| x as f32),
         DecodingResult::F32(v) => copy(v, out, |x| x),
-        DecodingResult::F64(v) => copy(v, out, |x| x as f32),
+        DecodingResult::F64(v) => {
+            copy(v, out, |x| x as f32);
+            return Ok((dtype, crate::dtype::saturate_f64(out, |i| v[i])));
+        }
         _ => {}
     }
-    Ok(dtype)
+    Ok((dtype, 0))
 }
 
 impl VolumeSource for TiffStack {
@@ -318,7 +324,8 @@ impl VolumeSource for TiffStack {
             Pages::Files(files) => {
                 let file = &files[z as usize];
                 let mut d = decoder(file)?;
-                let got = read_page(file, 0, &mut d, size, like, out)?;
+                let (got, saturated) = read_page(file, 0, &mut d, size, like, out)?;
+                self.saturated += saturated;
                 // A second page was silently ignored: the file is not one slice.
                 if d.more_images() {
                     return Err(VolumeError::Grid {
@@ -335,7 +342,8 @@ impl VolumeSource for TiffStack {
                 };
                 d.seek_to_image(z as usize)
                     .map_err(|e| page_err(&self.path, z, e))?;
-                let got = read_page(&self.path, z, d, size, like, out)?;
+                let (got, saturated) = read_page(&self.path, z, d, size, like, out)?;
+                self.saturated += saturated;
                 (self.path.clone(), z, got)
             }
         };
@@ -352,6 +360,10 @@ impl VolumeSource for TiffStack {
 
     fn dtype(&self) -> Option<Dtype> {
         Some(self.dtype)
+    }
+
+    fn saturated_voxels(&self) -> u64 {
+        self.saturated
     }
 }
 

@@ -341,6 +341,11 @@ impl VolumeSource for Upsampled {
         self.inner.loads_whole_volume()
     }
 
+    /// The source voxels saturated as they were read (each source slice once in a sweep).
+    fn saturated_voxels(&self) -> u64 {
+        self.inner.saturated_voxels()
+    }
+
     fn orientation(&self) -> crate::Orientation {
         self.inner.orientation()
     }

@@ -71,6 +71,8 @@ struct ZarrVolume {
     /// The last slice of the previous row: a re-read of z - 1 just after the front crossed a row
     /// boundary must not decode that row again.
     prev: Option<(u64, Vec<f32>)>,
+    /// Voxels saturated by the reads so far (`VolumeSource::saturated_voxels`).
+    saturated: u64,
 }
 
 /// The decoded blocks of one z range, y-major; None where the store has no chunk (fill value).
@@ -104,6 +106,7 @@ impl ZarrVolume {
             endian,
             row: None,
             prev: None,
+            saturated: 0,
         })
     }
 
@@ -170,8 +173,10 @@ impl ZarrVolume {
             .join(self.meta.keys.key(&self.coords(z, y, x)))
     }
 
-    /// Copies slice `z` (inside `row`) to `out`, converting to f32.
-    fn serve(&self, row: &Row, z: u64, out: &mut [f32]) {
+    /// Copies slice `z` (inside `row`) to `out`, converting to f32; returns how many voxels were
+    /// saturated (`VolumeSource::saturated_voxels`).
+    fn serve(&self, row: &Row, z: u64, out: &mut [f32]) -> u64 {
+        let mut saturated = 0;
         let [cz, cy, cx] = self.extent;
         let [nx, ny] = [self.grid.dims[0], self.grid.dims[1]];
         let elem = self.meta.ztype.size();
@@ -188,14 +193,21 @@ impl ZarrVolume {
                 match block {
                     Some(b) => {
                         let src = ((zl * cy + yl) * cx) as usize * elem;
-                        self.meta
-                            .ztype
-                            .decode(self.endian, &b[src..src + width * elem], dst);
+                        saturated +=
+                            self.meta
+                                .ztype
+                                .decode(self.endian, &b[src..src + width * elem], dst);
                     }
-                    None => dst.fill(self.meta.fill),
+                    None => {
+                        dst.fill(self.meta.fill);
+                        if self.meta.fill_saturated {
+                            saturated += width as u64;
+                        }
+                    }
                 }
             }
         }
+        saturated
     }
 }
 
@@ -303,6 +315,7 @@ impl VolumeSource for ZarrVolume {
                     Some((_, s)) => s,
                     None => vec![0.0; out.len()],
                 };
+                // Kept for a re-read: its voxels were counted when it was served.
                 self.serve(&row, bz * depth - 1, &mut last);
                 self.prev = Some((bz * depth - 1, last));
             }
@@ -313,9 +326,13 @@ impl VolumeSource for ZarrVolume {
             });
         }
         if let Some(row) = &self.row {
-            self.serve(row, z, out);
+            self.saturated += self.serve(row, z, out);
         }
         Ok(())
+    }
+
+    fn saturated_voxels(&self) -> u64 {
+        self.saturated
     }
 
     fn dtype(&self) -> Option<Dtype> {

@@ -174,6 +174,34 @@ fn every_type_endian_and_compression() {
     }
 }
 
+/// Finite doubles beyond f32's range read as ±f32::MAX and are counted, mapped or gzipped,
+/// with and without a scaling (which keeps them within f32: scl_inter 1).
+#[test]
+fn doubles_beyond_f32_are_saturated_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let (values, want, n) = crate::testutil::beyond_f32();
+    for e in [Endian::Little, Endian::Big] {
+        for (slope, inter) in [(0.0, 0.0), (1.0, 1.0)] {
+            let mut h = Hdr::new(Dtype::F64, e);
+            (h.slope, h.inter) = (slope, inter);
+            let mut file = h.bytes();
+            file.extend(encode(Dtype::F64, e, &values));
+            let want: Vec<f32> = want.iter().map(|v| v + inter).collect();
+            for (name, bytes) in [("v.nii", file.clone()), ("v.nii.gz", gzip(&file))] {
+                let p = dir.path().join(name);
+                std::fs::write(&p, bytes).unwrap();
+                let (got, saturated) =
+                    crate::testutil::read_all_saturated(&p, &OpenOptions::default()).unwrap();
+                assert!(
+                    crate::testutil::same_values(&got, &want),
+                    "{e:?} {name} {slope}: {got:?}"
+                );
+                assert_eq!(saturated, n, "{e:?} {name} {slope}");
+            }
+        }
+    }
+}
+
 /// A scl_slope that overflows f32 on stored values made them infinite, meshed as outside with
 /// exit 0: refused, naming the field.
 #[test]

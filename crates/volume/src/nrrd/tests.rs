@@ -158,6 +158,35 @@ fn ascii_encoding() {
     assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want);
 }
 
+/// Finite doubles beyond f32's range read as ±f32::MAX and are counted, in every encoding
+/// (mapped raw, gzip stream, ASCII text, which is read as f64 whatever the type).
+#[test]
+fn doubles_beyond_f32_are_saturated_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let (values, want, n) = crate::testutil::beyond_f32();
+    let text: String = values.iter().map(|v| format!("{v:e}\n")).collect();
+    for e in [Endian::Little, Endian::Big] {
+        let data = encode(Dtype::F64, e, &values);
+        for (d, enc, payload) in [
+            (Dtype::F64, "raw", data.clone()),
+            (Dtype::F64, "gzip", gzip(&data)),
+            (Dtype::F64, "ascii", text.clone().into_bytes()),
+            (Dtype::F32, "ascii", text.clone().into_bytes()),
+        ] {
+            let mut file = header(d, e, enc, "\n").into_bytes();
+            file.extend(&payload);
+            let p = write(dir.path(), "v.nrrd", &file);
+            let (got, saturated) =
+                crate::testutil::read_all_saturated(&p, &OpenOptions::default()).unwrap();
+            assert!(
+                crate::testutil::same_values(&got, &want),
+                "{d} {e:?} {enc}: {got:?}"
+            );
+            assert_eq!(saturated, n, "{d} {e:?} {enc}");
+        }
+    }
+}
+
 #[test]
 fn detached_single_file_with_byte_skip() {
     let dir = tempfile::tempdir().unwrap();

@@ -19,6 +19,23 @@ fn want(n: u16) -> Vec<f32> {
         .collect()
 }
 
+/// Finite f64 samples beyond f32's range read as ±f32::MAX and are counted.
+#[test]
+fn f64_samples_beyond_f32_are_saturated_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("stack.tif");
+    let (values, want, n) = crate::testutil::beyond_f32();
+    let mut e = TiffEncoder::new(File::create(&p).unwrap()).unwrap();
+    for page in values.chunks(6) {
+        e.write_image::<colortype::Gray64Float>(3, 2, page).unwrap();
+    }
+    drop(e);
+    let (got, saturated) =
+        crate::testutil::read_all_saturated(&p, &crate::OpenOptions::default()).unwrap();
+    assert!(crate::testutil::same_values(&got, &want), "{got:?}");
+    assert_eq!(saturated, n);
+}
+
 #[test]
 fn multi_page_file_and_directory() {
     let dir = tempfile::tempdir().unwrap();

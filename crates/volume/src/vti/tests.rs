@@ -84,7 +84,14 @@ fn vti(dtype: Dtype, vti_type: &str, values: &[f64], c: Case) -> Vec<u8> {
         let (h, d) = framed(bytes, c);
         match c.format {
             "ascii" => {
-                let text: Vec<String> = vals.iter().map(|v| v.to_string()).collect();
+                // Large values as VTK writes them ("3e300"), not 300 digits.
+                let text: Vec<String> = vals
+                    .iter()
+                    .map(|v| match v.abs() < 1e16 {
+                        true => v.to_string(),
+                        false => format!("{v:e}"),
+                    })
+                    .collect();
                 doc += &format!(
                     "<DataArray type=\"{ty}\" Name=\"{name}\" format=\"ascii\">\n{}\n</DataArray>\n",
                     text.join(" ")
@@ -184,6 +191,21 @@ fn every_form_header_type_and_byte_order() {
             };
             assert_eq!(read_all(&p, &first).unwrap(), vec![7.0; 24], "{c:?}");
         }
+    }
+}
+
+/// Finite Float64 values beyond f32's range read as ±f32::MAX and are counted, in every form.
+#[test]
+fn float64_beyond_f32_is_saturated_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("v.vti");
+    let (values, want, n) = crate::testutil::beyond_f32();
+    for c in cases() {
+        std::fs::write(&p, vti(Dtype::F64, "Float64", &values, c)).unwrap();
+        let (got, saturated) =
+            crate::testutil::read_all_saturated(&p, &OpenOptions::default()).unwrap();
+        assert!(crate::testutil::same_values(&got, &want), "{c:?}: {got:?}");
+        assert_eq!(saturated, n, "{c:?}");
     }
 }
 

@@ -3,7 +3,7 @@
 //! go through the crate's one tested conversion.
 
 use super::json::J;
-use crate::dtype::decode;
+use crate::dtype::{decode, saturated_f32};
 use crate::{Dtype, Endian, VolumeError};
 
 /// A Zarr v3 numeric data type.
@@ -49,8 +49,9 @@ impl ZType {
         }
     }
 
-    /// Converts `out.len()` stored values to f32 (64-bit integers round to the nearest f32).
-    pub(crate) fn decode(self, endian: Endian, bytes: &[u8], out: &mut [f32]) {
+    /// Converts `out.len()` stored values to f32 (64-bit integers round to the nearest f32),
+    /// and returns how many were saturated (finite f64 values beyond f32's range).
+    pub(crate) fn decode(self, endian: Endian, bytes: &[u8], out: &mut [f32]) -> u64 {
         let wide = |b: &[u8]| {
             let a: [u8; 8] = b.try_into().unwrap_or_default();
             match endian {
@@ -59,7 +60,7 @@ impl ZType {
             }
         };
         match self {
-            ZType::Plain(d) => decode(d, endian, bytes, out),
+            ZType::Plain(d) => return decode(d, endian, bytes, out),
             ZType::I64 => {
                 for (o, b) in out.iter_mut().zip(bytes.chunks_exact(8)) {
                     *o = wide(b) as i64 as f32;
@@ -71,11 +72,13 @@ impl ZType {
                 }
             }
         }
+        0
     }
 
     /// The value of voxels in chunks that were never written: a number, or for floats "NaN",
-    /// "Infinity", "-Infinity" or the bit pattern as "0x..." hex (Zarr v3 core spec).
-    pub(crate) fn fill_value(self, j: &J) -> Result<f32, VolumeError> {
+    /// "Infinity", "-Infinity" or the bit pattern as "0x..." hex (Zarr v3 core spec); and
+    /// whether it was saturated (a finite float64 beyond f32's range, as voxels are).
+    pub(crate) fn fill_value(self, j: &J) -> Result<(f32, bool), VolumeError> {
         let float = matches!(self, ZType::Plain(Dtype::F32 | Dtype::F64));
         let expected = if float {
             "a number, \"NaN\", \"Infinity\", \"-Infinity\" or \"0x\" hex bits"
@@ -83,27 +86,27 @@ impl ZType {
             "an integer"
         };
         if let Some(v) = j.value.as_i64() {
-            return Ok(v as f32);
+            return Ok((v as f32, false));
         }
         if let Some(v) = j.value.as_u64() {
-            return Ok(v as f32);
+            return Ok((v as f32, false));
         }
         if !float {
             return Err(j.err(expected));
         }
         if let Some(v) = j.value.as_f64() {
-            return Ok(v as f32);
+            return Ok(saturated_f32(v));
         }
         let text = j.str(expected)?;
         let hex = |digits: &str| u64::from_str_radix(digits, 16).ok();
         let v = match (text, text.strip_prefix("0x")) {
-            ("NaN", _) => Some(f32::NAN),
-            ("Infinity", _) => Some(f32::INFINITY),
-            ("-Infinity", _) => Some(f32::NEG_INFINITY),
+            ("NaN", _) => Some((f32::NAN, false)),
+            ("Infinity", _) => Some((f32::INFINITY, false)),
+            ("-Infinity", _) => Some((f32::NEG_INFINITY, false)),
             (_, Some(d)) if self == ZType::Plain(Dtype::F32) && d.len() == 8 => {
-                hex(d).map(|b| f32::from_bits(b as u32))
+                hex(d).map(|b| (f32::from_bits(b as u32), false))
             }
-            (_, Some(d)) if d.len() == 16 => hex(d).map(|b| f64::from_bits(b) as f32),
+            (_, Some(d)) if d.len() == 16 => hex(d).map(|b| saturated_f32(f64::from_bits(b))),
             _ => None,
         };
         v.ok_or_else(|| j.err(expected))
@@ -120,7 +123,9 @@ mod tests {
             serde_json::from_str(&format!(r#"{{"t":"{ty}","f":{json}}}"#)).unwrap();
         let root = J::root(Path::new("zarr.json"), &v);
         let t = ZType::parse(&root.get("t")).map_err(|e| e.to_string())?;
-        t.fill_value(&root.get("f")).map_err(|e| e.to_string())
+        t.fill_value(&root.get("f"))
+            .map(|(v, _)| v)
+            .map_err(|e| e.to_string())
     }
 
     #[test]
@@ -132,6 +137,9 @@ mod tests {
         assert!(fill("float64", "\"NaN\"").unwrap().is_nan());
         assert_eq!(fill("float32", "\"0x3f800000\""), Ok(1.0));
         assert_eq!(fill("float64", "\"0x4000000000000000\""), Ok(2.0));
+        // Beyond f32's range: saturated like the voxels, not infinite.
+        assert_eq!(fill("float64", "1e40"), Ok(f32::MAX));
+        assert_eq!(fill("float64", "\"0xc800000000000000\""), Ok(-f32::MAX));
         assert_eq!(
             fill("uint16", "\"NaN\"").unwrap_err(),
             r#"zarr.json: key f: expected an integer, found "NaN""#

@@ -18,6 +18,8 @@ pub(crate) struct ArrayMeta {
     pub chunk_shape: Vec<u64>,
     pub ztype: ZType,
     pub fill: f32,
+    /// The fill value was a finite float64 beyond f32's range, saturated to `±f32::MAX`.
+    pub fill_saturated: bool,
     pub keys: KeyEncoding,
     pub codecs: Codecs,
     /// Voxel size and position in x, y, z order, from OME-Zarr coordinate transformations.
@@ -301,7 +303,7 @@ fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
         return Err(cs.err(format!("{rank} positive chunk sizes, one per axis")));
     }
     let keys = key_encoding(&root.get("chunk_key_encoding"))?;
-    let fill = ztype.fill_value(&root.get("fill_value"))?;
+    let (fill, fill_saturated) = ztype.fill_value(&root.get("fill_value"))?;
     let codecs = codec::parse(&root.get("codecs"), &chunk_shape, ztype.size())?;
     let st = root.get("storage_transformers");
     if st.value.as_array().is_some_and(|a| !a.is_empty()) {
@@ -313,6 +315,7 @@ fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
         chunk_shape,
         ztype,
         fill,
+        fill_saturated,
         keys,
         codecs,
         spacing: None,

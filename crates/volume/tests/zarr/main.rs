@@ -99,6 +99,50 @@ fn every_type_and_byte_order_with_edge_and_missing_chunks() {
     }
 }
 
+/// Finite float64 values beyond f32's range, stored or as the fill value of missing chunks,
+/// read as ±f32::MAX and are counted once per slice read.
+#[test]
+fn float64_beyond_f32_is_saturated_and_counted() {
+    for endian in ["little", "big"] {
+        let mut spec = Spec::new(&[5, 7, 9], &[2, 3, 4]);
+        spec.dtype = "float64";
+        spec.endian = endian;
+        spec.fill = -1e40;
+        let base = pattern("float64");
+        let value = |i: &[u64]| match base(i) {
+            v if v > 40.0 => 1e300,
+            v => v,
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let store = dir.path().join("a.zarr");
+        write(&store, &spec, &value, &checkerboard);
+        // What `as f32` gives: infinite where f32 has no room.
+        let cast = expected(&spec, &value, &checkerboard);
+        let n = cast.iter().filter(|v| v.is_infinite()).count() as u64;
+        assert!(n > 100, "{n}");
+        let want: Vec<f32> = cast
+            .iter()
+            .map(|&v| {
+                if v.is_infinite() {
+                    f32::MAX.copysign(v)
+                } else {
+                    v
+                }
+            })
+            .collect();
+        let mut v = open_path(&store, &OpenOptions::default()).unwrap();
+        let g = v.grid();
+        let mut got = Vec::new();
+        let mut out = vec![0.0f32; g.slice_len()];
+        for z in 0..g.dims[2] {
+            v.read_slice(z, &mut out).unwrap();
+            got.extend_from_slice(&out);
+        }
+        assert_eq!(got, want, "{endian}");
+        assert_eq!(v.saturated_voxels(), n, "{endian}");
+    }
+}
+
 #[test]
 fn key_encodings_and_compressors() {
     for keys in [("default", "/"), ("default", "."), ("v2", "."), ("v2", "/")] {
