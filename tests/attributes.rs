@@ -89,6 +89,62 @@ fn attributes_are_sampled_at_the_vertices() {
     }
 }
 
+/// A raw volume has no header, so it states no axis directions: a raw attribute beside a
+/// flipped (LPS) NRRD input takes the input's orientation, and a raw input takes an LPS NRRD
+/// attribute; both pair voxels by index (the raw file stored in the header's order). "attribute
+/// `lin` has orientation Aligned but the iso volume has Flipped(..)" refused the first.
+#[test]
+fn a_raw_volume_pairs_with_a_flipped_header_by_voxel_index() {
+    let dir = tempfile::tempdir().unwrap();
+    volumes(dir.path());
+    let lps = |raw: &str, nrrd: &str| {
+        let mut file = format!(
+            "NRRD0004\ntype: float\ndimension: 3\nsizes: {N} {N} {N}\nendian: little\nencoding: raw\n\
+             space: left-posterior-superior\nspace directions: (-1,0,0) (0,-1,0) (0,0,0.5)\nspace origin: (0,0,0)\n\n"
+        )
+        .into_bytes();
+        file.extend(std::fs::read(dir.path().join(raw)).unwrap());
+        std::fs::write(dir.path().join(nrrd), file).unwrap();
+    };
+    lps("iso.raw", "iso_lps.nrrd");
+    lps("lin.raw", "lin_lps.nrrd");
+    let raw = |name: &str| format!("path = \"{name}\"\ndims = [{N}, {N}, {N}]\ndtype = \"f32\"\n");
+    // (input, attribute, the index-space point of a vertex at a physical position)
+    type IndexPoint = fn([f64; 3]) -> [f64; 3];
+    let cases: [(String, String, IndexPoint); 2] = [
+        ("path = \"iso_lps.nrrd\"\n".into(), raw("lin.raw"), |p| {
+            [-p[0], -p[1], p[2]]
+        }),
+        (
+            raw("iso.raw") + "spacing = [1.0, 1.0, 0.5]\n",
+            "path = \"lin_lps.nrrd\"\n".into(),
+            |p| p,
+        ),
+    ];
+    for (i, (input, attribute, index_point)) in cases.into_iter().enumerate() {
+        let job = dir.path().join(format!("job{i}.toml"));
+        std::fs::write(
+            &job,
+            format!(
+                "[input]\n{input}[extract]\niso = 0.0\n[simplify]\nmode = \"none\"\n[output]\npath = \"out{i}.sma\"\n[[attributes]]\nname = \"lin\"\n{attribute}"
+            ),
+        )
+        .unwrap();
+        let job = job.to_string_lossy().into_owned();
+        ok(&isostream(&["validate", &job]));
+        ok(&isostream(&["run", &job]));
+        let m = read_indexed(&dir.path().join(format!("out{i}.sma"))).unwrap();
+        assert!(!m.positions.is_empty());
+        for (p, a) in m.positions.iter().zip(&m.attrs) {
+            let want = linear(index_point(*p));
+            assert!(
+                (f64::from(*a) - want).abs() < 1e-3,
+                "case {i}: {p:?} {a} {want}"
+            );
+        }
+    }
+}
+
 /// Matches `m`'s attribute columns to `want` by name (GLB reads its `_NAME` accessors back in
 /// name order) and returns its values in `want`'s column order.
 fn columns(m: &IndexedMesh, want: &[String]) -> Vec<f32> {

@@ -204,8 +204,12 @@ pub(crate) enum Source {
 }
 
 /// Opens every attribute's volume and checks that its grid matches the iso volume's: the same
-/// dims and the same axis flips (values are paired by voxel index, and an attribute stored
-/// with other flips than the iso volume's would pair mirrored voxels).
+/// dims and, when both have a header, the same axis flips (values are paired by voxel index, and
+/// an attribute stored with other flips than the iso volume's would pair mirrored voxels). A raw
+/// file (`dims`, which only raw files take) or a procedural shape has no header and states no
+/// axis directions: a raw attribute takes the input's, as it takes its spacing and origin, and a
+/// raw input pairs with an attribute of any orientation, whose header places nothing (the mesh
+/// is the input's). Refusing those pairs refused a raw attribute beside every LPS NRRD.
 pub(crate) fn open(
     attributes: &[AttributeConfig],
     input: &InputConfig,
@@ -252,7 +256,9 @@ pub(crate) fn open(
                     ),
                 }));
             }
-            if source.orientation() != orientation {
+            let headerless =
+                a.dims.is_some() || input.dims.is_some() || input.shape.is_some();
+            if !headerless && source.orientation() != orientation {
                 return Err(RunError::Volume(isostream_volume::VolumeError::Grid {
                     origin: path.display().to_string(),
                     problem: format!(
