@@ -53,12 +53,13 @@ pub enum RunError {
         reason: String,
     },
     #[error(
-        "{input}: the surface at extract.iso = {iso} is empty: {range}; set extract.iso inside the data range, or [output] allow_empty = true to accept an empty mesh (no output written)"
+        "{input}: the surface at extract.iso = {iso} is empty: {why}; or set [output] allow_empty = true to accept an empty mesh (no output written)"
     )]
     EmptySurface {
         input: String,
         iso: f32,
-        range: String,
+        /// Why, from the data range, and what iso to set (`DataRange::empty_surface`).
+        why: String,
     },
     #[error(
         "{}: this job could write up to {bound} vertices, past the {limit} that {what} hold (nothing was run): write .sma (64-bit indices), or lower the output with [output] faces or a lower [simplify] rate",

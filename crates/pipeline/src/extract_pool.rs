@@ -615,7 +615,7 @@ mod tests {
                 }
             }
             assert_eq!(whole_range[0], whole_range[1], "NaN at {nan:?}");
-            let said = whole_range[0].describe();
+            let said = whole_range[0].empty_surface(iso);
             assert_eq!(said.contains("NaN or infinite"), nan.is_some(), "{said}");
         }
     }

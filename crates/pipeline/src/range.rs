@@ -88,30 +88,67 @@ impl DataRange {
         self.saturated += o.saturated;
     }
 
-    /// "[0, 255] (12 NaN or infinite voxels)", or what to say when no voxel was finite.
-    pub fn describe(&self) -> String {
-        if self.min > self.max {
-            return format!(
-                "the volume has no finite voxel (all {} are NaN or infinite)",
-                self.non_finite
-            );
-        }
+    /// "the data range is [0, 255], 12 NaN or infinite voxels": the finite range and what the
+    /// reader met besides.
+    fn range_text(&self) -> String {
         let mut s = format!(
             "the data range is [{}, {}]",
             value(self.min),
             value(self.max)
         );
         if self.non_finite > 0 {
-            s.push_str(&format!(" ({} NaN or infinite voxels)", self.non_finite));
+            s.push_str(&format!(", {} NaN or infinite voxels", self.non_finite));
         }
         if self.saturated > 0 {
             s.push_str(&format!(
-                " ({} voxels finite beyond f32's range, read as ±{:e})",
+                ", {} voxels finite beyond f32's range read as ±{:e}",
                 self.saturated,
                 f32::MAX
             ));
         }
         s
+    }
+
+    /// Why the surface at `iso` is empty, and what to set instead (the run found no triangle).
+    /// A voxel is inside when it is above iso and finite ([`isostream_extract::interp::is_inside`]):
+    /// a surface needs a finite voxel above iso and one at or below it, so only an iso in
+    /// [min, max) gives one. "Set extract.iso inside the data range" was wrong advice at the
+    /// maximum (iso 7 on data [0, 7]: 7 is inside the range, and nothing is above it).
+    pub fn empty_surface(&self, iso: f32) -> String {
+        let (lo, hi) = (self.min, self.max);
+        if lo > hi {
+            return format!(
+                "the volume has no finite voxel (all {} are NaN or infinite, which count as \
+                 outside), so no extract.iso gives a surface; fill those voxels in the input",
+                self.non_finite
+            );
+        }
+        let range = self.range_text();
+        let (iso_s, lo_s, hi_s) = (value(iso), value(lo), value(hi));
+        if lo == hi {
+            format!(
+                "every finite voxel is {hi_s} ({range}), so no extract.iso gives a surface: \
+                 voxels above iso are inside and those equal to it outside"
+            )
+        } else if iso == hi {
+            format!(
+                "iso {iso_s} is the data's maximum: voxels equal to iso count as outside, so \
+                 nothing is inside; set extract.iso below {hi_s} ({range})"
+            )
+        } else if iso > hi {
+            format!(
+                "no voxel is above iso {iso_s}, so nothing is inside; set extract.iso below \
+                 {hi_s} ({range})"
+            )
+        } else if iso < lo {
+            format!(
+                "every finite voxel is above iso {iso_s}, so nothing is outside; set \
+                 extract.iso to at least {lo_s}, the data's minimum (voxels equal to iso count \
+                 as outside), and below {hi_s} ({range})"
+            )
+        } else {
+            format!("{range}; set extract.iso at least {lo_s} and below {hi_s}")
+        }
     }
 }
 
@@ -170,10 +207,10 @@ mod tests {
     fn no_finite_voxel_is_said() {
         let mut range = DataRange::default();
         range.add(&[f32::NAN; 20]);
+        let said = range.empty_surface(0.5);
         assert!(
-            range.describe().contains("all 20 are NaN"),
-            "{}",
-            range.describe()
+            said.starts_with("the volume has no finite voxel (all 20 are NaN"),
+            "{said}"
         );
     }
 
@@ -184,8 +221,34 @@ mod tests {
         range.add(&[f32::MAX; 8]);
         range.add_saturated(8);
         assert_eq!(
-            range.describe(),
-            "the data range is [3.4028235e38, 3.4028235e38] (8 voxels finite beyond f32's range, read as ±3.4028235e38)"
+            range.empty_surface(0.5),
+            "every finite voxel is 3.4028235e38 (the data range is [3.4028235e38, 3.4028235e38], 8 voxels finite beyond f32's range read as ±3.4028235e38), so no extract.iso gives a surface: voxels above iso are inside and those equal to it outside"
+        );
+    }
+
+    /// Each side of the range says what is wrong and what to set. At the maximum, iso is inside
+    /// the data range and nothing is above it: "set extract.iso inside the data range" was no
+    /// help.
+    #[test]
+    fn each_side_of_the_range_says_what_to_set() {
+        let mut range = DataRange::default();
+        range.add(&[0.0, 7.0, 7.0, 0.0]);
+        assert_eq!(
+            range.empty_surface(7.0),
+            "iso 7 is the data's maximum: voxels equal to iso count as outside, so nothing is inside; set extract.iso below 7 (the data range is [0, 7])"
+        );
+        assert_eq!(
+            range.empty_surface(9.5),
+            "no voxel is above iso 9.5, so nothing is inside; set extract.iso below 7 (the data range is [0, 7])"
+        );
+        assert_eq!(
+            range.empty_surface(-1.0),
+            "every finite voxel is above iso -1, so nothing is outside; set extract.iso to at least 0, the data's minimum (voxels equal to iso count as outside), and below 7 (the data range is [0, 7])"
+        );
+        range.add(&[f32::NAN]);
+        assert_eq!(
+            range.empty_surface(3.0),
+            "the data range is [0, 7], 1 NaN or infinite voxels; set extract.iso at least 0 and below 7"
         );
     }
 }

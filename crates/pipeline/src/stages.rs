@@ -949,7 +949,7 @@ impl Step for WriteStep<'_, '_> {
             return Err(Stop::Failed(RunError::EmptySurface {
                 input: check.input.to_string(),
                 iso: check.iso,
-                range: self.ctl.range().describe(),
+                why: self.ctl.range().empty_surface(check.iso),
             }));
         }
         // Dropping the sink on any earlier error removes the partial file.
