@@ -174,6 +174,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 // checkpoint that is truncated, corrupt or not one (`--restart` is the fix in
                 // every case; a checkpoint that could not be written is a failure, 1).
                 | RunError::CheckpointFound { .. }
+                | RunError::FinishedFound { .. }
                 | RunError::Checkpoint { .. }
                 | RunError::ResumeMismatch { .. }
                 | RunError::InputChanged { .. } => 2,

@@ -46,6 +46,16 @@
 //! took the run's peak RSS from 257 to 288 MiB; docs/scale.md.) The writer's stage appends the
 //! rest once its files are flushed, fills in the lengths, fsyncs the file, renames it and fsyncs
 //! the folder.
+//!
+//! **The end.** Once the output is complete under its temporary name (fsynced), a run that has a
+//! checkpoint (or makes them) writes a [`Finished`] record over it, the same way, before it
+//! renames the output, writes the run summary and removes the record. A kill before the record
+//! leaves the last checkpoint (its files are intact: the output is only renamed after); a kill
+//! after it, a state `--resume` finishes from the record alone, computing nothing again: the
+//! output was renamed or is renamed then, the summary it holds is written, the record removed.
+//! (The output's rename used to come first, then the checkpoint's removal: a kill between them
+//! left a checkpoint whose temporary output was gone, so only `--restart`, a whole run again,
+//! got out of it.)
 
 use std::fs::File;
 use std::hash::Hasher;
@@ -62,6 +72,8 @@ use crate::config::JobConfig;
 use crate::error::RunError;
 
 const MAGIC: &[u8; 16] = b"isostream-ckpt\n\0";
+/// The first bytes of a [`Finished`] record.
+const FINISHED_MAGIC: &[u8; 16] = b"isostream-done\n\0";
 /// Bumped whenever the layout of the file or of its sections changes (2: the prune filter's
 /// part; 3: the simplifier's section streamed ahead of the rest; 4: the simplifier's
 /// pass-through band and a cascade's second simplifier; 5: the guard index's quantized cell
@@ -230,6 +242,133 @@ pub(crate) struct Section {
     pub len: u64,
 }
 
+/// What `.NAME.ckpt` holds.
+#[derive(Debug)]
+pub(crate) enum Saved {
+    /// A checkpoint to continue the run from.
+    Partway(Box<Checkpoint>),
+    /// The record of a run whose output was complete.
+    Finished(Box<Finished>),
+}
+
+impl Saved {
+    pub fn percent(&self) -> f64 {
+        match self {
+            Saved::Partway(c) => c.percent(),
+            Saved::Finished(_) => 100.0,
+        }
+    }
+
+    /// The temporary files it refers to (a resume needs them; never the output itself).
+    fn files(&self) -> Vec<PathBuf> {
+        match self {
+            Saved::Partway(c) => c.parts.sink.files().map(Path::to_path_buf).collect(),
+            Saved::Finished(f) => std::iter::once(&f.temp)
+                .chain(&f.scratch)
+                .cloned()
+                .collect(),
+        }
+    }
+}
+
+/// What a run writes over its checkpoint once its output is complete under its temporary name,
+/// before it renames it: from then on nothing is left to compute, and `--resume` after a kill
+/// does what is left (the rename, the run summary, this record's removal) from it alone. JSON
+/// (the summary is read back whole; bincode cannot read back its left-out fields), after
+/// [`FINISHED_MAGIC`] and before an xxHash64 of it.
+#[derive(Debug, Serialize, Deserialize)]
+pub(crate) struct Finished {
+    /// [`job_hash`] of the job that wrote it.
+    pub job: u64,
+    pub input: InputIdentity,
+    /// The complete output under its temporary name.
+    pub temp: PathBuf,
+    /// The scratch files it was assembled from (PLY, GLB), removed once it is in place.
+    pub scratch: Vec<PathBuf>,
+    /// Its size. Once renamed, the output of that size is this run's: the same job and input
+    /// give the same bytes (a resume checks both first), so even an earlier run's output of
+    /// this job would be it.
+    pub bytes: u64,
+    pub summary: crate::RunSummary,
+}
+
+impl Finished {
+    /// Whether the output is under its final name already (a kill after the rename) or still
+    /// under its temporary one; neither, in words.
+    fn renamed(&self, output: &Path) -> Result<bool, String> {
+        let size = |p: &Path| {
+            std::fs::metadata(p)
+                .ok()
+                .filter(|m| m.is_file())
+                .map(|m| m.len())
+        };
+        if size(&self.temp) == Some(self.bytes) {
+            return Ok(false);
+        }
+        if size(output) == Some(self.bytes) {
+            return Ok(true);
+        }
+        Err(format!(
+            "the run had finished its output, but neither its temporary file {} nor {} holds its {} bytes any more",
+            self.temp.display(),
+            output.display(),
+            self.bytes
+        ))
+    }
+
+    /// Puts the output under its final name, unless it is already, and removes the scratch
+    /// files left (`path`: the record, named when the output is gone).
+    pub fn place(&self, path: &Path, output: &Path) -> Result<(), RunError> {
+        match self.renamed(output) {
+            Ok(true) => {}
+            Ok(false) => isostream_smesh::put_in_place(&self.temp, output)?,
+            Err(reason) => {
+                return Err(RunError::Checkpoint {
+                    path: path.to_path_buf(),
+                    reason,
+                });
+            }
+        }
+        for f in &self.scratch {
+            // Best effort, as the sink's own removal: one left is reported as stale.
+            let _ = std::fs::remove_file(f);
+        }
+        Ok(())
+    }
+}
+
+/// Writes `finished` over the checkpoint `path` (or where none is yet), atomically and durably.
+pub(crate) fn write_finished(path: &Path, finished: &Finished) -> Result<(), RunError> {
+    let fail = |e: std::io::Error| write_error(path, e);
+    let json = serde_json::to_vec(finished).map_err(|e| fail(std::io::Error::other(e)))?;
+    let mut tmp = temp_beside(path).map_err(fail)?;
+    let file = tmp.as_file_mut();
+    file.write_all(FINISHED_MAGIC)
+        .and_then(|()| file.write_all(&json))
+        .and_then(|()| file.write_all(&hash(&json).to_le_bytes()))
+        .map_err(fail)?;
+    put_durably(tmp, path).map_err(fail)
+}
+
+/// A temporary file next to the checkpoint `path`, `.NAME.ckpt.XXXXXX.tmp`: recognised as stale
+/// by `stale_temp_files`.
+fn temp_beside(path: &Path) -> std::io::Result<tempfile::NamedTempFile> {
+    let prefix = format!(
+        "{}.",
+        path.file_name().unwrap_or_default().to_string_lossy()
+    );
+    isostream_smesh::output_builder(&prefix).tempfile_in(dir_of(path))
+}
+
+/// Makes `tmp` the file `path`: fsync, rename, fsync of the folder.
+fn put_durably(tmp: tempfile::NamedTempFile, path: &Path) -> std::io::Result<()> {
+    tmp.as_file().sync_all()?;
+    tmp.persist(path).map_err(|e| e.error)?;
+    #[cfg(unix)]
+    File::open(dir_of(path)).and_then(|d| d.sync_all())?;
+    Ok(())
+}
+
 impl Checkpoint {
     pub fn slabs_done(&self) -> u64 {
         self.parts.reader.z
@@ -385,14 +524,7 @@ impl Partial {
     /// Begins the checkpoint `path` under a temporary name next to it, with the simplifier's
     /// state `simplify` encoded straight into the file.
     pub fn begin<T: Serialize + ?Sized>(path: &Path, simplify: &T) -> Result<Self, RunError> {
-        // `.NAME.ckpt.XXXXXX.tmp`: recognised as stale by `stale_temp_files`.
-        let prefix = format!(
-            "{}.",
-            path.file_name().unwrap_or_default().to_string_lossy()
-        );
-        let mut tmp = isostream_smesh::output_builder(&prefix)
-            .tempfile_in(dir_of(path))
-            .map_err(|e| write_error(path, e))?;
+        let mut tmp = temp_beside(path).map_err(|e| write_error(path, e))?;
         // The lengths are filled in by `finish`.
         tmp.write_all(&head([0; 3]))
             .map_err(|e| write_error(path, e))?;
@@ -441,12 +573,7 @@ impl Partial {
         file.seek(SeekFrom::Start(0)).map_err(fail)?;
         let head = head([simplify, second, rest]);
         file.write_all(&head).map_err(fail)?;
-        file.sync_all().map_err(fail)?;
-        tmp.persist(&path).map_err(|e| fail(e.error))?;
-        #[cfg(unix)]
-        File::open(dir_of(&path))
-            .and_then(|d| d.sync_all())
-            .map_err(fail)?;
+        put_durably(tmp, &path).map_err(fail)?;
         Ok(head.len() as u64 + simplify + second + rest + 8)
     }
 }
@@ -480,14 +607,17 @@ fn write_error(path: &Path, source: std::io::Error) -> RunError {
     RunError::CheckpointWrite {
         path: path.to_path_buf(),
         source,
-        kept: read(path).ok().map(|c| (c.slabs_done(), c.slabs_total)),
+        kept: match read(path) {
+            Ok(Saved::Partway(c)) => Some((c.slabs_done(), c.slabs_total)),
+            _ => None,
+        },
     }
 }
 
 /// Reads and checks a checkpoint: magic, format, crate version, lengths, hash (streamed over the
 /// file), then decodes the rest; the simplifier's section is decoded later, from the file
-/// ([`decode_section`]).
-pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
+/// ([`decode_section`]). Or a [`Finished`] record: magic, hash, JSON.
+pub(crate) fn read(path: &Path) -> Result<Saved, RunError> {
     let cannot = |source| RunError::CheckpointIo {
         path: path.to_path_buf(),
         what: "read",
@@ -506,6 +636,22 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
         reason,
     };
     let truncated = || refuse(format!("truncated checkpoint ({size} bytes)"));
+    if bytes.starts_with(FINISHED_MAGIC) {
+        let mut all = Vec::new();
+        file.seek(SeekFrom::Start(0))
+            .and_then(|_| file.read_to_end(&mut all))
+            .map_err(cannot)?;
+        let body = &all[FINISHED_MAGIC.len()..];
+        let (json, sum) = body
+            .split_at_checked(body.len().wrapping_sub(8))
+            .ok_or_else(truncated)?;
+        if sum != hash(json).to_le_bytes() {
+            return Err(corrupt(path, "checksum mismatch"));
+        }
+        return serde_json::from_slice(json)
+            .map(|f| Saved::Finished(Box::new(f)))
+            .map_err(|e| corrupt(path, &e.to_string()));
+    }
     let Some(rest) = bytes.strip_prefix(MAGIC) else {
         return Err(if MAGIC.starts_with(&bytes) {
             truncated()
@@ -565,7 +711,7 @@ pub(crate) fn read(path: &Path) -> Result<Checkpoint, RunError> {
         offset: head + simplify,
         len: second,
     };
-    Ok(ckpt)
+    Ok(Saved::Partway(Box::new(ckpt)))
 }
 
 /// Decodes a simplifier's section of a checkpoint [`read`] checked, straight from the file.
@@ -591,20 +737,24 @@ fn take<const N: usize>(bytes: &[u8]) -> Option<([u8; N], &[u8])> {
     Some((head.try_into().ok()?, &bytes[N..]))
 }
 
-/// Checks that `ckpt` belongs to this job and input.
+/// Checks that `saved` belongs to this job and input.
 pub(crate) fn verify(
     path: &Path,
-    ckpt: &Checkpoint,
+    saved: &Saved,
     job: &JobConfig,
     input: &InputIdentity,
 ) -> Result<(), RunError> {
-    if ckpt.job != job_hash(job) {
+    let (saved_job, saved_input) = match saved {
+        Saved::Partway(c) => (c.job, &c.input),
+        Saved::Finished(f) => (f.job, &f.input),
+    };
+    if saved_job != job_hash(job) {
         return Err(RunError::ResumeMismatch {
             path: path.to_path_buf(),
             what: "the job file changed since the checkpoint".into(),
         });
     }
-    if let Some(diff) = ckpt.input.difference(input) {
+    if let Some(diff) = saved_input.difference(input) {
         return Err(RunError::ResumeMismatch {
             path: path.to_path_buf(),
             what: format!("the input changed since the checkpoint ({diff})"),
@@ -616,8 +766,9 @@ pub(crate) fn verify(
 /// What `isostream validate` says of the checkpoint an interrupted run of `job`'s output left
 /// (`None` without one): `validate` checks the job, not the command, so this is a note, but
 /// `run` refuses to start while it is there, and only the run's own checks ([`read`], then
-/// [`verify`] against the job and the input `source` reads now) say whether `--resume` can
-/// continue it or only `--restart` will do.
+/// [`verify`] against the job and the input `source` reads now, and for a [`Finished`] record
+/// whether its output is still there) say whether `--resume` can continue it or only
+/// `--restart` will do.
 pub fn checkpoint_note(
     job: &JobConfig,
     source: &mut dyn VolumeSource,
@@ -632,8 +783,8 @@ pub fn checkpoint_note(
             path.display()
         )
     };
-    let ckpt = match read(&path) {
-        Ok(ckpt) => ckpt,
+    let saved = match read(&path) {
+        Ok(saved) => saved,
         Err(RunError::Checkpoint { reason, .. }) => {
             return Ok(Some(format!(
                 "{} but cannot be resumed ({reason}); `run` needs --restart",
@@ -642,28 +793,39 @@ pub fn checkpoint_note(
         }
         Err(e) => return Err(e),
     };
-    let found = found(format!("{:.0} %, ", ckpt.percent()));
     let input = InputIdentity::read(job, source)?;
-    Ok(Some(match verify(&path, &ckpt, job, &input) {
-        Ok(()) => format!(
-            "{found}; `run` needs --resume to continue it (the job and its input are unchanged) \
-             or --restart to start over"
+    let verified = verify(&path, &saved, job, &input);
+    let (found, usable) = match &saved {
+        Saved::Partway(c) => (
+            found(format!("{:.0} %, ", c.percent())),
+            Ok("continue it (the job and its input are unchanged)"),
         ),
-        Err(RunError::ResumeMismatch { what, .. }) => {
+        Saved::Finished(f) => (
+            found("100 %: the output was written, the run stopped before its last steps, ".into()),
+            f.renamed(&job.output.path).map(|_| {
+                "finish it without computing anything again (the job and its input are unchanged)"
+            }),
+        ),
+    };
+    Ok(Some(match (verified, usable) {
+        (Ok(()), Ok(what)) => {
+            format!("{found}; `run` needs --resume to {what} or --restart to start over")
+        }
+        (Err(RunError::ResumeMismatch { what, .. }), _) | (Ok(()), Err(what)) => {
             format!("{found}, but {what}: `run` needs --restart (it starts over)")
         }
-        Err(e) => return Err(e),
+        (Err(e), _) => return Err(e),
     }))
 }
 
-/// Removes a checkpoint and the temporary files it refers to (a run starting over, or done).
-/// A checkpoint that cannot be read is removed alone.
+/// Removes a checkpoint and the temporary files it refers to (a run starting over). A
+/// checkpoint that cannot be read is removed alone.
 pub(crate) fn discard(path: &Path) -> Result<(), RunError> {
     if !path.exists() {
         return Ok(());
     }
-    if let Ok(ckpt) = read(path) {
-        for f in ckpt.parts.sink.files() {
+    if let Ok(saved) = read(path) {
+        for f in saved.files() {
             let _ = std::fs::remove_file(f);
         }
     }
@@ -674,8 +836,8 @@ pub(crate) fn discard(path: &Path) -> Result<(), RunError> {
     })
 }
 
-/// Removes the checkpoint of a completed run (its temporary files became the output or were
-/// removed by the sink).
+/// Removes the checkpoint of a completed run (its [`Finished`] record, or a checkpoint whose
+/// temporary files became the output or were removed by the sink).
 pub(crate) fn remove(path: &Path) -> Result<(), RunError> {
     match std::fs::remove_file(path) {
         Err(source) if source.kind() != std::io::ErrorKind::NotFound => {
@@ -693,17 +855,24 @@ pub(crate) fn remove(path: &Path) -> Result<(), RunError> {
 /// them).
 pub(crate) fn referenced_files(output: &Path) -> Vec<PathBuf> {
     read(&path_for(output))
-        .map(|c| c.parts.sink.files().map(Path::to_path_buf).collect())
+        .map(|saved| saved.files())
         .unwrap_or_default()
 }
 
-/// What a resume of `output` needs: its checkpoint and the files it refers to; empty when there
-/// is no readable checkpoint.
+/// What a resume of `output` needs: its checkpoint and the files it refers to, and the output
+/// itself after a [`Finished`] record (it may be renamed already); empty when there is no
+/// readable checkpoint.
 pub fn resumable_files(output: &Path) -> Vec<PathBuf> {
-    let files = referenced_files(output);
-    match files.is_empty() {
-        true => files,
-        false => std::iter::once(path_for(output)).chain(files).collect(),
+    let path = path_for(output);
+    match read(&path) {
+        Ok(saved) => {
+            let finished = matches!(saved, Saved::Finished(_)).then(|| output.to_path_buf());
+            std::iter::once(path)
+                .chain(saved.files())
+                .chain(finished)
+                .collect()
+        }
+        Err(_) => Vec::new(),
     }
 }
 
@@ -817,7 +986,9 @@ mod tests {
         assert_eq!(partial.append_second(&vec![5u8; 10]).unwrap(), 18);
         let len = partial.finish(&sample()).unwrap();
         assert_eq!(std::fs::metadata(&path).unwrap().len(), len);
-        let back = read(&path).unwrap();
+        let Saved::Partway(back) = read(&path).unwrap() else {
+            panic!("not a checkpoint");
+        };
         assert_eq!(back.percent(), 60.0);
         assert_eq!(back.parts.detect, vec![1, 2, 3]);
         let simplify: Vec<u8> = decode_section(&path, back.simplify).unwrap();

@@ -99,6 +99,15 @@ pub enum RunError {
         checkpoint: PathBuf,
         percent: f64,
     },
+    /// A run of this output was killed after its output was complete (`checkpoint::Finished`).
+    #[error(
+        "{}: a run of this job wrote it but was stopped before its last steps (its checkpoint {} records that); add --resume to finish it without computing anything again, or --restart to start over",
+        output.display(), checkpoint.display()
+    )]
+    FinishedFound {
+        output: PathBuf,
+        checkpoint: PathBuf,
+    },
     #[error("{}: {reason}; run with --restart to start over", path.display())]
     Checkpoint { path: PathBuf, reason: String },
     /// The checkpoint file could not be read or removed (permissions, a failing disk): not a

@@ -35,7 +35,7 @@ use isostream_simplify::{
 };
 use isostream_smesh::Header;
 use isostream_volume::VolumeSource;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tracing::{info, warn};
 
 pub use attributes::{AttributeConfig, Derived, SliceReader, Slices};
@@ -53,8 +53,9 @@ pub use sink::SinkStats;
 pub use source::{open_source, orientation_warning, preflight};
 pub use stages::{Progress, StageSeconds};
 
-/// What a finished run reports (logged, and written as `<output>.run.json`).
-#[derive(Debug, Clone, Serialize)]
+/// What a finished run reports (logged, and written as `<output>.run.json`; read back from a
+/// run's `checkpoint::Finished` record).
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RunSummary {
     pub input: String,
     pub dims: [u64; 3],
@@ -154,7 +155,7 @@ fn saved_checkpoint(
     start: Start,
     ckpt_path: &Path,
     output: &Path,
-) -> Result<Option<checkpoint::Checkpoint>, RunError> {
+) -> Result<Option<checkpoint::Saved>, RunError> {
     let exists = ckpt_path.exists();
     match start {
         Start::Restart => {
@@ -162,10 +163,14 @@ fn saved_checkpoint(
             Ok(None)
         }
         Start::Fresh if exists => Err(match checkpoint::read(ckpt_path) {
-            Ok(c) => RunError::CheckpointFound {
+            Ok(checkpoint::Saved::Partway(c)) => RunError::CheckpointFound {
                 output: output.to_path_buf(),
                 checkpoint: ckpt_path.to_path_buf(),
                 percent: c.percent(),
+            },
+            Ok(checkpoint::Saved::Finished(_)) => RunError::FinishedFound {
+                output: output.to_path_buf(),
+                checkpoint: ckpt_path.to_path_buf(),
             },
             Err(e) => e,
         }),
@@ -219,6 +224,15 @@ fn run_job(
     if let (Some(saved), Some(identity)) = (&saved, &identity) {
         checkpoint::verify(ckpt_path, saved, job, identity)?;
     }
+    let saved = match saved {
+        Some(checkpoint::Saved::Finished(finished)) => {
+            info!(checkpoint = %ckpt_path.display(), "the run that saved the checkpoint had written its output: finishing it");
+            finished.place(ckpt_path, &job.output.path)?;
+            return conclude(job, ckpt_path, finished.summary);
+        }
+        Some(checkpoint::Saved::Partway(c)) => Some(c),
+        None => None,
+    };
     let rate = job.simplify.rate();
     let prune = NonZeroU64::new(job.simplify.min_component_faces);
     // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts,
@@ -329,12 +343,14 @@ fn run_job(
     let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
     let observe = |p: &Progress| monitor.observe(p);
     let resumed_at_slab = resume.as_ref().map(|r| r.reader.z);
-    let checkpoints = every.zip(identity).map(|(every, input)| stages::Plan {
-        every,
-        path: ckpt_path.to_path_buf(),
-        job: checkpoint::job_hash(job),
-        input,
-    });
+    let checkpoints = every
+        .zip(identity.clone())
+        .map(|(every, input)| stages::Plan {
+            every,
+            path: ckpt_path.to_path_buf(),
+            job: checkpoint::job_hash(job),
+            input,
+        });
     if let Some(r) = &resume {
         // The checkpoint's carried slice is read again (and checked against its hash).
         reader.seek(r.reader.z)?;
@@ -359,8 +375,6 @@ fn run_job(
     }
     .run()?;
     let series = monitor.finish();
-    // The output is complete under its final name: the checkpoint has served.
-    checkpoint::remove(ckpt_path)?;
 
     let sink_stats = outputs.sink;
     let faces_kept = outputs.extract.triangles - outputs.prune.map_or(0, |p| p.faces_pruned);
@@ -445,6 +459,40 @@ fn run_job(
         warnings,
         series,
     };
+    // Nothing is left to compute: said over the checkpoint before the output is renamed, so
+    // that a kill from here on leaves a run `--resume` finishes (`checkpoint::Finished`). A run
+    // without a checkpoint has nothing to resume from: its output only needs its name.
+    if let Some(input) = identity {
+        let finished = checkpoint::Finished {
+            job: checkpoint::job_hash(job),
+            input,
+            temp: outputs.output.temp_path().to_path_buf(),
+            scratch: outputs.output.scratch_paths(),
+            bytes: summary.sink.bytes,
+            summary: summary.clone(),
+        };
+        checkpoint::write_finished(ckpt_path, &finished)?;
+    }
+    outputs.output.persist()?;
+    conclude(job, ckpt_path, summary)
+}
+
+/// The last steps of a run once its output is under its final name: the run summary, then the
+/// checkpoint's removal (a `Finished` record by then, if any), in that order, so that a kill
+/// between them leaves the record for `--resume` to do them again. A summary that cannot be
+/// written leaves no record behind: the mesh is in place, and the error says so.
+fn conclude(
+    job: &JobConfig,
+    ckpt_path: &Path,
+    summary: RunSummary,
+) -> Result<RunSummary, RunError> {
+    let written = replace_summary(job, &summary);
+    let removed = checkpoint::remove(ckpt_path);
+    written.and(removed).map(|()| summary)
+}
+
+/// Writes the run summary of a run whose output is in place (when `[output] summary` asks).
+fn replace_summary(job: &JobConfig, summary: &RunSummary) -> Result<(), RunError> {
     // A summary left by an earlier run describes the mesh this run replaced: gone whether or
     // not this run writes one (`measure` trusts it to name the job that made the mesh).
     let summary_file = summary_path(&job.output.path);
@@ -458,9 +506,9 @@ fn run_job(
         _ => {}
     }
     if job.output.summary {
-        write_summary(&summary, &summary_file)?;
+        write_summary(summary, &summary_file)?;
     }
-    Ok(summary)
+    Ok(())
 }
 
 /// What the first pass found: the extracted faces, the most one slab had, and, when the job
@@ -1065,6 +1113,74 @@ mod tests {
         );
         stats.front_stretch_faces = 1;
         assert_eq!(over_budget(&job, 7_490, &stats, Some(22.0)), None);
+    }
+
+    /// A run killed once its output was complete (its `checkpoint::Finished` record written) is
+    /// finished by a resume from the record alone, computing nothing (the cancel flag is up, and
+    /// no slab may be seen), whether the kill came before the output's rename or after it; a
+    /// record whose output is gone as well, or damaged, is refused with `--restart` as the fix.
+    #[test]
+    fn a_finished_record_is_finished_by_resume_without_computing() {
+        let dir = tempfile::tempdir().unwrap();
+        let job_path = dir.path().join("job.toml");
+        let output = dir.path().join("o.ply");
+        let text = format!(
+            "[input]\nshape = \"sphere\"\nsize = [16, 16, 16]\n[extract]\niso = 0\n\
+             [output]\npath = \"{}\"\n",
+            output.display()
+        );
+        std::fs::write(&job_path, text).unwrap();
+        let job = JobConfig::load(&job_path).unwrap();
+        let summary = run(&job, &job_path, &AtomicBool::new(false), &|_| {}).unwrap();
+        let bytes = std::fs::read(&output).unwrap();
+        let ckpt = checkpoint_path(&output);
+        let temp = dir.path().join(".o.ply.abc123.tmp");
+        let scratch = dir.path().join(".o.ply.def456.tmp");
+        let mut source = open_source(&job.input).unwrap();
+        let record = checkpoint::Finished {
+            job: checkpoint::job_hash(&job),
+            input: checkpoint::InputIdentity::read(&job, source.as_mut()).unwrap(),
+            temp: temp.clone(),
+            scratch: vec![scratch.clone()],
+            bytes: bytes.len() as u64,
+            summary: summary.clone(),
+        };
+        let resume = |start| {
+            run_from(&job, &job_path, start, &AtomicBool::new(true), &|_| {
+                panic!("a slab was computed")
+            })
+        };
+        for renamed in [false, true] {
+            std::fs::remove_file(summary_path(&output)).unwrap();
+            if !renamed {
+                std::fs::rename(&output, &temp).unwrap();
+            }
+            std::fs::write(&scratch, b"scratch").unwrap();
+            checkpoint::write_finished(&ckpt, &record).unwrap();
+            let found = resume(Start::Fresh).unwrap_err();
+            assert!(matches!(found, RunError::FinishedFound { .. }), "{found:?}");
+            let done = resume(Start::Resume).unwrap();
+            assert_eq!(done.faces_written, summary.faces_written);
+            assert_eq!(std::fs::read(&output).unwrap(), bytes);
+            assert!(summary_path(&output).exists());
+            assert!(!ckpt.exists() && !temp.exists() && !scratch.exists());
+        }
+        std::fs::remove_file(&output).unwrap();
+        checkpoint::write_finished(&ckpt, &record).unwrap();
+        let gone = resume(Start::Resume).unwrap_err();
+        assert!(matches!(gone, RunError::Checkpoint { .. }), "{gone:?}");
+        let msg = gone.to_string();
+        assert!(
+            msg.contains("neither its temporary file")
+                && msg.ends_with("run with --restart to start over"),
+            "{msg}"
+        );
+        let mut damaged = std::fs::read(&ckpt).unwrap();
+        let mid = damaged.len() / 2;
+        damaged[mid] ^= 1;
+        std::fs::write(&ckpt, damaged).unwrap();
+        let e = resume(Start::Resume).unwrap_err().to_string();
+        assert!(e.contains("corrupt checkpoint (checksum mismatch)"), "{e}");
     }
 
     /// With threads the halves run on two (one of them this one), without them both on this

@@ -4,12 +4,12 @@
 use std::path::{Path, PathBuf};
 
 use isostream_simplify::{OutBatch, OutElement};
-use isostream_smesh::{ConvertOptions, Header, MeshSink, SinkState, WriteStats};
+use isostream_smesh::{Completed, ConvertOptions, Header, MeshSink, SinkState, WriteStats};
 
 use crate::error::RunError;
 use crate::mirror::Mirror;
 
-#[derive(Debug, Clone, Default, serde::Serialize)]
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub struct SinkStats {
     pub vertices: u64,
     pub triangles: u64,
@@ -90,20 +90,23 @@ impl Sink {
         Ok(())
     }
 
-    pub fn finish(self) -> Result<SinkStats, RunError> {
+    /// The output complete under its temporary name (the run renames it: see `run_job`).
+    pub fn complete(self) -> Result<(SinkStats, Completed), RunError> {
+        let completed = self.inner.complete()?;
         let WriteStats {
             vertices,
             triangles,
             bytes,
             max_active_vertices,
             ..
-        } = self.inner.finish()?;
-        Ok(SinkStats {
+        } = completed.stats();
+        let stats = SinkStats {
             vertices,
             triangles,
             bytes,
             max_active_vertices,
             path: self.path,
-        })
+        };
+        Ok((stats, completed))
     }
 }

@@ -14,6 +14,7 @@ use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_prune::{Filter, PruneStats};
 use isostream_simplify::{Front, Join, OutBatch, Serial, Simplifier, SimplifyStats};
+use isostream_smesh::Completed;
 use tracing::{debug, info};
 
 use crate::attributes::SliceReader;
@@ -44,7 +45,7 @@ pub struct Progress {
 }
 
 /// Busy time of each stage (time blocked on channels excluded). `extract` adds up the workers.
-#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 pub struct StageSeconds {
     pub read: f64,
     pub extract: f64,
@@ -68,6 +69,8 @@ pub(crate) struct StageOutputs {
     /// A cascade's two stages, each on its own (`simplify` adds them up); `None` without one.
     pub simplify_stages: Option<[SimplifyStats; 2]>,
     pub sink: crate::sink::SinkStats,
+    /// The output, complete under its temporary name.
+    pub output: Completed,
 }
 
 pub(crate) struct Stages<'a> {
@@ -270,7 +273,7 @@ impl Stages<'_> {
                     Ok((detect_s, detect)),
                     Ok(prune),
                     Ok((simplify_s, simplify, simplify_stages)),
-                    Ok((write_s, sink)),
+                    Ok((write_s, (sink, output))),
                 ) => Ok(StageOutputs {
                     seconds: StageSeconds {
                         read,
@@ -287,6 +290,7 @@ impl Stages<'_> {
                     simplify,
                     simplify_stages,
                     sink,
+                    output,
                 }),
                 (read, extract, detect, prune, simplify, write) => {
                     Err(ctl.take_first().unwrap_or_else(|| {
@@ -880,7 +884,8 @@ struct EmptyCheck<'a> {
     iso: f32,
 }
 
-/// Simplified batches -> the output file, which appears only at the end.
+/// Simplified batches -> the output file, complete under its temporary name at the end (the run
+/// gives it its final name).
 struct WriteStep<'a, 'c> {
     sink: Sink,
     empty: Option<EmptyCheck<'a>>,
@@ -892,7 +897,7 @@ struct WriteStep<'a, 'c> {
 impl Step for WriteStep<'_, '_> {
     type In = OutBatch;
     type Out = Infallible;
-    type Done = crate::sink::SinkStats;
+    type Done = (crate::sink::SinkStats, Completed);
 
     fn batch(&mut self, batch: OutBatch, _: &mut Outbox<'_, Infallible>) -> StageResult<()> {
         Ok(self.sink.write(&batch)?)
@@ -941,7 +946,7 @@ impl Step for WriteStep<'_, '_> {
         Ok(())
     }
 
-    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<crate::sink::SinkStats> {
+    fn end(self, _: &mut Outbox<'_, Infallible>) -> StageResult<Self::Done> {
         if let Some(check) = self.empty
             && self.sink.triangles() == 0
         {
@@ -953,6 +958,6 @@ impl Step for WriteStep<'_, '_> {
             }));
         }
         // Dropping the sink on any earlier error removes the partial file.
-        Ok(self.sink.finish()?)
+        Ok(self.sink.complete()?)
     }
 }

@@ -849,6 +849,7 @@ fn run_error_kind(e: &RunError) -> &'static str {
         RunError::SliceMemory { .. } => "run_input",
         RunError::Cancelled | RunError::Interrupted { .. } => "run_cancelled",
         RunError::CheckpointFound { .. }
+        | RunError::FinishedFound { .. }
         | RunError::Checkpoint { .. }
         | RunError::CheckpointIo { .. }
         | RunError::CheckpointWrite { .. }

@@ -1,9 +1,10 @@
 //! Output files that appear under their final name only when complete.
 //!
 //! Data goes to a temporary file in the destination directory (same file system, so the final
-//! rename is atomic); `finish` flushes, fsyncs and renames. Dropping an unfinished `AtomicFile`
-//! deletes the temporary file, so a crash or an error never leaves a half-written mesh that a later
-//! stage could mistake for a result.
+//! rename is atomic); `complete` flushes and fsyncs, `persist` renames (two steps, so that the
+//! pipeline can record between them that its run is done: see `sink::Completed`). Dropping an
+//! unfinished `AtomicFile` deletes the temporary file, so a crash or an error never leaves a
+//! half-written mesh that a later stage could mistake for a result.
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, Seek, SeekFrom, Write};
@@ -101,17 +102,21 @@ impl TempFile {
         Ok(len)
     }
 
-    /// Renames the file to `target` (flushed and fsynced first); returns its size.
-    fn persist(mut self, target: &Path) -> io::Result<u64> {
+    /// Flushes and fsyncs the whole file; returns its size.
+    fn complete(&mut self) -> io::Result<u64> {
         self.out.flush()?;
         let f = self.out.get_mut();
         f.sync_all()?;
-        let bytes = f.metadata()?.len();
+        Ok(f.metadata()?.len())
+    }
+
+    /// Renames the file to `target`.
+    fn persist(mut self, target: &Path) -> io::Result<()> {
         match self.guard.take() {
             Some(guard) => guard.persist(target).map_err(|e| e.error)?,
             None => std::fs::rename(&self.path, target)?,
         }
-        Ok(bytes)
+        Ok(())
     }
 
     /// Removes the file, even one a checkpoint referred to (its run is complete).
@@ -246,20 +251,52 @@ impl AtomicFile {
         res.map_err(|e| SmeshError::io(&self.path, "truncate", e))
     }
 
-    /// Flushes, fsyncs, renames to the final name; returns the file size.
-    pub(crate) fn finish(self) -> Result<u64, SmeshError> {
-        let path = self.path;
-        let bytes = self.tmp.persist(&path).map_err(|e| {
-            SmeshError::io(&path, "flush, fsync and rename the temporary file to it", e)
-        })?;
-        // Make the rename itself durable. Best effort: not every platform can open a directory.
-        #[cfg(unix)]
-        if let Ok(dir) = File::open(dir_of(&path)) {
-            dir.sync_all()
-                .map_err(|e| SmeshError::io(&path, "fsync its folder", e))?;
-        }
-        Ok(bytes)
+    /// Flushes and fsyncs the complete file, still under its temporary name; returns its size.
+    pub(crate) fn complete(&mut self) -> Result<u64, SmeshError> {
+        self.tmp
+            .complete()
+            .map_err(|e| SmeshError::io(&self.path, "flush and fsync its temporary file", e))
     }
+
+    /// The temporary name it is written under.
+    pub(crate) fn temp_path(&self) -> &Path {
+        &self.tmp.path
+    }
+
+    /// Renames the file [`AtomicFile::complete`] made complete to the final name.
+    pub(crate) fn persist(self) -> Result<(), SmeshError> {
+        let path = self.path;
+        self.tmp
+            .persist(&path)
+            .map_err(|e| SmeshError::io(&path, "rename the temporary file to it", e))?;
+        sync_folder(&path)
+    }
+}
+
+/// Renames `temp`, a complete output a checkpointed run left under its temporary name (the
+/// pipeline's record of a run that finished its output), to `target`, durably.
+pub fn put_in_place(temp: &Path, target: &Path) -> Result<(), SmeshError> {
+    std::fs::rename(temp, target).map_err(|e| {
+        SmeshError::io(
+            target,
+            format!(
+                "rename its complete temporary file {} to it",
+                temp.display()
+            ),
+            e,
+        )
+    })?;
+    sync_folder(target)
+}
+
+/// Makes a rename to `path` durable. Best effort: not every platform can open a directory.
+fn sync_folder(path: &Path) -> Result<(), SmeshError> {
+    #[cfg(unix)]
+    if let Ok(dir) = File::open(dir_of(path)) {
+        dir.sync_all()
+            .map_err(|e| SmeshError::io(path, "fsync its folder", e))?;
+    }
+    Ok(())
 }
 
 /// The directory `path` is in ("." for a bare file name).
@@ -315,6 +352,11 @@ impl Spill {
         &mut self.tmp.out
     }
 
+    /// Its temporary name.
+    pub(crate) fn path(&self) -> &Path {
+        &self.tmp.path
+    }
+
     pub(crate) fn mark(&mut self) -> Result<FileMark, SmeshError> {
         self.tmp
             .mark()
@@ -356,7 +398,8 @@ mod tests {
         let out = dir.path().join("mesh.sma");
         let mut f = AtomicFile::create(&out).unwrap();
         f.write_all(b"x").unwrap();
-        f.finish().unwrap();
+        f.complete().unwrap();
+        f.persist().unwrap();
         assert_eq!(mode(&out), mode(&plain));
     }
 }

@@ -23,9 +23,9 @@ use std::path::Path;
 use serde_json::json;
 
 use crate::atomic::{AtomicFile, Spill};
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
+use crate::sink::{Completed, MeshSink, Saved, SinkCore, SinkState, mismatch};
 use crate::stl::{face_normal, normalized};
-use crate::{Header, IndexedMesh, SmeshError, WriteStats};
+use crate::{Header, IndexedMesh, SmeshError};
 
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
@@ -235,7 +235,7 @@ impl MeshSink for GlbSink {
         res.map_err(|e| self.core.scratch_error(e))
     }
 
-    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
+    fn complete(self: Box<Self>) -> Result<Completed, SmeshError> {
         self.core.finish()?;
         let (n, t) = (self.core.tracker.vertices(), self.core.tracker.triangles());
         let mut json = serde_json::to_vec(&self.document(n, t)).map_err(|e| {
@@ -281,9 +281,7 @@ impl MeshSink for GlbSink {
                 out.append(p)?;
             }
         }
-        let bytes = out.finish()?;
-        parts.into_iter().for_each(Spill::discard);
-        Ok(core.stats(bytes))
+        Completed::new(out, parts, |bytes| core.stats(bytes))
     }
 
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {

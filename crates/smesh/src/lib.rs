@@ -36,7 +36,7 @@ mod validate;
 mod writer;
 
 pub use atomic::FileMark;
-pub use atomic::output_builder;
+pub use atomic::{output_builder, put_in_place};
 pub use convert::{
     ConvertOptions, ConvertStats, convert, convert_until, convert_with, create_sink, resume_sink,
 };
@@ -47,7 +47,7 @@ pub use indexed::{IndexedMesh, read_indexed};
 pub use obj::ObjSink;
 pub use ply::{PlyEncoding, PlySink};
 pub use reader::{Element, ReadHeader, StreamReader};
-pub use sink::{Header, MeshSink, SinkState, WriteStats};
+pub use sink::{Completed, Header, MeshSink, SinkState, WriteStats};
 pub use stl::StlSink;
 pub use validate::{ValidationReport, validate};
 pub use writer::StreamWriter;

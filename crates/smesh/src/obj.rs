@@ -7,8 +7,8 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
-use crate::{Header, IndexedMesh, SmeshError, WriteStats};
+use crate::sink::{Completed, MeshSink, Saved, SinkCore, SinkState};
+use crate::{Header, IndexedMesh, SmeshError};
 
 /// The header comment saying which attributes were not written: a fact about this file, not a
 /// comment to carry on, so the reader leaves it out.
@@ -65,10 +65,10 @@ impl MeshSink for ObjSink {
         self.core.finalize(v)
     }
 
-    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
+    fn complete(self: Box<Self>) -> Result<Completed, SmeshError> {
         self.core.finish()?;
-        let bytes = self.out.finish()?;
-        Ok(self.core.stats(bytes))
+        let ObjSink { core, out, .. } = *self;
+        Completed::new(out, Vec::new(), |bytes| core.stats(bytes))
     }
 
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {

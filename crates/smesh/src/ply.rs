@@ -15,8 +15,8 @@ use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{Encoding, Property, PropertyAccess, PropertyAccessResult, PropertyType};
 
 use crate::atomic::{AtomicFile, Spill};
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState, mismatch};
-use crate::{Header, IndexedMesh, SmeshError, WriteStats};
+use crate::sink::{Completed, MeshSink, Saved, SinkCore, SinkState, mismatch};
+use crate::{Header, IndexedMesh, SmeshError};
 
 /// How a PLY body is encoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -149,7 +149,7 @@ impl MeshSink for PlySink {
         self.core.finalize(v)
     }
 
-    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
+    fn complete(self: Box<Self>) -> Result<Completed, SmeshError> {
         self.core.finish()?;
         let header = self.header_text();
         let this = *self;
@@ -186,10 +186,7 @@ impl MeshSink for PlySink {
                 })?;
             }
         }
-        let bytes = out.finish()?;
-        vertices.discard();
-        faces.discard();
-        Ok(core.stats(bytes))
+        Completed::new(out, vec![vertices, faces], |bytes| core.stats(bytes))
     }
 
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {

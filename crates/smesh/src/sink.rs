@@ -4,7 +4,7 @@
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-use crate::atomic::{AtomicFile, FileMark};
+use crate::atomic::{AtomicFile, FileMark, Spill};
 use crate::track::Tracker;
 use crate::{Place, SmeshError, StreamFault, Subject};
 
@@ -39,12 +39,70 @@ pub trait MeshSink: Send {
     fn triangle(&mut self, v: [u64; 3], last_use: [bool; 3]) -> Result<(), SmeshError>;
     /// Finalizes a vertex without a triangle (an SMA `x` line; an isolated vertex).
     fn finalize(&mut self, v: u64) -> Result<(), SmeshError>;
-    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError>;
+    /// Checks the end of the stream, writes what is left (header counts, the parts kept in
+    /// scratch files) and fsyncs the output, still under its temporary name.
+    fn complete(self: Box<Self>) -> Result<Completed, SmeshError>;
+    /// [`MeshSink::complete`], then [`Completed::persist`]: the output under its final name.
+    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
+        self.complete()?.persist()
+    }
     /// Flushes and fsyncs every file of the sink and returns where it stands, for a checkpoint:
     /// [`crate::resume_sink`] continues from there after a crash, writing the same bytes. From
     /// the first checkpoint on, a failed or killed run leaves its temporary files in place (the
     /// checkpoint needs them); a finished run removes them.
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError>;
+}
+
+/// An output complete under its temporary name (written, flushed and fsynced) that has not been
+/// given its final name yet. The pipeline records between the two steps that its run is done, so
+/// that a kill right after the rename leaves a state `--resume` finishes without computing
+/// anything again. Dropped, it removes its files as an unfinished sink does (none that a
+/// checkpoint refers to).
+pub struct Completed {
+    out: AtomicFile,
+    /// The scratch files the output was assembled from (PLY, GLB), removed once it is in place.
+    scratch: Vec<Spill>,
+    stats: WriteStats,
+}
+
+impl Completed {
+    /// Completes `out` (flush, fsync); `stats` gets its size.
+    pub(crate) fn new(
+        mut out: AtomicFile,
+        scratch: Vec<Spill>,
+        stats: impl FnOnce(u64) -> WriteStats,
+    ) -> Result<Completed, SmeshError> {
+        let bytes = out.complete()?;
+        Ok(Completed {
+            out,
+            scratch,
+            stats: stats(bytes),
+        })
+    }
+
+    pub fn stats(&self) -> WriteStats {
+        self.stats
+    }
+
+    /// The temporary name the complete output is under.
+    pub fn temp_path(&self) -> &Path {
+        self.out.temp_path()
+    }
+
+    /// The scratch files [`Completed::persist`] removes.
+    pub fn scratch_paths(&self) -> Vec<PathBuf> {
+        self.scratch
+            .iter()
+            .map(|s| s.path().to_path_buf())
+            .collect()
+    }
+
+    /// Renames the output to its final name (durably), then removes its scratch files.
+    pub fn persist(self) -> Result<WriteStats, SmeshError> {
+        self.out.persist()?;
+        self.scratch.into_iter().for_each(Spill::discard);
+        Ok(self.stats)
+    }
 }
 
 /// Where a sink stood at a checkpoint: its files (temporary output, scratch files) with the

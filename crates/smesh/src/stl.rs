@@ -11,8 +11,8 @@ use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
-use crate::{Header, IndexedMesh, SmeshError, WriteStats};
+use crate::sink::{Completed, MeshSink, Saved, SinkCore, SinkState};
+use crate::{Header, IndexedMesh, SmeshError};
 
 const COUNT_AT: u64 = 80;
 /// How the header of a binary STL this crate wrote begins; parts follow, each after `; `.
@@ -110,12 +110,12 @@ impl MeshSink for StlSink {
         self.core.finalize(v)
     }
 
-    fn finish(mut self: Box<Self>) -> Result<WriteStats, SmeshError> {
+    fn complete(mut self: Box<Self>) -> Result<Completed, SmeshError> {
         self.core.finish()?;
         let count = self.core.tracker.triangles() as u32;
         self.out.patch(COUNT_AT, &count.to_le_bytes())?;
-        let bytes = self.out.finish()?;
-        Ok(self.core.stats(bytes))
+        let StlSink { core, out, .. } = *self;
+        Completed::new(out, Vec::new(), |bytes| core.stats(bytes))
     }
 
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
-use crate::sink::{MeshSink, Saved, SinkCore, SinkState};
+use crate::sink::{Completed, MeshSink, Saved, SinkCore, SinkState};
 use crate::sma::SmaEncoder;
 use crate::smb::SmbEncoder;
 use crate::{Format, Header, Place, SmeshError, StreamFault, Subject, WriteStats, index};
@@ -120,14 +120,19 @@ impl StreamWriter {
     /// Checks that every vertex was finalized, patches the header counts and bounding box in
     /// place (SMB: fixed offsets; SMA: reserved fixed-width comment lines at the top), flushes,
     /// fsyncs and renames to the final name.
-    pub fn finish(mut self) -> Result<WriteStats, SmeshError> {
+    pub fn finish(self) -> Result<WriteStats, SmeshError> {
+        self.complete()?.persist()
+    }
+
+    /// [`StreamWriter::finish`] but the rename (see [`Completed`]).
+    fn complete(mut self) -> Result<Completed, SmeshError> {
         self.core.finish()?;
         match self.encoder {
             Encoder::Sma(e) => e.end(&mut self.out, &self.core.tracker)?,
             Encoder::Smb(e) => e.end(&mut self.out, &self.core.tracker)?,
         }
-        let bytes = self.out.finish()?;
-        Ok(self.core.stats(bytes))
+        let core = self.core;
+        Completed::new(self.out, Vec::new(), |bytes| core.stats(bytes))
     }
 }
 
@@ -141,8 +146,8 @@ impl MeshSink for StreamWriter {
     fn finalize(&mut self, v: u64) -> Result<(), SmeshError> {
         StreamWriter::finalize(self, v)
     }
-    fn finish(self: Box<Self>) -> Result<WriteStats, SmeshError> {
-        StreamWriter::finish(*self)
+    fn complete(self: Box<Self>) -> Result<Completed, SmeshError> {
+        StreamWriter::complete(*self)
     }
     fn checkpoint(&mut self) -> Result<SinkState, SmeshError> {
         let format = match &self.encoder {
