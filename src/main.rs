@@ -169,6 +169,8 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | RunError::ClassicalOverBudget { .. }
                 | RunError::IndexLimit { .. }
                 | RunError::SliceMemory { .. }
+                // The output's folder cannot be created or written: a job (or a command) to fix.
+                | RunError::OutputFolder { .. }
                 // The command asks for what cannot be done: a flag to add (`--resume` or
                 // `--restart`), or a resume of a job or input that changed since, or of a
                 // checkpoint that is truncated, corrupt or not one (`--restart` is the fix in

@@ -252,16 +252,9 @@ pub fn convert(
             .context("cannot install the Ctrl-C / SIGTERM / SIGHUP handler")?;
         crate::keep_hangup_ignored();
     }
-    // The output's folder is created when missing, as `run` creates its output's.
-    if let Some(dir) = output
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty() && !d.exists())
-    {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create the output folder", dir.display()))?;
-    }
     // The same lock as a run's: a run and a conversion (or two conversions) never write one
-    // file at once, and temporary files of this output found now are stale.
+    // file at once, and temporary files of this output found now are stale. Taking it creates
+    // the output's folder when missing, as for a run.
     let _lock = isostream_pipeline::lock_output(output).map_err(|e| match e {
         isostream_pipeline::RunError::Locked { lock, .. } => anyhow::anyhow!(
             "{}: another isostream run or conversion is writing this file (it holds {}); wait for it to finish or convert to another file",

@@ -695,6 +695,85 @@ fn validate_catches_bad_outputs_and_attributes() {
     );
 }
 
+/// `bin()` as a user who cannot write in `folder`: this one with the folder made mode 0555, or,
+/// when that does not keep this one out (root), nobody with the folder left 0755, whose mode
+/// bits then say that it is writable (by its owner).
+#[cfg(unix)]
+fn kept_out_of(folder: &Path) -> Command {
+    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::process::CommandExt;
+    let mode = |m| std::fs::set_permissions(folder, std::fs::Permissions::from_mode(m)).unwrap();
+    mode(0o555);
+    let mut c = bin();
+    if tempfile::tempfile_in(folder).is_ok() {
+        mode(0o755);
+        c.uid(65534).gid(65534);
+    }
+    c
+}
+
+/// Trial bug: an output in a missing folder under one the user cannot write passed `validate`
+/// (only an existing output folder was probed, and a missing one's ancestor by its mode bits,
+/// which say nothing for root or a read-only mount); `run` then failed with exit 1 on "cannot
+/// take the output's lock ...: Permission denied", naming neither the folder nor the fix. Now
+/// the closest existing folder is probed for real: `validate` and `run` refuse the job (exit 2,
+/// naming the folder), and a conversion into such a folder names it and the fix (exit 2).
+#[cfg(unix)]
+#[test]
+fn an_output_folder_that_cannot_be_written_is_refused_up_front() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    // Another user must reach the job and the mesh.
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    let (_, mesh) = sphere_mesh(dir.path(), "m.smb");
+    let ro = dir.path().join("ro");
+    std::fs::create_dir(&ro).unwrap();
+    let ro_name = ro.to_string_lossy().into_owned();
+    let new = format!("{ro_name}/new");
+    for (out, needles) in [
+        (
+            "ro/new/deeper/s.smb",
+            [" is not writable, so ", new.as_str()],
+        ),
+        (
+            "ro/s.smb",
+            [" is not writable (", "choose another output folder"],
+        ),
+    ] {
+        let job = sphere_job(dir.path(), out, "");
+        for cmd in ["validate", "run"] {
+            let o = kept_out_of(&ro).args([cmd, &job]).output().unwrap();
+            assert_one_line_error(&o, 2, &["output.path", &format!("folder {ro_name}")]);
+            assert_one_line_error(&o, 2, &needles);
+        }
+    }
+    let o = kept_out_of(&ro)
+        .args(["convert", &mesh, &format!("{new}/x.sma")])
+        .output()
+        .unwrap();
+    assert_one_line_error(
+        &o,
+        2,
+        &[
+            &format!("cannot create its folder {new}: "),
+            "create it writable, or choose another output folder",
+        ],
+    );
+    let o = kept_out_of(&ro)
+        .args(["convert", &mesh, &format!("{ro_name}/x.sma")])
+        .output()
+        .unwrap();
+    assert_one_line_error(
+        &o,
+        2,
+        &[
+            &format!("cannot write in its folder {ro_name}: "),
+            "make it writable, or choose another output folder",
+        ],
+    );
+    assert_eq!(std::fs::read_dir(&ro).unwrap().count(), 0);
+}
+
 /// A mesh to break: a small sphere run, in SMB and SMA.
 fn meshes(dir: &Path) -> (String, String) {
     let job = sphere_job(dir, "m.smb", "");

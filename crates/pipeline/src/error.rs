@@ -46,6 +46,18 @@ pub enum RunError {
         output.display(), lock.display()
     )]
     Locked { output: PathBuf, lock: PathBuf },
+    /// The output's folder cannot be created or written: the output path is unusable as it is.
+    #[error(
+        "{}: cannot {what} {}: {source}; {fix}, or choose another output folder",
+        output.display(), folder.display()
+    )]
+    OutputFolder {
+        output: PathBuf,
+        folder: PathBuf,
+        what: &'static str,
+        fix: &'static str,
+        source: std::io::Error,
+    },
     #[error("{}: cannot take the output's lock {}: {reason}", output.display(), lock.display())]
     Lock {
         output: PathBuf,

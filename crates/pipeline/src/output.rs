@@ -29,32 +29,30 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
         ));
     }
     // A missing folder is created at run time; what must be writable is its closest existing
-    // ancestor.
+    // ancestor. Probed the way the run writes, by making a file there, whether or not the
+    // folder exists: its mode bits said nothing of root, a read-only mount or an ACL, and the
+    // ancestor of a missing folder was not probed at all (`validate` passed an output the run
+    // then could not create the folder of).
     let existing = dir
         .ancestors()
         .find(|d| d.is_dir())
         .unwrap_or(Path::new("."));
-    if existing
-        .metadata()
-        .is_ok_and(|m| m.permissions().readonly())
-    {
-        return Err(format!(
-            "{}: folder {} is read-only; choose another output folder",
+    probe_writable(existing).map_err(|e| {
+        let missing = match existing == dir {
+            true => String::new(),
+            false => format!(", so {} cannot be created", dir.display()),
+        };
+        format!(
+            "{}: folder {} is not writable{missing} ({e}); choose another output folder",
             path.display(),
             existing.display()
-        ));
-    }
-    if existing != dir {
-        return Ok(());
-    }
-    // Probe writability the way the writer will write: a temporary file in that folder.
-    tempfile::NamedTempFile::new_in(dir).map(drop).map_err(|e| {
-        format!(
-            "{}: folder {} is not writable ({e}); choose another output folder",
-            path.display(),
-            dir.display()
         )
     })
+}
+
+/// Whether a file can be made in `dir`: a temporary one, removed at once.
+fn probe_writable(dir: &Path) -> std::io::Result<()> {
+    tempfile::NamedTempFile::new_in(dir).map(drop)
 }
 
 /// Whether `a` and `b` name one existing file (by their canonical paths: links and `..` seen
@@ -144,15 +142,28 @@ pub struct OutputLock {
 }
 
 /// Takes the output's lock (creating the output's folder if needed); `RunError::Locked` when
-/// another process holds it.
+/// another process holds it, `RunError::OutputFolder` when the folder cannot be created or
+/// written (the first file a run makes there is its lock).
 pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
     let lock = lock_path(output);
-    let fail = |e: std::io::Error| RunError::Lock {
-        output: output.to_path_buf(),
-        lock: lock.clone(),
-        reason: e.to_string(),
+    let fail = |what: &'static str, fix: &'static str| {
+        let lock = lock.clone();
+        move |e: std::io::Error| match unusable(&e) {
+            true => RunError::OutputFolder {
+                output: output.to_path_buf(),
+                folder: dir_of(output).to_path_buf(),
+                what,
+                fix,
+                source: e,
+            },
+            false => RunError::Lock {
+                output: output.to_path_buf(),
+                lock: lock.clone(),
+                reason: e.to_string(),
+            },
+        }
     };
-    create_output_dir(output).map_err(fail)?;
+    create_output_dir(output).map_err(fail("create its folder", "create it writable"))?;
     // A lock file unlinked by its previous holder between our open and our lock would be a lock
     // nobody else sees: lock, then check the path still names the file we locked.
     for _ in 0..8 {
@@ -161,7 +172,7 @@ pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
             .truncate(false)
             .write(true)
             .open(&lock)
-            .map_err(fail)?;
+            .map_err(fail("write in its folder", WRITABLE))?;
         match file.try_lock() {
             Ok(()) => {}
             Err(TryLockError::WouldBlock) => {
@@ -170,7 +181,9 @@ pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
                     lock,
                 });
             }
-            Err(TryLockError::Error(e)) => return Err(fail(e)),
+            Err(TryLockError::Error(e)) => {
+                return Err(fail("lock a file in its folder", WRITABLE)(e));
+            }
         }
         if same_file(&file, &lock) {
             return Ok(OutputLock {
@@ -179,9 +192,23 @@ pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
             });
         }
     }
-    Err(fail(std::io::Error::other(
-        "the lock file keeps being replaced",
-    )))
+    Err(fail("lock a file in its folder", WRITABLE)(
+        std::io::Error::other("the lock file keeps being replaced"),
+    ))
+}
+
+/// The fix of an output folder that cannot be written.
+const WRITABLE: &str = "make it writable";
+
+/// Whether an error on the output's folder means that the path cannot be used, whoever runs
+/// the job again (fix the job or the folder: exit 2), rather than a failure of this run (a full
+/// or failing disk: exit 1).
+fn unusable(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::*;
+    matches!(
+        e.kind(),
+        PermissionDenied | ReadOnlyFilesystem | NotADirectory | NotFound | AlreadyExists
+    )
 }
 
 #[cfg(unix)]

@@ -842,7 +842,8 @@ fn run_error_kind(e: &RunError) -> &'static str {
         RunError::Output(_)
         | RunError::Summary { .. }
         | RunError::Locked { .. }
-        | RunError::Lock { .. } => "run_output",
+        | RunError::Lock { .. }
+        | RunError::OutputFolder { .. } => "run_output",
         RunError::EmptySurface { .. } => "run_empty_surface",
         RunError::ClassicalOverBudget { .. } => "run_over_budget",
         RunError::IndexLimit { .. } => "run_index_limit",
