@@ -50,9 +50,12 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
     })
 }
 
-/// Whether a file can be made in `dir`: a temporary one, removed at once.
+/// Whether a file can be made in `dir`. The file has no name (Linux's `O_TMPFILE`; elsewhere,
+/// or where the file system lacks it, one removed as soon as it is made): a named probe, made
+/// then removed, was left behind as `.tmpXXXXXX` by a `kill -9` between the two, which nothing
+/// reports or removes.
 fn probe_writable(dir: &Path) -> std::io::Result<()> {
-    tempfile::NamedTempFile::new_in(dir).map(drop)
+    tempfile::tempfile_in(dir).map(drop)
 }
 
 /// Whether `a` and `b` name one existing file (by their canonical paths: links and `..` seen

@@ -134,8 +134,9 @@ impl Store {
         std::fs::create_dir_all(state_dir.join("jobs")).map_err(fail)?;
         let root = state_dir.canonicalize().map_err(fail)?;
         let jobs = root.join("jobs");
-        // Probe writability now rather than at the first submission.
-        tempfile::NamedTempFile::new_in(&jobs).map_err(fail)?;
+        // Probe writability now rather than at the first submission, with a file without a
+        // name (see `pipeline`'s output probe): a named one was left in `jobs/` by a `kill -9`.
+        tempfile::tempfile_in(&jobs).map_err(fail)?;
         let lock = std::fs::OpenOptions::new()
             .create(true)
             .truncate(false)
