@@ -29,8 +29,17 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
         crate::stdout::line(format_args!("{}: warning: {w}", job_path.display()))?;
     }
     // `run` would refuse to start over a checkpoint without --resume or --restart: said here,
-    // with which of the two it can take, as a note (the job itself is fine).
-    if let Some(note) = isostream_pipeline::checkpoint_note(&job, source.as_mut())? {
+    // with which of the two it can take, as a note (the job itself is fine). While a run of
+    // this output is live, the checkpoint is its own, not an interrupted run's: `run` is
+    // refused until it ends, and that is the note.
+    let note = match isostream_pipeline::output_in_use(&job.output.path) {
+        Some(lock) => Some(format!(
+            "a run of this output is in progress (it holds {}); `run` is refused until it ends",
+            lock.display()
+        )),
+        None => isostream_pipeline::checkpoint_note(&job, source.as_mut())?,
+    };
+    if let Some(note) = note {
         crate::stdout::line(format_args!("{}: note: {note}", job_path.display()))?;
     }
     Ok(())

@@ -411,6 +411,48 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
     assert!(o.status.success() && !String::from_utf8_lossy(&o.stdout).contains("note:"));
 }
 
+/// Trial bug: `validate` while a run of the job was live said that a checkpoint of an
+/// interrupted run was there and that `run` needed --resume. The live run holds the output's
+/// lock (here this process does, over a checkpoint): `validate` says that a run is in progress.
+#[test]
+fn validate_during_a_live_run_says_it_is_in_progress() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = load(
+        dir.path(),
+        "job.toml",
+        &job_text(
+            "gyroid",
+            24,
+            MODES[1],
+            "out.smb",
+            "checkpoint = { every_slabs = 2 }",
+        ),
+    );
+    let output = dir.path().join("out.smb");
+    let ckpt = checkpoint_path(&output);
+    let stopped = run_until(&job, Start::Fresh, |p| p.slabs_done >= 8 && ckpt.exists());
+    assert!(
+        matches!(stopped, Err(RunError::Interrupted { .. })),
+        "{stopped:?}"
+    );
+    let job_arg = job.1.to_string_lossy().into_owned();
+    let note = || {
+        let o = isostream(&["validate", &job_arg]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let live = isostream_pipeline::lock_output(&output).unwrap();
+    let out = note();
+    assert!(
+        out.contains("note: a run of this output is in progress (it holds ")
+            && out.contains(".out.smb.lock); `run` is refused until it ends")
+            && !out.contains("--resume"),
+        "{out}"
+    );
+    drop(live);
+    assert!(note().contains("`run` needs --resume to continue it"));
+}
+
 /// `kill -9` of `isostream run` at random moments, then `isostream run --resume` until done:
 /// the same bytes as an uninterrupted run.
 #[cfg(unix)]

@@ -47,7 +47,7 @@ pub use config::{
 pub use error::{ConfigError, RunError};
 pub use mirror::Mirror;
 pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
-pub use output::{OutputLock, lock_output, lock_path, one_file, stale_temp_files};
+pub use output::{OutputLock, lock_output, lock_path, one_file, output_in_use, stale_temp_files};
 pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
 pub use source::{open_source, orientation_warning, preflight};

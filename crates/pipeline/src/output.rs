@@ -214,6 +214,20 @@ fn unusable(e: &std::io::Error) -> bool {
     )
 }
 
+/// The lock file of `output` when a live process holds it (a run or a conversion writing that
+/// output), found by taking it shared for an instant; `None` when it is free or missing. A run
+/// can be refused as "another job" in that instant, which is why it is not held longer.
+pub fn output_in_use(output: &Path) -> Option<PathBuf> {
+    let lock = lock_path(output);
+    // Opened for reading, never created: a run removes it when it ends.
+    let file = File::open(&lock).ok()?;
+    match file.try_lock_shared() {
+        Err(TryLockError::WouldBlock) => Some(lock),
+        // Free (a killed run's file, or one being removed): released as `file` closes.
+        _ => None,
+    }
+}
+
 #[cfg(unix)]
 fn same_file(file: &File, path: &Path) -> bool {
     use std::os::unix::fs::MetadataExt;
