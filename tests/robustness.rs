@@ -651,8 +651,8 @@ fn face_counts_past_the_surface_and_pruning_everything() {
     assert!(dir.path().join("p.smb").exists());
 }
 
-/// `validate` fails when the output cannot be created: its folder is a file, or the path is a
-/// folder; and when an attribute file is missing or on another grid.
+/// `validate` fails when the output cannot be created: its folder is a file, the path or its run
+/// summary's is a folder; and when an attribute file is missing or on another grid.
 #[test]
 fn validate_catches_bad_outputs_and_attributes() {
     let dir = tempfile::tempdir().unwrap();
@@ -670,6 +670,22 @@ fn validate_catches_bad_outputs_and_attributes() {
             needles,
         );
     }
+    // Trial bug: a folder where the run summary goes passed `validate`, and `run` did the whole
+    // job before it failed (exit 1) on it.
+    std::fs::create_dir(dir.path().join("s.smb.run.json")).unwrap();
+    let job = sphere_job(dir.path(), "s.smb", "");
+    for cmd in ["validate", "run"] {
+        assert_one_line_error(
+            &bin().args([cmd, &job]).output().unwrap(),
+            2,
+            &[
+                "output.path",
+                "its run summary",
+                "s.smb.run.json is a folder",
+            ],
+        );
+    }
+    assert!(!dir.path().join("s.smb").exists());
     // Attributes need a raw iso volume to share a grid with.
     std::fs::write(dir.path().join("v.raw"), [0u8; 64]).unwrap();
     std::fs::write(dir.path().join("small.raw"), [0u8; 27]).unwrap();

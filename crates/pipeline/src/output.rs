@@ -16,6 +16,16 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
             path.join("mesh.smb").display()
         ));
     }
+    // The run summary is written (and an earlier one removed) after the whole job: a folder in
+    // its place failed the run only then.
+    let summary = crate::summary_path(path);
+    if summary.is_dir() {
+        return Err(format!(
+            "{}: its run summary {} is a folder; move that folder away or choose another output name",
+            path.display(),
+            summary.display()
+        ));
+    }
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
