@@ -173,8 +173,9 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | RunError::OutputFolder { .. }
                 // The command asks for what cannot be done: a flag to add (`--resume` or
                 // `--restart`), or a resume of a job or input that changed since, or of a
-                // checkpoint that is truncated, corrupt or not one (`--restart` is the fix in
-                // every case; a checkpoint that could not be written is a failure, 1).
+                // checkpoint that is truncated, corrupt or not one, or whose temporary files are
+                // gone or cut short (`--restart` is the fix in every case; a checkpoint that
+                // could not be written is a failure, 1).
                 | RunError::CheckpointFound { .. }
                 | RunError::FinishedFound { .. }
                 | RunError::Checkpoint { .. }

@@ -381,24 +381,46 @@ fn a_checkpoint_is_never_ignored_nor_trusted_blindly() {
         assert!(!dir.path().join("out.smb").exists());
     }
 
-    // Its temporary output gone (removed by hand, a tmp cleaner): named, with the fix.
+    // Its temporary output gone (removed by hand, a tmp cleaner) or cut short: named, with the
+    // fix, and exit 2 as any other checkpoint that cannot be resumed (it was 1); `validate`
+    // says so too (it said that --resume would continue it).
     std::fs::write(&ckpt, &saved).unwrap();
     let output_tmp = before
         .iter()
         .find(|f| f.starts_with(".out.smb.") && f.ends_with(".tmp") && !f.contains("ckpt"))
         .unwrap_or_else(|| panic!("a temporary output among {before:?}"));
     let kept = std::fs::read(dir.path().join(output_tmp)).unwrap();
-    std::fs::remove_file(dir.path().join(output_tmp)).unwrap();
-    let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
-    assert_one_line_error(
-        &o,
-        1,
-        &[
-            "cannot reopen its checkpointed temporary output",
-            output_tmp,
-            "--restart",
-        ],
-    );
+    for (bytes, needle) in [
+        (None, "No such file"),
+        (Some(&kept[..kept.len() / 2]), "fewer than the"),
+    ] {
+        match bytes {
+            None => std::fs::remove_file(dir.path().join(output_tmp)).unwrap(),
+            Some(b) => std::fs::write(dir.path().join(output_tmp), b).unwrap(),
+        }
+        let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
+        assert_one_line_error(
+            &o,
+            2,
+            &[
+                ".out.smb.ckpt: ",
+                "cannot reopen its checkpointed temporary output",
+                output_tmp,
+                needle,
+                "; run with --restart to start over",
+            ],
+        );
+        let o = isostream(&["validate", &job_arg]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            o.status.success()
+                && out.contains("but a file it needs cannot be used (")
+                && out.contains(output_tmp)
+                && out.contains(needle)
+                && out.contains("`run` needs --restart (it starts over)"),
+            "{out}"
+        );
+    }
     std::fs::write(dir.path().join(output_tmp), kept).unwrap();
 
     // --restart throws the checkpoint and its files away and runs from the beginning.

@@ -798,7 +798,12 @@ pub fn checkpoint_note(
     let (found, usable) = match &saved {
         Saved::Partway(c) => (
             found(format!("{:.0} %, ", c.percent())),
-            Ok("continue it (the job and its input are unchanged)"),
+            match c.parts.sink.check_files() {
+                Err(e) if crate::sink::unusable(&e) => {
+                    Err(format!("a file it needs cannot be used ({e})"))
+                }
+                _ => Ok("continue it (the job and its input are unchanged)"),
+            },
         ),
         Saved::Finished(f) => (
             found("100 %: the output was written, the run stopped before its last steps, ".into()),

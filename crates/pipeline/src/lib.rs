@@ -326,7 +326,8 @@ fn run_job(
                 checkpoint = %ckpt_path.display(),
                 "resuming from the checkpoint"
             );
-            let sink = sink::Sink::resume(&job.output.path, &header, mirror, parts.sink)?;
+            let sink =
+                sink::Sink::resume(&job.output.path, &header, mirror, parts.sink, ckpt_path)?;
             let resume = stages::Resume {
                 reader: parts.reader,
                 extract: parts.extract,

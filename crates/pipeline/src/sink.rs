@@ -4,7 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use isostream_simplify::{OutBatch, OutElement};
-use isostream_smesh::{Completed, ConvertOptions, Header, MeshSink, SinkState, WriteStats};
+use isostream_smesh::{
+    Completed, ConvertOptions, Header, MeshSink, SinkState, SmeshError, WriteStats,
+};
 
 use crate::error::RunError;
 use crate::mirror::Mirror;
@@ -39,16 +41,30 @@ impl Sink {
         })
     }
 
-    /// Continues the sink a checkpoint saved (its temporary files cut back to the saved lengths).
+    /// Continues the sink the checkpoint `checkpoint` saved (its temporary files cut back to the
+    /// saved lengths).
     pub fn resume(
         path: &Path,
         header: &Header,
         mirror: Mirror,
         state: SinkState,
+        checkpoint: &Path,
     ) -> Result<Self, RunError> {
         let triangles = state.triangles();
+        let inner = isostream_smesh::resume_sink(path, header, &ConvertOptions::default(), state)
+            .map_err(|e| match &e {
+            // Files gone or shorter than the checkpoint says (removed by hand, a tmp
+            // cleaner): it cannot be resumed, as a corrupt one cannot (`--restart`, exit
+            // 2). Any other failure to reopen them (permissions, a failing disk) is the
+            // run's: the files may be fine once that is fixed.
+            SmeshError::Io { source, .. } if unusable(source) => RunError::Checkpoint {
+                path: checkpoint.to_path_buf(),
+                reason: e.to_string(),
+            },
+            _ => e.into(),
+        })?;
         Ok(Self {
-            inner: isostream_smesh::resume_sink(path, header, &ConvertOptions::default(), state)?,
+            inner,
             attributes: header.attribute_names.len(),
             path: path.to_path_buf(),
             triangles,
@@ -109,4 +125,13 @@ impl Sink {
         };
         Ok((stats, completed))
     }
+}
+
+/// Whether an error on a checkpoint's file ([`isostream_smesh::FileMark::check`]) means that it
+/// is gone or shorter than recorded: a checkpoint that cannot be resumed.
+pub(crate) fn unusable(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::NotFound | std::io::ErrorKind::UnexpectedEof
+    )
 }

@@ -58,17 +58,7 @@ impl TempFile {
     /// The file a checkpoint recorded, cut back to the length it had then.
     fn reopen(mark: &FileMark) -> io::Result<TempFile> {
         let mut file = OpenOptions::new().read(true).write(true).open(&mark.path)?;
-        let len = file.metadata()?.len();
-        if len < mark.len {
-            return Err(io::Error::new(
-                io::ErrorKind::UnexpectedEof,
-                format!(
-                    "{} has {len} bytes, fewer than the {} the checkpoint recorded",
-                    mark.path.display(),
-                    mark.len
-                ),
-            ));
-        }
+        mark.holds(file.metadata()?.len())?;
         file.set_len(mark.len)?;
         file.seek(SeekFrom::Start(mark.len))?;
         Ok(TempFile {
@@ -135,13 +125,30 @@ pub struct FileMark {
     pub len: u64,
 }
 
-/// A checkpoint's files that cannot be reopened cannot be resumed from: the run must start
-/// over, which only `--restart` does (it refuses to throw a checkpoint away by itself).
-fn restart_fix(e: io::Error) -> io::Error {
-    io::Error::new(
-        e.kind(),
-        format!("{e}; the checkpoint cannot be resumed: run with --restart to start over"),
-    )
+impl FileMark {
+    /// Whether the file is still there with at least the bytes that count (what a resume cuts
+    /// it back to); `NotFound` or `UnexpectedEof` when not.
+    pub fn check(&self) -> io::Result<()> {
+        let len = std::fs::metadata(&self.path)
+            .map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", self.path.display())))?
+            .len();
+        self.holds(len)
+    }
+
+    /// Whether `len` bytes hold the bytes that count.
+    fn holds(&self, len: u64) -> io::Result<()> {
+        match len < self.len {
+            true => Err(io::Error::new(
+                io::ErrorKind::UnexpectedEof,
+                format!(
+                    "{} has {len} bytes, fewer than the {} the checkpoint recorded",
+                    self.path.display(),
+                    self.len
+                ),
+            )),
+            false => Ok(()),
+        }
+    }
 }
 
 pub(crate) struct AtomicFile {
@@ -181,7 +188,7 @@ impl AtomicFile {
                     "reopen its checkpointed temporary output {}",
                     mark.path.display()
                 ),
-                restart_fix(e),
+                e,
             )
         })?;
         Ok(AtomicFile {
@@ -339,7 +346,7 @@ impl Spill {
                     "reopen its checkpointed scratch file {}",
                     mark.path.display()
                 ),
-                restart_fix(e),
+                e,
             )
         })?;
         Ok(Spill {

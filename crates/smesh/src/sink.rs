@@ -132,6 +132,11 @@ impl SinkState {
         self.files.iter().map(|f| f.path.as_path())
     }
 
+    /// Whether those files are all still there with the bytes that count ([`FileMark::check`]).
+    pub fn check_files(&self) -> io::Result<()> {
+        self.files.iter().try_for_each(FileMark::check)
+    }
+
     /// Triangles written when the checkpoint was taken.
     pub fn triangles(&self) -> u64 {
         self.tracker.triangles()
