@@ -10,10 +10,12 @@
 //! it has received `End`, so an error or Ctrl-C anywhere leaves no output.
 //!
 //! No stage ever blocks for good on a channel: sends and receives wait in short slices
-//! ([`POLL`]) and look at the abort and cancel flags in between. A channel alone is not enough to
-//! stop a neighbour: the progress observer keeps clones of the receivers (queue depths), so a
+//! ([`POLL`]) and look at the abort and cancel flags in between. A channel alone is not enough
+//! to stop a neighbour: the progress observer keeps clones of the receivers (queue depths), so a
 //! failed writer does not disconnect the simplifier's channel, and a full channel would otherwise
-//! block its producer forever (the deadlock of a write error on a full disk).
+//! block its producer forever (the deadlock of a write error on a full disk). Nor does a stage
+//! work on for long past the flags: the simplifier's passes and its final decimation ask them as
+//! they go (`stages::interruptible`).
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -101,6 +103,14 @@ impl<'a> Control<'a> {
             return Err(Stop::Disconnected);
         }
         Ok(())
+    }
+
+    /// Why the run stops, once [`Control::check`] has said it must: a long call that gave up
+    /// on it (the simplifier's passes) ends its stage with this, as `check` between two inputs
+    /// would have. The flags never go down, so it always has the cause; were it asked too
+    /// early, a hang-up is the quiet answer (whoever failed reports).
+    pub fn stop(&self) -> Stop {
+        self.check().err().unwrap_or(Stop::Disconnected)
     }
 
     pub fn take_first(&self) -> Option<RunError> {

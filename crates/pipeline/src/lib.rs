@@ -117,9 +117,8 @@ pub enum Start {
 }
 
 /// Runs a validated job from the beginning (refusing to when a checkpoint exists: see
-/// [`run_from`]). `cancel` stops it between slices (Ctrl-C); `observer` sees progress.
-/// Runs a validated job. `cancel` stops it between slices (Ctrl-C); `observer` sees progress
-/// after every slab.
+/// [`run_from`]). `cancel` stops it (Ctrl-C): between slices, and within milliseconds in the
+/// simplifier's passes and its final decimation; `observer` sees progress after every slab.
 pub fn run(
     job: &JobConfig,
     job_path: &Path,

@@ -13,7 +13,7 @@ use crossbeam_channel::{Receiver, Sender, bounded, unbounded};
 use isostream_detect::{DetectStats, Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_prune::{Filter, PruneStats};
-use isostream_simplify::{Front, Join, OutBatch, Serial, Simplifier, SimplifyStats};
+use isostream_simplify::{Front, Interrupted, Join, OutBatch, Serial, Simplifier, SimplifyStats};
 use isostream_smesh::Completed;
 use tracing::{debug, info};
 
@@ -211,6 +211,7 @@ impl Stages<'_> {
                 let slabs_total = grid.dims[2] - 1;
                 let step = SimplifyStep {
                     simplifier,
+                    ctl,
                     checkpoint: plan.map(|p| p.path.as_path()),
                     front: None,
                     last_front: u32::try_from(first).unwrap_or(u32::MAX),
@@ -227,6 +228,7 @@ impl Stages<'_> {
                 s.spawn(move || {
                     let step = SecondStep {
                         simplifier,
+                        ctl,
                         faces_in: 0,
                         slabs_total: grid.dims[2] - 1,
                         first_front: first,
@@ -658,10 +660,24 @@ impl Step for PruneStep {
     }
 }
 
+/// Runs one of the simplifier's long calls (a pass, the final decimation) with the run's stop
+/// flags as its interrupt: a cancel or another stage's failure seen in the middle ends the stage
+/// as it would between two batches (Ctrl-C: exit 130, no output, the last checkpoint kept). The
+/// flags were looked at only between batches, and a classical run's Ctrl-C after the sweep
+/// waited seconds (minutes on large volumes) for a final decimation whose result was dropped.
+fn interruptible(
+    ctl: &Control<'_>,
+    call: impl FnOnce(&(dyn Fn() -> bool + Sync)) -> Result<(), Interrupted>,
+) -> StageResult<()> {
+    call(&|| ctl.check().is_err()).map_err(|Interrupted| ctl.stop())
+}
+
 /// Deltas -> simplified batches. A delta is added as soon as it arrives, but its batch is closed
 /// (`end_batch`) only when the next one arrives: the last one is closed by `finish` instead.
 struct SimplifyStep<'a> {
     simplifier: Simplifier,
+    /// Looked at during the simplifier's long calls ([`interruptible`]).
+    ctl: &'a Control<'a>,
     /// Where checkpoints go (`None`: no checkpoints): a cut begins the file with the
     /// simplifier's state (`checkpoint::Partial`).
     checkpoint: Option<&'a std::path::Path>,
@@ -744,7 +760,9 @@ impl Step for SimplifyStep<'_> {
     fn batch(&mut self, delta: MeshDelta, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
         if let Some(front) = self.front.take() {
             let mut out = OutBatch::default();
-            self.simplifier.end_batch(front, &mut out);
+            interruptible(self.ctl, |stop| {
+                self.simplifier.end_batch_with(front, &mut out, stop)
+            })?;
             self.emit(out, front.slabs, tx)?;
         }
         let stride = delta
@@ -774,7 +792,9 @@ impl Step for SimplifyStep<'_> {
     fn cut(&mut self, mut cut: Box<Cut>, tx: &mut Outbox<'_, OutBatch>) -> StageResult<()> {
         if let Some(front) = self.front.take() {
             let mut out = OutBatch::default();
-            self.simplifier.end_batch(front, &mut out);
+            interruptible(self.ctl, |stop| {
+                self.simplifier.end_batch_with(front, &mut out, stop)
+            })?;
             self.emit(out, front.slabs, tx)?;
         }
         if let Some(path) = self.checkpoint {
@@ -797,7 +817,9 @@ impl Step for SimplifyStep<'_> {
             Some(_) => &Serial,
             None => self.last,
         };
-        self.simplifier.finish_with(&mut out, join);
+        interruptible(self.ctl, |stop| {
+            self.simplifier.finish_with(&mut out, join, stop)
+        })?;
         let front = u32::try_from(self.slabs_total).unwrap_or(u32::MAX);
         self.emit(out, front, tx)?;
         Ok(self.simplifier.stats())
@@ -807,6 +829,8 @@ impl Step for SimplifyStep<'_> {
 /// A cascade's second stage: the first stage's batches -> simplified batches.
 struct SecondStep<'a> {
     simplifier: Simplifier,
+    /// Looked at during the simplifier's long calls ([`interruptible`]).
+    ctl: &'a Control<'a>,
     /// Faces extracted so far, from the first stage's hand-offs.
     faces_in: u64,
     slabs_total: u64,
@@ -826,7 +850,9 @@ impl Step for SecondStep<'_> {
         let rear = self.simplifier.ingest(&batch);
         self.faces_in = batch.handoff.map_or(self.faces_in, |h| h.faces_in);
         let mut out = OutBatch::default();
-        self.simplifier.end_batch(rear, &mut out);
+        interruptible(self.ctl, |stop| {
+            self.simplifier.end_batch_with(rear, &mut out, stop)
+        })?;
         if let Some(c) = &self.depth.second {
             let st = self.simplifier.stats();
             c.faces_out.store(st.faces_out, Ordering::Relaxed);
@@ -859,7 +885,9 @@ impl Step for SecondStep<'_> {
     /// the written faces the run's totals.
     fn end(mut self, tx: &mut Outbox<'_, OutBatch>) -> StageResult<SimplifyStats> {
         let mut out = OutBatch::default();
-        self.simplifier.finish_with(&mut out, self.last);
+        interruptible(self.ctl, |stop| {
+            self.simplifier.finish_with(&mut out, self.last, stop)
+        })?;
         if !out.elements.is_empty() {
             tx.send(out)?;
         }
@@ -959,5 +987,235 @@ impl Step for WriteStep<'_, '_> {
         }
         // Dropping the sink on any earlier error removes the partial file.
         Ok(self.sink.complete()?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+    use std::path::Path;
+
+    use super::*;
+    use crate::config::JobConfig;
+    use crate::flow::{In, Inbox};
+
+    /// Hands out `items`, then raises `cancel` as it says that the input ended. The runner
+    /// looks at the flags before each input, not between the end of its input and the step's
+    /// `end`: the cancel is first seen in the middle of the final decimation, as a Ctrl-C just
+    /// after the sweep is.
+    struct CancelAtEnd<'a, T> {
+        items: VecDeque<T>,
+        cancel: Option<&'a AtomicBool>,
+    }
+
+    impl<T> Inbox for CancelAtEnd<'_, T> {
+        type Item = T;
+        fn next(&mut self, _: &Control<'_>) -> StageResult<Option<In<T>>> {
+            let next = self.items.pop_front();
+            if let (None, Some(cancel)) = (&next, self.cancel) {
+                cancel.store(true, Ordering::Relaxed);
+            }
+            Ok(next.map(In::Item))
+        }
+    }
+
+    /// A job on a procedural sphere of 40^3 voxels: `simplify` its `[simplify]` table,
+    /// `pipeline` its `[pipeline]` table.
+    fn sphere(simplify: &str, pipeline: &str) -> JobConfig {
+        let text = format!(
+            "[input]\nshape = \"sphere\"\nsize = [40, 40, 40]\n[extract]\niso = 0\n\
+             [simplify]\n{simplify}\n[output]\npath = \"o.smb\"\n[pipeline]\n{pipeline}\n"
+        );
+        JobConfig::parse(&text, Path::new("job.toml")).unwrap()
+    }
+
+    /// `job`'s simplifiers (a cascade's two, or one), the deltas its detector stage hands the
+    /// first, and the slabs of its volume.
+    fn prepare(job: &JobConfig) -> (Simplifier, Option<Simplifier>, Vec<MeshDelta>, u64) {
+        let source = crate::open_source(&job.input).unwrap();
+        let grid = source.grid();
+        let (first, second) = crate::simplifier_configs(job, grid, job.simplify.rate(), None);
+        let never = AtomicBool::new(false);
+        let ctl = Control::new(&never);
+        let (tx, rx) = unbounded();
+        let mut step = DetectStep {
+            detector: Detector::new(grid.dims),
+            group: MeshDelta::default(),
+            pending: None,
+        };
+        let mut out = Outbox::new(&ctl, tx);
+        crate::whole_extraction(job, source)
+            .visit("surface", &never, |batch| {
+                let Ok(()) = step.batch(batch.clone(), &mut out) else {
+                    panic!("the detector's stage failed");
+                };
+            })
+            .unwrap();
+        let Ok(_) = step.end(&mut out) else {
+            panic!("the detector's stage failed at its end");
+        };
+        let simplifier = |c| Simplifier::new(c).unwrap();
+        (
+            simplifier(first),
+            second.map(simplifier),
+            received(&rx).sent,
+            grid.dims[2] - 1,
+        )
+    }
+
+    /// How a simplifier's stage ended, and what it sent.
+    struct Outcome<T> {
+        /// The stage reported success.
+        finished: bool,
+        /// The run's error was the user's cancel.
+        cancelled: bool,
+        sent: Vec<T>,
+        /// Its `End` was sent.
+        ended: bool,
+    }
+
+    fn received<T>(rx: &Receiver<Msg<T>>) -> Outcome<T> {
+        let mut outcome = Outcome {
+            finished: false,
+            cancelled: false,
+            sent: Vec::new(),
+            ended: false,
+        };
+        for msg in rx.try_iter() {
+            match msg {
+                Msg::Batch(b) => outcome.sent.push(b),
+                Msg::Cut(_) => panic!("no checkpoint in these runs"),
+                Msg::End => outcome.ended = true,
+            }
+        }
+        outcome
+    }
+
+    /// Runs `step` as the pipeline does over `items`; with `cancel_at_end`, the cancel flag
+    /// rises once they have all been taken.
+    fn run_stage<'a, S>(
+        make: impl FnOnce(&'a Control<'a>) -> S,
+        ctl: &'a Control<'a>,
+        cancel: &'a AtomicBool,
+        items: Vec<S::In>,
+        cancel_at_end: bool,
+    ) -> Outcome<S::Out>
+    where
+        S: Step,
+    {
+        let (tx, rx) = unbounded();
+        let inbox = CancelAtEnd {
+            items: items.into(),
+            cancel: cancel_at_end.then_some(cancel),
+        };
+        let done = run("simplify", ctl, make(ctl), inbox, Outbox::new(ctl, tx));
+        Outcome {
+            finished: done.is_ok(),
+            cancelled: matches!(ctl.take_first(), Some(RunError::Cancelled)),
+            ..received(&rx)
+        }
+    }
+
+    /// Queue depths for a step that reports none of them.
+    fn depths(cascade: bool) -> Depths {
+        Depths {
+            slabs: bounded(0).1,
+            deltas: bounded(0).1,
+            out: bounded(0).1,
+            second: cascade.then(SecondCounts::default),
+        }
+    }
+
+    /// The first (or only) simplifier's stage over `deltas`.
+    fn first_stage(
+        simplifier: Simplifier,
+        deltas: Vec<MeshDelta>,
+        slabs_total: u64,
+        cascade: bool,
+        cancel_at_end: bool,
+    ) -> Outcome<OutBatch> {
+        let cancel = AtomicBool::new(false);
+        let ctl = Control::new(&cancel);
+        let depth = depths(cascade);
+        let last = FinalWorkers { threads: true };
+        let make = |ctl| SimplifyStep {
+            simplifier,
+            ctl,
+            checkpoint: None,
+            front: None,
+            last_front: 0,
+            first_front: 0,
+            slabs_total,
+            log_every: 1,
+            depth: &depth,
+            observer: &|_| {},
+            last: &last,
+        };
+        run_stage(make, &ctl, &cancel, deltas, cancel_at_end)
+    }
+
+    /// A cascade's second simplifier's stage over the first's `batches`.
+    fn second_stage(
+        simplifier: Simplifier,
+        batches: Vec<OutBatch>,
+        slabs_total: u64,
+        cancel_at_end: bool,
+    ) -> Outcome<OutBatch> {
+        let cancel = AtomicBool::new(false);
+        let ctl = Control::new(&cancel);
+        let depth = depths(true);
+        let last = FinalWorkers { threads: true };
+        let make = |ctl| SecondStep {
+            simplifier,
+            ctl,
+            faces_in: 0,
+            slabs_total,
+            first_front: 0,
+            depth: &depth,
+            observer: &|_| {},
+            last: &last,
+        };
+        run_stage(make, &ctl, &cancel, batches, cancel_at_end)
+    }
+
+    /// A cancel raised once the sweep is over stops a classical run's final decimation (the
+    /// whole surface's): the stage ends cancelled, as between two batches, and sends nothing,
+    /// not even its `End`, so the writer makes no file. (It used to finish the decimation,
+    /// seconds to minutes, then send its output for the writer to drop.)
+    #[test]
+    fn a_cancel_after_the_sweep_stops_the_classical_final_decimation() {
+        let job = sphere("mode = \"classical\"\nerror = 0.5", "");
+        let (simplifier, second, deltas, slabs) = prepare(&job);
+        assert!(second.is_none());
+        let cancelled = first_stage(simplifier, deltas.clone(), slabs, false, true);
+        assert!(!cancelled.finished && cancelled.cancelled);
+        assert!(cancelled.sent.is_empty() && !cancelled.ended);
+        let (simplifier, ..) = prepare(&job);
+        let whole = first_stage(simplifier, deltas, slabs, false, false);
+        assert!(whole.finished && !whole.cancelled && whole.ended);
+        assert_eq!(whole.sent.len(), 1, "a classical run writes all at the end");
+    }
+
+    /// The same in a cascade, at either stage's end: each sends what it sent during the sweep
+    /// and nothing of its final decimation.
+    #[test]
+    fn a_cancel_after_the_sweep_stops_both_stages_of_a_cascade() {
+        let job = sphere("mode = \"rate\"\nrate = 0.1", "simplify_stages = 2");
+        let (first, second, deltas, slabs) = prepare(&job);
+        let second = second.expect("a cascade");
+        let whole = first_stage(first, deltas.clone(), slabs, true, false);
+        assert!(whole.finished && whole.ended);
+        let (first, ..) = prepare(&job);
+        let cancelled = first_stage(first, deltas, slabs, true, true);
+        assert!(!cancelled.finished && cancelled.cancelled && !cancelled.ended);
+        assert!(cancelled.sent == whole.sent[..whole.sent.len() - 1]);
+
+        let batches = whole.sent;
+        let (_, second_again, ..) = prepare(&job);
+        let whole = second_stage(second, batches.clone(), slabs, false);
+        assert!(whole.finished && whole.ended);
+        let cancelled = second_stage(second_again.unwrap(), batches, slabs, true);
+        assert!(!cancelled.finished && cancelled.cancelled && !cancelled.ended);
+        assert!(cancelled.sent == whole.sent[..whole.sent.len() - 1]);
     }
 }

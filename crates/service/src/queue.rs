@@ -166,7 +166,8 @@ impl Table {
 pub(crate) enum DeleteOutcome {
     /// The job was queued and is now cancelled.
     Cancelled(JobView),
-    /// The job is running; its run stops at the next slice and it then becomes `cancelled`.
+    /// The job is running; its run stops at the next slice (or within milliseconds in the
+    /// simplifier's passes and final decimation) and it then becomes `cancelled`.
     Stopping(JobView),
     /// The job had finished (done, failed or cancelled): it and its folder, output included,
     /// are gone, but for the files `leftover` says could not be deleted (the next start does).

@@ -329,9 +329,19 @@ mod tests {
     /// The whole torus held, decimated at the end to 5 % (nothing contracts before: `batch`
     /// larger than the surface), finished with `join`.
     fn run(join: &dyn Join) -> (OutBatch, SimplifyStats) {
+        let mut s = held(1 << 20);
+        let mut out = OutBatch::default();
+        s.end_batch(100, &mut out);
+        s.finish_with(&mut out, join, &|| false).unwrap();
+        (out, s.stats())
+    }
+
+    /// A simplifier at rate 5 % holding the whole torus, every vertex modifiable, no batch
+    /// closed yet, with a budget of `faces`.
+    fn held(faces: usize) -> Simplifier {
         let (pos, tris) = torus(160, 48);
         let mut s = Simplifier::new(SimplifyConfig {
-            max_resident_faces: 1 << 20,
+            max_resident_faces: faces,
             sweep: Some(Sweep {
                 direction: DVec3::Z,
                 origin: -40.0,
@@ -354,10 +364,87 @@ mod tests {
         for id in 0..pos.len() as u64 {
             s.set_modifiable(id);
         }
+        s
+    }
+
+    /// An interrupt that says stop from its `n`th question on, and counts them.
+    struct StopAt {
+        n: usize,
+        asked: std::sync::atomic::AtomicUsize,
+    }
+
+    impl StopAt {
+        fn new(n: usize) -> Self {
+            Self {
+                n,
+                asked: Default::default(),
+            }
+        }
+
+        fn ask(&self) -> bool {
+            let asked = self
+                .asked
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+                + 1;
+            asked >= self.n
+        }
+    }
+
+    fn triangles(out: &OutBatch) -> usize {
+        out.elements
+            .iter()
+            .filter(|e| matches!(e, OutElement::Triangle { .. }))
+            .count()
+    }
+
+    /// A final decimation stops when its interrupt says so, cut in two or not, at the start or
+    /// after some contractions, and writes nothing; asked every few thousand candidates (and
+    /// between the cut's passes over the surface), so a whole one asks many times (the torus's
+    /// 14.6 k contractions).
+    #[test]
+    fn an_interrupted_final_decimation_stops_and_writes_nothing() {
+        let joins: [&dyn Join; 2] = [&super::Serial, &Cutting];
+        for join in joins {
+            let whole = StopAt::new(usize::MAX);
+            let mut s = held(1 << 20);
+            s.end_batch(100, &mut OutBatch::default());
+            s.finish_with(&mut OutBatch::default(), join, &|| whole.ask())
+                .unwrap();
+            let asked = whole.asked.into_inner();
+            assert!(asked > 4, "{asked}");
+            for n in [1, asked / 2, asked - 1] {
+                let stop = StopAt::new(n);
+                let mut s = held(1 << 20);
+                let mut out = OutBatch::default();
+                s.end_batch(100, &mut out);
+                assert_eq!(
+                    s.finish_with(&mut out, join, &|| stop.ask()),
+                    Err(crate::Interrupted)
+                );
+                assert_eq!(stop.asked.into_inner(), n, "it stops at the first yes");
+                assert_eq!(triangles(&out), 0, "nothing written");
+                let contracted = s.stats().contractions;
+                assert_eq!(contracted > 0, n > 1, "stopped at {n} of {asked}");
+            }
+        }
+    }
+
+    /// A pass over the memory budget during the sweep stops when its interrupt says so, before
+    /// anything is retired for the budget; the same pass uninterrupted contracts and writes.
+    #[test]
+    fn an_interrupted_pass_over_the_budget_retires_nothing() {
+        let mut s = held(500);
         let mut out = OutBatch::default();
-        s.end_batch(100, &mut out);
-        s.finish_with(&mut out, join);
-        (out, s.stats())
+        assert_eq!(
+            s.end_batch_with(100, &mut out, &|| true),
+            Err(crate::Interrupted)
+        );
+        assert!(out.elements.is_empty());
+        assert_eq!(s.stats().contractions, 0);
+        let mut s = held(500);
+        s.end_batch_with(100, &mut out, &|| false).unwrap();
+        let st = s.stats();
+        assert!(st.contractions > 0 && st.forced_retirements > 0 && triangles(&out) > 0);
     }
 
     /// The output as an indexed mesh.

@@ -19,8 +19,8 @@ use crate::seam::{self, Cut, Join};
 use crate::store::{Store, Tri, Vertex};
 use crate::sweep::Key;
 use crate::{
-    Cascade, Front, Handoff, OutBatch, OutElement, Policy, SimplifyConfig, SimplifyStats, Sweep,
-    cascade, priority, topology,
+    Cascade, Front, Handoff, Interrupted, OutBatch, OutElement, Policy, SimplifyConfig,
+    SimplifyStats, Sweep, cascade, priority, topology,
 };
 
 /// A cascade's second stage keeps at least `1 / SECOND_STAGE_FLOOR` of the shared budget
@@ -333,8 +333,14 @@ impl Stage {
         }
     }
 
-    /// See [`crate::Simplifier::end_batch`].
-    pub(crate) fn end_batch(&mut self, front: Front, out: &mut OutBatch) {
+    /// See [`crate::Simplifier::end_batch_with`]. Interrupted, it returns as soon as the pass
+    /// sees it, before anything is retired or handed off.
+    pub(crate) fn end_batch(
+        &mut self,
+        front: Front,
+        out: &mut OutBatch,
+        interrupt: &dyn Fn() -> bool,
+    ) -> Result<(), Interrupted> {
         let slabs = front.slabs;
         self.front = self
             .config
@@ -342,7 +348,7 @@ impl Stage {
             .map_or(f64::from(slabs), |w| w.front_key(front));
         self.release_reached();
         if self.config.in_core {
-            return;
+            return Ok(());
         }
         if let Some(d) = &mut self.decimator {
             d.activate(self.front);
@@ -374,12 +380,12 @@ impl Stage {
             Schedule::Threshold => Some(Until::Exhausted),
         };
         if let Some(until) = until {
-            self.decimate(until);
+            self.decimate(until, interrupt)?;
         }
         if let Some(squeeze) = squeeze
             && self.band.resident() > budget
         {
-            self.decimate(squeeze);
+            self.decimate(squeeze, interrupt)?;
         }
         // Rate: the simplified surface stays resident, as in Hou and Chen 4.3 (R F + B faces),
         // and leaves only when the memory budget says so, oldest first (see `retire`). Other
@@ -405,10 +411,12 @@ impl Stage {
             d.compact(&self.band);
         }
         self.hand_off(out, false);
+        Ok(())
     }
 
-    fn decimate(&mut self, until: Until) {
-        self.with_decimator(|d, band, at, stats| d.decimate(band, at, stats, until));
+    fn decimate(&mut self, until: Until, interrupt: &dyn Fn() -> bool) -> Result<(), Interrupted> {
+        self.with_decimator(|d, band, at, stats| d.decimate(band, at, stats, until, interrupt))
+            .unwrap_or(Ok(()))
     }
 
     /// The first part of the final decimation on two workers either side of a cut (`seam`),
@@ -416,22 +424,34 @@ impl Stage {
     /// this stage's band is the lower side's, a band split from it the upper's. They contract
     /// in rounds up to a rising cost ([`seam::ROUND_FACTOR`]), as one queue would, until the
     /// surface holds the plan's goal; the merged surface then gets one queue again for the rest.
-    fn decimate_in_halves(&mut self, target: usize, join: &dyn Join) {
+    ///
+    /// `interrupt` is asked between the steps over the whole surface (each a pass over millions
+    /// of faces in core) and by both workers as they contract. Interrupted, it returns at once:
+    /// the sides are not merged back (that too is a pass over the surface, and the caller only
+    /// drops the simplifier then).
+    fn decimate_in_halves(
+        &mut self,
+        target: usize,
+        join: &dyn Join,
+        interrupt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), Interrupted> {
         let held = self.band.resident();
         // The second worker copies the triangles and slots and refiles half of the guard's
         // records: about half again of what the surface takes (in core, engine at R = 0.01:
         // 243.5 -> 296.1 MiB peak).
         if !join.worth_cutting(held) || held.saturating_add(held / 2) > self.budget() {
-            return;
+            return Ok(());
         }
         let Some(d) = &mut self.decimator else {
-            return;
+            return Ok(());
         };
         let Some((cut, goal)) = Cut::plan(&self.band.store, target) else {
-            return;
+            return Ok(());
         };
+        crate::asked(interrupt)?;
         self.stats.cut_faces = held;
         let mut upper_band = cut.split(&mut self.band);
+        crate::asked(interrupt)?;
         d.drop_stale(&self.band);
         let mut upper = d.fresh();
         let mut upper_stats = SimplifyStats::default();
@@ -442,7 +462,7 @@ impl Stage {
             half: Some(half),
         };
         let (lower_at, upper_at) = (at(cut.lower()), at(cut.upper()));
-        upper.requeue_all(&upper_band, &upper_at);
+        upper.requeue_all(&upper_band, &upper_at, interrupt)?;
         let mut cost = f64::NEG_INFINITY;
         loop {
             let held = [self.band.resident(), upper_band.resident()];
@@ -463,34 +483,45 @@ impl Stage {
             };
             let (lower_until, upper_until) = (until(held[0]), until(held[1]));
             let (band, stats) = (&mut self.band, &mut self.stats);
+            let (mut lower_done, mut upper_done) = (Ok(()), Ok(()));
             join.join(
-                &mut || d.decimate(band, &lower_at, stats, lower_until),
-                &mut || upper.decimate(&mut upper_band, &upper_at, &mut upper_stats, upper_until),
+                &mut || lower_done = d.decimate(band, &lower_at, stats, lower_until, interrupt),
+                &mut || {
+                    upper_done = upper.decimate(
+                        &mut upper_band,
+                        &upper_at,
+                        &mut upper_stats,
+                        upper_until,
+                        interrupt,
+                    );
+                },
             );
+            lower_done.and(upper_done)?;
         }
         cut.merge(&mut self.band, upper_band);
         self.stats.add_worker(&upper_stats);
+        crate::asked(interrupt)?;
         self.with_decimator(|d, band, at, _| {
             *d = d.fresh();
-            d.requeue_all(band, at);
-        });
+            d.requeue_all(band, at, interrupt)
+        })
+        .unwrap_or(Ok(()))
     }
 
     /// Runs `f` on the decimator (if anything contracts) with the band, where the stage stands
-    /// and the counters.
-    fn with_decimator(
+    /// and the counters; `None` when nothing contracts.
+    fn with_decimator<T>(
         &mut self,
-        f: impl FnOnce(&mut Decimator, &mut Band, &At, &mut SimplifyStats),
-    ) {
+        f: impl FnOnce(&mut Decimator, &mut Band, &At, &mut SimplifyStats) -> T,
+    ) -> Option<T> {
         let at = At {
             config: &self.config,
             front: self.front,
             rear: self.rear,
             half: None,
         };
-        if let Some(d) = &mut self.decimator {
-            f(d, &mut self.band, &at, &mut self.stats);
-        }
+        let d = self.decimator.as_mut()?;
+        Some(f(d, &mut self.band, &at, &mut self.stats))
     }
 
     /// Over the memory budget: retires the oldest vertices until resident faces are at most 90%
@@ -728,8 +759,16 @@ impl Stage {
         }
     }
 
-    /// See [`crate::Simplifier::finish`].
-    pub(crate) fn finish(&mut self, out: &mut OutBatch, join: &dyn Join) {
+    /// See [`crate::Simplifier::finish_with`]. `interrupt` is asked first (a cancel raised as
+    /// the sweep ended is seen even where nothing is left to contract), then as the final
+    /// decimation goes; interrupted, it returns at once, before anything is retired.
+    pub(crate) fn finish(
+        &mut self,
+        out: &mut OutBatch,
+        join: &dyn Join,
+        interrupt: &(dyn Fn() -> bool + Sync),
+    ) -> Result<(), Interrupted> {
+        crate::asked(interrupt)?;
         self.front = f64::INFINITY;
         self.release_reached();
         self.band.store.forget_all_ids();
@@ -747,19 +786,21 @@ impl Stage {
         };
         if let Some(until) = until {
             if let Until::Resident(target) = until {
-                self.decimate_in_halves(target, join);
+                self.decimate_in_halves(target, join, interrupt)?;
             }
-            self.decimate(until);
+            self.decimate(until, interrupt)?;
             // Edges refused earlier (link, flips) may pass now that their neighbourhoods changed.
             if !until.reached(&self.band) {
-                self.with_decimator(|d, band, at, _| d.requeue_all(band, at));
-                self.decimate(until);
+                self.with_decimator(|d, band, at, _| d.requeue_all(band, at, interrupt))
+                    .unwrap_or(Ok(()))?;
+                self.decimate(until, interrupt)?;
             }
         }
         self.retirer
             .retire_below(&mut self.band, u32::MAX, out, &mut self.stats);
         debug_assert_eq!(self.band.resident(), 0, "everything emitted");
         self.hand_off(out, true);
+        Ok(())
     }
 
     pub(crate) fn stats(&self) -> SimplifyStats {
@@ -859,7 +900,7 @@ mod tests {
         };
         let mut out = OutBatch::default();
         let rear = s.ingest(&batch);
-        s.end_batch(rear, &mut out);
+        s.end_batch(rear, &mut out, &|| false).unwrap();
         assert_eq!(
             s.stats().faces_unmodifiable,
             1,
@@ -869,7 +910,7 @@ mod tests {
             handoff: Some(handoff(Front::from(4))),
             ..OutBatch::default()
         });
-        s.end_batch(rear, &mut out);
+        s.end_batch(rear, &mut out, &|| false).unwrap();
         assert_eq!(s.stats().faces_unmodifiable, 0);
     }
 
@@ -891,7 +932,8 @@ mod tests {
         let mut rears = Vec::new();
         for front in 1..=10 {
             let mut out = OutBatch::default();
-            s.end_batch(Front::from(front), &mut out);
+            s.end_batch(Front::from(front), &mut out, &|| false)
+                .unwrap();
             rears.push(out.handoff.expect("a first stage hands off").rear.slabs);
         }
         assert_eq!(s.stats().faces_out, 1);
@@ -914,14 +956,14 @@ mod tests {
             s.set_modifiable(v);
         }
         let mut out = OutBatch::default();
-        s.end_batch(Front::from(1), &mut out);
+        s.end_batch(Front::from(1), &mut out, &|| false).unwrap();
         assert_eq!(
             s.stats().faces_unmodifiable,
             2,
             "0 and 1 are at rank 1, yet their stars reach rank 1.5, past the front 1"
         );
         s.set_modifiable(2);
-        s.end_batch(Front::from(2), &mut out);
+        s.end_batch(Front::from(2), &mut out, &|| false).unwrap();
         assert_eq!(s.stats().faces_unmodifiable, 0);
     }
 
@@ -973,7 +1015,8 @@ mod tests {
         let mut s2 = Stage::new(s.config.clone());
         fan(&mut s2, 12);
         assert_eq!(s2.budget(), 12 + 5);
-        s2.end_batch(Front::from(0), &mut OutBatch::default());
+        s2.end_batch(Front::from(0), &mut OutBatch::default(), &|| false)
+            .unwrap();
         assert_eq!(s2.stats().front_stretch_faces, 7);
         assert_eq!(s2.stats().peak_front_faces, 12);
     }
@@ -1021,7 +1064,7 @@ mod tests {
         // the rate target (400 * 0.1 + 150 = 190, and its hedge: 5 % of 40 faces) fits.
         assert_eq!(s.budget(), 200);
         let mut out = OutBatch::default();
-        s.end_batch(Front::from(9), &mut out);
+        s.end_batch(Front::from(9), &mut out, &|| false).unwrap();
         let written = out
             .elements
             .iter()
