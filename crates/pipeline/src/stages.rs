@@ -167,7 +167,7 @@ impl Stages<'_> {
             slabs: order_rx.clone(),
             deltas: delta_rx.clone(),
             out: out_rx.clone(),
-            second: second.is_some().then(SecondCounts::default),
+            second: second.as_ref().map(|(s, _, _)| SecondCounts::of(s)),
         };
         let depth = &depth;
         let empty = (!allow_empty).then_some(EmptyCheck { input: &input, iso });
@@ -570,10 +570,22 @@ impl Depths {
     }
 }
 
-#[derive(Default)]
 struct SecondCounts {
     faces_out: AtomicU64,
     resident: AtomicU64,
+}
+
+impl SecondCounts {
+    /// Starts at what the second stage holds already: a resumed run's is restored from the
+    /// checkpoint, and the first stage reports progress before the second has taken a batch
+    /// (from zero, a run resumed at slab 1600 reported 0 faces written for its first slabs).
+    fn of(second: &Simplifier) -> Self {
+        let st = second.stats();
+        SecondCounts {
+            faces_out: AtomicU64::new(st.faces_out),
+            resident: AtomicU64::new(st.faces_resident as u64),
+        }
+    }
 }
 
 /// Cube batches -> indexed deltas, one per group of batches (`CubeBatch::ends_group`: the
