@@ -124,6 +124,16 @@ fn a_run_and_its_measure_make_one_page_of_plots() {
     assert_eq!(last["faces_out"], summary["faces_written"]);
     assert_eq!(last["voxels_done"], summary["voxels"]);
     assert!(points.iter().all(|p| p["rss_bytes"].as_u64().unwrap() > 0));
+    // The peak is at least every sample: the kernel's high-water mark alone lags (a summary said
+    // 42,266,624 bytes under a series reaching 42,348,544).
+    let rss_peak = summary["peak_rss_bytes"].as_u64().unwrap();
+    assert!(
+        points
+            .iter()
+            .all(|p| p["rss_bytes"].as_u64().unwrap() <= rss_peak),
+        "{rss_peak} {}",
+        summary["series"]
+    );
     // Taken at the end of each slab: at most the peak, which can fall inside a slab.
     let peak = points
         .iter()

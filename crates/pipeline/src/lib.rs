@@ -75,6 +75,9 @@ pub struct RunSummary {
     pub vertices_written: u64,
     pub seconds: f64,
     pub stage_seconds: StageSeconds,
+    /// The most of the kernel's high-water mark (`VmHWM`) and of the series' samples
+    /// ([`TimeSeries::peak_rss_bytes`]): the kernel updates its mark lazily, and it came out
+    /// below the series' highest value.
     pub peak_rss_bytes: Option<u64>,
     pub peak_resident_faces: u64,
     /// Tandem section 4: Error(K) = max eps0 over the vertices made by contractions (0 when
@@ -375,6 +378,8 @@ fn run_job(
     }
     .run()?;
     let series = monitor.finish();
+    let peak_rss = peak_rss_bytes().max(series.peak_rss_bytes());
+    let peak_rss_mib = peak_rss.map(|b| b as f64 / (1024.0 * 1024.0));
 
     let sink_stats = outputs.sink;
     let faces_kept = outputs.extract.triangles - outputs.prune.map_or(0, |p| p.faces_pruned);
@@ -404,14 +409,14 @@ fn run_job(
             job,
             budget_faces,
             &outputs.simplify,
-            peak_rss_bytes().map(|b| b as f64 / (1024.0 * 1024.0)),
+            peak_rss_mib,
             |faces| job.budget_holding(grid.dims, largest_slab, faces),
         ))
         .chain(over_budget(
             job,
             budget_faces,
             &outputs.simplify,
-            peak_rss_bytes().map(|b| b as f64 / (1024.0 * 1024.0)),
+            peak_rss_mib,
         ))
         .chain(faces_past_the_surface(job, faces_kept))
         .chain(non_finite_voxels(&outputs.extract, grid.voxel_count()))
@@ -446,7 +451,7 @@ fn run_job(
         vertices_written: sink_stats.vertices,
         seconds: started.elapsed().as_secs_f64(),
         stage_seconds: outputs.seconds,
-        peak_rss_bytes: peak_rss_bytes(),
+        peak_rss_bytes: peak_rss,
         peak_resident_faces: outputs.simplify.peak_resident_faces as u64,
         shape_error: outputs.simplify.max_shape_error,
         extract: outputs.extract,

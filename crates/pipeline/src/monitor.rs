@@ -68,6 +68,13 @@ pub struct TimeSeries {
     pub points: Vec<SeriesPoint>,
 }
 
+impl TimeSeries {
+    /// The highest resident set size sampled (merged points keep their slabs' highest).
+    pub fn peak_rss_bytes(&self) -> Option<u64> {
+        self.points.iter().filter_map(|p| p.rss_bytes).max()
+    }
+}
+
 /// Builds a [`TimeSeries`] one observation at a time, within `max` points.
 #[derive(Debug)]
 struct SeriesBuilder {
@@ -294,6 +301,7 @@ mod tests {
             (2, 2, 50, 10)
         );
         assert_eq!((c.slab, c.faces_in, c.rss_bytes), (4, 40, Some(1060)));
+        assert_eq!(series.peak_rss_bytes(), Some(1060));
     }
 
     proptest! {
@@ -321,6 +329,9 @@ mod tests {
             let min = s.points.iter().map(|p| p.resident_faces_min).min();
             prop_assert_eq!(max, residents.iter().copied().max());
             prop_assert_eq!(min, residents.iter().copied().min());
+            // The summary's peak RSS takes the most of this and the kernel's lagging mark.
+            let rss = residents.iter().map(|r| 1000 + r).max();
+            prop_assert_eq!(s.peak_rss_bytes(), rss);
         }
     }
 }
