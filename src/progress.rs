@@ -1,11 +1,11 @@
-//! The terminal progress bar of `isostream run` (slabs, rate, ETA, faces, RSS), and a log writer
+//! The terminal progress bar of `isostream run` (the pass, slabs, rate, ETA, faces, RSS), and a log writer
 //! that prints log lines above the bar instead of through it.
 
 use std::io::Write;
 use std::sync::Mutex;
 
 use indicatif::{ProgressBar, ProgressState, ProgressStyle};
-use isostream_pipeline::Progress;
+use isostream_pipeline::{Pass, Progress};
 
 /// The bar on screen, if any: log lines are written around it.
 static SHOWN: Mutex<Option<ProgressBar>> = Mutex::new(None);
@@ -14,13 +14,20 @@ fn shown() -> std::sync::MutexGuard<'static, Option<ProgressBar>> {
     SHOWN.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-/// A bar on stderr, registered so that log lines go above it.
-pub fn bar() -> ProgressBar {
+/// The bar of a run, and the pass it shows (`None` before the first slab).
+pub struct Bar {
+    bar: ProgressBar,
+    pass: Mutex<Option<Pass>>,
+}
+
+/// A bar on stderr, registered so that log lines go above it. Its clock counts from the job's
+/// start; its rate and ETA are those of the pass it shows.
+pub fn bar() -> Bar {
     // Length 1 until the first slab says how many there are: 0 would show 100 %.
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {percent:>3}% slab {pos}/{len} {rate} ETA {eta} {msg}",
+            "{elapsed_precise} {prefix}[{bar:30}] {percent:>3}% slab {pos}/{len} {rate} ETA {eta} {msg}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .with_key("rate", |s: &ProgressState, w: &mut dyn std::fmt::Write| {
@@ -29,24 +36,47 @@ pub fn bar() -> ProgressBar {
         .progress_chars("=> "),
     );
     *shown() = Some(bar.clone());
-    bar
+    Bar {
+        bar,
+        pass: Mutex::new(None),
+    }
 }
 
-pub fn update(bar: &ProgressBar, p: &Progress) {
+pub fn update(bar: &Bar, p: &Progress) {
+    let Bar { bar, pass } = bar;
+    let mut pass = pass.lock().unwrap_or_else(|e| e.into_inner());
+    let begins = *pass != Some(p.pass);
+    if begins {
+        *pass = Some(p.pass);
+        bar.set_prefix(match p.pass {
+            Pass::First => "first pass ",
+            Pass::Run => "",
+        });
+    }
     bar.set_length(p.slabs_total);
     bar.set_position(p.slabs_done);
+    if begins {
+        // A pass's rate and ETA count from its first slab: with the time before it (the first
+        // pass) a 78 s run promised its end in 15 minutes, and a resumed run's jump to its
+        // checkpoint's slab counted as slabs done.
+        bar.reset_eta();
+    }
     let rss = isostream_pipeline::current_rss_bytes().map_or(String::new(), |b| {
         format!(", RSS {:.0} MiB", b as f64 / (1 << 20) as f64)
     });
-    bar.set_message(format!(
-        "| faces in {} out {} resident {}{rss}",
-        p.faces_in, p.faces_out, p.resident_faces
-    ));
+    bar.set_message(match p.pass {
+        // Its faces are counted at its end.
+        Pass::First => format!("| counting faces{rss}"),
+        Pass::Run => format!(
+            "| faces in {} out {} resident {}{rss}",
+            p.faces_in, p.faces_out, p.resident_faces
+        ),
+    });
 }
 
-pub fn finish(bar: &ProgressBar) {
+pub fn finish(bar: &Bar) {
     shown().take();
-    bar.finish_and_clear();
+    bar.bar.finish_and_clear();
 }
 
 /// stderr for tracing: each formatted line (tracing-subscriber writes one event in one call) is

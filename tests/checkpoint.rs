@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use common::{assert_one_line_error, isostream, stderr};
-use isostream_pipeline::{JobConfig, Progress, RunError, Start, checkpoint_path, run_from};
+use isostream_pipeline::{JobConfig, Pass, Progress, RunError, Start, checkpoint_path, run_from};
 use proptest::prelude::*;
 
 const MODES: [&str; 4] = [
@@ -53,7 +53,8 @@ fn run(
     run_until(job, start, |p| stop_at.is_some_and(|s| p.slabs_done >= s))
 }
 
-/// Runs in process, raising the cancel flag once `stop` says so.
+/// Runs in process, raising the cancel flag once `stop` says so. `stop` sees the run's slabs
+/// only, not those of a first pass (`[output] faces`, a stage count decided by the largest slab).
 fn run_until(
     job: &(JobConfig, PathBuf),
     start: Start,
@@ -61,7 +62,7 @@ fn run_until(
 ) -> Result<isostream_pipeline::RunSummary, RunError> {
     let cancel = AtomicBool::new(false);
     let observer = |p: &Progress| {
-        if stop(p) {
+        if p.pass == Pass::Run && stop(p) {
             cancel.store(true, Ordering::Relaxed);
         }
     };

@@ -10,7 +10,7 @@ mod common;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use common::{Mesh, Rng, TestVolume, random_levels, run_job};
-use isostream_pipeline::{JobConfig, Progress, RunError, Start, run_from};
+use isostream_pipeline::{JobConfig, Pass, Progress, RunError, Start, run_from};
 use proptest::prelude::*;
 
 /// One sphere of radius 9 at the centre and `blobs` spheres of radius 0.8 to 1.6 around it
@@ -184,8 +184,9 @@ fn a_pruned_job_resumes_to_the_same_bytes() {
         std::fs::write(&path, text).unwrap();
         let job = JobConfig::load(&path).unwrap();
         let cancel = AtomicBool::new(false);
+        // The run's slabs: the census pass before it reports its own.
         let stopping = |p: &Progress| {
-            if p.slabs_done >= stop {
+            if p.pass == Pass::Run && p.slabs_done >= stop {
                 cancel.store(true, Ordering::Relaxed);
             }
         };

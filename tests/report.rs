@@ -101,6 +101,71 @@ fn run(dir: &Path) -> Value {
     serde_json::from_str(&summary).unwrap()
 }
 
+/// A job with a first pass (`[output] faces`) reports its slabs too, in lines that say which
+/// pass they are of; every clock counts from the job's start. The pass logged nothing before
+/// (20 s and more at `upsample` 16), and the run's first line and series started after it
+/// while `job done` counted it.
+#[test]
+fn a_first_pass_logs_its_progress_and_every_clock_counts_from_the_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    let text = JOB
+        .replace("rate = 0.2\n", "")
+        .replace("[log]", "faces = 5000\n[log]");
+    std::fs::write(&job, text).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(["run", "--quiet"])
+        .arg(&job)
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let lines: Vec<Value> = stderr(&o)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .map(|v| v["fields"].clone())
+        .collect();
+    let progress = |pass: &str| -> Vec<&Value> {
+        lines
+            .iter()
+            .filter(|f| f["message"] == "progress" && f["pass"] == pass)
+            .collect()
+    };
+    let (first, run) = (progress("first"), progress("run"));
+    // Every slab of the first pass (a line at most every microsecond), without faces: the pass
+    // counts them at its end.
+    let slabs: Vec<u64> = first.iter().map(|f| f["slab"].as_u64().unwrap()).collect();
+    assert_eq!(slabs, (1..=39).collect::<Vec<_>>(), "{}", stderr(&o));
+    assert!(
+        first
+            .iter()
+            .all(|f| f.get("faces_in").is_none() && f["eta_s"].is_number())
+    );
+    assert!(!run.is_empty() && run.iter().all(|f| f["faces_in"].is_number()));
+    let at = |f: &Value, key: &str| f[key].as_f64().unwrap();
+    let (first_end, run_start) = (first.last().unwrap(), run[0]);
+    assert!(at(run_start, "elapsed_s") >= at(first_end, "elapsed_s"));
+    assert!(at(first_end, "percent") == 100.0 && at(run_start, "percent") < 100.0);
+    let pass_seconds = lines
+        .iter()
+        .find(|f| {
+            f["message"]
+                .as_str()
+                .unwrap_or("")
+                .starts_with("first pass")
+        })
+        .map(|f| at(f, "seconds"))
+        .unwrap();
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("gyroid.smb.run.json")).unwrap())
+            .unwrap();
+    let series = summary["series"]["points"].as_array().unwrap();
+    // The run's series only, from slab 1; its clock the job's, as the summary's seconds.
+    assert_eq!(series[0]["slab"], 1);
+    assert!(at(&series[0], "seconds") >= pass_seconds, "{pass_seconds}");
+    assert!(at(series.last().unwrap(), "seconds") <= at(&summary, "seconds"));
+}
+
 /// `isostream report RUN -o OUT`.
 fn report(run: &Path, out: &Path) -> std::process::Output {
     isostream(&[

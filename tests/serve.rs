@@ -1311,6 +1311,47 @@ fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
     );
 }
 
+/// A job with a first pass (`[output] faces`) whose checkpoint cannot be resumed (its temporary
+/// output is gone) also starts over: that failure comes after the first pass, whose progress
+/// events are not slabs of the run.
+#[test]
+fn a_checkpoint_that_fails_after_a_first_pass_is_dropped_and_the_job_starts_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let input = data.join("gyroid.raw");
+    gyroid_raw(&input, 96);
+    let state = dir.path().join("state");
+    let job_text = format!(
+        "{}faces = 20000\n[pipeline]\ncheckpoint = {{ every_slabs = 5 }}\n",
+        raw_job(&input, 96, "gyroid.smb")
+    );
+    let allow = ["--allow-input", data.to_str().unwrap()];
+    let id = {
+        let s = Server::start(&state, &allow);
+        let id = submit(&s, &job_text);
+        let job_dir = state.join("jobs").join(&id);
+        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
+        wait_for(&s, &id, "past a checkpoint", |v| {
+            v["state"] == "running" && v["progress"]["pass"] == "run" && saved()
+        });
+        // Drop sends SIGKILL.
+        drop(s);
+        id
+    };
+    let job_dir = state.join("jobs").join(&id);
+    for f in files_in(&job_dir) {
+        if f.ends_with(".tmp") && !f.contains(".ckpt") {
+            std::fs::remove_file(job_dir.join(f)).unwrap();
+        }
+    }
+
+    let s = Server::start(&state, &allow);
+    let last = follow(&s, &id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+    assert!(s.log().contains("starting the job over"), "{}", s.log());
+}
+
 /// After the service died with two jobs running, both count the death and run one at a time,
 /// so a job that brings the service down again is the only one blamed.
 #[test]

@@ -51,7 +51,7 @@ pub use output::{OutputLock, lock_output, lock_path, one_file, output_in_use, st
 pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
 pub use source::{open_source, orientation_warning, preflight};
-pub use stages::{Progress, StageSeconds};
+pub use stages::{Pass, Progress, StageSeconds};
 
 /// What a finished run reports (logged, and written as `<output>.run.json`; read back from a
 /// run's `checkpoint::Finished` record).
@@ -243,8 +243,14 @@ fn run_job(
     let counted = job.output.faces.is_some()
         || (prune.is_some() && saved.is_none())
         || job.counts_slabs_for_stages(grid.dims);
+    // From the job's start: the first pass's progress goes through it too.
+    let monitor = monitor::Monitor::new(started, grid, job.log.progress_interval(), observer);
+    let observe = |p: &Progress| monitor.observe(p);
     let pass = match counted {
-        true => Some(first_pass(job, prune, cancel)?),
+        true => {
+            monitor.pass_begins();
+            Some(first_pass(job, prune, cancel, &observe)?)
+        }
         false => None,
     };
     if let Some(p) = pass.as_ref().filter(|_| !job.output.allow_empty) {
@@ -343,8 +349,6 @@ fn run_job(
     if job.extract.skip_empty {
         reader = reader.skip_empty(job.extract.iso as f32);
     }
-    let monitor = monitor::Monitor::new(grid, job.log.progress_interval(), observer);
-    let observe = |p: &Progress| monitor.observe(p);
     let resumed_at_slab = resume.as_ref().map(|r| r.reader.z);
     let checkpoints = every
         .zip(identity.clone())
@@ -358,6 +362,7 @@ fn run_job(
         // The checkpoint's carried slice is read again (and checked against its hash).
         reader.seek(r.reader.z)?;
     }
+    monitor.pass_begins();
     let outputs = stages::Stages {
         reader,
         input: input.clone(),
@@ -562,6 +567,7 @@ fn first_pass(
     job: &JobConfig,
     prune: Option<NonZeroU64>,
     cancel: &AtomicBool,
+    observer: &(dyn Fn(&Progress) + Sync),
 ) -> Result<FirstPass, RunError> {
     let started = Instant::now();
     let source = open_source(&job.input)?;
@@ -579,6 +585,10 @@ fn first_pass(
             let mut delta = MeshDelta::default();
             detector.process(batch, &mut delta);
             census.add(&delta);
+        }
+        // Every slab ends with a batch saying so, an empty one if need be.
+        if batch.end_of_slab {
+            observer(&Progress::first_pass(batch.slab, dims[2] - 1));
         }
     })?;
     let small = census.map(|(mut detector, mut census)| {

@@ -3,7 +3,13 @@
 //! progress log line every `[log] progress_seconds`.
 //!
 //! Both are fed by the stages' progress observer, called on the simplifier's thread after every
-//! completed slab; the monitor wraps the caller's observer, so the stages know nothing of it.
+//! completed slab; the monitor wraps the caller's observer, so the stages know nothing of it. A
+//! job's first pass (`[output] faces`, pruning) reports its slabs through it too: it logs
+//! `progress` lines (with `pass = "first"`) but adds nothing to the series, which is the run's.
+//!
+//! Every clock counts from the job's start, as the summary's `seconds` does: the lines'
+//! `elapsed_s` and the series' `seconds`. A rate and an ETA are those of the pass under way,
+//! over the time since that pass began ([`Monitor::pass_begins`]).
 //!
 //! The series is bounded: it holds at most [`MAX_SERIES_POINTS`] points whatever the volume. When
 //! it is full, neighbouring points are merged pairwise and each later point covers twice as many
@@ -19,7 +25,7 @@ use serde::{Deserialize, Serialize};
 use tracing::info;
 
 use crate::rss::current_rss_bytes;
-use crate::stages::Progress;
+use crate::stages::{Pass, Progress};
 
 /// Most points a run summary's series holds (between half this and this once decimated).
 pub const MAX_SERIES_POINTS: usize = 1024;
@@ -43,7 +49,7 @@ pub struct SeriesPoint {
     pub resident_faces_min: u64,
     /// Largest resident set size of the process (from the OS) at the end of any of its slabs.
     pub rss_bytes: Option<u64>,
-    /// Seconds since the run started, at its last slab.
+    /// Seconds since the job started (its first pass included), at its last slab.
     pub seconds: f64,
 }
 
@@ -133,9 +139,10 @@ impl SeriesBuilder {
     }
 }
 
-/// Watches a run through its progress observer: records the series, logs progress every
+/// Watches a job through its progress observer: records the run's series, logs progress every
 /// `log_every`, and passes every `Progress` on to the caller's observer.
 pub(crate) struct Monitor<'a> {
+    /// The job's start.
     started: Instant,
     voxels_per_slab: u64,
     voxels: u64,
@@ -147,16 +154,18 @@ pub(crate) struct Monitor<'a> {
 struct State {
     series: SeriesBuilder,
     last_log: Instant,
+    /// When the pass under way began: its rate and ETA count from here.
+    pass_started: Instant,
 }
 
 impl<'a> Monitor<'a> {
-    /// `log_every`: `None` logs no progress lines.
+    /// `started`: the job's start. `log_every`: `None` logs no progress lines.
     pub fn new(
+        started: Instant,
         grid: Grid,
         log_every: Option<Duration>,
         observer: &'a (dyn Fn(&Progress) + Sync),
     ) -> Self {
-        let started = Instant::now();
         Monitor {
             started,
             voxels_per_slab: grid.dims[0] * grid.dims[1],
@@ -166,8 +175,19 @@ impl<'a> Monitor<'a> {
             state: Mutex::new(State {
                 series: SeriesBuilder::new(MAX_SERIES_POINTS),
                 last_log: started,
+                pass_started: started,
             }),
         }
+    }
+
+    /// A pass over the volume begins now (the first pass, then the run): a rate over the time
+    /// before it (the first pass's 20 s and more at `upsample` 16) promised a 78 s run's end in
+    /// 15 minutes.
+    pub fn pass_begins(&self) {
+        self.state
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .pass_started = Instant::now();
     }
 
     /// The observer the stages call after every slab.
@@ -181,22 +201,30 @@ impl<'a> Monitor<'a> {
             // Read before this run: a run resumed at slab 320 of 765 counted those slabs against
             // the seconds since the restart, and its progress lines promised the end in 3 s of 40.
             let before = p.slabs_at_start * self.voxels_per_slab;
-            state.series.push(SeriesPoint {
-                slab: p.slabs_done,
-                slabs: 1,
-                voxels_done,
-                faces_in: p.faces_in,
-                faces_out: p.faces_out,
-                resident_faces: p.resident_faces,
-                resident_faces_min: p.resident_faces,
-                rss_bytes,
-                seconds,
-            });
+            if p.pass == Pass::Run {
+                state.series.push(SeriesPoint {
+                    slab: p.slabs_done,
+                    slabs: 1,
+                    voxels_done,
+                    faces_in: p.faces_in,
+                    faces_out: p.faces_out,
+                    resident_faces: p.resident_faces,
+                    resident_faces_min: p.resident_faces,
+                    rss_bytes,
+                    seconds,
+                });
+            }
             if let Some(every) = self.log_every
                 && state.last_log.elapsed() >= every
             {
                 state.last_log = Instant::now();
-                log_progress(p, voxels_done, before, self.voxels, seconds, rss_bytes);
+                let pace = pace(
+                    voxels_done,
+                    before,
+                    self.voxels,
+                    state.pass_started.elapsed().as_secs_f64(),
+                );
+                log_progress(p, voxels_done, self.voxels, seconds, pace, rss_bytes);
             }
         }
         (self.observer)(p);
@@ -211,36 +239,39 @@ impl<'a> Monitor<'a> {
     }
 }
 
-/// Voxels a second and seconds left, from the voxels this process read (`voxels_done - before`)
-/// in its `seconds`.
+/// Voxels a second and seconds left in the pass, from the voxels the pass read in this process
+/// (`voxels_done - before`) in its `seconds`.
 fn pace(voxels_done: u64, before: u64, voxels: u64, seconds: f64) -> (f64, f64) {
     let rate = voxels_done.saturating_sub(before) as f64 / seconds.max(1e-9);
     let eta_s = voxels.saturating_sub(voxels_done) as f64 / rate.max(1e-9);
     (rate, eta_s)
 }
 
-/// One structured line: where the sweep is, how fast it goes (the voxels read in this process,
-/// `voxels_done - before`, over its seconds), when it should end.
+/// One structured line: which pass, where its sweep is, how fast it goes and when it should end
+/// (`pace`: the pass's), the seconds since the job's start. The first pass has no faces to
+/// tell yet (it counts them at its end), so its lines leave the faces out.
 fn log_progress(
     p: &Progress,
     voxels_done: u64,
-    before: u64,
     voxels: u64,
     seconds: f64,
+    (rate, eta_s): (f64, f64),
     rss: Option<u64>,
 ) {
-    let (rate, eta_s) = pace(voxels_done, before, voxels, seconds);
     let round1 = |x: f64| (x * 10.0).round() / 10.0;
+    // `None` fields are left out of the line.
+    let faces = |n: u64| (p.pass == Pass::Run).then_some(n);
     info!(
+        pass = p.pass.name(),
         slab = p.slabs_done,
         of = p.slabs_total,
         percent = round1(100.0 * voxels_done as f64 / voxels.max(1) as f64),
         voxels_per_s = rate.round(),
         elapsed_s = round1(seconds),
         eta_s = round1(eta_s),
-        faces_in = p.faces_in,
-        faces_out = p.faces_out,
-        resident_faces = p.resident_faces,
+        faces_in = faces(p.faces_in),
+        faces_out = faces(p.faces_out),
+        resident_faces = faces(p.resident_faces),
         rss_mib = round1(rss.unwrap_or(0) as f64 / (1024.0 * 1024.0)),
         "progress"
     );

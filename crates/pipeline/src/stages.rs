@@ -28,20 +28,64 @@ use crate::flow::{Control, Msg, Outbox, StageResult, Step, Stop, run};
 use crate::range::DataRange;
 use crate::sink::Sink;
 
-/// Snapshot passed to the progress observer after every completed slab.
+/// Which pass over the volume a [`Progress`] is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Pass {
+    /// The first pass of `[output] faces`, `[simplify] min_component_faces` or a stage count
+    /// decided by the largest slab: it counts the faces (or takes the census of components)
+    /// before the run, and can take as long as the run's extraction (20 s and more at
+    /// `upsample` 16), so it reports its slabs too.
+    First,
+    /// The run itself: extraction, simplification, output.
+    #[default]
+    Run,
+}
+
+impl Pass {
+    /// The name in `progress` log lines and the service's events.
+    pub fn name(self) -> &'static str {
+        match self {
+            Pass::First => "first",
+            Pass::Run => "run",
+        }
+    }
+}
+
+/// Snapshot passed to the progress observer after every completed slab, of the first pass (when
+/// the job makes one) and then of the run.
 #[derive(Debug, Clone, Copy)]
 pub struct Progress {
+    pub pass: Pass,
     pub slabs_done: u64,
     /// Slabs done before this run started: past 0 when it resumed a checkpoint (a rate or an
     /// ETA counts the slabs done since, over the time since the start).
     pub slabs_at_start: u64,
     pub slabs_total: u64,
+    /// The faces are the run's: the first pass reports 0 (its extractors only count, and the
+    /// count is summed at its end).
     pub faces_in: u64,
     pub faces_out: u64,
     pub resident_faces: u64,
     /// Slabs extracted or being extracted that the detector has not taken yet, and batches
-    /// waiting in the detect->simplify and simplify->write channels.
+    /// waiting in the detect->simplify and simplify->write channels (0 in the first pass).
     pub queued: [usize; 3],
+}
+
+impl Progress {
+    /// The first pass's slab `slab` done (its faces are counted at its end).
+    pub(crate) fn first_pass(slab: u64, slabs_total: u64) -> Self {
+        Progress {
+            pass: Pass::First,
+            slabs_done: slab + 1,
+            slabs_at_start: 0,
+            slabs_total,
+            faces_in: 0,
+            faces_out: 0,
+            resident_faces: 0,
+            queued: [0; 3],
+        }
+    }
 }
 
 /// Busy time of each stage (time blocked on channels excluded). `extract` adds up the workers.
@@ -737,6 +781,7 @@ impl SimplifyStep<'_> {
                 None => (st.faces_out, st.faces_resident as u64),
             };
             let progress = Progress {
+                pass: Pass::Run,
                 slabs_done: u64::from(front),
                 slabs_at_start: self.first_front,
                 slabs_total: self.slabs_total,
@@ -905,6 +950,7 @@ impl Step for SecondStep<'_> {
         }
         let st = self.simplifier.stats();
         (self.observer)(&Progress {
+            pass: Pass::Run,
             slabs_done: self.slabs_total,
             slabs_at_start: self.first_front,
             slabs_total: self.slabs_total,

@@ -12,7 +12,7 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use isostream_pipeline::{JobConfig, Progress, RunError, RunSummary, Start};
+use isostream_pipeline::{JobConfig, Pass, Progress, RunError, RunSummary, Start};
 use serde::Serialize;
 use tokio::sync::{Notify, watch};
 use tokio_util::sync::CancellationToken;
@@ -26,6 +26,9 @@ use crate::store::{JobRecord, JobState, RemoveError, Store, now_ms};
 /// Progress of a run as clients see it (the pipeline's `Progress` without its channel details).
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub(crate) struct ProgressView {
+    /// `first` during the first pass of `[output] faces` or pruning (its slabs; no faces yet),
+    /// then `run`.
+    pub pass: Pass,
     pub slabs_done: u64,
     pub slabs_total: u64,
     /// Slabs done before this attempt (a run resumed from a checkpoint starts past 0):
@@ -46,6 +49,7 @@ impl ProgressView {
             .as_u64()
             .map_or(0, |nz| nz.saturating_sub(1));
         Self {
+            pass: Pass::Run,
             slabs_done: slabs,
             slabs_total: slabs,
             slabs_at_start: 0,
@@ -59,6 +63,7 @@ impl ProgressView {
 impl From<&Progress> for ProgressView {
     fn from(p: &Progress) -> Self {
         Self {
+            pass: p.pass,
             slabs_done: p.slabs_done,
             slabs_total: p.slabs_total,
             slabs_at_start: p.slabs_at_start,
@@ -576,11 +581,14 @@ impl Queue {
             // have been replaced by a link to one outside since (or the folders changed with a
             // restart): checked again now, just before the run opens them.
             queue.roots.confirm(&config)?;
-            // Whether a slab was done: an error before is one of resuming (loading and
-            // checking the checkpoint, reopening its files), after it one of the run.
+            // Whether a slab of the run was done: an error before is one of resuming (loading
+            // and checking the checkpoint, reopening its files; the first pass comes before
+            // them), after it one of the run.
             let progressed = AtomicBool::new(false);
             let observer = |p: &Progress| {
-                progressed.store(true, Ordering::Relaxed);
+                if p.pass == Pass::Run {
+                    progressed.store(true, Ordering::Relaxed);
+                }
                 queue.progress(&job_id, p);
             };
             // A job folder holds one job: a checkpoint in it is this job's, from a run the
