@@ -49,7 +49,7 @@ pub fn html(run: &Run, measure: Option<&Measure>) -> Result<String, ReportError>
                 &mut s,
                 "faces",
                 &plots::faces(&series.points)?,
-                "Full-resolution faces extracted and simplified faces written per slab, and the faces resident at its end.",
+                "Full-resolution faces extracted and simplified faces written per slab (left axis), and the faces resident in the simplifier at its end (right axis).",
             );
         }
         None => s.push_str(
@@ -144,7 +144,10 @@ fn summary_table(s: &mut String, run: &Run, measure: Option<&Measure>) {
                         .unwrap_or_default(),
                     d.full_to_output.mean,
                     d.output_to_full.mean,
-                    clipped_note(d)
+                    match clipped_note(d) {
+                        note if note.is_empty() => note,
+                        note => format!("; {note}"),
+                    }
                 ),
             ));
         }
@@ -166,13 +169,13 @@ fn at_least(d: &crate::input::Distances) -> &'static str {
     }
 }
 
-/// Why [`at_least`] says so, and how to get exact values.
+/// Why [`at_least`] says so, and how to get exact values (empty when it does not).
 fn clipped_note(d: &crate::input::Distances) -> String {
     if d.clipped_samples == 0 {
         return String::new();
     }
     format!(
-        "; {} output samples counted at the search radius {:.4}: lower bounds, measure again with this version for exact values",
+        "{} output samples counted at the search radius {:.4}: lower bounds, measure again with this version for exact values",
         d.clipped_samples, d.max_distance
     )
 }
@@ -209,24 +212,31 @@ fn measure_figures(s: &mut String, m: &Measure) -> Result<(), ReportError> {
         if dir.histogram.is_empty() {
             continue;
         }
+        // The bins end at the search radius, so the last one holds any sample past it. An
+        // older measure counted the output samples there at the radius (`clipped_note`); since
+        // its second pass they are at their exact distances, which the figures above include.
+        let past = if !bound.is_empty() {
+            format!("; the last bin also holds the {}", clipped_note(d))
+        } else if dir.hausdorff > d.max_distance {
+            format!(
+                "; the last bin also counts the samples farther than the search radius {:.4}, each measured at its exact distance (up to the Hausdorff distance)",
+                d.max_distance
+            )
+        } else {
+            String::new()
+        };
         figure(
             s,
             id,
             &plots::histogram(title, "distance", &dir.histogram, "distance")?,
             &format!(
-                "Samples by distance (mean {bound}{:.4}, RMS {bound}{:.4}, Hausdorff {bound}{:.4}{}); the last bin also counts samples farther than the search radius {:.4}{}.",
+                "Samples by distance (mean {bound}{:.4}, RMS {bound}{:.4}, Hausdorff {bound}{:.4}{}){past}.",
                 dir.mean,
                 dir.rms,
                 dir.hausdorff,
                 dir.p999
                     .map(|p| format!(", 99.9 % within {bound}{p:.4}"))
                     .unwrap_or_default(),
-                d.max_distance,
-                if bound.is_empty() {
-                    String::new()
-                } else {
-                    clipped_note(d)
-                }
             ),
         );
     }
@@ -351,10 +361,38 @@ mod tests {
             page.contains("7 output samples counted at the search radius 2.0000: lower bounds")
         );
         assert!(page.contains("Hausdorff at least 2.0000, 99.9 % within at least 2.0000"));
+        assert!(page.contains("the last bin also holds the 7 output samples counted at the search radius 2.0000: lower bounds"));
         for exact in [measure(Some(0)), measure(None)] {
             let page = html(&run, Some(&exact)).unwrap();
             assert!(!page.contains("at least") && !page.contains("lower bound"));
         }
+    }
+
+    /// The distance histograms' bins end at the search radius. Since the measure's second pass
+    /// the samples past it are at their exact distances (in the last bin): the caption says so
+    /// when there are some, and says nothing of them when there are none (it said "the last
+    /// bin also counts samples farther than the search radius" of every report).
+    #[test]
+    fn a_distance_caption_tells_of_samples_past_the_radius_only_when_there_are_some() {
+        let run: Run = serde_json::from_value(run_json(true)).unwrap();
+        let measure = |hausdorff: f64, far: u64| -> Measure {
+            let directed = serde_json::json!({"mean": 0.5, "rms": 0.6, "hausdorff": hausdorff,
+                "p999": 1.5, "histogram": [[0.0, 9], [1.0, 1]]});
+            serde_json::from_value(serde_json::json!({"quality": {"triangles": 201,
+                "closed": true, "euler": 2, "min_angle_histogram": [[0.0, 201]]},
+                "distances": {"full_to_output": directed, "output_to_full": directed,
+                "max_distance": 2.0, "rms_pct": 1.0, "hausdorff_pct": 4.0, "p999_pct": 4.0,
+                "far_samples": far}}))
+            .unwrap()
+        };
+        let within = html(&run, Some(&measure(1.8, 0))).unwrap();
+        assert!(!within.contains("search radius"), "{within}");
+        let past = html(&run, Some(&measure(5.0, 3))).unwrap();
+        assert!(
+            past.contains("the last bin also counts the samples farther than the search radius 2.0000, each measured at its exact distance"),
+            "{past}"
+        );
+        assert!(!past.contains("at least") && !past.contains("lower bound"));
     }
 
     #[test]

@@ -24,6 +24,8 @@ pub const RSS_LABEL: &str = "RSS (MiB)";
 pub const RESIDENT_LABEL: &str = "resident faces";
 pub const FACES_IN_LABEL: &str = "faces in per slab";
 pub const FACES_OUT_LABEL: &str = "faces out per slab";
+/// The faces plot's left axis (its right one is [`RESIDENT_LABEL`]).
+pub const PER_SLAB_AXIS: &str = "faces per slab";
 
 type DrawResult<T> = Result<T, Box<dyn std::error::Error>>;
 
@@ -160,7 +162,8 @@ struct SlabFaces {
 type Column = fn(&SlabFaces) -> f64;
 
 /// Per slab: faces extracted (in) and emitted (out), averaged over the slabs a point stands
-/// for, and the faces resident at its end.
+/// for (left axis), and the faces resident at its end (right axis): on one axis the resident
+/// faces (72 k on a long gyroid) flattened the per-slab lines (760) onto zero.
 pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
     let mut previous = (0, 0);
     let rows: Vec<SlabFaces> = points
@@ -179,29 +182,36 @@ pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
         .collect();
     svg("faces", |root| {
         let x = upto(points.last().map_or(0, |p| p.slab) as f64);
-        let y_max = rows
+        let per_slab_max = rows
             .iter()
-            .map(|r| r.faces_in.max(r.faces_out).max(r.resident))
+            .map(|r| r.faces_in.max(r.faces_out))
             .fold(0.0, f64::max);
+        let resident_max = rows.iter().map(|r| r.resident).fold(0.0, f64::max);
         let mut chart = ChartBuilder::on(root)
             .caption("Faces per slab", (FONT, 18))
             .margin(12)
             .x_label_area_size(40)
             .y_label_area_size(70)
-            .build_cartesian_2d(x, upto(y_max))?;
+            .right_y_label_area_size(70)
+            .build_cartesian_2d(x.clone(), upto(per_slab_max))?
+            .set_secondary_coord(x, upto(resident_max));
         chart
             .configure_mesh()
             .x_desc("slab")
             .x_label_formatter(&num)
             .y_label_formatter(&num)
-            .y_desc("faces")
+            .y_desc(PER_SLAB_AXIS)
             .draw()?;
-        let lines: [(&str, RGBColor, Column); 3] = [
+        chart
+            .configure_secondary_axes()
+            .y_label_formatter(&num)
+            .y_desc(RESIDENT_LABEL)
+            .draw()?;
+        let per_slab: [(&str, RGBColor, Column); 2] = [
             (FACES_IN_LABEL, FACES_IN, |r| r.faces_in),
             (FACES_OUT_LABEL, FACES_OUT, |r| r.faces_out),
-            (RESIDENT_LABEL, RESIDENT, |r| r.resident),
         ];
-        for (label, color, value) in lines {
+        for (label, color, value) in per_slab {
             chart
                 .draw_series(LineSeries::new(
                     rows.iter().map(|r| (r.slab, value(r))),
@@ -210,6 +220,13 @@ pub fn faces(points: &[SeriesPoint]) -> Result<String, ReportError> {
                 .label(label)
                 .legend(legend_line(color));
         }
+        chart
+            .draw_secondary_series(LineSeries::new(
+                rows.iter().map(|r| (r.slab, r.resident)),
+                RESIDENT.stroke_width(2),
+            ))?
+            .label(RESIDENT_LABEL)
+            .legend(legend_line(RESIDENT));
         legend(&mut chart)
     })
 }
@@ -372,6 +389,43 @@ mod tests {
                 .count(),
             3
         );
+    }
+
+    /// Resident faces a hundred times the per-slab counts (a long gyroid: 72 k and 760) leave
+    /// the per-slab lines their own scale: on one axis they lay flat on zero, 3 pixels high.
+    #[test]
+    fn per_slab_faces_keep_their_own_scale_beside_the_resident_ones() {
+        let points: Vec<SeriesPoint> = (1..=40u64)
+            .map(|slab| {
+                let mut p = saw_tooth(40)[slab as usize - 1];
+                // 500 and 1,000 faces a slab in turn; 70 k and more resident.
+                p.faces_in = (slab / 2) * 1500 + (slab % 2) * 500;
+                p.faces_out = 0;
+                p.resident_faces = 70_000 + 100 * slab;
+                p
+            })
+            .collect();
+        let svg = faces(&points).unwrap();
+        let labels = texts(&svg);
+        for label in [PER_SLAB_AXIS, RESIDENT_LABEL] {
+            assert!(labels.contains(&label), "{label} missing: {labels:?}");
+        }
+        // Drawn in order: in, out, resident.
+        let lines: Vec<&str> = polylines(&svg)
+            .into_iter()
+            .filter(|p| points_in(p) == 40)
+            .collect();
+        let height = |polyline: &str| {
+            let attr = polyline.split("points=\"").nth(1).unwrap();
+            let ys: Vec<f64> = attr[..attr.find('"').unwrap()]
+                .split_whitespace()
+                .map(|xy| xy.split(',').nth(1).unwrap().parse().unwrap())
+                .collect();
+            ys.iter().fold(f64::MIN, |a, &b| a.max(b)) - ys.iter().fold(f64::MAX, |a, &b| a.min(b))
+        };
+        // Half the plot's height and more between 500 and 1,000 faces.
+        assert!(height(lines[0]) > 100.0, "{}", height(lines[0]));
+        assert_eq!(lines.len(), 3, "{svg}");
     }
 
     #[test]
