@@ -148,20 +148,24 @@ fn describes(run: &serde_json::Value, mesh: &Path, quality: &MeshQuality) -> boo
     true
 }
 
-/// Says when `--samples-per-area` was not the density used: it is raised or lowered so that each
-/// direction gets between [`MIN_SAMPLES`] and [`MAX_SAMPLES`] samples, which was silent.
+/// Says when `--samples-per-area` was not the density used: it is raised or lowered so that the
+/// mesh's area gets about [`MIN_SAMPLES`] to [`MAX_SAMPLES`] samples, which was silent. Each
+/// triangle's share is drawn at random around its expected count, and the full-resolution
+/// surface is sampled at the same density over its own area: the message says so, with the count
+/// drawn ("at least 10000 samples" was said of 9,960).
 fn density_note(asked: f64, distances: &Distances) {
     let used = distances.samples_per_area;
     if (used - asked).abs() <= 1e-9 * asked {
         return;
     }
-    let (how, bound, count) = if used > asked {
-        ("raised", "at least", MIN_SAMPLES)
+    let (how, count) = if used > asked {
+        ("raised", MIN_SAMPLES)
     } else {
-        ("lowered", "at most", MAX_SAMPLES)
+        ("lowered", MAX_SAMPLES)
     };
     tracing::warn!(
-        "--samples-per-area {asked} {how} to {used:.4} on this mesh's area: each direction takes {bound} {count} samples"
+        "--samples-per-area {asked} {how} to {used:.4} so that this mesh's area gets about {count} samples ({} drawn; the full-resolution surface is sampled at the same density)",
+        distances.output_to_full.samples
     );
 }
 

@@ -15,7 +15,7 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
     let mut source = isostream_pipeline::preflight(&job)?;
     let grid = source.grid();
     crate::stdout::line(format_args!(
-        "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {:?}, output {}",
+        "{}: ok: {} ({} x {} x {} voxels), iso {}, mode {}{}, output {}",
         job_path.display(),
         source.describe(),
         grid.dims[0],
@@ -23,6 +23,9 @@ pub fn validate(job_path: &Path) -> anyhow::Result<()> {
         grid.dims[2],
         job.extract.iso,
         job.simplify.mode,
+        job.output
+            .faces
+            .map_or(String::new(), |f| format!(" to {f} faces")),
         job.output.path.display()
     ))?;
     if let Some(w) = isostream_pipeline::orientation_warning(source.as_ref()) {

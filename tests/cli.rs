@@ -47,6 +47,33 @@ fn example_job_runs_and_converts() {
     }
 }
 
+/// `validate` and the logs name the mode as the job file does ("mode Rate" and `mode=Rate` were
+/// its `Debug` name), and `validate` says the faces target of `[output] faces`.
+#[test]
+fn validate_and_the_logs_say_the_mode_as_the_job_file_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"torus\"\nsize = [24, 24, 24]\n[extract]\niso = 0.0\n[output]\npath = \"t.smb\"\nfaces = 500\n",
+    );
+    let o = isostream(&["validate", &job]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains(", mode rate to 500 faces, output "), "{said}");
+    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(["run", &job])
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let start = stderr(&o)
+        .lines()
+        .find(|l| l.contains("job start"))
+        .map(str::to_string)
+        .unwrap_or_default();
+    assert!(start.contains("mode=rate"), "{}", stderr(&o));
+}
+
 /// `convert --ascii` writes ASCII PLY and `convert --normals` GLB normals (the formats had
 /// both, but no flag reached them); either flag on an output without that choice is refused.
 #[test]

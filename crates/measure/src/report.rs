@@ -29,8 +29,11 @@ impl MeasureReport {
         // Writing into a String cannot fail.
         let _ = writeln!(
             s,
-            "mesh: {} triangles, {} vertices, {} components, Euler characteristic {}",
-            q.triangles, q.vertices, q.components, q.euler
+            "mesh: {}, {}, {}, Euler characteristic {}",
+            count(q.triangles, "triangle", "triangles"),
+            count(q.vertices, "vertex", "vertices"),
+            count(q.components, "component", "components"),
+            q.euler
         );
         let _ = writeln!(s, "topology: {}", topology(q));
         let _ = writeln!(
@@ -64,15 +67,21 @@ impl MeasureReport {
     }
 }
 
+/// `n` and the noun in the number it takes: "1 component", "800 components" (the text said
+/// "1 components").
+fn count(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
 /// The topology line's facts. A mesh without boundary edges that is not a closed manifold (a
 /// bowtie, a flipped face) said "NOT closed, ..., 0 boundary edges", which read as a
 /// contradiction: it says instead that it has no boundary and what else is wrong, with counts.
 fn topology(q: &MeshQuality) -> String {
-    let property = |ok: bool, what: &str, count: usize, unit: &str| {
+    let property = |ok: bool, what: &str, n: usize, units: (&str, &str)| {
         if ok {
             what.to_string()
         } else {
-            format!("NOT {what} ({count} {unit})")
+            format!("NOT {what} ({})", count(n, units.0, units.1))
         }
     };
     let mut parts = vec![
@@ -80,19 +89,19 @@ fn topology(q: &MeshQuality) -> String {
             q.edge_manifold,
             "edge-manifold",
             q.non_manifold_edges,
-            "non-manifold edges",
+            ("non-manifold edge", "non-manifold edges"),
         ),
         property(
             q.vertex_manifold,
             "vertex-manifold",
             q.non_manifold_vertices,
-            "non-manifold vertices",
+            ("non-manifold vertex", "non-manifold vertices"),
         ),
         property(
             q.oriented,
             "oriented",
             q.misoriented_edges,
-            "misoriented edges",
+            ("misoriented edge", "misoriented edges"),
         ),
     ];
     let boundary = q.boundary_edges;
@@ -102,18 +111,27 @@ fn topology(q: &MeshQuality) -> String {
         (false, _) => "NOT closed,",
     };
     if boundary > 0 || q.closed {
-        parts.push(format!("{boundary} boundary edges"));
+        parts.push(count(boundary, "boundary edge", "boundary edges"));
     }
     if q.duplicate_triangles > 0 {
-        parts.push(format!("{} duplicate triangles", q.duplicate_triangles));
-    }
-    if q.repeated_index_triangles > 0 {
-        parts.push(format!(
-            "{} triangles that use a vertex twice",
-            q.repeated_index_triangles
+        parts.push(count(
+            q.duplicate_triangles,
+            "duplicate triangle",
+            "duplicate triangles",
         ));
     }
-    parts.push(format!("{} zero-area triangles", q.zero_area_triangles));
+    if q.repeated_index_triangles > 0 {
+        parts.push(count(
+            q.repeated_index_triangles,
+            "triangle that uses a vertex twice",
+            "triangles that use a vertex twice",
+        ));
+    }
+    parts.push(count(
+        q.zero_area_triangles,
+        "zero-area triangle",
+        "zero-area triangles",
+    ));
     format!("{lead} {}", parts.join(", "))
 }
 
@@ -211,7 +229,7 @@ mod tests {
     fn text_names_every_measure() {
         let text = report(0).to_text();
         for needle in [
-            "1 triangles",
+            "mesh: 1 triangle, 3 vertices, 1 component, Euler characteristic 1",
             "NOT closed, edge-manifold, vertex-manifold, oriented, 3 boundary edges, 0 zero-area",
             "anisotropy",
             "directional bias",
@@ -281,7 +299,7 @@ mod tests {
         assert!(!q.closed && q.edge_manifold && q.oriented && !q.vertex_manifold);
         let text = quality_text(q);
         assert!(
-            text.contains("topology: no boundary edges, but NOT a closed manifold: edge-manifold, NOT vertex-manifold (1 non-manifold vertices), oriented, 0 zero-area triangles"),
+            text.contains("topology: no boundary edges, but NOT a closed manifold: edge-manifold, NOT vertex-manifold (1 non-manifold vertex), oriented, 0 zero-area triangles"),
             "{text}"
         );
 

@@ -374,6 +374,13 @@ impl Mode {
     }
 }
 
+/// The job file's spelling (`rate`, not the `Rate` of `Debug`), for what a user reads.
+impl std::fmt::Display for Mode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl PriorityKind {
     /// The name a job file gives it.
     pub(crate) fn name(self) -> &'static str {

@@ -198,7 +198,7 @@ fn run_job(
     let mut source = open_source(&job.input)?;
     let grid = source.grid();
     let input = source.describe();
-    info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = ?job.simplify.mode, "job start");
+    info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = %job.simplify.mode, "job start");
     // Said at the start (the mesh of a long run is in the wrong place from its first slab), and
     // kept for the summary's warnings.
     let dropped_orientation = orientation_warning(source.as_ref());
