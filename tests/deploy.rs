@@ -38,6 +38,31 @@ fn systemd_unit_verifies() {
     assert!(o.status.success() && about_us.is_empty(), "{err}");
 }
 
+/// The unit's `Documentation=` files are put there by deploy/README.md's install steps, from
+/// files of the repository: it named /usr/share/doc/isostream/service.md, which no step
+/// installed.
+#[test]
+fn the_units_documentation_is_installed_by_the_steps() {
+    let unit = std::fs::read_to_string(Path::new(ROOT).join("deploy/isostream.service")).unwrap();
+    let steps = std::fs::read_to_string(Path::new(ROOT).join("deploy/README.md")).unwrap();
+    let docs: Vec<&str> = unit
+        .lines()
+        .filter_map(|l| l.strip_prefix("Documentation="))
+        .flat_map(str::split_whitespace)
+        .filter_map(|uri| uri.strip_prefix("file://"))
+        .collect();
+    assert!(!docs.is_empty(), "{unit}");
+    for doc in docs {
+        let install = steps
+            .lines()
+            .find(|l| l.trim_start().starts_with("sudo install") && l.contains(doc))
+            .unwrap_or_else(|| panic!("no install step puts {doc} in place"));
+        let command = install.split('#').next().unwrap_or_default();
+        let source = command.split_whitespace().rev().nth(1).unwrap();
+        assert!(Path::new(ROOT).join(source).is_file(), "{install}");
+    }
+}
+
 #[test]
 fn containerfile_serves_with_a_token() {
     let text = std::fs::read_to_string(Path::new(ROOT).join("deploy/Containerfile")).unwrap();
