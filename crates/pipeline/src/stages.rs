@@ -1180,7 +1180,10 @@ mod tests {
             slabs: bounded(0).1,
             deltas: bounded(0).1,
             out: bounded(0).1,
-            second: cascade.then(SecondCounts::default),
+            second: cascade.then(|| SecondCounts {
+                faces_out: AtomicU64::new(0),
+                resident: AtomicU64::new(0),
+            }),
         }
     }
 
