@@ -1266,28 +1266,9 @@ fn an_input_replaced_by_a_link_after_submission_is_not_read() {
 #[test]
 fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    std::fs::create_dir(&data).unwrap();
-    let input = data.join("gyroid.raw");
-    gyroid_raw(&input, 96);
-    let state = dir.path().join("state");
-    let job_text = format!(
-        "{}[pipeline]\ncheckpoint = {{ every_slabs = 5 }}\n",
-        raw_job(&input, 96, "gyroid.smb")
-    );
-    let allow = ["--allow-input", data.to_str().unwrap()];
-    let id = {
-        let s = Server::start(&state, &allow);
-        let id = submit(&s, &job_text);
-        let job_dir = state.join("jobs").join(&id);
-        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
-        wait_for(&s, &id, "past a checkpoint", |v| {
-            v["state"] == "running" && saved()
-        });
-        // Drop sends SIGKILL.
-        drop(s);
-        id
-    };
+    let killed = KilledPastACheckpoint::new(dir.path(), "", |_| true);
+    let (input, state, id) = (&killed.input, &killed.state, &killed.id);
+    let allow = killed.allow();
     let later = std::time::SystemTime::now() + Duration::from_secs(60);
     std::fs::File::options()
         .write(true)
@@ -1296,16 +1277,16 @@ fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
         .set_modified(later)
         .unwrap();
 
-    let s = Server::start(&state, &allow);
-    let last = follow(&s, &id).pop().unwrap();
+    let s = Server::start(state, &allow);
+    let last = follow(&s, id).pop().unwrap();
     assert_eq!(last["state"], "done", "{last}\n{}", s.log());
-    let view = job(&s, &id);
+    let view = job(&s, id);
     assert!(view["summary"]["resumed_at_slab"].is_null(), "{view}");
     assert!(s.log().contains("starting the job over"), "{}", s.log());
-    let served = output_bytes(&s, &id);
+    let served = output_bytes(&s, id);
     assert_same_as_a_direct_run(
         dir.path(),
-        &raw_job(&input, 96, "gyroid.smb"),
+        &raw_job(input, 96, "gyroid.smb"),
         "gyroid.smb",
         &served,
     );
@@ -1317,39 +1298,65 @@ fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
 #[test]
 fn a_checkpoint_that_fails_after_a_first_pass_is_dropped_and_the_job_starts_over() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    std::fs::create_dir(&data).unwrap();
-    let input = data.join("gyroid.raw");
-    gyroid_raw(&input, 96);
-    let state = dir.path().join("state");
-    let job_text = format!(
-        "{}faces = 20000\n[pipeline]\ncheckpoint = {{ every_slabs = 5 }}\n",
-        raw_job(&input, 96, "gyroid.smb")
-    );
-    let allow = ["--allow-input", data.to_str().unwrap()];
-    let id = {
-        let s = Server::start(&state, &allow);
-        let id = submit(&s, &job_text);
-        let job_dir = state.join("jobs").join(&id);
-        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
-        wait_for(&s, &id, "past a checkpoint", |v| {
-            v["state"] == "running" && v["progress"]["pass"] == "run" && saved()
-        });
-        // Drop sends SIGKILL.
-        drop(s);
-        id
-    };
-    let job_dir = state.join("jobs").join(&id);
+    let killed = KilledPastACheckpoint::new(dir.path(), "faces = 20000\n", |v| {
+        v["progress"]["pass"] == "run"
+    });
+    let (state, id) = (&killed.state, &killed.id);
+    let allow = killed.allow();
+    let job_dir = state.join("jobs").join(id);
     for f in files_in(&job_dir) {
         if f.ends_with(".tmp") && !f.contains(".ckpt") {
             std::fs::remove_file(job_dir.join(f)).unwrap();
         }
     }
 
-    let s = Server::start(&state, &allow);
-    let last = follow(&s, &id).pop().unwrap();
+    let s = Server::start(state, &allow);
+    let last = follow(&s, id).pop().unwrap();
     assert_eq!(last["state"], "done", "{last}\n{}", s.log());
     assert!(s.log().contains("starting the job over"), "{}", s.log());
+}
+
+/// A service killed (SIGKILL) while running a checkpointed gyroid job (96^3, a checkpoint every
+/// 5 slabs) once a checkpoint was saved and `also` holds of the job's view.
+struct KilledPastACheckpoint {
+    data: PathBuf,
+    input: PathBuf,
+    state: PathBuf,
+    id: String,
+}
+
+impl KilledPastACheckpoint {
+    /// `output_keys`: lines added to the job's `[output]` table.
+    fn new(dir: &Path, output_keys: &str, also: impl Fn(&Value) -> bool) -> Self {
+        let data = dir.join("data");
+        std::fs::create_dir(&data).unwrap();
+        let input = data.join("gyroid.raw");
+        gyroid_raw(&input, 96);
+        let state = dir.join("state");
+        let job_text = format!(
+            "{}{output_keys}[pipeline]\ncheckpoint = {{ every_slabs = 5 }}\n",
+            raw_job(&input, 96, "gyroid.smb")
+        );
+        let s = Server::start(&state, &["--allow-input", data.to_str().unwrap()]);
+        let id = submit(&s, &job_text);
+        let job_dir = state.join("jobs").join(&id);
+        let saved = || files_in(&job_dir).iter().any(|f| f.ends_with(".ckpt"));
+        wait_for(&s, &id, "past a checkpoint", |v| {
+            v["state"] == "running" && also(v) && saved()
+        });
+        // Drop sends SIGKILL.
+        drop(s);
+        KilledPastACheckpoint {
+            data,
+            input,
+            state,
+            id,
+        }
+    }
+
+    fn allow(&self) -> [&str; 2] {
+        ["--allow-input", self.data.to_str().unwrap()]
+    }
 }
 
 /// After the service died with two jobs running, both count the death and run one at a time,
