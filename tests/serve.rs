@@ -1272,7 +1272,7 @@ fn a_checkpoint_of_a_touched_input_is_dropped_and_the_job_starts_over() {
     let later = std::time::SystemTime::now() + Duration::from_secs(60);
     std::fs::File::options()
         .write(true)
-        .open(&input)
+        .open(input)
         .unwrap()
         .set_modified(later)
         .unwrap();
