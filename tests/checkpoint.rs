@@ -667,6 +667,58 @@ fn a_kill_after_the_output_is_complete_is_finished_by_resume() {
     }
 }
 
+/// Review bug: a run whose output's rename failed (not a kill: an error, injected with strace;
+/// skipped, saying so, without strace) removed its complete temporary output on the way out
+/// but left the record naming it: `run` said `--resume` would finish it, and `--resume` said
+/// the output was gone and to `--restart`. The temporary output is now kept before the record
+/// is written, so `--resume` finishes the run once the rename can be made.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_failed_rename_of_the_output_is_finished_by_resume() {
+    if Command::new("strace").arg("-V").output().is_err() {
+        println!("skipped: strace is not installed here");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().canonicalize().unwrap();
+    let simplify = "mode = \"rate\"\nrate = 0.2";
+    let reference = load(
+        &d,
+        "ref.toml",
+        &job_text("gyroid", 24, simplify, "ref.ply", ""),
+    );
+    run(&reference, Start::Fresh, None).unwrap();
+    let output = d.join("out.ply");
+    let job = load(
+        &d,
+        "job.toml",
+        &job_text(
+            "gyroid",
+            24,
+            simplify,
+            &output.to_string_lossy(),
+            "checkpoint = { every_slabs = 1000 }",
+        ),
+    );
+    let job_arg = job.1.to_string_lossy().into_owned();
+    // The output's rename is the run's first `rename` call (the checkpoint record and the
+    // summary are put in place with `renameat`).
+    let failed = Command::new("strace")
+        .args(["-f", "-qq", "-o", "/dev/null", "-e", "trace=rename"])
+        .args(["-e", "inject=rename:error=EACCES:when=1"])
+        .args([env!("CARGO_BIN_EXE_isostream"), "run", "--quiet", &job_arg])
+        .output()
+        .unwrap();
+    assert_one_line_error(&failed, 1, &["cannot rename the temporary file"]);
+    assert!(!output.exists());
+    let o = isostream(&["run", "--quiet", &job_arg]);
+    assert_one_line_error(&o, 2, &["stopped before its last steps", "add --resume"]);
+    let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read(&output).unwrap() == std::fs::read(d.join("ref.ply")).unwrap());
+    assert_eq!(hidden_files(&d), Vec::<String>::new());
+}
+
 /// A resumed run's progress says where it started (the checkpoint's slab), so that its rate and
 /// ETA count only the slabs it did: the progress lines of a run resumed at slab 320 of 765
 /// promised the end in 3 s of 40, and the service's status page in 10 s.

@@ -363,7 +363,7 @@ fn run_job(
         reader.seek(r.reader.z)?;
     }
     monitor.pass_begins();
-    let outputs = stages::Stages {
+    let mut outputs = stages::Stages {
         reader,
         input: input.clone(),
         iso: job.extract.iso as f32,
@@ -473,6 +473,7 @@ fn run_job(
     // that a kill from here on leaves a run `--resume` finishes (`checkpoint::Finished`). A run
     // without a checkpoint has nothing to resume from: its output only needs its name.
     if let Some(input) = identity {
+        outputs.output.keep()?;
         let finished = checkpoint::Finished {
             job: checkpoint::job_hash(job),
             input,

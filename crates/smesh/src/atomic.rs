@@ -74,13 +74,19 @@ impl TempFile {
         let f = self.out.get_mut();
         f.sync_data()?;
         let len = f.stream_position()?;
-        if let Some(guard) = self.guard.take() {
-            guard.keep().map_err(|e| e.error)?;
-        }
+        self.keep()?;
         Ok(FileMark {
             path: self.path.clone(),
             len,
         })
+    }
+
+    /// From now on the file outlives a failure: nothing removes it on drop.
+    fn keep(&mut self) -> io::Result<()> {
+        if let Some(guard) = self.guard.take() {
+            guard.keep().map_err(|e| e.error)?;
+        }
+        Ok(())
     }
 
     /// Flushes and rewinds for reading back (a spill); returns the length.
@@ -263,6 +269,13 @@ impl AtomicFile {
         self.tmp
             .complete()
             .map_err(|e| SmeshError::io(&self.path, "flush and fsync its temporary file", e))
+    }
+
+    /// Keeps the complete temporary file whatever happens next, a failed rename included.
+    pub(crate) fn keep(&mut self) -> Result<(), SmeshError> {
+        self.tmp
+            .keep()
+            .map_err(|e| SmeshError::io(&self.path, "keep its temporary file", e))
     }
 
     /// The temporary name it is written under.

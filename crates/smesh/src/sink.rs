@@ -97,6 +97,13 @@ impl Completed {
             .collect()
     }
 
+    /// Keeps the complete output's temporary file on disk whatever happens next: a record of
+    /// the finished run is about to name it, and a rename that then failed removed it, leaving
+    /// the record pointing at nothing (`--resume` said to `--restart`, the whole job again).
+    pub fn keep(&mut self) -> Result<(), SmeshError> {
+        self.out.keep()
+    }
+
     /// Renames the output to its final name (durably), then removes its scratch files.
     pub fn persist(self) -> Result<WriteStats, SmeshError> {
         self.out.persist()?;
