@@ -27,26 +27,40 @@ use clap::Parser;
 /// crept up by 10 MiB at a constant resident surface (engine at R = 0.2 in two stages: 68 MiB;
 /// with the threshold fixed at 128 KiB, 58 MiB). mimalloc, tried instead, held 170 MiB.
 ///
-/// The arenas are as many as the cores: glibc makes up to 8 per core, one per thread that
-/// allocates, each reserving 64 MiB of address space, so bonsai's default job (48 MiB
-/// resident) reserved 623 MB and an address-space cap (`ulimit -v 400000`, as HPC schedulers
-/// set) aborted it in the allocator. With 2 arenas on 2 cores it reserves 154 MB at the same
-/// peak RSS; no more threads than cores run at once, so they wait on an arena little (the
-/// run's futex calls: 3,045 with glibc's default, 3,339 with 2).
+/// The arenas are as many as the cores, and at most [`MAX_ARENAS`]: glibc makes up to 8 per
+/// core, one per thread that allocates, each reserving 64 MiB of address space, so bonsai's
+/// default job (48 MiB resident) reserved 623 MB and an address-space cap (`ulimit -v 400000`,
+/// as HPC schedulers set) aborted it in the allocator. With 2 arenas on 2 cores it reserves 154
+/// MB at the same peak RSS, and its threads barely wait on an arena (the run's futex calls:
+/// 3,045 with glibc's default, 3,339 with 2). A user's own `MALLOC_ARENA_MAX` (or glibc
+/// tunables) is left in charge.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 #[allow(unsafe_code)]
 fn tune_allocator() {
-    let arenas = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let user_set = ["MALLOC_ARENA_MAX", "GLIBC_TUNABLES"]
+        .iter()
+        .any(|v| std::env::var_os(v).is_some());
+    let arenas = std::thread::available_parallelism()
+        .map_or(2, |n| n.get())
+        .min(MAX_ARENAS);
     // SAFETY: `mallopt` only sets allocator tunables; it is called first thing in `main`,
     // before any other thread exists.
     unsafe {
         libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
-        libc::mallopt(
-            libc::M_ARENA_MAX,
-            libc::c_int::try_from(arenas).unwrap_or(libc::c_int::MAX),
-        );
+        if !user_set {
+            libc::mallopt(
+                libc::M_ARENA_MAX,
+                libc::c_int::try_from(arenas).unwrap_or(libc::c_int::MAX),
+            );
+        }
     }
 }
+
+/// Arenas on a many-core node: a run's threads are its stages (4 to 6) and one extraction
+/// worker per core, and 8 arenas (512 MiB of address space) serve them where glibc's default
+/// reserved 64 MiB for each.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+const MAX_ARENAS: usize = 8;
 
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn tune_allocator() {}
