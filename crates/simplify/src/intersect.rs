@@ -789,7 +789,12 @@ impl TriIndex {
         }
         let mut edges: Vec<f64> = (self.recs.iter().zip(&free))
             .filter(|(_, f)| !**f)
-            .flat_map(|(rec, _)| (0..3).map(|k| f64::from(rec.p[k].distance(rec.p[(k + 1) % 3]))))
+            .flat_map(|(rec, _)| {
+                // In f64: an f32 length squares past f32's range from 1.8e19 (a volume with a
+                // spacing of 1e20 had every edge infinite, its cells fell back to 1.0 and each
+                // triangle was filed in billions of them: 7 GB for 500 faces).
+                (0..3).map(|k| rec.p[k].as_dvec3().distance(rec.p[(k + 1) % 3].as_dvec3()))
+            })
             .filter(|&d| d > 0.0)
             .collect();
         // The median edge: coincident vertices (isos on grid values) make many edges zero, and
@@ -1328,6 +1333,27 @@ mod tests {
         ix.emit(0);
         assert_eq!(ix.ghosts.len(), 1);
         assert_eq!(filed(&ix), n, "ghosts stay filed");
+    }
+
+    /// Fuzzing bug: at a spacing of 1e20 every edge's f32 length was infinite, the cells fell
+    /// back to 1.0 and a triangle was filed in billions of them (7 GB for 500 faces). The cells
+    /// follow the edges at any scale f32 holds.
+    #[test]
+    fn cells_follow_the_edges_at_any_scale() {
+        for scale in [1e-30, 1.0, 1e20, 1e35] {
+            let mut ix = TriIndex::default();
+            let t = right_triangle().map(|p| p * scale);
+            ix.insert(0, [0, 1, 2], t);
+            ix.insert(1, [3, 4, 5], t.map(|p| p + DVec3::Z * scale));
+            ix.fix_cell();
+            let ratio = ix.cell / scale;
+            assert!(
+                (0.1..100.0).contains(&ratio),
+                "scale {scale}: cell {}",
+                ix.cell
+            );
+            assert!(cells(&ix) <= 16, "scale {scale}: {} cells", cells(&ix));
+        }
     }
 
     #[test]
