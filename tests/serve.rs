@@ -718,11 +718,16 @@ fn a_completed_run_whose_end_was_not_written_is_done_at_the_next_start() {
         s.log()
             .contains("the service stops before the end of this run could be written")
     );
-    // What the disk holds once the folder is gone: the job's last state written.
+    // What the disk holds once the folder is gone: the job's last state written, and a
+    // checkpoint's finished-run record if the run had been killed just before removing it.
     std::fs::remove_dir(blocked).unwrap();
     std::fs::write(&state_file, running).unwrap();
+    let job_dir = state.join("jobs").join(&id);
+    let record = job_dir.join(".output.smb.ckpt");
+    std::fs::write(&record, b"a finished run's record").unwrap();
 
     let s = Server::start(&state, &[]);
+    assert!(!record.exists(), "{:?}", files_in(&job_dir));
     let found = job(&s, &id);
     assert_eq!(
         (&found["state"], &found["attempts"], &found["crashes"]),

@@ -276,6 +276,13 @@ impl Queue {
                 record.state = JobState::Done;
                 record.summary = Some(summary);
                 record.finished_unix_ms = Some(ended);
+                // A finished-run record the run did not get to remove (its last step) has
+                // served: the output and its summary are what a done job keeps.
+                let output = store.job_dir(&record.id).join(&record.output);
+                let summary = isostream_pipeline::summary_path(&output);
+                if let Err(e) = store.clear_outputs(&record.id, &[output, summary]) {
+                    warn!(id = %record.id, error = %e, "cannot remove the finished run's checkpoint");
+                }
             }
             if record.state == JobState::Running && record.cancel_requested {
                 // Cancelled by a client (`Queue::delete` wrote that first), and the service
@@ -821,8 +828,9 @@ fn without_series(mut summary: serde_json::Value) -> serde_json::Value {
 /// under a client who may have its output already.
 ///
 /// Sound because of the order of the files: the pipeline fsyncs the output and renames it to
-/// its final name, then writes the summary as its last step, its `sink.bytes` the output's
-/// size; and the service removes both before every run. A summary there whose `sink.bytes` is
+/// its final name, then writes the summary, its `sink.bytes` the output's size (and last
+/// removes a checkpoint's finished-run record, which this removes too); and the service
+/// removes both before every run. A summary there whose `sink.bytes` is
 /// the output's size is this job's last run's, and that run completed. Anything less (no
 /// summary, a torn one, an output of another size) is a run to do again.
 fn completed_run(dir: &Path, output: &str) -> Option<(serde_json::Value, u64)> {
