@@ -793,6 +793,17 @@ fn for_a_client(error: &RunError) -> String {
             "{}: cannot write run summary: {reason}; {STATE_DISK_FIX}, then submit the job again",
             path.display()
         ),
+        RunError::OutputFolder {
+            output,
+            folder,
+            what,
+            source,
+            ..
+        } => format!(
+            "{}: cannot {what} {}: {source}; {STATE_DISK_FIX} or make it writable, then submit the job again",
+            output.display(),
+            folder.display()
+        ),
         e => e.to_string(),
     };
     one_line(&line)
@@ -1016,6 +1027,15 @@ mod tests {
             path: "jobs/1/output.smb.run.json".into(),
             reason: "No space left on device".into(),
         };
+        let folder = RunError::OutputFolder {
+            output: "jobs/1/output.smb".into(),
+            folder: "jobs/1".into(),
+            what: "write in",
+            fix: "make it writable",
+            source: std::io::Error::other("Read-only file system"),
+        };
+        let line = for_a_client(&folder);
+        assert!(!line.contains("another output folder"), "{line}");
         for e in [checkpoint, summary] {
             let line = for_a_client(&e);
             assert!(
