@@ -1528,3 +1528,43 @@ fn a_relative_state_folder_survives_a_restart_from_another_folder() {
         "nothing written elsewhere"
     );
 }
+
+/// After a first pass (`[output] faces`), the view says when the run's first slab came, and
+/// the status page paces its ETA from there: from the job's start, a 78 s job with a first
+/// pass promised 15 minutes. A job without a first pass has no such field (its run starts with
+/// the job).
+#[test]
+fn after_a_first_pass_the_view_says_when_the_run_began() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let input = data.join("gyroid.raw");
+    gyroid_raw(&input, 96);
+    let state = dir.path().join("state");
+    let s = Server::start(&state, &["--allow-input", data.to_str().unwrap()]);
+    let with_pass = submit(
+        &s,
+        &format!("{}faces = 20000\n", raw_job(&input, 96, "gyroid.smb")),
+    );
+    let seen = wait_for(&s, &with_pass, "the run's slabs", |v| {
+        let p = &v["progress"];
+        v["state"] == "done" || (p["pass"] == "run" && p["slabs_done"].as_u64() > Some(0))
+    });
+    if seen["state"] == "running" {
+        let p = &seen["progress"];
+        let began = p["run_started_unix_ms"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("{seen}"));
+        assert!(began >= seen["started_unix_ms"].as_u64().unwrap(), "{seen}");
+        assert!(p["run_started_slab"].as_u64().unwrap() <= p["slabs_done"].as_u64().unwrap());
+    }
+    wait_for(&s, &with_pass, "done", |v| v["state"] == "done");
+    let without = submit(&s, &long_job("a.smb"));
+    let running = wait_for(&s, &without, "running slabs", |v| {
+        v["state"] == "done" || v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 0
+    });
+    assert!(
+        running["progress"].get("run_started_unix_ms").is_none(),
+        "{running}"
+    );
+}

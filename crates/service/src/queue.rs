@@ -35,6 +35,13 @@ pub(crate) struct ProgressView {
     /// the status page's ETA paces by the slabs done since, over the time since
     /// `started_unix_ms` (counting the checkpoint's slabs too promised 10 s of 40).
     pub slabs_at_start: u64,
+    /// After a first pass: when the run's first slab was reported (the service's clock, Unix
+    /// ms) and the slabs done then. The status page paces its ETA from there: from the job's
+    /// start, the first pass's seconds counted as the run's (a 78 s job promised 15 minutes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub run_started_unix_ms: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub run_started_slab: Option<u64>,
     pub faces_in: u64,
     pub faces_out: u64,
     pub resident_faces: u64,
@@ -53,6 +60,8 @@ impl ProgressView {
             slabs_done: slabs,
             slabs_total: slabs,
             slabs_at_start: 0,
+            run_started_unix_ms: None,
+            run_started_slab: None,
             faces_in: count("faces_extracted"),
             faces_out: count("faces_written"),
             resident_faces: 0,
@@ -67,6 +76,8 @@ impl From<&Progress> for ProgressView {
             slabs_done: p.slabs_done,
             slabs_total: p.slabs_total,
             slabs_at_start: p.slabs_at_start,
+            run_started_unix_ms: None,
+            run_started_slab: None,
             faces_in: p.faces_in,
             faces_out: p.faces_out,
             resident_faces: p.resident_faces,
@@ -642,7 +653,13 @@ impl Queue {
     fn progress(&self, id: &str, p: &Progress) {
         let mut t = self.lock();
         if let Some(job) = t.jobs.get_mut(id) {
-            let now = ProgressView::from(p);
+            let mut now = ProgressView::from(p);
+            (now.run_started_unix_ms, now.run_started_slab) =
+                match (job.progress.pass, job.progress.run_started_unix_ms, p.pass) {
+                    (_, Some(t), _) => (Some(t), job.progress.run_started_slab),
+                    (Pass::First, None, Pass::Run) => (Some(now_ms()), Some(p.slabs_done)),
+                    _ => (None, None),
+                };
             self.metrics.faces(
                 now.faces_in.saturating_sub(job.progress.faces_in),
                 now.faces_out.saturating_sub(job.progress.faces_out),
