@@ -327,6 +327,158 @@ fn check_glb_header(path: &Path, bytes: &[u8]) -> Result<(), SmeshError> {
     }
 }
 
+/// Parses the document and validates it, after checking what the `gltf` crate's validation
+/// takes for granted: it indexes the accessors a primitive's `POSITION` names without a bounds
+/// check (a panic found by `tools/fuzz.sh`), so every accessor a primitive names must exist.
+fn parse(path: &Path, bytes: &[u8]) -> Result<gltf::Gltf, SmeshError> {
+    use gltf::json::validation::Validate;
+    // A validation error's text starts with "invalid glTF:" already.
+    let invalid = |e: gltf::Error| match e {
+        gltf::Error::Validation(_) => SmeshError::foreign(path, e),
+        _ => SmeshError::foreign(path, format!("invalid glTF: {e}")),
+    };
+    let gltf = gltf::Gltf::from_slice_without_validation(bytes).map_err(invalid)?;
+    let root = gltf.as_json();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (j, prim) in mesh.primitives.iter().enumerate() {
+            let named = prim
+                .attributes
+                .iter()
+                .map(|(s, a)| (format!("attribute {s:?}"), a.value()))
+                .chain(prim.indices.map(|a| ("indices".to_string(), a.value())));
+            for (what, a) in named {
+                if a >= root.accessors.len() {
+                    return Err(SmeshError::foreign(
+                        path,
+                        format!(
+                            "invalid glTF: mesh {m} primitive {j} {what} names accessor {a}, but the file has {} accessors",
+                            root.accessors.len()
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    let mut errors = Vec::new();
+    root.validate(root, gltf::json::Path::new, &mut |p, e| {
+        errors.push((p(), e))
+    });
+    if !errors.is_empty() {
+        return Err(invalid(gltf::Error::Validation(errors)));
+    }
+    Ok(gltf)
+}
+
+/// What an accessor read from a primitive must hold: the `gltf` crate reads it as that type
+/// without checking, and panics (or reads garbage) on any other.
+#[derive(Clone, Copy)]
+enum Element {
+    /// `POSITION`: a float VEC3.
+    Vec3,
+    /// A `_NAME` attribute: a float SCALAR.
+    Float,
+    /// Triangle indices: an unsigned byte, short or int SCALAR.
+    Index,
+}
+
+/// Refuses an accessor the `gltf` crate would panic on or read wrongly: the wrong type for its
+/// use (float indices hit an `unreachable!`), a buffer view stride below the element size (an
+/// assertion), or elements beyond its buffer view or the view beyond the GLB's binary chunk
+/// (indices then silently read as absent, i.e. 0, 1, 2, ...).
+fn check_accessor(
+    path: &Path,
+    accessor: &gltf::Accessor,
+    what: &str,
+    element: Element,
+    blob: Option<&[u8]>,
+) -> Result<(), SmeshError> {
+    use gltf::accessor::{DataType, Dimensions};
+    let a = accessor.index();
+    let bad =
+        |m: String| SmeshError::foreign(path, format!("invalid glTF: accessor {a} ({what}) {m}"));
+    let (ty, dims) = (accessor.data_type(), accessor.dimensions());
+    let fits = match element {
+        Element::Vec3 => ty == DataType::F32 && dims == Dimensions::Vec3,
+        Element::Float => ty == DataType::F32 && dims == Dimensions::Scalar,
+        Element::Index => {
+            matches!(ty, DataType::U8 | DataType::U16 | DataType::U32) && dims == Dimensions::Scalar
+        }
+    };
+    if !fits {
+        let expected = match element {
+            Element::Vec3 => "F32 Vec3",
+            Element::Float => "F32 Scalar",
+            Element::Index => "U8, U16 or U32 Scalar",
+        };
+        return Err(bad(format!(
+            "holds {ty:?} {dims:?}, but must hold {expected}"
+        )));
+    }
+    let size = accessor.size();
+    let count = accessor.count();
+    // Validation requires a buffer view unless the accessor is sparse.
+    if let Some(view) = accessor.view() {
+        check_span(&bad, view, accessor.offset(), count, size, blob)?;
+    }
+    if let Some(sparse) = accessor.sparse() {
+        let (indices, values) = (sparse.indices(), sparse.values());
+        let n = sparse.count();
+        let index_size = indices.index_type().size();
+        check_span(&bad, indices.view(), indices.offset(), n, index_size, blob)?;
+        check_span(&bad, values.view(), values.offset(), n, size, blob)?;
+    }
+    Ok(())
+}
+
+/// Checks that `count` elements of `size` bytes from `offset` lie within `view`, at a stride no
+/// smaller than `size`, and `view` within the GLB's binary chunk, in u64 (the `gltf` crate's
+/// usize arithmetic overflows on huge counts).
+fn check_span(
+    bad: &dyn Fn(String) -> SmeshError,
+    view: gltf::buffer::View,
+    offset: usize,
+    count: usize,
+    size: usize,
+    blob: Option<&[u8]>,
+) -> Result<(), SmeshError> {
+    let v = view.index();
+    let stride = view.stride().unwrap_or(size);
+    if stride < size {
+        return Err(bad(format!(
+            "reads bufferView {v} of byteStride {stride}, less than its {size}-byte elements"
+        )));
+    }
+    if count == 0 {
+        return Err(bad("has count 0 (glTF requires at least 1)".into()));
+    }
+    let end = (stride as u64)
+        .checked_mul(count as u64 - 1)
+        .and_then(|x| x.checked_add(offset as u64 + size as u64));
+    let length = view.length() as u64;
+    if end.is_none_or(|end| end > length) {
+        return Err(bad(format!(
+            "has {count} elements from byte {offset}, which reach past the {length} bytes of bufferView {v}"
+        )));
+    }
+    let chunk = match view.buffer().source() {
+        gltf::buffer::Source::Bin => blob,
+        gltf::buffer::Source::Uri(_) => None,
+    };
+    let Some(chunk) = chunk else {
+        return Err(bad(format!(
+            "reads bufferView {v}, which is not in the GLB's binary chunk"
+        )));
+    };
+    let view_end = view.offset() as u64 + length;
+    if view_end > chunk.len() as u64 {
+        return Err(bad(format!(
+            "reads bufferView {v}, which ends at byte {view_end} of a {}-byte binary chunk",
+            chunk.len()
+        )));
+    }
+    Ok(())
+}
+
 /// A 4 x 4 matrix, glTF's column-major layout (`m[column][row]`), in f64.
 type Matrix = [[f64; 4]; 4];
 
@@ -454,8 +606,7 @@ fn comments(gltf: &gltf::Gltf) -> Vec<String> {
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let bytes = std::fs::read(path).map_err(|e| SmeshError::io(path, "read", e))?;
     check_glb_header(path, &bytes)?;
-    let gltf = gltf::Gltf::from_slice(&bytes)
-        .map_err(|e| SmeshError::foreign(path, format!("invalid glTF: {e}")))?;
+    let gltf = parse(path, &bytes)?;
     let comments = comments(&gltf);
     let blob = gltf.blob.as_deref();
     let buffers = |b: gltf::Buffer| match b.source() {
@@ -475,6 +626,13 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     for (p, (prim, world)) in primitives.enumerate() {
         if prim.mode() != gltf::mesh::Mode::Triangles {
             return Err(bad(format!("primitive {p} is not made of triangles")));
+        }
+        let position = prim
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| bad(format!("primitive {p} has no embedded POSITION data")))?;
+        check_accessor(path, &position, "POSITION", Element::Vec3, blob)?;
+        if let Some(indices) = prim.indices() {
+            check_accessor(path, &indices, "indices", Element::Index, blob)?;
         }
         let reader = prim.reader(buffers);
         let base = mesh.positions.len();
@@ -499,6 +657,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
             let accessor = prim
                 .get(&gltf::Semantic::Extras(name.clone()))
                 .ok_or_else(|| bad(format!("primitive {p} lacks attribute _{name}")))?;
+            check_accessor(path, &accessor, &format!("_{name}"), Element::Float, blob)?;
             let it = gltf::accessor::Iter::<f32>::new(accessor, buffers).ok_or_else(|| {
                 bad(format!(
                     "primitive {p}: attribute _{name} is not embedded float data"
@@ -581,6 +740,11 @@ mod tests {
         for (k, v) in scenes.as_object().unwrap() {
             doc[k] = v.clone();
         }
+        write_glb(dir, &doc, &bin)
+    }
+
+    /// Writes `doc` and the binary chunk `bin` (72 bytes) as `dir/t.glb`.
+    fn write_glb(dir: &Path, doc: &serde_json::Value, bin: &[u8]) -> std::path::PathBuf {
         let mut json = serde_json::to_vec(&doc).unwrap();
         json.resize(json.len().next_multiple_of(4), b' ');
         let mut bytes = b"glTF".to_vec();
@@ -595,6 +759,76 @@ mod tests {
         let p = dir.join("t.glb");
         std::fs::write(&p, bytes).unwrap();
         p
+    }
+
+    /// Fuzz crashes (mesh_formats): accessors the `gltf` crate panicked on are refused with one
+    /// line each, and the tetrahedron they were made from still reads.
+    #[test]
+    fn accessors_gltf_would_panic_on_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = json!({ "scene": 0, "scenes": [{ "nodes": [0] }], "nodes": [{ "mesh": 0 }] });
+        let good = read(&tetrahedra(dir.path(), scene.clone())).unwrap();
+        assert_eq!((good.positions.len(), good.triangles.len()), (4, 4));
+        let cases = [
+            (
+                "/meshes/0/primitives/0/attributes/POSITION",
+                json!(5),
+                "names accessor 5, but the file has 2 accessors",
+            ),
+            (
+                "/accessors/1/componentType",
+                json!(FLOAT),
+                "must hold U8, U16 or U32 Scalar",
+            ),
+            (
+                "/accessors/1/type",
+                json!("VEC2"),
+                "must hold U8, U16 or U32 Scalar",
+            ),
+            (
+                "/accessors/0/componentType",
+                json!(5123),
+                "must hold F32 Vec3",
+            ),
+            (
+                "/bufferViews/0/byteStride",
+                json!(4),
+                "byteStride 4, less than its 12-byte",
+            ),
+            (
+                "/bufferViews/0/byteStride",
+                json!(8),
+                "byteStride 8, less than its 12-byte",
+            ),
+            (
+                "/accessors/0/count",
+                json!(5),
+                "reach past the 48 bytes of bufferView 0",
+            ),
+            (
+                "/accessors/1/count",
+                json!(1u64 << 62),
+                "reach past the 24 bytes",
+            ),
+            ("/accessors/1/count", json!(0), "count 0"),
+            (
+                "/bufferViews/1/byteLength",
+                json!(40),
+                "ends at byte 88 of a 72-byte binary chunk",
+            ),
+        ];
+        for (pointer, value, expected) in cases {
+            let p = tetrahedra(dir.path(), scene.clone());
+            let bytes = std::fs::read(&p).unwrap();
+            let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+            let mut doc: serde_json::Value =
+                serde_json::from_slice(&bytes[20..20 + json_len]).unwrap();
+            let (parent, key) = pointer.rsplit_once('/').unwrap();
+            doc.pointer_mut(parent).unwrap()[key] = value;
+            let p = write_glb(dir.path(), &doc, &bytes[20 + json_len + 8..]);
+            let e = read(&p).unwrap_err().to_string();
+            assert!(e.contains(expected) && !e.contains('\n'), "{pointer}: {e}");
+        }
     }
 
     /// Six times the signed volume enclosed by the triangles: positive when they face out.
