@@ -56,9 +56,24 @@ impl KeyEncoding {
 /// `wanted` of a plain group, or the multiscale level `wanted` (default: the first, full
 /// resolution) of an OME-Zarr group.
 pub(crate) fn resolve(dir: &Path, wanted: Option<&str>) -> Result<ArrayMeta, VolumeError> {
+    node(dir, wanted, 0)
+}
+
+/// How many groups a lookup may pass through before reaching its array. A store needs two at
+/// most (a plain group naming an OME-Zarr group, whose dataset is an array); dataset paths that
+/// lead back up (`..`) or round in a loop would otherwise recurse until the stack overflows.
+const MAX_GROUPS: usize = 8;
+
+/// [`resolve`] for a node reached through `depth` groups.
+fn node(dir: &Path, wanted: Option<&str>, depth: usize) -> Result<ArrayMeta, VolumeError> {
     let file = dir.join("zarr.json");
     let doc = read_json(&file)?;
     let root = J::root(&file, &doc);
+    if depth > MAX_GROUPS {
+        return Err(root.problem(&format!(
+            "reached through more than {MAX_GROUPS} Zarr groups; the dataset or array paths loop, and must name an array"
+        )));
+    }
     let format = root.get("zarr_format");
     if format.value.as_u64() != Some(3) {
         return Err(format.err("3 (Zarr v3; convert Zarr v2 stores with zarr-python)"));
@@ -71,7 +86,7 @@ pub(crate) fn resolve(dir: &Path, wanted: Option<&str>) -> Result<ArrayMeta, Vol
             ))),
             None => array(dir, &root),
         },
-        "group" => group(dir, &root, wanted),
+        "group" => group(dir, &root, wanted, depth),
         _ => Err(node_type.err("\"array\" or \"group\"")),
     }
 }
@@ -88,11 +103,16 @@ fn read_json(file: &Path) -> Result<Value, VolumeError> {
     })
 }
 
-fn group(dir: &Path, root: &J, wanted: Option<&str>) -> Result<ArrayMeta, VolumeError> {
+fn group(
+    dir: &Path,
+    root: &J,
+    wanted: Option<&str>,
+    depth: usize,
+) -> Result<ArrayMeta, VolumeError> {
     let ms = root.get("attributes").get("ome").get("multiscales");
     if ms.is_null() {
         return match wanted {
-            Some(w) => resolve(&dir.join(w), None),
+            Some(w) => node(&dir.join(w), None, depth + 1),
             None => Err(root.problem(&format!(
                 "a Zarr group without OME-Zarr multiscales; set [input] array to one of its arrays [{}]",
                 children(dir).join(", ")
@@ -121,7 +141,17 @@ fn group(dir: &Path, root: &J, wanted: Option<&str>) -> Result<ArrayMeta, Volume
     let dataset = datasets
         .get(pick)
         .ok_or_else(|| list.err("at least one dataset"))?;
-    let mut meta = resolve(&dir.join(paths[pick]), None)?;
+    // A path of "" or "." names this group again, which would name its dataset again, forever.
+    if Path::new(paths[pick])
+        .components()
+        .all(|c| c == std::path::Component::CurDir)
+    {
+        return Err(dataset.get("path").problem(&format!(
+            "dataset path {:?} names this group itself; it must name one of its arrays (such as \"0\")",
+            paths[pick]
+        )));
+    }
+    let mut meta = node(&dir.join(paths[pick]), None, depth + 1)?;
     let rank = meta.shape.len();
     check_axes(&m.get("axes"), rank)?;
     // Dataset transformations first, then the multiscale's own (OME-Zarr v0.5, "multiscales").

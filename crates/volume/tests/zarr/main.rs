@@ -304,6 +304,38 @@ fn ome_zarr_axes_must_be_spatial_z_y_x() {
     );
 }
 
+/// Fuzz crash: a dataset path of "" named the group itself and recursed until the stack
+/// overflowed; paths that loop through other groups are cut off after a few groups.
+#[test]
+fn dataset_paths_that_lead_back_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("img.ome.zarr");
+    let file = root.join("zarr.json");
+    for path in ["", "."] {
+        write_ome_group(&root, &[(path, [1.0, 1.0, 1.0])], [0.0; 3], 3);
+        let e = open_path(&root, &OpenOptions::default())
+            .err()
+            .unwrap()
+            .to_string();
+        assert_eq!(
+            e,
+            format!(
+                "{}: key attributes.ome.multiscales[0].datasets[0].path: dataset path {path:?} names this group itself; it must name one of its arrays (such as \"0\")",
+                file.display()
+            )
+        );
+    }
+    // A level inside the group whose own dataset leads back up to it.
+    write_ome_group(&root, &[("sub", [1.0, 1.0, 1.0])], [0.0; 3], 3);
+    write_ome_group(&root.join("sub"), &[("..", [1.0, 1.0, 1.0])], [0.0; 3], 3);
+    let e = open_path(&root, &OpenOptions::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(e.contains("reached through more than 8 Zarr groups"), "{e}");
+    assert!(!e.contains('\n'), "{e}");
+}
+
 #[test]
 fn plain_group_needs_the_array_named() {
     let dir = tempfile::tempdir().unwrap();
