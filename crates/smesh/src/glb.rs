@@ -344,7 +344,7 @@ fn parse(path: &Path, bytes: &[u8]) -> Result<gltf::Gltf, SmeshError> {
             let named = prim
                 .attributes
                 .iter()
-                .map(|(s, a)| (format!("attribute {s:?}"), a.value()))
+                .map(|(s, a)| (format!("attribute {}", s.to_string()), a.value()))
                 .chain(prim.indices.map(|a| ("indices".to_string(), a.value())));
             for (what, a) in named {
                 if a >= root.accessors.len() {
@@ -550,6 +550,46 @@ fn instances<'a>(
     Ok(out)
 }
 
+/// Vertices plus triangles a scene may instance: [`MAX_INSTANCED_PER_BYTE`] per byte of the
+/// file, and at least this many (about 400 MB once loaded and measured).
+const MIN_INSTANCED_LIMIT: u64 = 1 << 22;
+/// A file without instancing holds at least 3 bytes per vertex or triangle (u8 indices), so 16
+/// per byte is only reached by instancing; 5000 nodes showing a mesh of 1000 primitives of one
+/// tetrahedron are 141 KB of JSON and 20 million vertices (2.3 GB in `measure`).
+const MAX_INSTANCED_PER_BYTE: u64 = 16;
+
+/// Refuses a scene whose instances would load far more vertices and triangles than the file
+/// could hold (a decompression bomb), before any of them is read: node and primitive lists
+/// multiply, and a small file could otherwise ask for any amount of memory.
+fn check_instanced_size(
+    path: &Path,
+    file_bytes: u64,
+    instances: &[(gltf::Mesh, Matrix)],
+) -> Result<(), SmeshError> {
+    let (mut vertices, mut triangles) = (0u64, 0u64);
+    for (mesh, _) in instances {
+        for prim in mesh.primitives() {
+            let n = prim
+                .get(&gltf::Semantic::Positions)
+                .map_or(0, |a| a.count()) as u64;
+            let corners = prim.indices().map_or(n, |a| a.count() as u64);
+            vertices = vertices.saturating_add(n);
+            triangles = triangles.saturating_add(corners / 3);
+        }
+    }
+    let limit = MIN_INSTANCED_LIMIT.max(MAX_INSTANCED_PER_BYTE.saturating_mul(file_bytes));
+    if vertices.saturating_add(triangles) > limit {
+        return Err(SmeshError::foreign(
+            path,
+            format!(
+                "the scene's {} mesh instances hold {vertices} vertices and {triangles} triangles, more than the {limit} in all a {file_bytes}-byte GLB may expand to ({MAX_INSTANCED_PER_BYTE} per byte, at least {MIN_INSTANCED_LIMIT}); export the scene with fewer instances",
+                instances.len()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// A node's own transform. glTF requires unit rotation quaternions but the `gltf` crate takes
 /// them as they are, and one of length 2 scaled the mesh by 4: normalised here, and one of
 /// length 0 (no rotation at all) refused.
@@ -620,19 +660,29 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     };
     let mut first = true;
     let instances = instances(path, &gltf)?;
+    // Accessor counts are trusted below (the size check, then reading) once checked here,
+    // once per mesh however often it is instanced.
+    let mut checked = vec![false; gltf.meshes().len()];
+    for (mesh, _) in &instances {
+        if std::mem::replace(&mut checked[mesh.index()], true) {
+            continue;
+        }
+        for prim in mesh.primitives() {
+            if let Some(position) = prim.get(&gltf::Semantic::Positions) {
+                check_accessor(path, &position, "POSITION", Element::Vec3, blob)?;
+            }
+            if let Some(indices) = prim.indices() {
+                check_accessor(path, &indices, "indices", Element::Index, blob)?;
+            }
+        }
+    }
+    check_instanced_size(path, bytes.len() as u64, &instances)?;
     let primitives = instances
         .iter()
         .flat_map(|(m, world)| m.primitives().map(move |p| (p, world)));
     for (p, (prim, world)) in primitives.enumerate() {
         if prim.mode() != gltf::mesh::Mode::Triangles {
             return Err(bad(format!("primitive {p} is not made of triangles")));
-        }
-        let position = prim
-            .get(&gltf::Semantic::Positions)
-            .ok_or_else(|| bad(format!("primitive {p} has no embedded POSITION data")))?;
-        check_accessor(path, &position, "POSITION", Element::Vec3, blob)?;
-        if let Some(indices) = prim.indices() {
-            check_accessor(path, &indices, "indices", Element::Index, blob)?;
         }
         let reader = prim.reader(buffers);
         let base = mesh.positions.len();
@@ -773,7 +823,7 @@ mod tests {
             (
                 "/meshes/0/primitives/0/attributes/POSITION",
                 json!(5),
-                "names accessor 5, but the file has 2 accessors",
+                "primitive 0 attribute POSITION names accessor 5, but the file has 2 accessors",
             ),
             (
                 "/accessors/1/componentType",
@@ -829,6 +879,34 @@ mod tests {
             let e = read(&p).unwrap_err().to_string();
             assert!(e.contains(expected) && !e.contains('\n'), "{pointer}: {e}");
         }
+    }
+
+    /// Fuzz blow-up: nodes times primitives multiplied a small file into millions of vertices;
+    /// a scene expanding past 16 per byte of the file (and past 2^22) is refused before reading.
+    #[test]
+    fn instancing_bombs_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = |nodes: usize| {
+            json!({
+                "scene": 0,
+                "scenes": [{ "nodes": (0..nodes).collect::<Vec<_>>() }],
+                "nodes": vec![json!({ "mesh": 0 }); nodes],
+            })
+        };
+        let p = tetrahedra(dir.path(), scene(1000));
+        assert_eq!(read(&p).unwrap().positions.len(), 4000);
+        let bytes = std::fs::read(&p).unwrap();
+        let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+        let mut doc: serde_json::Value = serde_json::from_slice(&bytes[20..20 + json_len]).unwrap();
+        let prim = doc["meshes"][0]["primitives"][0].clone();
+        doc["meshes"][0]["primitives"] = json!(vec![prim; 2000]);
+        let p = write_glb(dir.path(), &doc, &bytes[20 + json_len + 8..]);
+        let e = read(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("1000 mesh instances hold 8000000 vertices and 8000000 triangles")
+                && !e.contains("\n"),
+            "{e}"
+        );
     }
 
     /// Six times the signed volume enclosed by the triangles: positive when they face out.
