@@ -301,25 +301,6 @@ impl Slices {
         self.bounds
             .get_or_init(|| SlabBounds::of_slice(grid, block, &self.iso))
     }
-
-    /// Hash of the iso slice's values (`checkpoint::hash_slice`), row by row when it has rows.
-    pub(crate) fn hash(&self, grid: &Grid) -> u64 {
-        let Some(rows) = &self.rows else {
-            return checkpoint::hash_slice(&self.iso);
-        };
-        hash_rows(rows.as_ref(), grid)
-    }
-}
-
-/// `checkpoint::hash_slice` of a slice given as rows, one row in memory at a time.
-pub(crate) fn hash_rows(rows: &dyn SliceRows, grid: &Grid) -> u64 {
-    let mut row = vec![0f32; grid.dims[0] as usize];
-    let mut h = checkpoint::SliceHasher::default();
-    for y in 0..grid.dims[1] {
-        rows.fill_rows(y, &mut row);
-        h.add(&row);
-    }
-    h.finish()
 }
 
 /// Reads the iso volume and the attributes in z order, one iso slice ahead when a gradient is
@@ -414,6 +395,17 @@ impl SliceReader {
 
     pub fn grid(&self) -> Grid {
         self.grid
+    }
+
+    /// Hash of the stored values of `slices`' iso slice (`checkpoint::hash_slice`): the values
+    /// held when they exist whole, else the source slices it is computed from
+    /// (`VolumeSource::identity_values`), never a pass over a fine slice given as rows, which
+    /// can be days long.
+    pub(crate) fn hash(&mut self, slices: &Slices) -> Result<u64, RunError> {
+        Ok(match slices.rows {
+            Some(_) => checkpoint::hash_slice(&self.iso.identity_values(slices.z)?),
+            None => checkpoint::hash_slice(&slices.iso),
+        })
     }
 
     /// The iso volume, as its errors name it (a path, or a procedural shape).

@@ -156,16 +156,18 @@ impl Step for ReadStep<'_> {
             stage: "read",
             reason: format!("slice {z} missing"),
         })?);
-        let grid = self.reader.grid();
         if let Some(expected) = self.carried.take()
-            && upper.hash(&grid) != expected
+            && self.reader.hash(&upper)? != expected
         {
             return Err(Stop::Failed(RunError::InputChanged {
                 input: self.reader.describe(),
                 what: format!("slice {z} holds other values than when the checkpoint was saved"),
             }));
         }
-        let cut = self.schedule.due(z).then(|| Cut::new(z, upper.hash(&grid)));
+        let cut = match self.schedule.due(z) {
+            true => Some(Cut::new(z, self.reader.hash(&upper)?)),
+            false => None,
+        };
         if let Some(lower) = self.prev.replace(upper.clone()) {
             let (reply, answer) = bounded(self.reply_batches);
             let job = SlabJob {

@@ -124,6 +124,9 @@ impl VolumeSource for Mirrored {
     > {
         self.inner.slice_rows(z, iso)
     }
+    fn identity_values(&mut self, z: u64) -> Result<Vec<f32>, isostream_volume::VolumeError> {
+        self.inner.identity_values(z)
+    }
 }
 
 #[cfg(test)]

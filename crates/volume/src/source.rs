@@ -51,6 +51,16 @@ pub trait VolumeSource: Send {
     fn read_slice_near(&mut self, z: u64, _iso: f32, out: &mut [f32]) -> Result<(), VolumeError> {
         self.read_slice(z, out)
     }
+    /// The stored values that decide slice z, to tell whether the input changed (a checkpoint's
+    /// input identity): slice z itself by default. A virtual source computed from another gives
+    /// the source slices it interpolates, so the check costs a pass over stored data, not over
+    /// a slice that upsampling made up to `k^2` times larger (days of hashing, before any stage
+    /// started, for a large factor).
+    fn identity_values(&mut self, z: u64) -> Result<Vec<f32>, VolumeError> {
+        let mut out = vec![0f32; self.grid().slice_len()];
+        self.read_slice(z, &mut out)?;
+        Ok(out)
+    }
     /// Slice z as rows computed on demand, when the source can give them without computing the
     /// whole slice (a virtual source): `read_slice_near(z, iso)` (or `read_slice(z)` for `None`)
     /// row by row. `None` (the default) for sources that can only give whole slices.
@@ -107,6 +117,9 @@ impl VolumeSource for Box<dyn VolumeSource> {
         iso: Option<f32>,
     ) -> Result<Option<Arc<dyn SliceRows>>, VolumeError> {
         (**self).slice_rows(z, iso)
+    }
+    fn identity_values(&mut self, z: u64) -> Result<Vec<f32>, VolumeError> {
+        (**self).identity_values(z)
     }
 }
 

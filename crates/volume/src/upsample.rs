@@ -333,6 +333,18 @@ impl VolumeSource for Upsampled {
         Ok(Some(Arc::new(self.fine(z, iso)?)))
     }
 
+    /// The one or two source slices fine slice `z` interpolates: with the factors (in
+    /// `describe`) they decide every value of it.
+    fn identity_values(&mut self, z: u64) -> Result<Vec<f32>, VolumeError> {
+        VolumeError::check_slice_request(|| self.describe(), z, self.grid.dims[2], 0, 0)?;
+        let sz = z / self.factor[2];
+        let mut values = self.inner.identity_values(sz)?;
+        if !z.is_multiple_of(self.factor[2]) {
+            values.extend(self.inner.identity_values(sz + 1)?);
+        }
+        Ok(values)
+    }
+
     fn dtype(&self) -> Option<crate::Dtype> {
         self.inner.dtype()
     }
