@@ -890,3 +890,24 @@ fn a_resumed_cascade_reports_the_faces_written_before_the_checkpoint() {
         "{written} written before slab {at}: {after:?}"
     );
 }
+
+/// A run that fails at its end for what a resume would meet again (here an empty surface, found
+/// once every slab is read) removes its checkpoint and temporary files: they were left, and the
+/// next run refused to start without `--resume`, which failed the same way.
+#[test]
+fn a_run_failing_for_an_empty_surface_leaves_no_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = load(
+        dir.path(),
+        "job.toml",
+        "[input]\nshape = \"pillow\"\nsize = [12, 12, 12]\n\n[extract]\niso = 2\n\n[output]\npath = \"out.stl\"\n\n[pipeline]\ncheckpoint = { every_slabs = 2 }\n",
+    );
+    for _ in 0..2 {
+        let failed = run(&job, Start::Fresh, None);
+        assert!(
+            matches!(failed, Err(RunError::EmptySurface { .. })),
+            "{failed:?}"
+        );
+        assert_eq!(hidden_files(dir.path()), Vec::<String>::new());
+    }
+}

@@ -152,6 +152,22 @@ pub fn run_from(
     }
 }
 
+/// A run stopped at its end by what a resume would meet again (an empty surface, a classical
+/// run over its budget: the job and the data decide them) leaves nothing worth resuming: its
+/// checkpoint and temporary files are removed, or the next run asked for `--resume` only to
+/// fail the same way. Interrupts and I/O failures (a full disk) keep them: a resume finishes
+/// those runs.
+fn abandon(ckpt_path: &Path, e: RunError) -> RunError {
+    if matches!(
+        e,
+        RunError::EmptySurface { .. } | RunError::ClassicalOverBudget { .. }
+    ) && let Err(d) = checkpoint::discard(ckpt_path)
+    {
+        warn!("{d}");
+    }
+    e
+}
+
 /// The checkpoint to continue from, as `start` says.
 fn saved_checkpoint(
     start: Start,
@@ -381,7 +397,8 @@ fn run_job(
         checkpoints,
         resume,
     }
-    .run()?;
+    .run()
+    .map_err(|e| abandon(ckpt_path, e))?;
     let series = monitor.finish();
     let peak_rss = peak_rss_bytes().max(series.peak_rss_bytes());
     let peak_rss_mib = peak_rss.map(|b| b as f64 / (1024.0 * 1024.0));
