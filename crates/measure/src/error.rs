@@ -27,6 +27,12 @@ pub enum MeasureError {
     #[error("{0}")]
     Slices(String),
 
+    /// The mesh's box is far outside the volume's, or a tiny fraction of a voxel: its samples'
+    /// grid (cells of the search radius) was sized by the gap (a 93 GB allocation), or the
+    /// full surface's sampling density by the mesh's area (a loop that never ended).
+    #[error("the mesh does not lie on that volume: {0}; measure it against the job that wrote it")]
+    OffVolume(String),
+
     #[error("the output mesh has no area; distances need a surface to sample")]
     EmptyOutput,
 

@@ -130,6 +130,38 @@ impl Gather {
     }
 }
 
+/// Refuses a mesh whose box reaches farther than `radius` outside `grid`'s box (no full-surface
+/// point is within reach of it, and the samples' grid grew with the gap) or is under a millionth
+/// of a voxel across (the full surface's sampling density grew with its inverse area).
+fn on_volume(grid: &Grid, positions: &[[f64; 3]], radius: f64) -> Result<(), MeasureError> {
+    let (lo, hi) = positions
+        .iter()
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), &p| {
+            (lo.min(p.into()), hi.max(p.into()))
+        });
+    let origin = DVec3::from(grid.origin);
+    let far = origin
+        + DVec3::from(grid.spacing) * DVec3::from(grid.dims.map(|d| d.saturating_sub(1) as f64));
+    let (vlo, vhi) = (origin.min(far) - radius, origin.max(far) + radius);
+    if lo.cmplt(vlo).any() || hi.cmpgt(vhi).any() {
+        return Err(MeasureError::OffVolume(format!(
+            "its box {:?}..{:?} leaves the volume's {:?}..{:?} by more than the search radius {radius}",
+            lo.to_array(),
+            hi.to_array(),
+            vlo.to_array(),
+            vhi.to_array()
+        )));
+    }
+    let voxel = DVec3::from(grid.spacing).abs().length();
+    let across = (hi - lo).length();
+    if !positions.is_empty() && (across.is_nan() || across < 1e-6 * voxel) {
+        return Err(MeasureError::OffVolume(format!(
+            "it is {across:e} across, under a millionth of a voxel ({voxel:e})"
+        )));
+    }
+    Ok(())
+}
+
 impl FullSurfaceDistances {
     /// Indexes and samples the output mesh (`positions`/`triangles`, in `grid`'s physical
     /// coordinates).
@@ -153,6 +185,7 @@ impl FullSurfaceDistances {
         let radius = opts
             .max_distance
             .unwrap_or(DEFAULT_SEARCH_VOXEL_DIAGONALS * voxel_diagonal);
+        on_volume(&grid, positions, radius)?;
         Ok(Self {
             stream: DistanceStream::new(positions, triangles, opts, radius)?,
             gather: Gather {
@@ -236,6 +269,32 @@ mod tests {
     use super::*;
     use crate::bias::tests::geodesic_sphere;
     use crate::triangle::{closest_point, corners};
+
+    /// A mesh moved 4e6 away from the volume (its samples' grid was 93 GB) or shrunk to
+    /// denormal coordinates (the sampling density of the full surface never settled) is refused
+    /// in one line; the same mesh on the volume is measured.
+    #[test]
+    fn a_mesh_off_the_volume_is_refused() {
+        let grid = Grid::new([12; 3], [1.0; 3], [0.0; 3]).unwrap();
+        let tris = [[0, 1, 2]];
+        let moved = |scale: f64, shift: f64| {
+            [[2.0, 2.0, 2.0], [6.0, 2.0, 3.0], [2.0, 6.0, 4.0]]
+                .map(|p: [f64; 3]| p.map(|c| c * scale).map(|c| c + shift))
+        };
+        let new = |positions: [[f64; 3]; 3]| {
+            FullSurfaceDistances::new(grid, &positions, &tris, &MeasureOptions::default())
+        };
+        assert!(new(moved(1.0, 0.0)).is_ok());
+        for positions in [moved(1.0, 4e6), moved(1e-44, 0.0)] {
+            let e = new(positions).err().unwrap();
+            assert!(matches!(e, MeasureError::OffVolume(_)), "{e:?}");
+            let msg = e.to_string();
+            assert!(
+                msg.starts_with("the mesh does not lie on that volume") && !msg.contains('\n'),
+                "{msg}"
+            );
+        }
+    }
 
     fn sphere_volume(n: u64) -> Procedural {
         Procedural::new(Shape::Sphere, [n; 3], [1.0; 3], [0.0; 3]).unwrap()
