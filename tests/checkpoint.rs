@@ -538,6 +538,31 @@ fn kill_9_then_resume_gives_the_same_bytes() {
     assert!(!ckpt.exists());
 }
 
+/// The simplification of the strace tests' gyroid jobs.
+#[cfg(target_os = "linux")]
+const REFERENCE_SIMPLIFY: &str = "mode = \"rate\"\nrate = 0.2";
+
+/// For the tests that inject faults with strace: a folder holding `ref.ply`, an uninterrupted
+/// run of the 24^3 gyroid job, and its bytes; `None` (the test skipped, saying so) without
+/// strace.
+#[cfg(target_os = "linux")]
+fn strace_and_a_reference() -> Option<(tempfile::TempDir, Vec<u8>)> {
+    if Command::new("strace").arg("-V").output().is_err() {
+        println!("skipped: strace is not installed here");
+        return None;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().canonicalize().unwrap();
+    let reference = load(
+        &d,
+        "ref.toml",
+        &job_text("gyroid", 24, REFERENCE_SIMPLIFY, "ref.ply", ""),
+    );
+    run(&reference, Start::Fresh, None).unwrap();
+    let expected = std::fs::read(d.join("ref.ply")).unwrap();
+    Some((dir, expected))
+}
+
 /// Trial bug: a kill between the output's rename and the checkpoint's removal left a complete
 /// output and a checkpoint whose temporary output was gone; `run` and `validate` said to add
 /// --resume, which then failed: only --restart, a whole run again, got out of it. Killed (with
@@ -547,20 +572,11 @@ fn kill_9_then_resume_gives_the_same_bytes() {
 #[cfg(target_os = "linux")]
 #[test]
 fn a_kill_after_the_output_is_complete_is_finished_by_resume() {
-    if Command::new("strace").arg("-V").output().is_err() {
-        println!("skipped: strace is not installed here");
+    let Some((dir, expected)) = strace_and_a_reference() else {
         return;
-    }
-    let dir = tempfile::tempdir().unwrap();
+    };
     let d = dir.path().canonicalize().unwrap();
-    let simplify = "mode = \"rate\"\nrate = 0.2";
-    let reference = load(
-        &d,
-        "ref.toml",
-        &job_text("gyroid", 24, simplify, "ref.ply", ""),
-    );
-    run(&reference, Start::Fresh, None).unwrap();
-    let expected = std::fs::read(d.join("ref.ply")).unwrap();
+    let simplify = REFERENCE_SIMPLIFY;
     let output = d.join("out.ply");
     let at = |name: &str| d.join(name).to_string_lossy().into_owned();
     let summary = at("out.ply.run.json");
@@ -675,19 +691,11 @@ fn a_kill_after_the_output_is_complete_is_finished_by_resume() {
 #[cfg(target_os = "linux")]
 #[test]
 fn a_failed_rename_of_the_output_is_finished_by_resume() {
-    if Command::new("strace").arg("-V").output().is_err() {
-        println!("skipped: strace is not installed here");
+    let Some((dir, expected)) = strace_and_a_reference() else {
         return;
-    }
-    let dir = tempfile::tempdir().unwrap();
+    };
     let d = dir.path().canonicalize().unwrap();
-    let simplify = "mode = \"rate\"\nrate = 0.2";
-    let reference = load(
-        &d,
-        "ref.toml",
-        &job_text("gyroid", 24, simplify, "ref.ply", ""),
-    );
-    run(&reference, Start::Fresh, None).unwrap();
+    let simplify = REFERENCE_SIMPLIFY;
     let output = d.join("out.ply");
     let job = load(
         &d,
@@ -715,7 +723,7 @@ fn a_failed_rename_of_the_output_is_finished_by_resume() {
     assert_one_line_error(&o, 2, &["stopped before its last steps", "add --resume"]);
     let o = isostream(&["run", "--quiet", "--resume", &job_arg]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(std::fs::read(&output).unwrap() == std::fs::read(d.join("ref.ply")).unwrap());
+    assert!(std::fs::read(&output).unwrap() == expected);
     assert_eq!(hidden_files(&d), Vec::<String>::new());
 }
 
