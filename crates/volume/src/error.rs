@@ -48,6 +48,14 @@ pub enum VolumeError {
         found: String,
     },
 
+    /// A Blosc-compressed chunk that cannot be decoded: what is wrong with it, then what to do.
+    #[error("{file}: blosc chunk: {problem}; {fix}")]
+    Blosc {
+        file: String,
+        problem: String,
+        fix: &'static str,
+    },
+
     /// The caller broke the `read_slice` contract (slice index or buffer length).
     #[error("{origin}: {problem}; this is a bug in the caller of read_slice")]
     Contract { origin: String, problem: String },

@@ -25,6 +25,7 @@
 //! libraries) into a workspace that so far needs no C toolchain. zstd is `ruzstd` (pure Rust) for
 //! the same reason.
 
+mod blosc;
 mod codec;
 mod dtype;
 mod json;
@@ -39,20 +40,22 @@ use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-/// Opens a Zarr v3 store directory (or its `zarr.json`).
+/// The files that make a directory a Zarr node: v3's, then v2's.
+pub(crate) const NODE_FILES: [&str; 4] = ["zarr.json", ".zarray", ".zgroup", ".zattrs"];
+
+/// Opens a Zarr store directory (or its `zarr.json`, `.zarray`, `.zgroup` or `.zattrs`).
 pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
     opts.reject_raw_params(path, "Zarr")?;
     let dir = match path.parent() {
-        Some(parent) if path.file_name().is_some_and(|n| n == "zarr.json") => parent,
+        Some(parent)
+            if path
+                .file_name()
+                .is_some_and(|n| NODE_FILES.iter().any(|f| n == *f)) =>
+        {
+            parent
+        }
         _ => path,
     };
-    let v2 = [".zarray", ".zgroup"].iter().any(|f| dir.join(f).is_file());
-    if v2 && !dir.join("zarr.json").exists() {
-        return Err(VolumeError::Grid {
-            origin: dir.display().to_string(),
-            problem: "a Zarr v2 store (.zarray/.zgroup); only Zarr v3 (zarr.json) is read: convert it with zarr-python 3".into(),
-        });
-    }
     let meta = meta::resolve(dir, opts.array.as_deref())?;
     Ok(Box::new(ZarrVolume::new(meta, opts)?))
 }

@@ -1,10 +1,12 @@
 //! The `codecs` list of an array: parsed once at open time, then applied in reverse to every
 //! stored chunk (bytes-to-bytes codecs, then the array-to-bytes `bytes` codec, then transposes).
 //!
-//! Supported: `transpose`, `bytes`, `gzip`, `zstd`, `crc32c` (verified) and `sharding_indexed`
-//! (as the array's only codec, with an index of `bytes` + optional `crc32c`). `blosc` needs the
-//! C library and is refused with a hint to re-encode.
+//! Supported: `transpose`, `bytes`, `gzip`, `zstd`, `blosc` (decoded in pure Rust, `blosc.rs`),
+//! `crc32c` (verified) and `sharding_indexed` (as the array's only codec, with an index of
+//! `bytes` + optional `crc32c`). A Zarr v2 array's `compressor` and `order` become the same kind
+//! of chain ([`v2`]).
 
+use super::blosc;
 use super::json::J;
 use crate::{Endian, VolumeError};
 use std::io::Read;
@@ -31,6 +33,11 @@ enum BytesCodec {
     Gzip,
     Zstd,
     Crc32c,
+    Blosc,
+    /// A zlib stream (Zarr v2's `zlib` compressor).
+    Zlib,
+    /// numcodecs' `lz4`: the decoded size (u32, little-endian), then one LZ4 block.
+    Lz4,
 }
 
 /// How an array's chunks are stored.
@@ -131,13 +138,23 @@ fn chain(j: &J, rank: usize, level: Level) -> Result<Chain, VolumeError> {
                     Some(_) => return Err(conf.get("endian").err("\"little\" or \"big\"")),
                 });
             }
-            "gzip" | "zstd" | "crc32c" if endian.is_none() => {
+            "gzip" | "zstd" | "crc32c" | "blosc" if endian.is_none() => {
                 return Err(misplaced("after the bytes codec"));
             }
             "crc32c" => bytes.push(BytesCodec::Crc32c),
             "gzip" if level != Level::Index => bytes.push(BytesCodec::Gzip),
             "zstd" if level != Level::Index => bytes.push(BytesCodec::Zstd),
-            "blosc" => return Err(c.problem("blosc codec unsupported: re-encode with zstd")),
+            "blosc" if level != Level::Index => {
+                check_blosc_cname(&conf.get("cname"))?;
+                let shuffle = conf.get("shuffle");
+                match shuffle.value.as_str() {
+                    None | Some("noshuffle" | "shuffle" | "bitshuffle") => {}
+                    Some(_) => {
+                        return Err(shuffle.err("\"noshuffle\", \"shuffle\" or \"bitshuffle\""));
+                    }
+                }
+                bytes.push(BytesCodec::Blosc);
+            }
             "sharding_indexed" => {
                 return Err(c.problem("sharding_indexed inside a shard is unsupported"));
             }
@@ -148,7 +165,7 @@ fn chain(j: &J, rank: usize, level: Level) -> Result<Chain, VolumeError> {
             }
             _ => {
                 return Err(c.problem(&format!(
-                    "codec {n:?} unsupported: supported are bytes, transpose, gzip, zstd, crc32c, sharding_indexed"
+                    "codec {n:?} unsupported: supported are bytes, transpose, gzip, zstd, blosc, crc32c, sharding_indexed"
                 )));
             }
         }
@@ -159,6 +176,61 @@ fn chain(j: &J, rank: usize, level: Level) -> Result<Chain, VolumeError> {
         endian,
         bytes,
     })
+}
+
+/// Refuses at open time a Blosc internal compressor the decoder lacks (snappy), rather than at
+/// the first chunk. The frames say their compressor themselves, so an absent name is fine.
+fn check_blosc_cname(cname: &J) -> Result<(), VolumeError> {
+    match cname.value.as_str() {
+        None | Some("blosclz" | "lz4" | "lz4hc" | "zlib" | "zstd") => Ok(()),
+        Some(other) => Err(cname.problem(&format!(
+            "blosc compressor {other:?} unsupported: re-encode with cname lz4, zstd, zlib or blosclz"
+        ))),
+    }
+}
+
+/// The chain of a Zarr v2 array: its `compressor` (null, `blosc`, `zlib`, `gzip`, `zstd` or
+/// `lz4`, as numcodecs writes them), its dtype's byte order, and `order` "F" (chunks stored with
+/// the axes reversed) as a transpose of all `rank` axes.
+pub(crate) fn v2(
+    compressor: &J,
+    endian: Endian,
+    fortran: bool,
+    chunk_shape: &[u64],
+    elem: usize,
+) -> Result<Codecs, VolumeError> {
+    check_chunk_size(compressor, chunk_shape, elem)?;
+    let rank = chunk_shape.len();
+    let transposes = if fortran {
+        vec![(0..rank).rev().collect()]
+    } else {
+        Vec::new()
+    };
+    let bytes = if compressor.is_null() {
+        Vec::new()
+    } else {
+        let id = compressor.get("id");
+        vec![match id.str("a compressor id")? {
+            "blosc" => {
+                check_blosc_cname(&compressor.get("cname"))?;
+                BytesCodec::Blosc
+            }
+            "zlib" => BytesCodec::Zlib,
+            "gzip" => BytesCodec::Gzip,
+            "zstd" => BytesCodec::Zstd,
+            "lz4" => BytesCodec::Lz4,
+            other => {
+                return Err(id.problem(&format!(
+                    "compressor {other:?} unsupported: supported are blosc, zlib, gzip, zstd, lz4 (or null); re-encode with one of them"
+                )));
+            }
+        }]
+    };
+    Ok(Codecs::Plain(Chain {
+        transposes,
+        endian,
+        bytes,
+    }))
 }
 
 /// A `transpose` order: a permutation of the axes (or the older "C" / "F" spelling).
@@ -297,6 +369,17 @@ impl Chain {
                     },
                     &data,
                 )?,
+                BytesCodec::Zlib => inflate(
+                    file,
+                    "zlib",
+                    limit,
+                    |d| Ok(Box::new(flate2::read::ZlibDecoder::new(d))),
+                    &data,
+                )?,
+                BytesCodec::Blosc => {
+                    blosc::decompress(&data, limit).map_err(|e| e.in_file(file))?
+                }
+                BytesCodec::Lz4 => lz4_sized(file, &data, limit)?,
             };
         }
         if data.len() != expected {
@@ -354,6 +437,32 @@ fn inflate<'d>(
         ));
     }
     Ok(out)
+}
+
+/// Decodes numcodecs' `lz4` (the decoded size as a little-endian u32, then an LZ4 block); the
+/// size is checked against `limit` before anything is allocated.
+fn lz4_sized(file: &Path, data: &[u8], limit: usize) -> Result<Vec<u8>, VolumeError> {
+    let bad =
+        |expected: String, found: String| VolumeError::format(file, "lz4 chunk", expected, found);
+    let Some((size, block)) = data.split_first_chunk::<4>() else {
+        return Err(bad(
+            "a 4-byte size and an LZ4 block".into(),
+            format!("{} bytes in all", data.len()),
+        ));
+    };
+    let size = u32::from_le_bytes(*size) as usize;
+    if size > limit {
+        return Err(bad(
+            format!("at most {limit} decompressed bytes"),
+            format!("a header saying {size}"),
+        ));
+    }
+    let mut out = vec![0u8; size];
+    match lz4_flex::block::decompress_into(block, &mut out) {
+        Ok(n) if n == size => Ok(out),
+        Ok(n) => Err(bad(format!("{size} decompressed bytes"), format!("{n}"))),
+        Err(e) => Err(bad("a valid LZ4 block".into(), e.to_string())),
+    }
 }
 
 /// A decoder's read error in words: ruzstd's own Display shows its inner errors in Debug form
