@@ -95,9 +95,10 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
     if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
         return Ok(*f);
     }
-    // A Zarr store is a directory with zarr.json (v2 stores are recognised to be refused clearly).
-    let zarr_files = ["zarr.json", ".zarray", ".zgroup"];
-    if name == "zarr.json" || zarr_files.iter().any(|f| path.join(f).is_file()) {
+    // A Zarr store is a directory with zarr.json (v3), or .zarray / .zgroup (v2), or that file.
+    let zarr_files = zarr::NODE_FILES;
+    if zarr_files.contains(&name.as_str()) || zarr_files[..3].iter().any(|f| path.join(f).is_file())
+    {
         return Ok(Format::Zarr);
     }
     if path.is_dir() {

@@ -34,6 +34,34 @@ impl ZType {
         })
     }
 
+    /// A Zarr v2 `dtype`: a numpy type string such as `"<u2"`, `">f4"` or `"|u1"` (byte order,
+    /// kind, size), with the byte order the chunks are stored in.
+    pub(crate) fn parse_v2(j: &J) -> Result<(ZType, Endian), VolumeError> {
+        const TYPESTRS: &str = "a numpy type string of a number: <, > or | then i1..i8, u1..u8, f4 or f8 (such as \"<u2\")";
+        let s = j.str(TYPESTRS)?;
+        let (endian, kind) = match s.split_at_checked(1) {
+            Some(("<", k)) => (Endian::Little, k),
+            Some((">", k)) => (Endian::Big, k),
+            // "|": byte order does not apply, which numpy says only of 1-byte types.
+            Some(("|", k @ ("i1" | "u1"))) => (Endian::Little, k),
+            _ => return Err(j.err(TYPESTRS)),
+        };
+        let t = match kind {
+            "i1" => ZType::Plain(Dtype::I8),
+            "u1" => ZType::Plain(Dtype::U8),
+            "i2" => ZType::Plain(Dtype::I16),
+            "u2" => ZType::Plain(Dtype::U16),
+            "i4" => ZType::Plain(Dtype::I32),
+            "u4" => ZType::Plain(Dtype::U32),
+            "i8" => ZType::I64,
+            "u8" => ZType::U64,
+            "f4" => ZType::Plain(Dtype::F32),
+            "f8" => ZType::Plain(Dtype::F64),
+            _ => return Err(j.err(TYPESTRS)),
+        };
+        Ok((t, endian))
+    }
+
     pub(crate) fn size(self) -> usize {
         match self {
             ZType::Plain(d) => d.size_bytes(),
@@ -148,6 +176,28 @@ mod tests {
             fill("bool", "0").unwrap_err(),
             format!(r#"zarr.json: key t: expected {NAMES}, found "bool""#)
         );
+    }
+
+    #[test]
+    fn numpy_type_strings() {
+        let parse = |t: &str| {
+            let v = serde_json::json!({ "dtype": t });
+            let root = J::root(Path::new(".zarray"), &v);
+            ZType::parse_v2(&root.get("dtype")).map_err(|e| e.to_string())
+        };
+        assert_eq!(parse("<u2"), Ok((ZType::Plain(Dtype::U16), Endian::Little)));
+        assert_eq!(parse(">f4"), Ok((ZType::Plain(Dtype::F32), Endian::Big)));
+        assert_eq!(parse("|u1"), Ok((ZType::Plain(Dtype::U8), Endian::Little)));
+        assert_eq!(parse(">i8"), Ok((ZType::I64, Endian::Big)));
+        assert_eq!(parse("<f8"), Ok((ZType::Plain(Dtype::F64), Endian::Little)));
+        for bad in ["|u2", "<b1", "<c8", "u2", "<f2", "<M8[ns]", ""] {
+            assert!(
+                parse(bad)
+                    .unwrap_err()
+                    .starts_with(".zarray: key dtype: expected a numpy type string"),
+                "{bad}"
+            );
+        }
     }
 
     #[test]

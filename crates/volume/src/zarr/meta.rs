@@ -1,5 +1,10 @@
-//! `zarr.json` metadata: finding the array in a store (a plain array, a group with a child named
-//! by the job, or an OME-Zarr v0.5 multiscale group) and checking everything the reader relies on.
+//! Store metadata: finding the array in a store (a plain array, a group with a child named by the
+//! job, or an OME-Zarr multiscale group) and checking everything the reader relies on.
+//!
+//! Zarr v3 nodes are a `zarr.json`; Zarr v2 nodes a `.zarray` (array) or a `.zgroup` with its
+//! attributes in `.zattrs`. OME-Zarr v0.5 puts `multiscales` under `attributes.ome` in a v3
+//! group, v0.4 at the top of a v2 group's `.zattrs`; the object is the same, and one function
+//! ([`group`]) reads both. A store may mix the two (each node says what it is).
 
 use super::codec::{self, Codecs};
 use super::dtype::ZType;
@@ -64,15 +69,28 @@ pub(crate) fn resolve(dir: &Path, wanted: Option<&str>) -> Result<ArrayMeta, Vol
 /// lead back up (`..`) or round in a loop would otherwise recurse until the stack overflows.
 const MAX_GROUPS: usize = 8;
 
+/// Whether `dir` is a Zarr v2 node: it has `.zarray` or `.zgroup` and no `zarr.json`.
+fn is_v2(dir: &Path) -> bool {
+    !dir.join("zarr.json").exists() && [".zarray", ".zgroup"].iter().any(|f| dir.join(f).is_file())
+}
+
 /// [`resolve`] for a node reached through `depth` groups.
 fn node(dir: &Path, wanted: Option<&str>, depth: usize) -> Result<ArrayMeta, VolumeError> {
-    let file = dir.join("zarr.json");
+    let v2 = is_v2(dir);
+    let file = match (v2, dir.join(".zarray").is_file()) {
+        (false, _) => dir.join("zarr.json"),
+        (true, true) => dir.join(".zarray"),
+        (true, false) => dir.join(".zgroup"),
+    };
     let doc = read_json(&file)?;
     let root = J::root(&file, &doc);
     if depth > MAX_GROUPS {
         return Err(root.problem(&format!(
             "reached through more than {MAX_GROUPS} Zarr groups; the dataset or array paths loop, and must name an array"
         )));
+    }
+    if v2 {
+        return node_v2(dir, &root, wanted, depth);
     }
     let format = root.get("zarr_format");
     if format.value.as_u64() != Some(3) {
@@ -86,9 +104,44 @@ fn node(dir: &Path, wanted: Option<&str>, depth: usize) -> Result<ArrayMeta, Vol
             ))),
             None => array(dir, &root),
         },
-        "group" => group(dir, &root, wanted, depth),
+        "group" => {
+            let ms = root.get("attributes").get("ome").get("multiscales");
+            group(dir, &root, &ms, wanted, depth)
+        }
         _ => Err(node_type.err("\"array\" or \"group\"")),
     }
+}
+
+/// A Zarr v2 node: `root` is its `.zarray` or `.zgroup`.
+fn node_v2(
+    dir: &Path,
+    root: &J,
+    wanted: Option<&str>,
+    depth: usize,
+) -> Result<ArrayMeta, VolumeError> {
+    let format = root.get("zarr_format");
+    if format.value.as_u64() != Some(2) {
+        return Err(format.err("2 (a Zarr v2 .zarray or .zgroup)"));
+    }
+    if root.file.ends_with(".zarray") {
+        return match wanted {
+            Some(w) => Err(root.problem(&format!(
+                "array {w:?} was requested but this is a single Zarr array; remove [input] array"
+            ))),
+            None => array_v2(dir, root),
+        };
+    }
+    // A group's attributes (OME-Zarr v0.4's multiscales among them) live in .zattrs, which a
+    // group without attributes may lack.
+    let attrs_file = dir.join(".zattrs");
+    let attrs_doc = if attrs_file.is_file() {
+        read_json(&attrs_file)?
+    } else {
+        Value::Null
+    };
+    let attrs = J::root(&attrs_file, &attrs_doc);
+    let said_by = if attrs.is_null() { root } else { &attrs };
+    group(dir, said_by, &attrs.get("multiscales"), wanted, depth)
 }
 
 fn read_json(file: &Path) -> Result<Value, VolumeError> {
@@ -103,13 +156,16 @@ fn read_json(file: &Path) -> Result<Value, VolumeError> {
     })
 }
 
+/// A group: its OME-Zarr `multiscales` (`ms`: v0.5's `attributes.ome.multiscales`, v0.4's
+/// `multiscales` in `.zattrs`; null when it has none) pick the level, else `wanted` names the
+/// child. `root` is the metadata file errors about the group name.
 fn group(
     dir: &Path,
     root: &J,
+    ms: &J,
     wanted: Option<&str>,
     depth: usize,
 ) -> Result<ArrayMeta, VolumeError> {
-    let ms = root.get("attributes").get("ome").get("multiscales");
     if ms.is_null() {
         return match wanted {
             Some(w) => node(&dir.join(w), None, depth + 1),
@@ -154,7 +210,7 @@ fn group(
     let mut meta = node(&dir.join(paths[pick]), None, depth + 1)?;
     let rank = meta.shape.len();
     check_axes(&m.get("axes"), rank)?;
-    // Dataset transformations first, then the multiscale's own (OME-Zarr v0.5, "multiscales").
+    // Dataset transformations first, then the multiscale's own (OME-Zarr v0.4 and v0.5).
     let (s1, t1) = transforms(&dataset.get("coordinateTransformations"), rank)?;
     let (s2, t2) = transforms(&m.get("coordinateTransformations"), rank)?;
     let scale: Vec<f64> = s1.iter().zip(&s2).map(|(a, b)| a * b).collect();
@@ -242,13 +298,18 @@ fn check_axes(axes: &J, rank: usize) -> Result<(), VolumeError> {
     Ok(())
 }
 
-/// Names of the sub-directories of a group that hold a `zarr.json`, for error messages.
+/// Names of the sub-directories of a group that are Zarr nodes (v3 or v2), for error messages.
 fn children(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> = std::fs::read_dir(dir)
         .into_iter()
         .flatten()
         .flatten()
-        .filter(|e| e.path().join("zarr.json").is_file())
+        .filter(|e| {
+            let p = e.path();
+            ["zarr.json", ".zarray", ".zgroup"]
+                .iter()
+                .any(|f| p.join(f).is_file())
+        })
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .collect();
     names.sort();
@@ -299,7 +360,8 @@ fn transforms(j: &J, rank: usize) -> Result<(Vec<f64>, Vec<f64>), VolumeError> {
     Ok((scale, shift))
 }
 
-fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
+/// The array's `shape`, checked: at least three axes, and any before the last three of size 1.
+fn shape(root: &J) -> Result<Vec<u64>, VolumeError> {
     let shape_j = root.get("shape");
     let shape = shape_j.u64s("a list of sizes")?;
     let rank = shape.len();
@@ -321,17 +383,28 @@ fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
             shape[a]
         )));
     }
+    Ok(shape)
+}
+
+/// A `chunks` (v2) or `chunk_shape` (v3) list: one positive size per axis.
+fn chunk_shape(j: &J, rank: usize) -> Result<Vec<u64>, VolumeError> {
+    let chunk_shape = j.u64s("a list of chunk sizes")?;
+    if chunk_shape.len() != rank || chunk_shape.contains(&0) {
+        return Err(j.err(format!("{rank} positive chunk sizes, one per axis")));
+    }
+    Ok(chunk_shape)
+}
+
+fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
+    let shape = shape(root)?;
+    let rank = shape.len();
     let ztype = ZType::parse(&root.get("data_type"))?;
     let grid = root.get("chunk_grid");
     let grid_name = grid.get("name");
     if grid_name.value.as_str() != Some("regular") {
         return Err(grid_name.err("\"regular\""));
     }
-    let cs = grid.get("configuration").get("chunk_shape");
-    let chunk_shape = cs.u64s("a list of chunk sizes")?;
-    if chunk_shape.len() != rank || chunk_shape.contains(&0) {
-        return Err(cs.err(format!("{rank} positive chunk sizes, one per axis")));
-    }
+    let chunk_shape = chunk_shape(&grid.get("configuration").get("chunk_shape"), rank)?;
     let keys = key_encoding(&root.get("chunk_key_encoding"))?;
     let (fill, fill_saturated) = ztype.fill_value(&root.get("fill_value"))?;
     let codecs = codec::parse(&root.get("codecs"), &chunk_shape, ztype.size())?;
@@ -347,6 +420,71 @@ fn array(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
         fill,
         fill_saturated,
         keys,
+        codecs,
+        spacing: None,
+        origin: None,
+    })
+}
+
+/// A Zarr v2 array (`.zarray`): numpy dtype string, `order`, `compressor` (no `filters`),
+/// `dimension_separator`, and chunk keys `i.j.k` or `i/j/k`.
+fn array_v2(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
+    let shape = shape(root)?;
+    let rank = shape.len();
+    let (ztype, endian) = ZType::parse_v2(&root.get("dtype"))?;
+    let chunk_shape = chunk_shape(&root.get("chunks"), rank)?;
+    let order = root.get("order");
+    let fortran = match order.value.as_str() {
+        Some("C") => false,
+        Some("F") => true,
+        _ => return Err(order.err("\"C\" or \"F\"")),
+    };
+    let filters = root.get("filters");
+    if filters.value.as_array().is_some_and(|f| !f.is_empty()) || filters.value.is_object() {
+        let ids: Vec<&str> = filters
+            .value
+            .as_array()
+            .into_iter()
+            .flatten()
+            .map(|f| f.get("id").and_then(Value::as_str).unwrap_or("?"))
+            .collect();
+        return Err(filters.problem(&format!(
+            "filters [{}] unsupported: write the array without filters (a compressor alone)",
+            ids.join(", ")
+        )));
+    }
+    let sep = root.get("dimension_separator");
+    let separator = match sep.value.as_str() {
+        None | Some(".") => '.',
+        Some("/") => '/',
+        Some(_) => return Err(sep.err("\".\" or \"/\"")),
+    };
+    // A null fill value leaves unwritten chunks undefined in Zarr v2; zarr-python reads them as
+    // whatever its buffer held. Zero is the one choice that does not invent a surface.
+    let fill_j = root.get("fill_value");
+    let (fill, fill_saturated) = if fill_j.is_null() {
+        (0.0, false)
+    } else {
+        ztype.fill_value(&fill_j)?
+    };
+    let codecs = codec::v2(
+        &root.get("compressor"),
+        endian,
+        fortran,
+        &chunk_shape,
+        ztype.size(),
+    )?;
+    Ok(ArrayMeta {
+        dir: dir.to_path_buf(),
+        shape,
+        chunk_shape,
+        ztype,
+        fill,
+        fill_saturated,
+        keys: KeyEncoding {
+            v2: true,
+            separator,
+        },
         codecs,
         spacing: None,
         origin: None,
