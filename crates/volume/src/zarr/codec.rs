@@ -148,8 +148,9 @@ fn chain(j: &J, rank: usize, level: Level) -> Result<Chain, VolumeError> {
                 check_blosc_cname(&conf.get("cname"))?;
                 let shuffle = conf.get("shuffle");
                 match shuffle.value.as_str() {
-                    None | Some("noshuffle" | "shuffle" | "bitshuffle") => {}
-                    Some(_) => {
+                    Some("noshuffle" | "shuffle" | "bitshuffle") => {}
+                    None if shuffle.is_null() => {}
+                    _ => {
                         return Err(shuffle.err("\"noshuffle\", \"shuffle\" or \"bitshuffle\""));
                     }
                 }
@@ -343,7 +344,12 @@ impl Chain {
         // Sizes were checked against MAX_CHUNK_BYTES when the metadata was read.
         let expected = shape.iter().product::<u64>() as usize * elem;
         // Decompressed sizes may exceed the array by the checksums still inside them.
-        let limit = expected + 4 * self.bytes.len();
+        let crcs = self
+            .bytes
+            .iter()
+            .filter(|&&c| c == BytesCodec::Crc32c)
+            .count();
+        let limit = expected + 4 * crcs;
         for codec in self.bytes.iter().rev() {
             data = match codec {
                 BytesCodec::Crc32c => check_crc(file, "chunk", data)?,

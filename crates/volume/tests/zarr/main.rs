@@ -1,9 +1,11 @@
-//! Zarr v3 / OME-Zarr v0.5 stores written by hand (tests/zarr/store.rs) read back through
+//! Zarr v3 / OME-Zarr v0.5 stores written by hand (tests/zarr/store.rs), and Zarr v2 / OME-Zarr
+//! v0.4 stores written by zarr-python 2 (tests/zarr/v2.rs), read back through
 //! `open_path`: every type and byte order, both chunk key encodings, transpose, gzip, zstd,
 //! crc32c, sharding with the index at either end, partial edge chunks, missing chunks; damaged
 //! stores end in one-line errors; rows are decoded only when the front reaches them.
 
 mod store;
+mod v2;
 
 use isostream_volume::{
     Dtype, MemoryVolume, OpenOptions, Procedural, Shape, VolumeSource, open_path,
@@ -379,7 +381,7 @@ fn plain_group_needs_the_array_named() {
 }
 
 #[test]
-fn raw_only_keys_and_zarr_v2_are_refused() {
+fn raw_only_keys_and_empty_zarr_v2_metadata_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("a.zarr");
     write(
@@ -408,8 +410,8 @@ fn raw_only_keys_and_zarr_v2_are_refused() {
             .unwrap()
             .to_string(),
         format!(
-            "{}: a Zarr v2 store (.zarray/.zgroup); only Zarr v3 (zarr.json) is read: convert it with zarr-python 3",
-            v2.display()
+            "{}: key zarr_format: expected 2 (a Zarr v2 .zarray or .zgroup), found \"nothing\"",
+            v2.join(".zarray").display()
         )
     );
 }
@@ -494,15 +496,24 @@ fn malformed_stores_give_one_line_errors() {
             "zarr.json: key fill_value: expected an integer, found \"zero\"",
         ),
         (
-            "blosc",
+            "blosc snappy",
             Spec::new(&[4, 4, 4], &[2, 2, 2]),
             meta(|m| {
-                m["codecs"]
-                    .as_array_mut()
-                    .unwrap()
-                    .push(serde_json::json!({"name": "blosc", "configuration": {"cname": "lz4"}}))
+                m["codecs"].as_array_mut().unwrap().push(
+                    serde_json::json!({"name": "blosc", "configuration": {"cname": "snappy"}}),
+                )
             }),
-            "zarr.json: key codecs[1]: blosc codec unsupported: re-encode with zstd",
+            "zarr.json: key codecs[1].configuration.cname: blosc compressor \"snappy\" unsupported: re-encode with cname lz4, zstd, zlib or blosclz",
+        ),
+        (
+            "blosc shuffle",
+            Spec::new(&[4, 4, 4], &[2, 2, 2]),
+            meta(|m| {
+                m["codecs"].as_array_mut().unwrap().push(
+                    serde_json::json!({"name": "blosc", "configuration": {"cname": "lz4", "shuffle": 1}}),
+                )
+            }),
+            "zarr.json: key codecs[1].configuration.shuffle: expected \"noshuffle\", \"shuffle\" or \"bitshuffle\", found \"1\"",
         ),
         (
             "unknown codec",
@@ -513,7 +524,7 @@ fn malformed_stores_give_one_line_errors() {
                     .unwrap()
                     .push(serde_json::json!({"name": "lzma"}))
             }),
-            "zarr.json: key codecs[1]: codec \"lzma\" unsupported: supported are bytes, transpose, gzip, zstd, crc32c, sharding_indexed",
+            "zarr.json: key codecs[1]: codec \"lzma\" unsupported: supported are bytes, transpose, gzip, zstd, blosc, crc32c, sharding_indexed",
         ),
         (
             "endian",
