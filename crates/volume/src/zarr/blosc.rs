@@ -221,7 +221,7 @@ fn decode_block(
         && bsize / ts >= MIN_SPLIT_ELEMENTS
         && !leftover;
     let nsplits = if split { ts } else { 1 };
-    if bsize % nsplits != 0 {
+    if !bsize.is_multiple_of(nsplits) {
         return Err(format!(
             "{bsize} bytes do not split into {nsplits} streams (block size not a multiple of typesize {ts})"
         ));
@@ -246,13 +246,16 @@ fn decode_block(
                     frame.len()
                 )
             })?;
-        let body = frame.get(pos + 4..pos + 4 + len).ok_or_else(|| {
-            format!(
-                "stream {j} of {len} bytes at byte {} runs past the end of the {}-byte frame",
-                pos + 4,
-                frame.len()
-            )
-        })?;
+        let body = (pos + 4)
+            .checked_add(len)
+            .and_then(|end| frame.get(pos + 4..end))
+            .ok_or_else(|| {
+                format!(
+                    "stream {j} of {len} bytes at byte {} runs past the end of the {}-byte frame",
+                    pos + 4,
+                    frame.len()
+                )
+            })?;
         if len == neblock {
             part.copy_from_slice(body);
         } else {
@@ -407,6 +410,10 @@ fn blosclz(src: &[u8], dst: &mut [u8]) -> Result<usize, String> {
 /// of every element, then byte 1, and so on; trailing bytes short of an element are as stored.
 fn unshuffle(ts: usize, src: &[u8], dest: &mut [u8]) {
     let n = src.len() / ts;
+    if n == 0 {
+        dest.copy_from_slice(src);
+        return;
+    }
     for (j, plane) in src[..n * ts].chunks_exact(n).enumerate() {
         for (i, &b) in plane.iter().enumerate() {
             dest[i * ts + j] = b;
@@ -422,7 +429,7 @@ fn unshuffle(ts: usize, src: &[u8], dest: &mut [u8]) {
 /// another count is stored as is, and bytes short of an element stay as stored.
 fn bit_unshuffle(ts: usize, src: &[u8], dest: &mut [u8]) {
     let n = src.len() / ts;
-    if n % 8 != 0 {
+    if n == 0 || !n.is_multiple_of(8) {
         dest.copy_from_slice(src);
         return;
     }
@@ -643,11 +650,53 @@ mod tests {
             want.extend_from_slice(&run);
         }
         stream.extend_from_slice(&[(2 << 5) | 31, 255, 0, 0, 0, b'!']);
-        want.extend_from_slice(&want[..4].to_vec());
+        want.extend_from_within(..4);
         want.push(b'!');
         let mut out = vec![0u8; want.len()];
         assert_eq!(blosclz(&stream, &mut out), Ok(want.len()));
         assert_eq!(out, want);
+    }
+
+    /// A frame made by hand: stored (uncompressed) streams, one per block.
+    fn stored_frame(flags: u8, ts: u8, blocksize: u32, blocks: &[&[u8]]) -> Vec<u8> {
+        let nbytes: usize = blocks.iter().map(|b| b.len()).sum();
+        let mut f = vec![VERSION, 1, flags, ts];
+        f.extend_from_slice(&(nbytes as u32).to_le_bytes());
+        f.extend_from_slice(&blocksize.to_le_bytes());
+        f.extend_from_slice(&[0; 4]);
+        let mut at = HEADER + 4 * blocks.len();
+        for b in blocks {
+            f.extend_from_slice(&(at as u32).to_le_bytes());
+            at += 4 + b.len();
+        }
+        for b in blocks {
+            f.extend_from_slice(&(b.len() as u32).to_le_bytes());
+            f.extend_from_slice(b);
+        }
+        let len = f.len() as u32;
+        f[12..16].copy_from_slice(&len.to_le_bytes());
+        f
+    }
+
+    /// A last block shorter than one element (a size that is no multiple of the typesize) is
+    /// stored as is under either shuffle, as c-blosc does (it was a panic: chunks of 0 bytes).
+    #[test]
+    fn a_block_shorter_than_an_element_is_kept_as_stored() {
+        for shuffle in [BYTE_SHUFFLE, BIT_SHUFFLE] {
+            let f = stored_frame(
+                shuffle | DONT_SPLIT,
+                4,
+                8,
+                &[&[0, 2, 4, 6, 1, 3, 5, 7], &[9, 8]],
+            );
+            let want: &[u8] = if shuffle == BYTE_SHUFFLE {
+                &[0, 4, 1, 5, 2, 6, 3, 7, 9, 8]
+            } else {
+                // Two elements: not a multiple of 8, so bit shuffle left them as they were.
+                &[0, 2, 4, 6, 1, 3, 5, 7, 9, 8]
+            };
+            assert_eq!(decompress(&f, 10).as_deref(), Ok(want), "flags {shuffle}");
+        }
     }
 
     #[test]
