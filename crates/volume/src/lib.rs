@@ -12,7 +12,7 @@
 //! | `.vti` (ascii, base64, appended; zlib) | VTK XML | appended raw mapped, else two slices + one 32 KiB block; the mapped file's pages are released as the stream passes them |
 //! | `.nii` / `.nii.gz` / `.hdr`+`.img` / `.hdr.gz`+`.img.gz` | NIfTI-1 | `.nii` and `.img` mapped, gzip two slices |
 //! | `.tif` / `.tiff` / a directory of them | TIFF stack | one page |
-//! | a directory with `zarr.json` (or that file): Zarr v3, OME-Zarr v0.5 | Zarr | one row of chunks |
+//! | a directory with `zarr.json`, `.zarray` or `.zgroup` (or that file): Zarr v3 / v2, OME-Zarr v0.5 / v0.4 | Zarr | one row of chunks |
 //!
 //! No reader decodes a whole array up front ([`VolumeSource::loads_whole_volume`] is false for
 //! all of them). [`Procedural`] shapes are computed per slice; [`MemoryVolume`] holds everything

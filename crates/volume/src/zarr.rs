@@ -1,18 +1,25 @@
-//! Zarr v3 arrays and OME-Zarr v0.5 images, read one row of chunks at a time.
+//! Zarr v3 and v2 arrays, OME-Zarr v0.5 and v0.4 images, read one row of chunks at a time.
 //!
-//! A store is a directory with a `zarr.json` (the path of that file works too): an array, a group
-//! whose child array is named by `[input] array`, or an OME-Zarr multiscale group, where
-//! `datasets[0]` (full resolution) is read unless `[input] array` names another level's `path`,
-//! and the voxel size and origin come from the `coordinateTransformations` (scale, translation)
-//! of that level and of the multiscale, last three values.
+//! A store is a directory with a `zarr.json` (Zarr v3), or a `.zarray` or `.zgroup` (Zarr v2,
+//! attributes in `.zattrs`); the path of that file works too. It is an array, a group whose child
+//! array is named by `[input] array`, or an OME-Zarr multiscale group (v0.5: `multiscales` under
+//! `attributes.ome` of `zarr.json`; v0.4: `multiscales` in `.zattrs`, read by the same code),
+//! where `datasets[0]` (full resolution) is read unless `[input] array` names another level's
+//! `path`, and the voxel size and origin come from the `coordinateTransformations` (scale,
+//! translation) of that level and of the multiscale, last three values.
 //!
 //! Axes: Zarr is C order (last axis fastest), so an array of shape `[Z, Y, X]` is our grid with
 //! x fastest; of more axes, the last three are z, y, x and the leading ones (OME-Zarr's t, c) must
 //! have size 1. Types int8..uint64, float32 and float64; `regular` chunk grids; `default` and
 //! `v2` chunk keys with either separator; missing chunk files read as `fill_value`; codecs
-//! `bytes`, `transpose`, `gzip`, `zstd`, `crc32c` (verified) and `sharding_indexed` (index at
-//! either end; only the inner chunks a row needs are read). `blosc` is refused: it needs the C
-//! library; re-encode with zstd.
+//! `bytes`, `transpose`, `gzip`, `zstd`, `blosc`, `crc32c` (verified) and `sharding_indexed`
+//! (index at either end; only the inner chunks a row needs are read). Zarr v2 arrays: numpy
+//! dtypes (`<u2`, `>f4`, `|u1`, ...), order C or F, compressor null, `blosc`, `zlib`, `gzip`,
+//! `zstd` or `lz4`, no filters, keys `i.j.k` or `i/j/k`, fill value null read as 0.
+//!
+//! Blosc (`zarr/blosc.rs`, the default compressor of OME-Zarr v0.4 data) is decoded in pure
+//! Rust: its own blosclz by hand, lz4 through `lz4_flex`, zlib and zstd through `flate2` and
+//! `ruzstd`; a frame's sizes are checked against the chunk's before anything is allocated.
 //!
 //! Memory: the reader decodes the chunks (inner chunks of shards) that intersect the current
 //! z range, serves their slices, and drops them when the front moves on, so it holds one row of
@@ -22,8 +29,8 @@
 //!
 //! Written by hand rather than with the `zarrs` crate: reading is a JSON file, a codec chain and
 //! chunk files, while `zarrs` brings a large dependency tree (async stores, many codecs and their C
-//! libraries) into a workspace that so far needs no C toolchain. zstd is `ruzstd` (pure Rust) for
-//! the same reason.
+//! libraries) into a workspace that so far needs no C toolchain. zstd is `ruzstd` and lz4
+//! `lz4_flex` (pure Rust) for the same reason.
 
 mod blosc;
 mod codec;
