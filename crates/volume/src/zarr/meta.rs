@@ -94,7 +94,9 @@ fn node(dir: &Path, wanted: Option<&str>, depth: usize) -> Result<ArrayMeta, Vol
     }
     let format = root.get("zarr_format");
     if format.value.as_u64() != Some(3) {
-        return Err(format.err("3 (Zarr v3; convert Zarr v2 stores with zarr-python)"));
+        return Err(
+            format.err("3 (a zarr.json is Zarr v3; Zarr v2 metadata is a .zarray or .zgroup)")
+        );
     }
     let node_type = root.get("node_type");
     match node_type.str("\"array\" or \"group\"")? {
@@ -440,17 +442,17 @@ fn array_v2(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
         _ => return Err(order.err("\"C\" or \"F\"")),
     };
     let filters = root.get("filters");
-    if filters.value.as_array().is_some_and(|f| !f.is_empty()) || filters.value.is_object() {
-        let ids: Vec<&str> = filters
-            .value
-            .as_array()
-            .into_iter()
-            .flatten()
-            .map(|f| f.get("id").and_then(Value::as_str).unwrap_or("?"))
-            .collect();
+    if !filters.is_null() && filters.value.as_array().is_none_or(|f| !f.is_empty()) {
+        let ids = match filters.value.as_array() {
+            Some(list) => list
+                .iter()
+                .map(|f| f.get("id").and_then(Value::as_str).unwrap_or("?"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            None => filters.value.to_string(),
+        };
         return Err(filters.problem(&format!(
-            "filters [{}] unsupported: write the array without filters (a compressor alone)",
-            ids.join(", ")
+            "filters [{ids}] unsupported: write the array without filters (a compressor alone)"
         )));
     }
     let sep = root.get("dimension_separator");
@@ -459,8 +461,8 @@ fn array_v2(dir: &Path, root: &J) -> Result<ArrayMeta, VolumeError> {
         Some("/") => '/',
         Some(_) => return Err(sep.err("\".\" or \"/\"")),
     };
-    // A null fill value leaves unwritten chunks undefined in Zarr v2; zarr-python reads them as
-    // whatever its buffer held. Zero is the one choice that does not invent a surface.
+    // A null fill value leaves unwritten chunks undefined in Zarr v2 (zarr-python hands back
+    // whatever its new buffer held, zeros in practice); read as 0 (docs/zarr.md says so).
     let fill_j = root.get("fill_value");
     let (fill, fill_saturated) = if fill_j.is_null() {
         (0.0, false)

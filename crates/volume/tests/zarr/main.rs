@@ -553,7 +553,7 @@ fn malformed_stores_give_one_line_errors() {
             "version",
             Spec::new(&[4, 4, 4], &[2, 2, 2]),
             meta(|m| m["zarr_format"] = serde_json::json!(2)),
-            "zarr.json: key zarr_format: expected 3 (Zarr v3; convert Zarr v2 stores with zarr-python), found \"2\"",
+            "zarr.json: key zarr_format: expected 3 (a zarr.json is Zarr v3; Zarr v2 metadata is a .zarray or .zgroup), found \"2\"",
         ),
         (
             "huge chunk",

@@ -255,7 +255,12 @@ fn unsupported_v2_metadata_is_refused() {
     let meta_file = store.join(".zarray");
     let orig: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&meta_file).unwrap()).unwrap();
-    let cases: [(&str, serde_json::Value, &str); 6] = [
+    let cases: [(&str, serde_json::Value, &str); 7] = [
+        (
+            "filters",
+            serde_json::json!("delta"),
+            "key filters: filters [\"delta\"] unsupported: write the array without filters (a compressor alone)",
+        ),
         (
             "filters",
             serde_json::json!([{"id": "delta", "dtype": "<u2"}]),
