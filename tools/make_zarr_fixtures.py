@@ -8,8 +8,10 @@ Python. Run this again only to change the fixtures, then commit what it writes:
     /tmp/zv/bin/python tools/make_zarr_fixtures.py
 
 Made with zarr-python 2.18 and numcodecs 0.15 (c-blosc 1.21), the writer of most OME-Zarr v0.4
-data. Everything is deterministic (fixed seed), so a re-run rewrites identical files unless a
-library version changes its output.
+data. The values are deterministic (fixed seeds) but not every byte: gzip headers hold the time,
+and c-blosc's threads store the blocks of a large frame in the order they finish (offsets that
+do not increase, which the committed lz4_bitshuffle_t1_blocks and zstd_noshuffle_t8_blocks
+have), so a re-run rewrites a few files with other bytes that decode to the same values.
 
 blosc/   data_t{1,2,4,8}.raw   the uncompressed bytes (uint8, uint16, float32, float64: 4000 bytes)
          {cname}_{shuffle}_t{ts}.blosc        numcodecs.Blosc frames of those bytes, for every
