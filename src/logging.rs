@@ -19,6 +19,9 @@ pub fn init(log: &LogConfig, jobs: Option<JobLogLayer>) {
         .with_writer(|| crate::progress::LogWriter)
         // Colour codes only for a person at a terminal, not in files, pipes or CI logs.
         .with_ansi(std::io::stderr().is_terminal())
+        // Its own failures would be printed with `eprintln!` on the stderr that just failed,
+        // a panic when that is a closed pipe (`LogWriter` drops what stderr refuses).
+        .log_internal_errors(false)
         .with_target(false);
     // A second init (tests, repeated calls) is harmless: keep the first subscriber.
     let installed = match log.format {

@@ -120,7 +120,7 @@ fn main() -> ExitCode {
             e.exit()
         }
         Err(e) => {
-            eprintln!("{}", one_line_usage_error(&e.render().to_string()));
+            say_on_stderr(&one_line_usage_error(&e.render().to_string()));
             return ExitCode::from(2);
         }
     };
@@ -139,10 +139,17 @@ fn main() -> ExitCode {
         }
         Err(err) => {
             let code = exit_code(&err);
-            eprintln!("{}", logging::error_line(&one_line(&err), code));
+            say_on_stderr(&logging::error_line(&one_line(&err), code));
             ExitCode::from(code)
         }
     }
+}
+
+/// The command's last line on stderr. `eprintln!` panics when stderr is a closed pipe (exit 101
+/// instead of the error's code); with nobody left to read it, the exit code is the answer.
+fn say_on_stderr(line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// clap's usage error on one line, as every other error: its lines joined (the usage kept, as

@@ -81,19 +81,25 @@ pub fn finish(bar: &Bar) {
 
 /// stderr for tracing: each formatted line (tracing-subscriber writes one event in one call) is
 /// printed with the bar hidden, then the bar is drawn again below it.
+///
+/// A line stderr refuses is dropped, not reported: the log's reader going away (`2>&1 | head`)
+/// or its disk filling must not end a job whose mesh is still being made. tracing-subscriber
+/// reported such a failure with `eprintln!`, which panicked on the closed pipe (exit 101, the
+/// run aborted, `isostream serve` deaf to SIGTERM); there is nowhere left to report it.
 pub struct LogWriter;
 
 impl Write for LogWriter {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         let bar = shown().clone();
-        match bar {
-            Some(bar) => bar.suspend(|| std::io::stderr().write_all(buf))?,
-            None => std::io::stderr().write_all(buf)?,
-        }
+        let _ = match bar {
+            Some(bar) => bar.suspend(|| std::io::stderr().write_all(buf)),
+            None => std::io::stderr().write_all(buf),
+        };
         Ok(buf.len())
     }
 
     fn flush(&mut self) -> std::io::Result<()> {
-        std::io::stderr().flush()
+        let _ = std::io::stderr().flush();
+        Ok(())
     }
 }

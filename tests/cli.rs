@@ -778,3 +778,43 @@ fn a_job_runs_under_an_address_space_cap() {
     assert!(o.status.success(), "cap {cap_kib} KiB: {}", stderr(&o));
     assert!(dir.path().join("capped.smb").is_file());
 }
+
+/// With stderr a pipe whose reader is gone (`isostream run JOB 2>&1 | head -1`), a run still
+/// makes its mesh and exits 0, and a failing command still exits with its code: the first log
+/// line nobody could read made tracing-subscriber report it with `eprintln!`, which panicked
+/// (exit 101; with progress lines every second the run was aborted and its output lost).
+#[cfg(unix)]
+#[test]
+fn a_closed_stderr_changes_no_exit_code_and_loses_no_mesh() {
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let job = write_job(
+        dir.path(),
+        "[input]\nshape = \"gyroid\"\nsize = [64, 64, 64]\n[extract]\niso = 0.0\n[output]\npath = \"o.smb\"\n[log]\nprogress_seconds = 1\n",
+    );
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[input]\nshape = \"sphere\"\nsize = [8, 8, 8]\nbogus = 1\n",
+    )
+    .unwrap();
+    let bad = bad.to_string_lossy().into_owned();
+    let exit = |args: &[&str]| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_isostream"))
+            .args(args)
+            .env("RUST_LOG", "debug")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        drop(child.stderr.take());
+        child.wait().unwrap().code()
+    };
+    assert_eq!(exit(&["run", &job]), Some(0));
+    let mesh = dir.path().join("o.smb");
+    assert!(Mesh::read(&mesh).check().is_valid_manifold());
+    assert_eq!(exit(&["validate", &bad]), Some(2));
+    assert_eq!(exit(&["run", &bad]), Some(2));
+    assert_eq!(exit(&["check", &job]), Some(2));
+    assert_eq!(exit(&["bogus-command"]), Some(2));
+}

@@ -46,29 +46,45 @@ impl Server {
                 });
             }
         }
-        Self::start_under(command, state, args)
+        Self::start_under(command, state, args, false)
     }
 
     /// Started through `nohup`: SIGHUP ignored from the start, as a terminal's user leaves it.
     fn start_nohup(state: &Path, args: &[&str]) -> Server {
         let mut nohup = Command::new("nohup");
         nohup.arg(BIN);
-        Self::start_under(nohup, state, args)
+        Self::start_under(nohup, state, args, false)
     }
 
     /// Started in `cwd`, where a relative `state` is.
     fn start_in(cwd: &Path, state: &Path, args: &[&str]) -> Server {
         let mut command = Command::new(BIN);
         command.current_dir(cwd);
-        Self::start_under(command, state, args)
+        Self::start_under(command, state, args, false)
     }
 
-    fn start_under(mut command: Command, state: &Path, args: &[&str]) -> Server {
+    /// Its stderr a pipe closed at once, as `isostream serve 2>&1 | head -1` leaves it once
+    /// `head` is gone (its log is empty).
+    fn start_with_stderr_closed(state: &Path) -> Server {
+        Self::start_under(Command::new(BIN), state, &[], true)
+    }
+
+    fn start_under(
+        mut command: Command,
+        state: &Path,
+        args: &[&str],
+        stderr_closed: bool,
+    ) -> Server {
         let log = match command.get_current_dir() {
             Some(cwd) => cwd.join(state),
             None => state.to_path_buf(),
         }
         .with_extension("log");
+        let stderr = if stderr_closed {
+            Stdio::piped()
+        } else {
+            Stdio::from(std::fs::File::create(&log).unwrap())
+        };
         let mut child = command
             .arg("serve")
             .arg("--state")
@@ -77,9 +93,10 @@ impl Server {
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::piped())
-            .stderr(std::fs::File::create(&log).unwrap())
+            .stderr(stderr)
             .spawn()
             .unwrap();
+        drop(child.stderr.take());
         let stdout = child.stdout.take().unwrap();
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
@@ -1567,4 +1584,32 @@ fn after_a_first_pass_the_view_says_when_the_run_began() {
         running["progress"].get("run_started_unix_ms").is_none(),
         "{running}"
     );
+}
+
+/// With its stderr a closed pipe (`isostream serve 2>&1 | head -1`, `head` gone), the service
+/// still runs jobs and stops on SIGTERM: tracing-subscriber's report of the failed log write
+/// panicked (`eprintln!` on the closed pipe), and the service then ignored SIGTERM for good.
+#[test]
+fn a_service_whose_stderr_is_gone_runs_jobs_and_stops_on_sigterm() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut s = Server::start_with_stderr_closed(&dir.path().join("state"));
+    let id = submit(&s, SPHERE);
+    wait_for(&s, &id, "done", |v| v["state"] == "done");
+    let term = Command::new("kill")
+        .args(["-TERM", &s.child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(term.success());
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    let status = loop {
+        if let Some(status) = s.child.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            std::time::Instant::now() < deadline,
+            "still running 20 s after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status}");
 }
