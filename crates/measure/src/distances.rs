@@ -55,7 +55,7 @@ pub const MAX_SAMPLES: f64 = 4_000_000.0;
 /// [`MIN_SAMPLES`] then raises) otherwise drew samples without bound: a unit tetrahedron against
 /// bonsai's surface took 1.6 billion of them and two minutes. Never reached when the full
 /// surface has less than four times the output's area.
-const FULL_SAMPLES_CAP: f64 = 4.0 * MAX_SAMPLES;
+pub(crate) const FULL_SAMPLES_CAP: f64 = 4.0 * MAX_SAMPLES;
 /// Default search radius of the first pass of the output -> full direction, in voxel diagonals.
 /// A simplified mesh within its error bound stays well inside a few voxels of the
 /// full-resolution surface; the few samples farther than that are measured in a second pass.
@@ -305,6 +305,9 @@ pub(crate) struct DistanceStream {
     full_weight: u64,
     /// [`FULL_SAMPLES_CAP`] (smaller in tests).
     full_cap: f64,
+    /// Why the full surface could not be sampled, kept for `finish` to report (the callers'
+    /// batch visitors cannot fail); later batches are ignored.
+    refused: Option<MeasureError>,
     bounds: (DVec3, DVec3),
 }
 
@@ -410,6 +413,12 @@ impl DistanceStream {
         if total_area <= 0.0 {
             return Err(MeasureError::EmptyOutput);
         }
+        // A NaN area made the density's clamp panic; an infinite one left no samples.
+        if !total_area.is_finite() {
+            return Err(MeasureError::Unsampleable(format!(
+                "its area is {total_area}: a coordinate is out of range"
+            )));
+        }
         let density = opts
             .samples_per_area
             .clamp(MIN_SAMPLES / total_area, MAX_SAMPLES / total_area);
@@ -419,7 +428,7 @@ impl DistanceStream {
         let mut rng = SplitMix64::new(opts.seed);
         let mut samples = Vec::with_capacity((density * total_area * 1.01) as usize + 16);
         for t in &tris {
-            sample_triangle(t, density, &mut rng, |p| samples.push(p));
+            sample_triangle(t, density, &mut rng, |p| samples.push(p))?;
         }
         samples.sort_unstable_by(|a, b| a.z.total_cmp(&b.z));
         let bounds = tris
@@ -447,38 +456,27 @@ impl DistanceStream {
             full_area: 0.0,
             full_weight: 1,
             full_cap: FULL_SAMPLES_CAP,
+            refused: None,
             bounds,
         })
     }
 
     /// Takes the next batch of full-resolution triangles. `front` is a lower bound on the z of
-    /// every triangle of later batches (the bottom slice of the slab still to come).
+    /// every triangle of later batches (the bottom slice of the slab still to come). A batch
+    /// that cannot be sampled is refused at `finish`, and nothing after it is sampled.
     pub(crate) fn add_batch(&mut self, batch: Vec<Triangle>, front: f64) {
+        if self.refused.is_some() {
+            return;
+        }
         if !batch.is_empty() {
-            self.full_triangles += batch.len() as u64;
-            let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
-            for t in &batch {
-                for &p in t {
-                    self.bounds = (self.bounds.0.min(p), self.bounds.1.max(p));
-                    z_min = z_min.min(p.z);
-                    z_max = z_max.max(p.z);
+            let (z_min, z_max) = match self.sample_full(&batch) {
+                Ok(heights) => heights,
+                Err(e) => {
+                    self.refused = Some(e);
+                    self.window.clear();
+                    return;
                 }
-                self.full_area += area(t);
-                // Four times sparser each time the area doubles: the samples of each doubling
-                // halve, and all of them stay within one and a half times the cap.
-                while self.full_area * self.density
-                    > self.full_cap * (self.full_weight as f64).sqrt()
-                {
-                    self.full_weight *= 4;
-                }
-                let (weight, drawn) = (self.full_weight, &mut self.drawn);
-                let density = self.density / weight as f64;
-                sample_triangle(t, density, &mut self.rng, |p| drawn.push((p, weight)));
-                if self.drawn.len() >= SAMPLE_CHUNK {
-                    self.measure_drawn();
-                }
-            }
-            self.measure_drawn();
+            };
             let reach = Reach::of(&self.samples[self.next..], z_min, z_max, self.radius);
             let mut kept: Vec<Triangle> = batch.into_iter().filter(|t| reach.touches(t)).collect();
             // The filter reuses the batch's allocation, which the window would otherwise hold.
@@ -498,6 +496,36 @@ impl DistanceStream {
             }
         }
         self.advance(front);
+    }
+
+    /// Draws the samples of a batch of full-resolution triangles and measures them, thinning
+    /// the surface as its area grows; gives the batch's lowest and highest z.
+    fn sample_full(&mut self, batch: &[Triangle]) -> Result<(f64, f64), MeasureError> {
+        self.full_triangles += batch.len() as u64;
+        let (mut z_min, mut z_max) = (f64::INFINITY, f64::NEG_INFINITY);
+        for t in batch {
+            for &p in t {
+                self.bounds = (self.bounds.0.min(p), self.bounds.1.max(p));
+                z_min = z_min.min(p.z);
+                z_max = z_max.max(p.z);
+            }
+            self.full_area += area(t);
+            let wanted = self.full_area * self.density;
+            self.full_weight = thinned_weight(wanted, self.full_cap, self.full_weight).ok_or_else(|| {
+                MeasureError::Unsampleable(format!(
+                    "the full-resolution surface's area {:e} at {:e} samples per unit area would take {wanted:e} samples, which no sample weight below 2^64 thins to {:e}",
+                    self.full_area, self.density, self.full_cap
+                ))
+            })?;
+            let (weight, drawn) = (self.full_weight, &mut self.drawn);
+            let density = self.density / weight as f64;
+            sample_triangle(t, density, &mut self.rng, |p| drawn.push((p, weight)))?;
+            if self.drawn.len() >= SAMPLE_CHUNK {
+                self.measure_drawn();
+            }
+        }
+        self.measure_drawn();
+        Ok((z_min, z_max))
     }
 
     /// Runs on two threads from now on when `halves` has them.
@@ -574,6 +602,9 @@ impl DistanceStream {
 
     /// The end of the first pass: the distances, or the far samples' second pass.
     pub(crate) fn finish(mut self) -> Result<Streamed, MeasureError> {
+        if let Some(e) = self.refused {
+            return Err(e);
+        }
         self.advance(f64::INFINITY);
         if self.full_to_output.count == 0 {
             return Err(MeasureError::EmptySurface);
@@ -680,6 +711,20 @@ impl Totals {
             samples_per_area: self.density,
         }
     }
+}
+
+/// What each full-resolution sample counts for once the surface seen so far would take
+/// `wanted` samples at the output's density: the smallest power of four from `weight` on with
+/// `wanted <= cap * sqrt(weight)`, four times sparser each time the area doubles, so that the
+/// samples of each doubling halve and all of them stay within one and a half times the cap.
+/// `None` past 4^31, the last power of four a `u64` holds (an infinite or runaway `wanted`):
+/// the multiplications stop at the first overflow, so the loop runs at most 32 times (it
+/// multiplied past `u64::MAX`, and in release wrapped to a zero weight and never ended).
+fn thinned_weight(wanted: f64, cap: f64, mut weight: u64) -> Option<u64> {
+    while wanted > cap * (weight as f64).sqrt() {
+        weight = weight.checked_mul(4)?;
+    }
+    Some(weight)
 }
 
 /// `x.floor() as i64` without the library call `f64::floor` is on baseline x86-64 (no SSE4.1):
@@ -1119,6 +1164,65 @@ pub(crate) mod tests {
         // The farthest samples are past the radius: 99.9 % are within the largest distance, not
         // within the radius.
         assert!(f2o.p999 > 10.0 && f2o.p999 <= f2o.hausdorff, "{f2o:?}");
+    }
+
+    /// An output with a coordinate out of range has no finite area to spread the samples over:
+    /// refused in one line (was a panic in `clamp` on a NaN area).
+    #[test]
+    fn an_output_of_no_finite_area_is_refused() {
+        let opts = MeasureOptions::default();
+        for c in [f64::NAN, f64::INFINITY, 1e300] {
+            let positions = [[0.0, 0.0, 0.0], [c, 0.0, 0.0], [0.0, c, 0.0]];
+            let e = DistanceStream::new(&positions, &[[0, 1, 2]], &opts, 1.0)
+                .err()
+                .unwrap();
+            assert!(matches!(e, MeasureError::Unsampleable(_)), "{c}: {e:?}");
+            let msg = e.to_string();
+            assert!(
+                msg.starts_with("the mesh cannot be sampled") && !msg.contains('\n'),
+                "{msg}"
+            );
+        }
+    }
+
+    /// A full-resolution triangle whose area overflows to infinity, or a density so high that
+    /// no power-of-four weight below 2^64 thins it: the stream refuses it at `finish` (was a
+    /// weight multiplied past `u64::MAX`: a panic, or in release a zero weight and a loop that
+    /// never ended).
+    #[test]
+    fn a_full_surface_no_weight_thins_is_refused() {
+        let (op, ot) = plane(1.0, 1, 0.0);
+        let opts = MeasureOptions::default();
+        let huge = [DVec3::ZERO, DVec3::X * 1e200, DVec3::Y * 1e200];
+        let unit = [DVec3::ZERO, DVec3::X, DVec3::Y];
+        let mut dense = DistanceStream::new(&op, &ot, &opts, 1.0).unwrap();
+        dense.density = 1e300;
+        for (mut s, t) in [
+            (DistanceStream::new(&op, &ot, &opts, 1.0).unwrap(), huge),
+            (dense, unit),
+        ] {
+            s.add_batch(vec![t], 0.5);
+            // Later batches are not sampled: the refusal stands.
+            s.add_batch(vec![unit], f64::INFINITY);
+            let e = s.finish().err().unwrap();
+            assert!(matches!(e, MeasureError::Unsampleable(_)), "{e:?}");
+        }
+    }
+
+    /// The weight settles on the smallest power of four that thins `wanted` to the cap, and
+    /// past 4^31 there is none: the loop stops at the first overflow.
+    #[test]
+    fn the_weight_is_bounded_by_construction() {
+        let cap = FULL_SAMPLES_CAP;
+        assert_eq!(thinned_weight(cap, cap, 1), Some(1));
+        assert_eq!(thinned_weight(cap * 3.0, cap, 1), Some(16));
+        assert_eq!(thinned_weight(cap * 2f64.powi(31), cap, 1), Some(1 << 62));
+        assert_eq!(thinned_weight(cap * 2f64.powi(32), cap, 1), None);
+        assert_eq!(thinned_weight(cap * 2.0, cap, 1 << 62), Some(1 << 62));
+        assert_eq!(thinned_weight(f64::INFINITY, cap, 1), None);
+        assert_eq!(thinned_weight(f64::MAX, cap, 1), None);
+        // A NaN area leaves the weight; the triangle sampler refuses the NaN count.
+        assert_eq!(thinned_weight(f64::NAN, cap, 4), Some(4));
     }
 
     #[test]

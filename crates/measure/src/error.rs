@@ -33,6 +33,15 @@ pub enum MeasureError {
     #[error("the mesh does not lie on that volume: {0}; measure it against the job that wrote it")]
     OffVolume(String),
 
+    /// The sampling the mesh calls for is out of range: a density past f64's range (a mesh of
+    /// denormal area), a triangle taking more samples than any settled density gives one, or
+    /// a full surface no power-of-four weight thins. Sampling it was a loop of up to 2^64
+    /// draws, or a weight that overflowed.
+    #[error(
+        "the mesh cannot be sampled: {0}; check that its coordinates are in the volume's units (measure it against the job that wrote it)"
+    )]
+    Unsampleable(String),
+
     #[error("the output mesh has no area; distances need a surface to sample")]
     EmptyOutput,
 

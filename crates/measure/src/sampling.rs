@@ -8,6 +8,8 @@
 
 use glam::DVec3;
 
+use crate::MeasureError;
+use crate::distances::FULL_SAMPLES_CAP;
 use crate::triangle::{Triangle, area, uniform_point};
 
 #[derive(Debug, Clone)]
@@ -32,7 +34,14 @@ impl SplitMix64 {
     }
 }
 
-/// Calls `visit` on about `density * area(t)` points spread uniformly over `t`.
+/// Most samples one triangle may take: twice what any density its callers settle on gives one
+/// (`DistanceStream` keeps each triangle's expected count under `FULL_SAMPLES_CAP`). A larger
+/// count comes of a density out of range (infinite, or a mesh's area out of scale with the
+/// volume's), and was up to 2^64 draws.
+pub(crate) const MAX_TRIANGLE_SAMPLES: f64 = 2.0 * FULL_SAMPLES_CAP;
+
+/// Calls `visit` on about `density * area(t)` points spread uniformly over `t`, or refuses
+/// (before any draw) when that count is not a number or exceeds [`MAX_TRIANGLE_SAMPLES`].
 ///
 /// The count is `floor(density * area)` plus one more with probability equal to the fraction, so
 /// every unit of area gets `density` samples in expectation however small the triangles are (the
@@ -43,8 +52,15 @@ pub(crate) fn sample_triangle(
     density: f64,
     rng: &mut SplitMix64,
     mut visit: impl FnMut(DVec3),
-) {
+) -> Result<(), MeasureError> {
     let expected = density * area(t);
+    // Also false for NaN.
+    if !(expected <= MAX_TRIANGLE_SAMPLES) {
+        return Err(MeasureError::Unsampleable(format!(
+            "a triangle of area {:e} at {density:e} samples per unit area would take {expected:e} samples, over the {MAX_TRIANGLE_SAMPLES:e} one triangle may",
+            area(t)
+        )));
+    }
     // Truncation is the floor of a non-negative count (and no library call, as `floor` is on
     // baseline x86-64).
     let mut count = expected as u64;
@@ -55,6 +71,7 @@ pub(crate) fn sample_triangle(
         let (r1, r2) = (rng.next_f64(), rng.next_f64());
         visit(uniform_point(t, r1, r2));
     }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -70,13 +87,32 @@ mod tests {
         assert_eq!(rng.next_u64(), 3203168211198807973);
     }
 
+    /// A density out of range (infinite, NaN, or finite but past any settled one) is refused
+    /// before a single draw (an infinite one was `u64::MAX` draws).
+    #[test]
+    fn a_runaway_density_is_refused_before_drawing() {
+        let mut rng = SplitMix64::new(3);
+        for density in [1e18, f64::INFINITY, f64::NAN, 1e30] {
+            let mut n = 0u64;
+            let sampled = sample_triangle(&equilateral(1.0), density, &mut rng, |_| {
+                n += 1;
+                assert!(n < 100_000_000, "sampled without bound at {density}");
+            });
+            assert!(
+                matches!(sampled, Err(MeasureError::Unsampleable(_))),
+                "{density}: {sampled:?}"
+            );
+            assert_eq!(n, 0, "{density}");
+        }
+    }
+
     #[test]
     fn counts_follow_area_in_expectation() {
         let mut rng = SplitMix64::new(3);
         let tiny = equilateral(0.1); // area 0.00433: far below one sample per triangle
         let mut n = 0u64;
         for _ in 0..100_000 {
-            sample_triangle(&tiny, 10.0, &mut rng, |_| n += 1);
+            sample_triangle(&tiny, 10.0, &mut rng, |_| n += 1).unwrap();
         }
         let expected = 100_000.0 * 10.0 * area(&tiny);
         assert!(
