@@ -12,6 +12,7 @@
 //! out in voxel-index orientation from that origin, and the source reports what it dropped
 //! ([`VolumeSource::orientation`]).
 
+use crate::dtype::Scale;
 use crate::orientation::step_length;
 use crate::raw::{Payload, RawVolume};
 use crate::stream::{Stream, StreamSpec, StreamVolume, open_at, skip_bytes};
@@ -64,9 +65,16 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         (true, false) => path.with_extension("img"),
         (true, true) => path.with_extension("").with_extension("img.gz"),
     };
-    let inner: Box<dyn VolumeSource> = if gz {
+    // scl_slope 0 means "no scaling" in NIfTI-1; identity scaling is skipped for speed.
+    let scale = (h.slope != 0.0 && h.slope.is_finite() && !(h.slope == 1.0 && h.inter == 0.0))
+        .then(|| Scale {
+            slope: h.slope,
+            inter: if h.inter.is_finite() { h.inter } else { 0.0 },
+            header: path.to_path_buf(),
+        });
+    if gz {
         let skip = h.vox_offset;
-        Box::new(StreamVolume::new(StreamSpec {
+        let stream = StreamVolume::new(StreamSpec {
             path: data.clone(),
             what: "gzip NIfTI voxels",
             grid,
@@ -87,20 +95,11 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
             }),
             exact_end: false,
             orientation: h.orientation,
-        })?)
+        })?;
+        Ok(Box::new(stream.with_scale(scale)))
     } else {
-        Box::new(raw(&data, &h, grid)?)
-    };
-    // scl_slope 0 means "no scaling" in NIfTI-1; identity scaling is skipped for speed.
-    if h.slope == 0.0 || !h.slope.is_finite() || (h.slope == 1.0 && h.inter == 0.0) {
-        return Ok(inner);
+        Ok(Box::new(raw(&data, &h, grid)?.with_scale(scale)))
     }
-    Ok(Box::new(Scaled {
-        inner,
-        path: path.to_path_buf(),
-        slope: h.slope,
-        inter: if h.inter.is_finite() { h.inter } else { 0.0 },
-    }))
 }
 
 fn raw(data: &Path, h: &Header, grid: Grid) -> Result<RawVolume, VolumeError> {
@@ -260,60 +259,6 @@ fn qform_orientation(f64_at: &dyn Fn(usize) -> f64) -> Orientation {
         let sign = if k == 2 { qfac } else { 1.0 };
         r.map(|row| row[k] * sign)
     }))
-}
-
-/// Applies `value * slope + inter` (NIfTI's scl_slope / scl_inter) to every voxel, and refuses
-/// a scaling that overflows `f32` on a finite stored value: those voxels became infinite and
-/// were meshed as outside (a scl_slope of 1e38 made 96 % of a volume so, with exit 0), when the
-/// header, not the data, is wrong.
-struct Scaled {
-    inner: Box<dyn VolumeSource>,
-    /// The header, named in the error.
-    path: std::path::PathBuf,
-    slope: f32,
-    inter: f32,
-}
-
-impl VolumeSource for Scaled {
-    fn grid(&self) -> Grid {
-        self.inner.grid()
-    }
-    fn describe(&self) -> String {
-        self.inner.describe()
-    }
-    fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
-        self.inner.read_slice(z, out)?;
-        let mut overflow = None;
-        for v in out.iter_mut() {
-            let scaled = *v * self.slope + self.inter;
-            if overflow.is_none() && !scaled.is_finite() && v.is_finite() {
-                overflow = Some(*v);
-            }
-            *v = scaled;
-        }
-        match overflow {
-            None => Ok(()),
-            Some(stored) => Err(VolumeError::format(
-                &self.path,
-                "header field scl_slope",
-                format!(
-                    "a scaling that keeps every voxel within f32's 3.4e38 (with scl_inter {}, \
-                     the stored value {stored} of slice {z} becomes infinite)",
-                    self.inter
-                ),
-                format!("{:e}", self.slope),
-            )),
-        }
-    }
-    fn dtype(&self) -> Option<Dtype> {
-        self.inner.dtype()
-    }
-    fn orientation(&self) -> Orientation {
-        self.inner.orientation()
-    }
-    fn saturated_voxels(&self) -> u64 {
-        self.inner.saturated_voxels()
-    }
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@
 //! VTK legacy binary, NIfTI `.nii`).
 #![allow(unsafe_code)]
 
-use crate::dtype::decode;
+use crate::dtype::{Scale, decode};
 use crate::grid::dims_text;
 use crate::source::check_request;
 use crate::{Dtype, Endian, Grid, Orientation, VolumeError, VolumeSource};
@@ -62,6 +62,8 @@ pub struct RawVolume {
     orientation: Orientation,
     /// Voxels saturated by the reads so far (`VolumeSource::saturated_voxels`).
     saturated: u64,
+    /// The header's scaling (NIfTI), applied as the voxels are decoded.
+    scale: Option<Scale>,
 }
 
 impl RawVolume {
@@ -129,7 +131,14 @@ impl RawVolume {
             released: 0,
             orientation: p.orientation,
             saturated: 0,
+            scale: None,
         })
+    }
+
+    /// Reads the voxels through the header's scaling, if it has one.
+    pub(crate) fn with_scale(mut self, scale: Option<Scale>) -> Self {
+        self.scale = scale;
+        self
     }
 
     /// Tells the kernel the bytes before slice `keep_from` will not be read again, so resident
@@ -345,12 +354,11 @@ impl VolumeSource for RawVolume {
                 now,
             ));
         }
-        self.saturated += decode(
-            self.dtype,
-            self.endian,
-            &self.map[start..start + self.slice_bytes],
-            out,
-        );
+        let bytes = &self.map[start..start + self.slice_bytes];
+        self.saturated += match &self.scale {
+            None => decode(self.dtype, self.endian, bytes, out),
+            Some(scale) => scale.decode(self.dtype, self.endian, bytes, out, z)?,
+        };
         self.release_before(z.saturating_sub(1));
         Ok(())
     }

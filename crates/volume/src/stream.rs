@@ -2,7 +2,7 @@
 //! (base64, ASCII numbers) or split over many files. They decode one slice at a time from a
 //! `Read`, so memory stays at two slices of bytes whatever the volume size.
 
-use crate::dtype::decode;
+use crate::dtype::{Scale, decode};
 use crate::grid::dims_text;
 use crate::source::check_request;
 use crate::{Dtype, Endian, Grid, Orientation, VolumeError, VolumeSource};
@@ -39,6 +39,8 @@ pub(crate) struct StreamVolume {
     prev: Vec<u8>,
     /// Voxels saturated by the reads so far (`VolumeSource::saturated_voxels`).
     saturated: u64,
+    /// The header's scaling (NIfTI), applied as the voxels are decoded.
+    scale: Option<Scale>,
 }
 
 pub(crate) struct StreamSpec {
@@ -89,9 +91,16 @@ impl StreamVolume {
             bytes: Vec::new(),
             prev: Vec::new(),
             saturated: 0,
+            scale: None,
         };
         v.advance()?;
         Ok(v)
+    }
+
+    /// Reads the voxels through the header's scaling, if it has one.
+    pub(crate) fn with_scale(mut self, scale: Option<Scale>) -> Self {
+        self.scale = scale;
+        self
     }
 
     /// Reads slice `next_z` into `self.bytes`, turning I/O failures into format errors that say
@@ -222,18 +231,22 @@ impl VolumeSource for StreamVolume {
 
     fn read_slice(&mut self, z: u64, out: &mut [f32]) -> Result<(), VolumeError> {
         check_request(self, z, out)?;
-        if z + 2 == self.next_z {
-            self.saturated += decode(self.dtype, self.endian, &self.prev, out);
-            return Ok(());
-        }
-        if z + 1 < self.next_z {
-            self.reader = None;
-            self.next_z = 0;
-        }
-        while self.next_z <= z {
-            self.advance()?;
-        }
-        self.saturated += decode(self.dtype, self.endian, &self.bytes, out);
+        let bytes = if z + 2 == self.next_z {
+            &self.prev
+        } else {
+            if z + 1 < self.next_z {
+                self.reader = None;
+                self.next_z = 0;
+            }
+            while self.next_z <= z {
+                self.advance()?;
+            }
+            &self.bytes
+        };
+        self.saturated += match &self.scale {
+            None => decode(self.dtype, self.endian, bytes, out),
+            Some(scale) => scale.decode(self.dtype, self.endian, bytes, out, z)?,
+        };
         Ok(())
     }
 

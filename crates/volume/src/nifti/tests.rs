@@ -202,6 +202,70 @@ fn doubles_beyond_f32_are_saturated_and_counted() {
     }
 }
 
+/// Doubles beyond f32's range are scaled in f64 before they are narrowed: a stored 1e39 with
+/// scl_slope 1e-3 is 1e36 (saturating first made it 3.4e35), and only a scaled value still
+/// beyond f32 is saturated and counted; mapped or gzipped, either byte order. A stored value
+/// within f32 that the scaling takes beyond it is refused, as for every type.
+#[test]
+fn doubles_are_scaled_before_they_are_saturated() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut values: Vec<f64> = (0..24).map(|i| f64::from(i) * 1000.0).collect();
+    values[1] = 1e39;
+    values[4] = -2e39;
+    values[9] = 1e44; // 1e41 scaled: still beyond f32
+    values[10] = -f64::MAX;
+    values[20] = f64::INFINITY;
+    values[22] = f64::NAN;
+    let (slope, inter) = (1e-3f32, 2.0f32);
+    let want: Vec<f32> = values
+        .iter()
+        .map(|&v| {
+            let scaled = v * f64::from(slope) + f64::from(inter);
+            match scaled {
+                s if s.is_finite() && s.abs() > f64::from(f32::MAX) => f32::MAX.copysign(s as f32),
+                s => s as f32,
+            }
+        })
+        .collect();
+    assert!(want[1] > 9.9e35 && want[1] < 1.01e36, "{}", want[1]);
+    for e in [Endian::Little, Endian::Big] {
+        let mut h = Hdr::new(Dtype::F64, e);
+        (h.slope, h.inter) = (slope, inter);
+        let mut file = h.bytes();
+        file.extend(encode(Dtype::F64, e, &values));
+        for (name, bytes) in [("d.nii", file.clone()), ("d.nii.gz", gzip(&file))] {
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).unwrap();
+            let (got, saturated) =
+                crate::testutil::read_all_saturated(&p, &OpenOptions::default()).unwrap();
+            assert!(
+                crate::testutil::same_values(&got, &want),
+                "{e:?} {name}: {got:?} against {want:?}"
+            );
+            assert_eq!(saturated, 2, "{e:?} {name}");
+        }
+    }
+    // 1e36 is within f32; times 1e3 it is not: the header's scaling is refused.
+    let mut h = Hdr::new(Dtype::F64, Endian::Little);
+    h.slope = 1e3;
+    values[1] = 1e36;
+    let mut file = h.bytes();
+    file.extend(encode(Dtype::F64, Endian::Little, &values));
+    let p = dir.path().join("o.nii");
+    std::fs::write(&p, &file).unwrap();
+    let err = read_all(&p, &OpenOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("o.nii: header field scl_slope: expected a scaling that keeps every voxel")
+            && err.contains(
+                "the stored value 1000000000000000000000000000000000000 of slice 0 becomes infinite"
+            )
+            && !err.contains('\n'),
+        "{err}"
+    );
+}
+
 /// A scl_slope that overflows f32 on stored values made them infinite, meshed as outside with
 /// exit 0: refused, naming the field.
 #[test]
