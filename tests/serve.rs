@@ -1338,6 +1338,48 @@ fn a_checkpoint_that_fails_after_a_first_pass_is_dropped_and_the_job_starts_over
     assert!(s.log().contains("starting the job over"), "{}", s.log());
 }
 
+/// A job resumed from its checkpoint after the service died counts in `faces_in` and
+/// `faces_out` only the faces its run made: the faces it restored from the checkpoint were the
+/// dead service's work (its progress reports carry them in their totals, and they were
+/// counted again, as if new).
+#[test]
+fn a_resumed_job_counts_only_the_faces_it_made() {
+    let dir = tempfile::tempdir().unwrap();
+    // Mode `error` writes faces as the sweep goes (from about slab 10 of this gyroid's 95): the
+    // checkpoint of slab 15 or 20 holds some of both.
+    let keys = "[simplify]\nmode = \"error\"\nerror = 0.5\n";
+    let killed = KilledPastACheckpoint::new(dir.path(), keys, |v| {
+        v["progress"]["slabs_done"].as_u64() >= Some(22)
+    });
+    let s = Server::start(&killed.state, &killed.allow());
+    let last = follow(&s, &killed.id).pop().unwrap();
+    assert_eq!(last["state"], "done", "{last}\n{}", s.log());
+    let summary = &job(&s, &killed.id)["summary"];
+    assert!(
+        summary["resumed_at_slab"].as_u64().is_some_and(|z| z > 0),
+        "{summary}"
+    );
+    let (_, metrics) = send(agent().get(&s.url("/metrics")), None);
+    let counted = |name: &str| -> u64 {
+        let line = metrics
+            .lines()
+            .find(|l| l.starts_with(&format!("isostream_{name}_total ")))
+            .unwrap_or_else(|| panic!("{name} missing:\n{metrics}"));
+        line.rsplit(' ').next().unwrap().parse().unwrap()
+    };
+    for (name, total) in [
+        ("faces_in", "faces_extracted"),
+        ("faces_out", "faces_written"),
+    ] {
+        let total = summary[total].as_u64().unwrap();
+        let counted = counted(name);
+        assert!(
+            counted > 0 && counted < total,
+            "{name}: {counted} counted of the run's {total}\n{metrics}"
+        );
+    }
+}
+
 /// A service killed (SIGKILL) while running a checkpointed gyroid job (96^3, a checkpoint every
 /// 5 slabs) once a checkpoint was saved and `also` holds of the job's view.
 struct KilledPastACheckpoint {

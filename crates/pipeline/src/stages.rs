@@ -66,6 +66,11 @@ pub struct Progress {
     /// count is summed at its end).
     pub faces_in: u64,
     pub faces_out: u64,
+    /// The part of `faces_in` and `faces_out` restored from the checkpoint this run resumed (0
+    /// on a fresh run): a counter of the work done counts from here (the service counted a
+    /// resumed run's restored faces again, as if new).
+    pub faces_in_at_start: u64,
+    pub faces_out_at_start: u64,
     pub resident_faces: u64,
     /// Slabs extracted or being extracted that the detector has not taken yet, and batches
     /// waiting in the detect->simplify and simplify->write channels (0 in the first pass).
@@ -82,6 +87,8 @@ impl Progress {
             slabs_total,
             faces_in: 0,
             faces_out: 0,
+            faces_in_at_start: 0,
+            faces_out_at_start: 0,
             resident_faces: 0,
             queued: [0; 3],
         }
@@ -218,6 +225,17 @@ impl Stages<'_> {
         let ctl = Control::new(cancel);
         let ctl = &ctl;
         ctl.add_range(&range);
+        // The faces a resumed run restored: the first simplifier's in, and the written ones of
+        // the last (the second's, restored in `SecondCounts::of`).
+        let restored = simplifier.stats();
+        let start = RunStart {
+            slabs: first,
+            faces_in: restored.faces_in,
+            faces_out: depth
+                .second
+                .as_ref()
+                .map_or(restored.faces_out, |c| c.faces_out.load(Ordering::Relaxed)),
+        };
 
         let extraction = Extraction {
             reader,
@@ -259,7 +277,7 @@ impl Stages<'_> {
                     checkpoint: plan.map(|p| p.path.as_path()),
                     front: None,
                     last_front: u32::try_from(first).unwrap_or(u32::MAX),
-                    first_front: first,
+                    start,
                     slabs_total,
                     log_every: (slabs_total / 20).max(1),
                     depth,
@@ -275,7 +293,7 @@ impl Stages<'_> {
                         ctl,
                         faces_in: 0,
                         slabs_total: grid.dims[2] - 1,
-                        first_front: first,
+                        start,
                         depth,
                         observer,
                         last,
@@ -728,6 +746,15 @@ fn interruptible(
     call(&|| ctl.check().is_err()).map_err(|Interrupted| ctl.stop())
 }
 
+/// Where a run started: the front and face totals of the checkpoint it resumed, 0 on a fresh
+/// run ([`Progress::slabs_at_start`], [`Progress::faces_in_at_start`]).
+#[derive(Debug, Clone, Copy, Default)]
+struct RunStart {
+    slabs: u64,
+    faces_in: u64,
+    faces_out: u64,
+}
+
 /// Deltas -> simplified batches. A delta is added as soon as it arrives, but its batch is closed
 /// (`end_batch`) only when the next one arrives: the last one is closed by `finish` instead.
 struct SimplifyStep<'a> {
@@ -740,8 +767,8 @@ struct SimplifyStep<'a> {
     /// The front of the delta added last, whose batch is still open.
     front: Option<Front>,
     last_front: u32,
-    /// The front where this run started (the resumed checkpoint's, or 0).
-    first_front: u64,
+    /// Where this run started (the resumed checkpoint's front and faces, or 0).
+    start: RunStart,
     slabs_total: u64,
     log_every: u64,
     depth: &'a Depths,
@@ -783,10 +810,12 @@ impl SimplifyStep<'_> {
             let progress = Progress {
                 pass: Pass::Run,
                 slabs_done: u64::from(front),
-                slabs_at_start: self.first_front,
+                slabs_at_start: self.start.slabs,
                 slabs_total: self.slabs_total,
                 faces_in: st.faces_in,
                 faces_out,
+                faces_in_at_start: self.start.faces_in,
+                faces_out_at_start: self.start.faces_out,
                 resident_faces: resident,
                 queued: self.depth.queued(),
             };
@@ -891,8 +920,8 @@ struct SecondStep<'a> {
     /// Faces extracted so far, from the first stage's hand-offs.
     faces_in: u64,
     slabs_total: u64,
-    /// The front where this run started (see `SimplifyStep::first_front`).
-    first_front: u64,
+    /// Where this run started (see `SimplifyStep::start`).
+    start: RunStart,
     depth: &'a Depths,
     observer: &'a (dyn Fn(&Progress) + Sync),
     last: &'a dyn Join,
@@ -952,10 +981,12 @@ impl Step for SecondStep<'_> {
         (self.observer)(&Progress {
             pass: Pass::Run,
             slabs_done: self.slabs_total,
-            slabs_at_start: self.first_front,
+            slabs_at_start: self.start.slabs,
             slabs_total: self.slabs_total,
             faces_in: self.faces_in,
             faces_out: st.faces_out,
+            faces_in_at_start: self.start.faces_in,
+            faces_out_at_start: self.start.faces_out,
             resident_faces: st.faces_resident as u64,
             queued: self.depth.queued(),
         });
@@ -1205,7 +1236,7 @@ mod tests {
             checkpoint: None,
             front: None,
             last_front: 0,
-            first_front: 0,
+            start: RunStart::default(),
             slabs_total,
             log_every: 1,
             depth: &depth,
@@ -1231,7 +1262,7 @@ mod tests {
             ctl,
             faces_in: 0,
             slabs_total,
-            first_front: 0,
+            start: RunStart::default(),
             depth: &depth,
             observer: &|_| {},
             last: &last,

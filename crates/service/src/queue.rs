@@ -660,9 +660,13 @@ impl Queue {
                     (Pass::First, None, Pass::Run) => (Some(now_ms()), Some(p.slabs_done)),
                     _ => (None, None),
                 };
+            // Counted from where the run started: a resumed run's totals include the faces its
+            // checkpoint restored, the work of the service that saved it.
             self.metrics.faces(
-                now.faces_in.saturating_sub(job.progress.faces_in),
-                now.faces_out.saturating_sub(job.progress.faces_out),
+                now.faces_in
+                    .saturating_sub(job.progress.faces_in.max(p.faces_in_at_start)),
+                now.faces_out
+                    .saturating_sub(job.progress.faces_out.max(p.faces_out_at_start)),
             );
             job.progress = now;
             job.publish();
@@ -997,6 +1001,49 @@ mod tests {
             "cancelled as the client was told, not a crash to run again"
         );
         assert_eq!(q.get(QUEUED).unwrap().record.state, JobState::Cancelled);
+    }
+
+    /// A run resumed from a checkpoint reports the faces it restored in its totals, from its
+    /// first report on: the metrics count only the faces it adds (they counted the restored
+    /// ones again, as if new).
+    #[test]
+    fn a_resumed_run_counts_only_the_faces_it_adds() {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path();
+        Store::open(state)
+            .unwrap()
+            .create(
+                &JobRecord::queued(RUNNING.into(), 0, "output.smb".into()),
+                SPHERE,
+            )
+            .unwrap();
+        let q = queue(state);
+        let report = |pass, slabs_done, faces_in, faces_out| Progress {
+            pass,
+            slabs_done,
+            slabs_at_start: 40,
+            slabs_total: 100,
+            faces_in,
+            faces_out,
+            faces_in_at_start: 4000,
+            faces_out_at_start: 700,
+            resident_faces: 0,
+            queued: [0; 3],
+        };
+        // A first pass (`[output] faces`) reports no faces, then the run its totals.
+        q.progress(RUNNING, &report(Pass::First, 100, 0, 0));
+        q.progress(RUNNING, &report(Pass::Run, 41, 4100, 720));
+        q.progress(RUNNING, &report(Pass::Run, 42, 4250, 760));
+        let text = q.metrics.render(&Snapshot {
+            jobs: Vec::new(),
+            resident_faces: 0,
+        });
+        for needle in [
+            "isostream_faces_in_total 250\n",
+            "isostream_faces_out_total 60\n",
+        ] {
+            assert!(text.contains(needle), "{needle} missing from\n{text}");
+        }
     }
 
     /// A job found `running` is done only when its run summary is whole and names the
