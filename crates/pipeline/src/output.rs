@@ -3,6 +3,7 @@
 
 use std::fs::{File, OpenOptions, TryLockError};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 use crate::error::RunError;
 
@@ -155,8 +156,9 @@ pub struct OutputLock {
 }
 
 /// Takes the output's lock (creating the output's folder if needed); `RunError::Locked` when
-/// another process holds it, `RunError::OutputFolder` when the folder cannot be created or
-/// written (the first file a run makes there is its lock).
+/// another process holds it (`validate`'s probe, holding it shared for an instant, is waited
+/// out), `RunError::OutputFolder` when the folder cannot be created or written (the first file
+/// a run makes there is its lock).
 pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
     let lock = lock_path(output);
     let fail = |what: &'static str, fix: &'static str| {
@@ -186,7 +188,7 @@ pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
             .write(true)
             .open(&lock)
             .map_err(fail("write in its folder", WRITABLE))?;
-        match file.try_lock() {
+        match lock_past_probes(&file) {
             Ok(()) => {}
             Err(TryLockError::WouldBlock) => {
                 return Err(RunError::Locked {
@@ -210,6 +212,30 @@ pub fn lock_output(output: &Path) -> Result<OutputLock, RunError> {
     ))
 }
 
+/// How long a run waits for probes of its output's lock to let go: each holds it shared for an
+/// instant ([`output_in_use`]), and a run refused in that instant was refused as if another job
+/// wrote the output.
+const PROBE_WAIT: Duration = Duration::from_secs(1);
+
+/// Locks `file` exclusively. While only shared holders (probes) hold it, tries again every
+/// millisecond for up to [`PROBE_WAIT`]; an exclusive holder (a run) is `WouldBlock` at once.
+fn lock_past_probes(file: &File) -> Result<(), TryLockError> {
+    let deadline = Instant::now() + PROBE_WAIT;
+    loop {
+        match file.try_lock() {
+            Err(TryLockError::WouldBlock) => {}
+            taken => return taken,
+        }
+        // Taken shared as well, the holders are probes; under a run's lock it would block.
+        file.try_lock_shared()?;
+        file.unlock().map_err(TryLockError::Error)?;
+        if Instant::now() >= deadline {
+            return Err(TryLockError::WouldBlock);
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 /// The fix of an output folder that cannot be written.
 const WRITABLE: &str = "make it writable";
 
@@ -226,7 +252,7 @@ fn unusable(e: &std::io::Error) -> bool {
 
 /// The lock file of `output` when a live process holds it (a run or a conversion writing that
 /// output), found by taking it shared for an instant; `None` when it is free or missing. A run
-/// can be refused as "another job" in that instant, which is why it is not held longer.
+/// starting in that instant waits it out ([`lock_output`]), and it is not held longer.
 pub fn output_in_use(output: &Path) -> Option<PathBuf> {
     let lock = lock_path(output);
     // Opened for reading, never created: a run removes it when it ends.
@@ -282,6 +308,53 @@ mod tests {
             .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
             .collect();
         assert_eq!(names, [".m.smb.abC123.tmp", ".m.smb.run.json.x1y2z3.tmp"]);
+    }
+
+    /// A run starting while `validate` probes the output (`output_in_use` holds its lock shared
+    /// for an instant) waits the probe out instead of being refused as another job: here a
+    /// probe held 50 ms. A run holding the lock is still refused at once.
+    #[test]
+    fn a_probe_of_the_lock_never_refuses_a_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("m.smb");
+        std::fs::write(lock_path(&out), b"").unwrap();
+        let probe = File::open(lock_path(&out)).unwrap();
+        probe.try_lock_shared().unwrap();
+        let release = std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(50));
+            drop(probe);
+        });
+        let run = lock_output(&out).unwrap();
+        release.join().unwrap();
+        assert_eq!(output_in_use(&out), Some(lock_path(&out)));
+        let t = Instant::now();
+        assert!(matches!(lock_output(&out), Err(RunError::Locked { .. })));
+        assert!(
+            t.elapsed() < Duration::from_millis(500),
+            "{:?}",
+            t.elapsed()
+        );
+        drop(run);
+        assert_eq!(output_in_use(&out), None);
+    }
+
+    /// `validate` probing in a loop while runs start and end never makes one refuse.
+    #[test]
+    fn runs_start_while_validate_probes() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("m.smb");
+        let done = std::sync::atomic::AtomicBool::new(false);
+        let refused = std::thread::scope(|s| {
+            s.spawn(|| {
+                while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                    let _ = output_in_use(&out);
+                }
+            });
+            let refused = (0..2000).filter(|_| lock_output(&out).is_err()).count();
+            done.store(true, std::sync::atomic::Ordering::Relaxed);
+            refused
+        });
+        assert_eq!(refused, 0, "runs refused of 2000");
     }
 
     #[test]
