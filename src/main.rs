@@ -259,6 +259,7 @@ fn exit_code(err: &anyhow::Error) -> u8 {
                 | isostream_measure::MeasureError::VertexIndex { .. }
                 | isostream_measure::MeasureError::EmptyOutput
                 | isostream_measure::MeasureError::OffVolume(_)
+                | isostream_measure::MeasureError::Unsampleable(_)
                 | isostream_measure::MeasureError::EmptySurface => 2,
                 _ => 1,
             };

@@ -54,8 +54,7 @@ pub(crate) fn sample_triangle(
     mut visit: impl FnMut(DVec3),
 ) -> Result<(), MeasureError> {
     let expected = density * area(t);
-    // Also false for NaN.
-    if !(expected <= MAX_TRIANGLE_SAMPLES) {
+    if expected.is_nan() || expected > MAX_TRIANGLE_SAMPLES {
         return Err(MeasureError::Unsampleable(format!(
             "a triangle of area {:e} at {density:e} samples per unit area would take {expected:e} samples, over the {MAX_TRIANGLE_SAMPLES:e} one triangle may",
             area(t)
