@@ -1,8 +1,9 @@
 //! TIFF stacks: one multi-page `.tif`/`.tiff` (page k = slice z = k) or a directory of
 //! single-page TIFFs in natural name order (`slice2.tif` before `slice10.tif`; hidden files,
 //! whose names start with '.', are skipped). Grayscale pages of one channel at one time point
-//! only. One page is decoded per slice; TIFF carries no reliable voxel size, so spacing and origin
-//! come from [`OpenOptions`] (default 1 and 0). WhiteIsZero pages are inverted by the `tiff`
+//! only. One page is decoded per slice. The voxel size is the first page's ImageJ or OME-XML
+//! metadata's (`spacing.rs`: plain resolution tags are a print size, not read), else 1;
+//! [`OpenOptions`] overrides it and gives the origin (default 0). WhiteIsZero pages are inverted by the `tiff`
 //! decoder (`max - v` for unsigned samples, `1 - v` for floats; signed samples are refused), so
 //! they read as the picture looks.
 
@@ -15,6 +16,8 @@ use std::path::{Path, PathBuf};
 use tiff::ColorType;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::tags::Tag;
+
+mod spacing;
 
 type TiffDecoder = Decoder<BufReader<File>>;
 
@@ -35,6 +38,10 @@ pub(crate) struct TiffStack {
     saturated: u64,
     /// What the other pages must match, for messages: "the first page" or the first file.
     like: String,
+    /// The voxel size the grid took from the file's metadata, told with its unit in
+    /// [`VolumeSource::describe`] (the job's start line and the run summary's `input`): meshes
+    /// have no unit field. `None` when the metadata has none or `[input] spacing` overrides it.
+    voxel: Option<spacing::FileSpacing>,
 }
 
 /// Opens a multi-page TIFF file or a directory of TIFF files.
@@ -56,10 +63,24 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     };
     // Decode the first page once: it fixes the slice size and tells the stored type.
     let mut d = decoder(&first)?;
-    refuse_hyperstack(&first, &mut d)?;
+    let desc = description(&mut d);
+    refuse_hyperstack(&first, desc.as_deref())?;
     let (w, h) = d.dimensions().map_err(|e| page_err(&first, 0, e))?;
     let dims = [u64::from(w), u64::from(h), count];
-    let grid = opts.grid(path, dims, [1.0; 3], [0.0; 3])?;
+    // The metadata is not read under an override: `[input] spacing` is the way to run a stack
+    // whose metadata is refused.
+    let voxel = match opts.spacing {
+        Some(_) => None,
+        None => spacing::read(&first, desc.as_deref(), &mut d)?,
+    };
+    // A bad size is named in the file that holds it (a folder's first file).
+    let named = if voxel.is_some() { &first } else { path };
+    let grid = opts.grid(
+        named,
+        dims,
+        voxel.as_ref().map_or([1.0; 3], |v| v.spacing),
+        [0.0; 3],
+    )?;
     let like = match pages {
         Pages::Files(_) => format!("the first file, {}", file_name(&first)),
         Pages::MultiPage(_) => "the first page".to_string(),
@@ -74,6 +95,7 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
         pages,
         saturated: 0,
         like,
+        voxel,
     }))
 }
 
@@ -155,20 +177,29 @@ fn limits_for(file_len: u64) -> Limits {
     limits
 }
 
-/// Refuses a file whose ImageDescription declares more than one channel or time point: ImageJ
-/// hyperstacks and OME-TIFF store them as interleaved pages, which were read as z slices (two
-/// channels doubled the depth). A description the decoder cannot read (not UTF-8) declares
-/// nothing this reader can use, and the pages are still read.
-fn refuse_hyperstack(path: &Path, d: &mut TiffDecoder) -> Result<(), VolumeError> {
-    let Some(desc) = d
-        .find_tag(Tag::ImageDescription)
+/// The current page's ImageDescription. One the decoder cannot read (not UTF-8) declares nothing
+/// this reader can use, and the pages are still read.
+fn description(d: &mut TiffDecoder) -> Option<String> {
+    d.find_tag(Tag::ImageDescription)
         .ok()
         .flatten()
         .and_then(|v| v.into_string().ok())
-    else {
+}
+
+/// The values of an ImageJ description's `key=value` lines.
+fn imagej_values<'a>(desc: &'a str, key: &'a str) -> impl Iterator<Item = &'a str> {
+    desc.lines()
+        .filter_map(move |l| l.strip_prefix(key)?.strip_prefix('='))
+}
+
+/// Refuses a file whose ImageDescription declares more than one channel or time point: ImageJ
+/// hyperstacks and OME-TIFF store them as interleaved pages, which were read as z slices (two
+/// channels doubled the depth).
+fn refuse_hyperstack(path: &Path, desc: Option<&str>) -> Result<(), VolumeError> {
+    let Some(desc) = desc else {
         return Ok(());
     };
-    let (writer, extra) = hyperstack_extents(&desc);
+    let (writer, extra) = hyperstack_extents(desc);
     if extra.is_empty() {
         return Ok(());
     }
@@ -186,8 +217,7 @@ fn refuse_hyperstack(path: &Path, d: &mut TiffDecoder) -> Result<(), VolumeError
 fn hyperstack_extents(desc: &str) -> (&'static str, Vec<String>) {
     let (writer, counts) = if desc.starts_with("ImageJ=") {
         let count = |key: &str| {
-            desc.lines()
-                .filter_map(|l| l.strip_prefix(key)?.strip_prefix('='))
+            imagej_values(desc, key)
                 .filter_map(|v| v.trim().parse::<u64>().ok())
                 .max()
         };
@@ -307,8 +337,12 @@ impl VolumeSource for TiffStack {
     }
 
     fn describe(&self) -> String {
+        let voxel = match &self.voxel {
+            Some(v) => format!(", {v}"),
+            None => String::new(),
+        };
         format!(
-            "{} ({} TIFF stack)",
+            "{} ({} TIFF stack{voxel})",
             self.path.display(),
             dims_text(self.grid.dims)
         )

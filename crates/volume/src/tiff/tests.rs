@@ -1,8 +1,8 @@
 use super::*;
 use crate::open_path;
 use crate::testutil::read_all;
-use tiff::encoder::{TiffEncoder, colortype};
-use tiff::tags::Tag;
+use tiff::encoder::{Rational, TiffEncoder, colortype};
+use tiff::tags::{ResolutionUnit, Tag};
 
 /// Writes 16-bit pages of 3x2 pixels valued z * 100 + i.
 fn pages(path: &Path, n: u16) {
@@ -167,14 +167,23 @@ fn bad_stacks_give_one_line_errors() {
 /// Writes `n` 16-bit pages of 3x2 pixels valued z * 100 + i, the first with ImageDescription
 /// `desc`, as ImageJ and tifffile write hyperstacks.
 fn described(path: &Path, n: u16, desc: &str) {
+    tagged(path, n, Some(desc), None);
+}
+
+/// [`described`] with an optional description and resolution tags on every page (the `tiff`
+/// encoder's default is 1 pixel per nothing).
+fn tagged(path: &Path, n: u16, desc: Option<&str>, resolution: Option<(ResolutionUnit, u32, u32)>) {
     let mut e = TiffEncoder::new(File::create(path).unwrap()).unwrap();
     for z in 0..n {
         let data: Vec<u16> = (0..6).map(|i| z * 100 + i).collect();
         let mut page = e.new_image::<colortype::Gray16>(3, 2).unwrap();
-        if z == 0 {
+        if let (0, Some(desc)) = (z, desc) {
             page.encoder()
                 .write_tag(Tag::ImageDescription, desc)
                 .unwrap();
+        }
+        if let Some((unit, n, d)) = resolution {
+            page.resolution(unit, Rational { n, d });
         }
         page.write_data(&data).unwrap();
     }
@@ -311,4 +320,248 @@ fn huge_tag_counts_are_refused_not_allocated() {
         .expect("refused")
         .to_string();
     assert!(e.contains("huge.tif") && !e.contains('\n'), "{e}");
+}
+
+/// The stack's grid and description as opened with `opts`.
+fn opened(p: &Path, opts: &OpenOptions) -> (Grid, String) {
+    let v = open_path(p, opts).unwrap();
+    (v.grid(), v.describe())
+}
+
+fn close(a: [f64; 3], b: [f64; 3]) -> bool {
+    a.iter()
+        .zip(b)
+        .all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs())
+}
+
+/// ImageJ: x and y are 1 / XResolution, YResolution in `unit=` (ResolutionUnit none, as ImageJ
+/// writes it), z is `spacing=`; the unit is told in the description; `[input] spacing` wins and
+/// the metadata is then not told.
+#[test]
+fn imagej_spacing_and_unit_are_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("ij.tif");
+    let ij = "ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2.5\nloop=false\n";
+    tagged(&p, 4, Some(ij), Some((ResolutionUnit::None, 2, 1)));
+    let (grid, describe) = opened(&p, &OpenOptions::default());
+    assert_eq!(grid.spacing, [0.5, 0.5, 2.5]);
+    assert_eq!(grid.origin, [0.0; 3]);
+    assert_eq!(
+        describe,
+        format!(
+            "{} (3x2x4 TIFF stack, voxel 0.5 x 0.5 x 2.5 µm from its ImageJ metadata)",
+            p.display()
+        )
+    );
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want(4));
+    let given = OpenOptions {
+        spacing: Some([1.0, 1.0, 1.0]),
+        ..Default::default()
+    };
+    let (grid, describe) = opened(&p, &given);
+    assert_eq!(grid.spacing, [1.0; 3]);
+    assert_eq!(describe, format!("{} (3x2x4 TIFF stack)", p.display()));
+
+    // Axes in other length units are brought to x's; a TIFF unit (inch, cm) is x and y's.
+    tagged(
+        &p,
+        4,
+        Some(&format!("{ij}zunit=nm\n")),
+        Some((ResolutionUnit::None, 4, 1)),
+    );
+    let (grid, _) = opened(&p, &OpenOptions::default());
+    assert!(close(grid.spacing, [0.25, 0.25, 0.0025]), "{grid:?}");
+    tagged(
+        &p,
+        4,
+        Some("ImageJ=1.54f\nimages=4\nslices=4\nunit=mm\nspacing=0.5\n"),
+        Some((ResolutionUnit::Centimeter, 1000, 1)),
+    );
+    let (grid, describe) = opened(&p, &OpenOptions::default());
+    assert!(close(grid.spacing, [0.001, 0.001, 0.05]), "{grid:?}");
+    assert!(
+        describe.ends_with(" cm from its ImageJ metadata)"),
+        "{describe}"
+    );
+    // An axis in a unit that is no length is refused in one line naming the override, which
+    // runs it.
+    tagged(
+        &p,
+        4,
+        Some(&format!("{ij}zunit=frame\n")),
+        Some((ResolutionUnit::None, 2, 1)),
+    );
+    let e = open_path(&p, &OpenOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: ImageDescription: the ImageJ metadata gives the voxel size in \"µm\" along x but in \"frame\" along z, which do not convert; set [input] spacing",
+            p.display()
+        )
+    );
+    assert_eq!(opened(&p, &given).0.spacing, [1.0; 3]);
+    // An uncalibrated ImageJ stack (no unit, no spacing) has no voxel size.
+    described(&p, 4, "ImageJ=1.54f\nimages=4\nslices=4\n");
+    assert_eq!(
+        opened(&p, &OpenOptions::default()),
+        (
+            Grid::new([3, 2, 4], [1.0; 3], [0.0; 3]).unwrap(),
+            format!("{} (3x2x4 TIFF stack)", p.display())
+        )
+    );
+}
+
+/// OME-TIFF: the first `Pixels` element's PhysicalSize X/Y/Z (µm by default; image 0 is what
+/// is read), whatever the second image or the resolution tags say.
+#[test]
+fn ome_physical_sizes_are_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("s.ome.tif");
+    let image = |id: u32, x: &str, z: &str| {
+        format!(
+            r#"<Image ID="Image:{id}"><Pixels ID="Pixels:{id}" DimensionOrder="XYZCT" Type="uint16" SizeX="3" SizeY="2" SizeZ="4" SizeC="1" SizeT="1" PhysicalSizeX="{x}" PhysicalSizeY='{x}' {z}><TiffData IFD="0" PlaneCount="4"/></Pixels></Image>"#
+        )
+    };
+    let ome = |first: &str| {
+        format!(
+            r#"<?xml version="1.0" encoding="UTF-8"?><!-- <Pixels PhysicalSizeX="9"> --><OME xmlns="http://www.openmicroscopy.org/Schemas/OME/2016-06">{first}{}</OME>"#,
+            image(1, "7", r#"PhysicalSizeZ="7""#)
+        )
+    };
+    let plain = image(0, "0.3", r#"PhysicalSizeZ="1.2""#);
+    tagged(
+        &p,
+        4,
+        Some(&ome(&plain)),
+        Some((ResolutionUnit::Centimeter, 5, 1)),
+    );
+    let (grid, describe) = opened(&p, &OpenOptions::default());
+    assert_eq!(grid.spacing, [0.3, 0.3, 1.2]);
+    assert!(
+        describe
+            .ends_with("(3x2x4 TIFF stack, voxel 0.3 x 0.3 x 1.2 µm from its OME-XML metadata)"),
+        "{describe}"
+    );
+    assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want(4));
+    // Units per axis, converted to x's (the `tiff` encoder writes ASCII descriptions only: no µ).
+    let nm = image(
+        0,
+        "300",
+        r#"PhysicalSizeXUnit="nm" PhysicalSizeYUnit="nm" PhysicalSizeZ="0.0012" PhysicalSizeZUnit="mm""#,
+    );
+    tagged(&p, 4, Some(&ome(&nm)), None);
+    let (grid, describe) = opened(&p, &OpenOptions::default());
+    assert!(close(grid.spacing, [300.0, 300.0, 1200.0]), "{grid:?}");
+    assert!(describe.contains(" nm from its OME-XML"), "{describe}");
+    // No PhysicalSize at all: no voxel size, as before.
+    let none = image(0, "0.3", "").replace(r#" PhysicalSizeX="0.3" PhysicalSizeY='0.3'"#, "");
+    tagged(&p, 4, Some(&ome(&none)), None);
+    assert_eq!(opened(&p, &OpenOptions::default()).0.spacing, [1.0; 3]);
+}
+
+/// Plain resolution tags (no ImageJ or OME description) are a print size: 72 dpi, or a
+/// scanner's 1000 per cm, gives no voxel size.
+#[test]
+fn plain_resolution_tags_are_not_a_voxel_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("scan.tif");
+    for (unit, n) in [
+        (ResolutionUnit::Inch, 72),
+        (ResolutionUnit::Centimeter, 1000),
+    ] {
+        tagged(&p, 4, None, Some((unit, n, 1)));
+        assert_eq!(
+            opened(&p, &OpenOptions::default()),
+            (
+                Grid::new([3, 2, 4], [1.0; 3], [0.0; 3]).unwrap(),
+                format!("{} (3x2x4 TIFF stack)", p.display())
+            )
+        );
+        tagged(&p, 4, Some("scanned by hand"), Some((unit, n, 1)));
+        assert_eq!(opened(&p, &OpenOptions::default()).0.spacing, [1.0; 3]);
+    }
+}
+
+/// A zero resolution (an infinite pixel size), or a size that is not a number, is refused as
+/// any header's impossible spacing is, naming `[input] spacing`, which runs the stack.
+#[test]
+fn impossible_sizes_are_refused_naming_the_override() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("zero.tif");
+    let ij = "ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2.5\n";
+    tagged(&p, 4, Some(ij), Some((ResolutionUnit::None, 0, 1)));
+    let e = open_path(&p, &OpenOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "{}: the header's spacing [inf, inf, 2.5] must be finite and > 0 on every axis; fix the header or set [input] spacing",
+            p.display()
+        )
+    );
+    let given = OpenOptions {
+        spacing: Some([0.5, 0.5, 2.5]),
+        ..Default::default()
+    };
+    assert_eq!(opened(&p, &given).0.spacing, [0.5, 0.5, 2.5]);
+    let ome = r#"<OME><Image><Pixels SizeX="3" SizeY="2" SizeZ="4" PhysicalSizeX="0.3" PhysicalSizeY="0.3" PhysicalSizeZ="0"/></Image></OME>"#;
+    described(&p, 4, ome);
+    let e = open_path(&p, &OpenOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        e.contains(": the header's spacing [0.3, 0.3, 0.0] must be finite and > 0"),
+        "{e}"
+    );
+    described(&p, 4, &ome.replace("\"0\"", "\"1,2\""));
+    let e = open_path(&p, &OpenOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("spacing [0.3, 0.3, NaN]"), "{e}");
+}
+
+/// A folder of slices takes the first file's metadata (as ImageJ's image sequence saves it: one
+/// image each, no `spacing=`, so z is 1 in the unit), and names that file when it is refused.
+#[test]
+fn a_slice_folder_takes_the_first_files_metadata() {
+    let dir = tempfile::tempdir().unwrap();
+    let stack = dir.path().join("slices");
+    std::fs::create_dir(&stack).unwrap();
+    let ij = "ImageJ=1.54f\nunit=micron\n";
+    for z in 0..4u16 {
+        let res = if z == 0 { 4 } else { 1 };
+        tagged(
+            &stack.join(format!("s{z}.tif")),
+            1,
+            Some(ij),
+            Some((ResolutionUnit::None, res, 1)),
+        );
+    }
+    let (grid, describe) = opened(&stack, &OpenOptions::default());
+    assert_eq!(grid.spacing, [0.25, 0.25, 1.0]);
+    assert!(describe.contains("voxel 0.25 x 0.25 x 1 µm"), "{describe}");
+    tagged(
+        &stack.join("s0.tif"),
+        1,
+        Some(ij),
+        Some((ResolutionUnit::None, 0, 1)),
+    );
+    let e = open_path(&stack, &OpenOptions::default())
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        e.starts_with(&format!(
+            "{}: the header's spacing [inf, inf, 1.0]",
+            stack.join("s0.tif").display()
+        )),
+        "{e}"
+    );
 }
