@@ -1216,6 +1216,76 @@ mod tests {
         assert!(e.contains("corrupt checkpoint (checksum mismatch)"), "{e}");
     }
 
+    /// A TIFF stack with ImageJ metadata (0.5 x 0.5 x 2.5 micron voxels) is meshed in microns,
+    /// told in the job's input; `[input] spacing` overrides the file's as any header's.
+    #[test]
+    fn a_tiff_stack_is_meshed_in_its_metadata_units_unless_overridden() {
+        use tiff::encoder::{Rational, TiffEncoder, colortype};
+        use tiff::tags::{ResolutionUnit, Tag};
+        let dir = tempfile::tempdir().unwrap();
+        let stack = dir.path().join("ball.tif");
+        let mut e = TiffEncoder::new(std::fs::File::create(&stack).unwrap()).unwrap();
+        let n = [12u32, 12, 10];
+        for z in 0..n[2] {
+            // A ball of radius 3.5 voxels: > 0 inside.
+            let page: Vec<f32> = (0..n[0] * n[1])
+                .map(|i| {
+                    let p = [i % n[0], i / n[0], z].map(|c| c as f32 - 5.5);
+                    3.5 - (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
+                })
+                .collect();
+            let mut image = e.new_image::<colortype::Gray32Float>(n[0], n[1]).unwrap();
+            if z == 0 {
+                let desc = "ImageJ=1.54f\nimages=10\nslices=10\nunit=micron\nspacing=2.5\n";
+                image
+                    .encoder()
+                    .write_tag(Tag::ImageDescription, desc)
+                    .unwrap();
+            }
+            image.resolution(ResolutionUnit::None, Rational { n: 2, d: 1 });
+            image.write_data(&page).unwrap();
+        }
+        drop(e);
+        let mesh = |name: &str, spacing: &str| {
+            let job_path = dir.path().join(format!("{name}.toml"));
+            let output = dir.path().join(format!("{name}.ply"));
+            let text = format!(
+                "[input]\npath = \"{}\"\n{spacing}[extract]\niso = 0\n[simplify]\nmode = \"none\"\n\
+                 [output]\npath = \"{}\"\n",
+                stack.display(),
+                output.display()
+            );
+            std::fs::write(&job_path, text).unwrap();
+            let job = JobConfig::load(&job_path).unwrap();
+            let summary = run(&job, &job_path, &AtomicBool::new(false), &|_| {}).unwrap();
+            let m = isostream_smesh::read_indexed(&output).unwrap();
+            let mut bounds = [[f64::INFINITY; 3], [f64::NEG_INFINITY; 3]];
+            for p in &m.positions {
+                for k in 0..3 {
+                    bounds[0][k] = bounds[0][k].min(p[k]);
+                    bounds[1][k] = bounds[1][k].max(p[k]);
+                }
+            }
+            (summary.input, bounds)
+        };
+        let (input, physical) = mesh("file", "");
+        assert!(
+            input.ends_with(
+                "(12x12x10 TIFF stack, voxel 0.5 x 0.5 x 2.5 µm from its ImageJ metadata)"
+            ),
+            "{input}"
+        );
+        let (input, voxels) = mesh("given", "spacing = [1.0, 1.0, 1.0]\n");
+        assert!(input.ends_with("(12x12x10 TIFF stack)"), "{input}");
+        // The same surface, scaled by the file's voxel size (about 2 to 9 in voxels).
+        for (side, (p, v)) in physical.iter().zip(&voxels).enumerate() {
+            for (k, s) in [0.5, 0.5, 2.5].into_iter().enumerate() {
+                assert!((p[k] - s * v[k]).abs() < 1e-4, "{side} {k}: {p:?} {v:?}");
+            }
+        }
+        assert!(voxels[1][2] - voxels[0][2] > 6.0, "{voxels:?}");
+    }
+
     /// With threads the halves run on two (one of them this one), without them both on this
     /// one; either way both run once.
     #[test]
