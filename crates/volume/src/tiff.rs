@@ -3,9 +3,9 @@
 //! whose names start with '.', are skipped). Grayscale pages of one channel at one time point
 //! only. One page is decoded per slice. The voxel size is the first page's ImageJ or OME-XML
 //! metadata's (`spacing.rs`: plain resolution tags are a print size, not read), else 1;
-//! [`OpenOptions`] overrides it and gives the origin (default 0). WhiteIsZero pages are inverted by the `tiff`
-//! decoder (`max - v` for unsigned samples, `1 - v` for floats; signed samples are refused), so
-//! they read as the picture looks.
+//! [`OpenOptions`] overrides it and gives the origin (default 0). WhiteIsZero pages are inverted
+//! by the `tiff` decoder (`max - v` for unsigned samples, `1 - v` for floats; signed samples are
+//! refused), so they read as the picture looks.
 
 use crate::grid::dims_text;
 use crate::source::check_request;
