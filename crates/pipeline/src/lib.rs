@@ -1271,7 +1271,7 @@ mod tests {
         let (input, physical) = mesh("file", "");
         assert!(
             input.ends_with(
-                "(12x12x10 TIFF stack, voxel 0.5 x 0.5 x 2.5 µm from its ImageJ metadata)"
+                "(12x12x10 TIFF stack, voxel 0.5 x 0.5 x 2.5 um from its ImageJ metadata)"
             ),
             "{input}"
         );

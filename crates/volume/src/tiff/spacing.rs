@@ -32,8 +32,9 @@ use tiff::tags::Tag;
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct FileSpacing {
     pub spacing: [f64; 3],
-    /// The unit of all three: a known length's symbol ("µm"), else the file's own word for it
-    /// ("pixel"). Meshes carry no unit, so it is only told (in the stack's description).
+    /// The unit of all three: a known length's name in ASCII ("um", "angstrom": the stack's
+    /// description goes into every mesh header, and PLY readers take its header as ASCII), else
+    /// the file's own word for it ("pixel"). Meshes carry no unit, so it is only told.
     pub unit: String,
     /// Which metadata said it: "ImageJ" or "OME-XML".
     pub from: &'static str,
@@ -159,19 +160,19 @@ fn unit(text: &str) -> Unit {
         "cm" => Some(("cm", 1e-2)),
         "mm" => Some(("mm", 1e-3)),
         "\u{b5}m" | "\u{3bc}m" | "um" | "\\u00B5m" | "\\u00b5m" | "&#181;m" | "&#xB5;m" => {
-            Some(("\u{b5}m", 1e-6))
+            Some(("um", 1e-6))
         }
         "nm" => Some(("nm", 1e-9)),
         "pm" => Some(("pm", 1e-12)),
-        "\u{c5}" | "\u{212b}" => Some(("\u{c5}", 1e-10)),
+        "\u{c5}" | "\u{212b}" => Some(("angstrom", 1e-10)),
         "in" => Some(("inch", 0.0254)),
         _ => match text.to_ascii_lowercase().trim_end_matches('s') {
             "meter" | "metre" => Some(("m", 1.0)),
             "centimeter" | "centimetre" => Some(("cm", 1e-2)),
             "millimeter" | "millimetre" => Some(("mm", 1e-3)),
-            "micron" | "micrometer" | "micrometre" => Some(("µm", 1e-6)),
+            "micron" | "micrometer" | "micrometre" => Some(("um", 1e-6)),
             "nanometer" | "nanometre" => Some(("nm", 1e-9)),
-            "angstrom" => Some(("Å", 1e-10)),
+            "angstrom" => Some(("angstrom", 1e-10)),
             "inch" | "inche" => Some(("inch", 0.0254)),
             _ => None,
         },
@@ -230,11 +231,13 @@ mod tests {
     #[test]
     fn unit_names() {
         for (text, name, metres) in [
-            ("micron", "µm", Some(1e-6)),
-            ("Microns", "µm", Some(1e-6)),
-            ("um", "µm", Some(1e-6)),
-            ("\\u00B5m", "µm", Some(1e-6)),
-            ("μm", "µm", Some(1e-6)),
+            ("micron", "um", Some(1e-6)),
+            ("Microns", "um", Some(1e-6)),
+            ("um", "um", Some(1e-6)),
+            ("\\u00B5m", "um", Some(1e-6)),
+            ("\u{3bc}m", "um", Some(1e-6)),
+            ("\u{b5}m", "um", Some(1e-6)),
+            ("\u{212b}", "angstrom", Some(1e-10)),
             (" nm ", "nm", Some(1e-9)),
             ("inches", "inch", Some(0.0254)),
             ("pixel", "pixel", None),
@@ -282,7 +285,7 @@ mod tests {
         .to_string();
         assert_eq!(
             e,
-            "s.tif: ImageDescription: the ImageJ metadata gives the voxel size in \"µm\" along x but in \"pixel\" along z, which do not convert; set [input] spacing"
+            "s.tif: ImageDescription: the ImageJ metadata gives the voxel size in \"um\" along x but in \"pixel\" along z, which do not convert; set [input] spacing"
         );
     }
 }

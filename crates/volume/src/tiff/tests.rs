@@ -349,7 +349,7 @@ fn imagej_spacing_and_unit_are_read() {
     assert_eq!(
         describe,
         format!(
-            "{} (3x2x4 TIFF stack, voxel 0.5 x 0.5 x 2.5 µm from its ImageJ metadata)",
+            "{} (3x2x4 TIFF stack, voxel 0.5 x 0.5 x 2.5 um from its ImageJ metadata)",
             p.display()
         )
     );
@@ -398,7 +398,7 @@ fn imagej_spacing_and_unit_are_read() {
     assert_eq!(
         e,
         format!(
-            "{}: ImageDescription: the ImageJ metadata gives the voxel size in \"µm\" along x but in \"frame\" along z, which do not convert; set [input] spacing",
+            "{}: ImageDescription: the ImageJ metadata gives the voxel size in \"um\" along x but in \"frame\" along z, which do not convert; set [input] spacing",
             p.display()
         )
     );
@@ -442,7 +442,7 @@ fn ome_physical_sizes_are_read() {
     assert_eq!(grid.spacing, [0.3, 0.3, 1.2]);
     assert!(
         describe
-            .ends_with("(3x2x4 TIFF stack, voxel 0.3 x 0.3 x 1.2 µm from its OME-XML metadata)"),
+            .ends_with("(3x2x4 TIFF stack, voxel 0.3 x 0.3 x 1.2 um from its OME-XML metadata)"),
         "{describe}"
     );
     assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), want(4));
@@ -546,7 +546,7 @@ fn a_slice_folder_takes_the_first_files_metadata() {
     }
     let (grid, describe) = opened(&stack, &OpenOptions::default());
     assert_eq!(grid.spacing, [0.25, 0.25, 1.0]);
-    assert!(describe.contains("voxel 0.25 x 0.25 x 1 µm"), "{describe}");
+    assert!(describe.contains("voxel 0.25 x 0.25 x 1 um"), "{describe}");
     tagged(
         &stack.join("s0.tif"),
         1,
