@@ -1,4 +1,5 @@
-//! Counts self-intersecting triangles of a binary little-endian PLY (float xyz first, any
+//! Counts self-intersecting triangles (crossing or touching another; the crossing ones alone
+//! too) of a binary little-endian PLY (float xyz first, any
 //! further float vertex properties such as attributes, uchar/uint faces, as `isostream convert`
 //! writes): `cargo run --release -p isostream-meshcheck --example
 //! self_intersections -- mesh.ply`.
@@ -47,6 +48,8 @@ fn main() {
         tris.push([0, 1, 2].map(|k| u32_at(o + 1 + 4 * k)));
         o += 13;
     }
+    // The last field is what tools read: triangles meeting another, crossing or touching.
+    let crossing = isostream_meshcheck::crossing_triangles(&pos, &tris);
     let n = isostream_meshcheck::self_intersections(&pos, &tris);
-    println!("{path}: {nf} faces, {n} self-intersecting");
+    println!("{path}: {nf} faces, {crossing} crossing, {n} self-intersecting");
 }

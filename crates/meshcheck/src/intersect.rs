@@ -16,6 +16,15 @@
 //!   one strictly crosses the other triangle.
 //! * **two or three common vertices** (neighbours across an edge, duplicates): skipped; folds
 //!   there are normal flips, the topology checks' business.
+//!
+//! [`self_intersections`], the count every guarantee is checked with, is stricter: it counts
+//! triangles that *meet* another beyond their shared corners ([`triangles_meet`]), touching
+//! included (a corner on another triangle, edges meeting, coplanar overlap, coincident corners
+//! with distinct indices), by the same rules with closed segments and triangles. A simplifier
+//! that only avoided crossings welded separate surfaces at a point on blocky volumes (a
+//! checkerboard of 2-voxel blocks: two components' vertices at one position), which an STL
+//! writer turns into a non-manifold vertex. [`crossing_triangles`] keeps the strict count, the
+//! one the peers' crossings were compared by.
 
 /// The sign of `(b - a) . ((c - a) x (d - a))`, exactly: positive when `d` lies above the plane
 /// `abc` (CCW seen from above), zero when the four points are coplanar.
@@ -147,30 +156,158 @@ pub fn segment_crosses_triangle(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> b
     (s1 > 0.0 && s2 > 0.0 && s3 > 0.0) || (s1 < 0.0 && s2 < 0.0 && s3 < 0.0)
 }
 
+/// Whether the closed segment `pq` and the closed triangle `t` have a point in common:
+/// crossing, or touching at an edge, a corner or along a segment in the triangle's plane. `false`
+/// for a degenerate (zero-area) triangle, which the topology report counts on its own.
+pub fn segment_meets_triangle(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> bool {
+    let [a, b, c] = t;
+    let (o1, o2) = (sgn(orient(a, b, c, p)), sgn(orient(a, b, c, q)));
+    if o1 * o2 > 0.0 {
+        return false;
+    }
+    if o1 == 0.0 && o2 == 0.0 {
+        return coplanar_segment_meets_triangle(p, q, t);
+    }
+    // The line meets the plane at one point of the segment; it lies in the closed triangle iff
+    // the three edge planes through the line see it on one side or on them.
+    let s = [orient(p, q, a, b), orient(p, q, b, c), orient(p, q, c, a)].map(sgn);
+    !(s.contains(&1.0) && s.contains(&-1.0))
+}
+
+/// [`segment_meets_triangle`] for a segment in the triangle's plane, exactly, in the
+/// projection onto the coordinate plane where the triangle keeps an area.
+fn coplanar_segment_meets_triangle(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> bool {
+    let Some(axes) = [[0, 1], [1, 2], [2, 0]].into_iter().find(|&[i, j]| {
+        orient2d([t[0][i], t[0][j]], [t[1][i], t[1][j]], [t[2][i], t[2][j]]) != 0.0
+    }) else {
+        return false;
+    };
+    let flat = |x: [f64; 3]| [x[axes[0]], x[axes[1]]];
+    let (p, q, t) = (flat(p), flat(q), t.map(flat));
+    let inside = |x: [f64; 2]| {
+        let s = [
+            orient2d(t[0], t[1], x),
+            orient2d(t[1], t[2], x),
+            orient2d(t[2], t[0], x),
+        ]
+        .map(sgn);
+        !(s.contains(&1.0) && s.contains(&-1.0))
+    };
+    inside(p) || inside(q) || (0..3).any(|i| segments_meet_2d(p, q, t[i], t[(i + 1) % 3]))
+}
+
+/// Whether the closed segments `pq` and `rs` of a plane have a point in common.
+fn segments_meet_2d(p: [f64; 2], q: [f64; 2], r: [f64; 2], s: [f64; 2]) -> bool {
+    let (o1, o2) = (sgn(orient2d(p, q, r)), sgn(orient2d(p, q, s)));
+    let (o3, o4) = (sgn(orient2d(r, s, p)), sgn(orient2d(r, s, q)));
+    let span = |a: [f64; 2], b: [f64; 2], k: usize| (a[k].min(b[k]), a[k].max(b[k]));
+    // Boxes along both axes: for points on one line this is the overlap of the segments (a
+    // zero-length segment, whose orientations are all 0, included).
+    let boxes_meet = (0..2).all(|k| {
+        let ((lo1, hi1), (lo2, hi2)) = (span(p, q, k), span(r, s, k));
+        lo1 <= hi2 && lo2 <= hi1
+    });
+    if o1 == 0.0 && o2 == 0.0 && o3 == 0.0 && o4 == 0.0 {
+        return boxes_meet;
+    }
+    if p == q {
+        return o3 == 0.0 && boxes_meet;
+    }
+    if r == s {
+        return o1 == 0.0 && boxes_meet;
+    }
+    o1 * o2 <= 0.0 && o3 * o4 <= 0.0
+}
+
+/// The sign of the 2-D orientation of `c` from the line `ab`, exactly (Shewchuk's adaptive
+/// predicate; only its sign is used).
+fn orient2d(a: [f64; 2], b: [f64; 2], c: [f64; 2]) -> f64 {
+    let p = |x: [f64; 2]| robust::Coord { x: x[0], y: x[1] };
+    robust::orient2d(p(a), p(b), p(c))
+}
+
+fn sgn(x: f64) -> f64 {
+    if x > 0.0 {
+        1.0
+    } else if x < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+/// The corners two triangles share, by index: `None` past one (neighbours across an edge and
+/// duplicates are the topology checks' business), else the shared corner's place in each.
+fn shared_corner(ia: [u32; 3], ib: [u32; 3]) -> Option<Option<(usize, usize)>> {
+    let mut shared = (0..3)
+        .flat_map(|i| (0..3).map(move |j| (i, j)))
+        .filter(|&(i, j)| ia[i] == ib[j]);
+    match (shared.next(), shared.next()) {
+        (None, _) => Some(None),
+        (Some(one), None) => Some(Some(one)),
+        _ => None,
+    }
+}
+
 /// Whether two triangles given by corner indices `ia`, `ib` and positions `a`, `b` cross (see the
 /// module documentation for shared vertices).
 pub fn triangles_intersect(ia: [u32; 3], a: [[f64; 3]; 3], ib: [u32; 3], b: [[f64; 3]; 3]) -> bool {
-    let shared: Vec<(usize, usize)> = (0..3)
-        .flat_map(|i| (0..3).map(move |j| (i, j)))
-        .filter(|&(i, j)| ia[i] == ib[j])
-        .collect();
-    match shared.as_slice() {
-        [] => (0..3).any(|i| {
-            segment_crosses_triangle(a[i], a[(i + 1) % 3], b)
-                || segment_crosses_triangle(b[i], b[(i + 1) % 3], a)
-        }),
-        [(i, j)] => {
-            segment_crosses_triangle(a[(i + 1) % 3], a[(i + 2) % 3], b)
-                || segment_crosses_triangle(b[(j + 1) % 3], b[(j + 2) % 3], a)
+    pair_test(ia, a, ib, b, segment_crosses_triangle)
+}
+
+/// Whether two triangles meet beyond the corners they share: they cross, or touch (a corner
+/// on the other, edges meeting, coplanar overlap, coincident corners with distinct indices). A
+/// surface meant to be embedded has no such pair: an STL welds touching corners into
+/// non-manifold vertices, and booleans or 3-D printing see the contact.
+///
+/// With no common corner, the closed triangles meet iff an edge of one meets the other. With
+/// one common corner `x`, they meet elsewhere iff the edge opposite `x` in one meets the other:
+/// their intersection is convex and holds `x`, so any other point of it puts one of its
+/// extreme points on an opposite edge (both coplanar and not).
+pub fn triangles_meet(ia: [u32; 3], a: [[f64; 3]; 3], ib: [u32; 3], b: [[f64; 3]; 3]) -> bool {
+    pair_test(ia, a, ib, b, segment_meets_triangle)
+}
+
+/// The pair rule shared by [`triangles_intersect`] and [`triangles_meet`] (see the module
+/// documentation), with `edge` the segment test.
+fn pair_test(
+    ia: [u32; 3],
+    a: [[f64; 3]; 3],
+    ib: [u32; 3],
+    b: [[f64; 3]; 3],
+    edge: fn([f64; 3], [f64; 3], [[f64; 3]; 3]) -> bool,
+) -> bool {
+    match shared_corner(ia, ib) {
+        Some(None) => {
+            (0..3).any(|i| edge(a[i], a[(i + 1) % 3], b) || edge(b[i], b[(i + 1) % 3], a))
         }
-        _ => false,
+        Some(Some((i, j))) => {
+            edge(a[(i + 1) % 3], a[(i + 2) % 3], b) || edge(b[(j + 1) % 3], b[(j + 2) % 3], a)
+        }
+        None => false,
     }
 }
 
 /// Number of triangles that cross at least one other triangle (see the module documentation:
 /// triangles sharing one vertex count when the opposite edge of one crosses the other; triangles
 /// sharing an edge are not compared). Triangles with an out-of-range index are ignored.
+pub fn crossing_triangles(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> usize {
+    count_pairs(positions, triangles, triangles_intersect)
+}
+
+/// Number of triangles that meet at least one other beyond their shared corners, crossing or
+/// touching ([`triangles_meet`]): the referee's count of a surface that is not embedded.
+/// Triangles with an out-of-range index are ignored.
 pub fn self_intersections(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> usize {
+    count_pairs(positions, triangles, triangles_meet)
+}
+
+/// Triangles of which `bad` holds for at least one pair, the pairs found by a uniform grid.
+fn count_pairs(
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    bad_pair: fn([u32; 3], [[f64; 3]; 3], [u32; 3], [[f64; 3]; 3]) -> bool,
+) -> usize {
     let corners = |t: &[u32; 3]| -> Option<[[f64; 3]; 3]> {
         let p = |i: u32| positions.get(i as usize).copied();
         Some([p(t[0])?, p(t[1])?, p(t[2])?])
@@ -238,7 +375,7 @@ pub fn self_intersections(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> usi
                         if (0..3).any(|k| slo[k] > hi[k] || shi[k] < lo[k]) {
                             continue;
                         }
-                        if triangles_intersect(triangles[t], *p, triangles[s], q) {
+                        if bad_pair(triangles[t], *p, triangles[s], q) {
                             bad[t] = true;
                             bad[s] = true;
                         }
@@ -367,9 +504,10 @@ mod tests {
         assert_eq!(self_intersections(&q, &[[0, 1, 2], [3, 4, 5]]), 0);
     }
 
+    /// A shared corner is not a contact; the same position under another index is (a pinch),
+    /// though it crosses nothing.
     #[test]
-    fn touching_at_a_vertex_is_not_counted() {
-        // Shared index, and a separate vertex at the same position: neither crosses.
+    fn touching_at_a_vertex_is_a_contact_unless_the_vertex_is_shared() {
         let p = [
             [0.0, 0.0, 0.0],
             [1.0, 0.0, 0.0],
@@ -379,7 +517,8 @@ mod tests {
             [0.0, 0.0, 0.0],
         ];
         assert_eq!(self_intersections(&p, &[[0, 1, 2], [0, 3, 4]]), 0);
-        assert_eq!(self_intersections(&p, &[[0, 1, 2], [5, 3, 4]]), 0);
+        assert_eq!(self_intersections(&p, &[[0, 1, 2], [5, 3, 4]]), 2);
+        assert_eq!(crossing_triangles(&p, &[[0, 1, 2], [5, 3, 4]]), 0);
         // Sharing a vertex and folding through each other: the opposite edge crosses.
         let f = [
             [0.0, 0.0, 0.0],
@@ -389,6 +528,87 @@ mod tests {
             [1.0, 0.0, 1.0],
         ];
         assert_eq!(self_intersections(&f, &[[0, 1, 2], [0, 3, 4]]), 2);
+    }
+
+    /// Every kind of contact without a crossing meets, by the closed rule, and only in contact:
+    /// a corner on a face, a corner on an edge, edges meeting at a point, an edge lying on a
+    /// face, coplanar triangles overlapping or touching at a corner, and a shared corner with a
+    /// contact elsewhere; each pair moved a little apart does not meet.
+    #[test]
+    fn contacts_meet_and_separated_pairs_do_not() {
+        let t = [[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, 4.0, 0.0]];
+        let contacts: [(&str, [[f64; 3]; 3]); 7] = [
+            (
+                "corner on the face",
+                [[1.0, 1.0, 0.0], [1.0, 2.0, 3.0], [2.0, 1.0, 3.0]],
+            ),
+            (
+                "corner on an edge",
+                [[2.0, 0.0, 0.0], [2.0, -1.0, 3.0], [3.0, -1.0, 2.0]],
+            ),
+            (
+                "edges crossing at a point",
+                [[2.0, -1.0, 0.0], [2.0, 1.0, 0.0], [2.0, 0.0, -3.0]]
+                    .map(|x| [x[0], x[1] - 1.0, x[2]]),
+            ),
+            (
+                "an edge on the face",
+                [[1.0, 1.0, 0.0], [2.0, 1.0, 0.0], [1.5, 1.0, 2.0]],
+            ),
+            (
+                "coplanar overlap",
+                [[1.0, 1.0, 0.0], [5.0, 1.0, 0.0], [1.0, 5.0, 0.0]],
+            ),
+            (
+                "coplanar corners touching",
+                [[4.0, 0.0, 0.0], [6.0, 0.0, 0.0], [5.0, -2.0, 0.0]],
+            ),
+            (
+                "coplanar corner on an edge",
+                [[2.0, 0.0, 0.0], [3.0, -2.0, 0.0], [1.0, -2.0, 0.0]],
+            ),
+        ];
+        for (name, u) in contacts {
+            assert!(triangles_meet([0, 1, 2], t, [3, 4, 5], u), "{name}");
+            assert!(
+                !triangles_intersect([0, 1, 2], t, [3, 4, 5], u),
+                "{name} crosses"
+            );
+            let apart = u.map(|x| [x[0], x[1], x[2] + 0.01]);
+            let below = u.map(|x| [x[0], x[1] - 0.01, x[2] + 0.01]);
+            assert!(
+                !triangles_meet([0, 1, 2], t, [3, 4, 5], apart)
+                    || !triangles_meet([0, 1, 2], t, [3, 4, 5], below),
+                "{name} apart"
+            );
+        }
+        // One shared corner (index 0), and the far edge of the other on the face.
+        let fan = [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 0.5, 0.0]];
+        assert!(triangles_meet([0, 1, 2], t, [0, 7, 8], fan));
+        assert!(!triangles_intersect([0, 1, 2], t, [0, 7, 8], fan));
+        // Coplanar, one shared corner, the wedges apart: no contact.
+        let beside = [[0.0, 0.0, 0.0], [-1.0, 1.0, 0.0], [-1.0, -1.0, 0.0]];
+        assert!(!triangles_meet([0, 1, 2], t, [0, 7, 8], beside));
+        // Standing on the shared corner only.
+        let up = [[0.0, 0.0, 0.0], [-1.0, 0.0, 1.0], [0.0, -1.0, 1.0]];
+        assert!(!triangles_meet([0, 1, 2], t, [0, 7, 8], up));
+    }
+
+    proptest! {
+        /// A crossing pair meets; the closed rule is the strict one and more.
+        #[test]
+        fn crossing_pairs_meet(
+            a in prop::array::uniform3(prop::array::uniform3(-4i8..=4)),
+            b in prop::array::uniform3(prop::array::uniform3(-4i8..=4)),
+            shared in 0usize..2,
+        ) {
+            let a = a.map(|p| p.map(f64::from));
+            let mut b = b.map(|p| p.map(f64::from));
+            let ib = if shared == 1 { b[0] = a[0]; [0, 4, 5] } else { [3, 4, 5] };
+            if triangles_intersect([0, 1, 2], a, ib, b) {
+                prop_assert!(triangles_meet([0, 1, 2], a, ib, b));
+            }
+        }
     }
 
     /// Two triangles touching at coincident vertices with distinct indices (a pinch) put a

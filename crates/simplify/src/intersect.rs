@@ -43,10 +43,14 @@
 //!   contractible vertices (bonsai at R = 0.01 with 16 MiB: 4 with one stage, 25 with two; 86
 //!   and 116 with no ghosts at all); with the default budget on the real volumes no fan reached
 //!   a dropped ghost (every ghost dropped at once wrote the same bytes).
-//! * **Predicate**: as `isostream_meshcheck::self_intersections`, strict exact orientation signs:
-//!   triangles with no common vertex cross when an edge of one crosses the other; with one common
-//!   vertex when the edge opposite it in one crosses the other; with two, never (flips are
-//!   `topology::geometry_ok`'s). The new fan is also checked against itself (its triangles share
+//! * **Predicate**: as `isostream_meshcheck::self_intersections`, closed, in exact orientation
+//!   signs: triangles with no common vertex meet when an edge of one meets the other; with one
+//!   common vertex when the edge opposite it in one meets the other; with two, never (flips are
+//!   `topology::geometry_ok`'s). Touching is refused as crossing is: with strict signs alone
+//!   (crossing only), contractions on blocky volumes put a vertex of one component exactly on a
+//!   vertex or an edge of another, a surface that is not embedded (an STL welds such corners
+//!   into non-manifold vertices). Edges in the other triangle's plane take the referee's
+//!   two-dimensional test (`in_plane_edge_meets`). The new fan is also checked against itself (its triangles share
 //!   the new vertex): first by a proof that its star is embedded (`star`), which covers every
 //!   pair at once and almost always holds, then, when it does not, pair by pair.
 
@@ -1036,14 +1040,6 @@ impl Tri64 {
         }
     }
 
-    /// Certainly not degenerate: a component of the normal exceeds its rounding error (each
-    /// is a 2x2 minor of the rounded edges, within a few units in the last place of
-    /// `|p1 - p0|_1 |p2 - p0|_1`, well inside `err`). `false` for degenerate triangles and for
-    /// the rare ones too thin to tell.
-    fn has_plane(&self) -> bool {
-        self.n.abs().max_element() > self.err
-    }
-
     /// [`Tri64::side`] within rounding of the plane: touching configurations, and points
     /// exactly on the plane, which [`Tri64::on_plane_by_coordinates`] tells first.
     #[cold]
@@ -1090,12 +1086,13 @@ fn orient(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> f64 {
     isostream_meshcheck::orient(a.to_array(), b.to_array(), c.to_array(), d.to_array())
 }
 
-/// The rest of the referee's predicate once `p` and `q` are known to lie strictly on opposite
-/// sides of `t`'s plane: the line `pq` passes strictly inside the three edge planes, that is
-/// `orient(p, q, a, b)`, `orient(p, q, b, c)` and `orient(p, q, c, a)` have one strict sign.
-/// With `d = q - p` and `w_x = x - p`, `orient(p, q, x, y) = (d x w_x) . w_y`: three cross
-/// products serve the three signs, and the second sign often settles it.
-fn crosses_planar(p: DVec3, q: DVec3, t: &Tri64) -> bool {
+/// The rest of the referee's closed predicate once `p` and `q` are known not to lie strictly on
+/// one side of `t`'s plane, nor both on it: the segment meets the plane at one point, which lies
+/// in the closed triangle iff `orient(p, q, a, b)`, `orient(p, q, b, c)` and `orient(p, q, c, a)`
+/// are never of opposite signs (a zero puts it on an edge's line). With `d = q - p` and `w_x =
+/// x - p`, `orient(p, q, x, y) = (d x w_x) . w_y`: three cross products serve the three signs,
+/// and the second sign often settles it.
+fn meets_planar(p: DVec3, q: DVec3, t: &Tri64) -> bool {
     let d = q - p;
     let w = t.p.map(|x| x - p);
     let nd = norm1(d);
@@ -1110,7 +1107,36 @@ fn crosses_planar(p: DVec3, q: DVec3, t: &Tri64) -> bool {
         ))
     };
     let s0 = sign_of(0, 1);
-    s0 != 0 && sign_of(1, 2) == s0 && sign_of(2, 0) == s0
+    let s1 = sign_of(1, 2);
+    if s0 * s1 < 0 {
+        return false;
+    }
+    let s2 = sign_of(2, 0);
+    s0 * s2 >= 0 && s1 * s2 >= 0
+}
+
+/// Whether the closed segment from `p` to `q`, its ends on sides `sp` and `sq` of `t`'s plane,
+/// meets the closed triangle `t` (the referee's [`isostream_meshcheck::segment_meets_triangle`]).
+fn edge_meets(p: DVec3, q: DVec3, [sp, sq]: [i8; 2], t: &Tri64) -> bool {
+    if sp * sq > 0 {
+        false
+    } else if sp == 0 && sq == 0 {
+        in_plane_edge_meets(p, q, t)
+    } else {
+        meets_planar(p, q, t)
+    }
+}
+
+/// [`edge_meets`] for a segment in the triangle's plane: the referee's test in two dimensions.
+/// Rare but for flat parts of a surface, where neighbouring triangles share a plane.
+#[cold]
+#[inline(never)]
+fn in_plane_edge_meets(p: DVec3, q: DVec3, t: &Tri64) -> bool {
+    isostream_meshcheck::segment_meets_triangle(
+        p.to_array(),
+        q.to_array(),
+        t.p.map(|x| x.to_array()),
+    )
 }
 
 /// [`cross`] for a fan triangle `t` (the new vertex first) and another triangle `u`, with the
@@ -1132,17 +1158,12 @@ fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
 }
 
 /// Two triangles with no common corner, `sides` holding `tb`'s side of each corner of `ta`:
-/// they cross iff an edge of one strictly crosses the other. A triangle strictly on one side of
-/// the other's plane cannot meet it, so the six plane tests come first and most pairs stop
-/// there; the edge tests then reuse them.
+/// they meet iff an edge of one meets the other (closed: touching counts). A triangle strictly
+/// on one side of the other's plane cannot meet it, so the six plane tests come first and most
+/// pairs stop there; the edge tests then reuse them.
 fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
     let one_side = |s: [i8; 3]| s[0] != 0 && s[0] == s[1] && s[0] == s[2];
-    // All of `ta` on the plane of a `tb` that has one: then all of `tb` is on `ta`'s (or `ta`
-    // is degenerate and every side of it is 0), no corner of either lies strictly off the
-    // other's plane, and no edge can cross. Coplanar pairs are common on symmetric or upsampled
-    // data, where each of those three sides would cost an exact predicate (see `Tri64::side`).
-    // (A degenerate `tb` puts every point at side 0, and its edges may still cross `ta`.)
-    if one_side(sides) || (sides == [0; 3] && tb.has_plane()) {
+    if one_side(sides) {
         return false;
     }
     let back = tb.p.map(|x| ta.side(x));
@@ -1152,23 +1173,19 @@ fn cross_apart(ta: &Tri64, sides: [i8; 3], tb: &Tri64) -> bool {
     // Edge `i` of `p` (from corner `i` to the next), its corners' sides `s` of `other`.
     let edge = |s: [i8; 3], p: &[DVec3; 3], other: &Tri64, i: usize| {
         let j = (i + 1) % 3;
-        s[i] != 0 && s[j] == -s[i] && crosses_planar(p[i], p[j], other)
+        edge_meets(p[i], p[j], [s[i], s[j]], other)
     };
     (0..3).any(|i| edge(sides, &ta.p, tb, i)) || (0..3).any(|i| edge(back, &tb.p, ta, i))
 }
 
-/// Two triangles sharing one corner, `ta`'s `i` and `tb`'s `j`, cross iff the edge opposite it
-/// in one strictly crosses the other (the referee's rule). `sides` holds `tb`'s side of `ta`'s
+/// Two triangles sharing one corner, `ta`'s `i` and `tb`'s `j`, meet elsewhere iff the edge
+/// opposite it in one meets the other (the referee's rule). `sides` holds `tb`'s side of `ta`'s
 /// far corners `i + 1` and `i + 2`. When either triangle's far corners lie strictly on one side
-/// of the other's plane, the two meet at the shared corner only and neither edge can cross: both
-/// such certificates (four plane tests) come before any edge test, which most neighbour pairs
-/// then never reach.
+/// of the other's plane, the two meet at the shared corner only: both such certificates (four
+/// plane tests) come before any edge test, which most neighbour pairs then never reach.
 fn cross_at_corner(ta: &Tri64, i: usize, sides: [i8; 2], tb: &Tri64, j: usize) -> bool {
     let one_side = |s: [i8; 2]| s[0] != 0 && s[0] == s[1];
-    let straddle = |s: [i8; 2]| s[0] != 0 && s[1] == -s[0];
-    // Coplanar (the shared corner and both far corners of `ta` on the plane `tb` has): as in
-    // `cross_apart`, then no side is strict and no edge crosses.
-    if one_side(sides) || (sides == [0; 2] && tb.has_plane()) {
+    if one_side(sides) {
         return false;
     }
     let (q1, q2) = (tb.p[(j + 1) % 3], tb.p[(j + 2) % 3]);
@@ -1176,8 +1193,7 @@ fn cross_at_corner(ta: &Tri64, i: usize, sides: [i8; 2], tb: &Tri64, j: usize) -
     if one_side(back) {
         return false;
     }
-    (straddle(sides) && crosses_planar(ta.p[(i + 1) % 3], ta.p[(i + 2) % 3], tb))
-        || (straddle(back) && crosses_planar(q1, q2, ta))
+    edge_meets(ta.p[(i + 1) % 3], ta.p[(i + 2) % 3], sides, tb) || edge_meets(q1, q2, back, ta)
 }
 
 /// Whether two triangles cross (see the module documentation for common vertices).
@@ -1563,7 +1579,7 @@ mod tests {
                 _ => ([0, 1, 2], [0, 4, 5]),
             };
             let at = |i: [u32; 3]| i.map(|k| p[k as usize]);
-            let referee = isostream_meshcheck::triangles_intersect(
+            let referee = isostream_meshcheck::triangles_meet(
                 ia,
                 at(ia).map(|x| x.to_array()),
                 ib,
@@ -1690,9 +1706,8 @@ mod tests {
             [3, 4, 5],
             [p(1.0, 0.0, 0.0), p(0.0, 3.0, 2.0), p(0.0, 3.0, 2.0)],
         );
-        assert!(!tb.has_plane());
         assert_eq!(ta.p.map(|x| tb.side(x)), [0; 3]);
-        let referee = isostream_meshcheck::triangles_intersect(
+        let referee = isostream_meshcheck::triangles_meet(
             [0, 1, 2],
             ta.p.map(|x| x.to_array()),
             [3, 4, 5],
