@@ -13,8 +13,8 @@
 //! not a sliver: the projected angle at `w` is at least `1e-6`), and the triangles, chained
 //! around `w` edge to edge, turn exactly once around `w`, their projections are disjoint sectors
 //! at `w`. Two triangles that share only `w` then meet only at `w` (the projection is injective
-//! on each of them), which the referee's predicate does not count as a crossing; the margins keep
-//! its `f64` orientation signs far from rounding.
+//! on each of them), which the referee's predicate counts neither as a crossing nor as a contact
+//! (a shared corner is not one); the margins keep its `f64` orientation signs far from rounding.
 
 use glam::DVec3;
 
