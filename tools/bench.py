@@ -33,8 +33,9 @@ What is measured (every number is the median of --runs runs, default 3):
    number of non-manifold edges (edges with 3+ triangles); self-intersecting triangles by casting
    every edge as a ray into an Open3D RaycastingScene (`self_intersections`; Open3D's own
    `get_self_intersecting_triangles` is quadratic, 109 s for 60k faces, and counts neighbours),
-   which also counts pairs that only touch; and crossing triangles by our exact referee
-   (`crates/meshcheck`'s `self_intersections` example, the same count for every tool).
+   which also counts pairs that only touch; and crossing or touching triangles by our exact
+   referee (`crates/meshcheck`'s `self_intersections` example, the same count for every tool;
+   before the fifty-seventh session it counted crossing ones alone).
    And every tool's accuracy on the same ruler (unless `--skip-distances`): `isostream measure
    --volume` against the full-resolution surface of the same volume and iso value, RMS, Hausdorff
    and the distance 99.9 % of the samples are within, in % of the bounding-box diagonal (about
@@ -519,7 +520,7 @@ def tables(results, scaling, runs):
         out.append("### Output validity\n")
         out.append("| volume | tool | faces | edge-manifold | non-manifold edges | vertex-manifold "
                    "| oriented | boundary edges | zero-area | Euler | components | "
-                   "self-intersecting tris (ray cast) | crossing tris (referee) |")
+                   "self-intersecting tris (ray cast) | crossing or touching tris (referee) |")
         out.append("|---|---|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|")
         for name, e in results.items():
             for tool, t in e["tools"].items():

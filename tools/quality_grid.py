@@ -18,7 +18,7 @@ the contraction order, the percentile follows the whole surface). Prints a markd
 matplotlib is importable (`--plot docs/fig7.png`).
 `validity`: the guarantees, checked on the output of a default run for each volume and rate: edge- and
 vertex-manifold, oriented, no zero-area triangle, Euler characteristic and component count equal to
-the full-resolution surface's (a `mode = "none"` run), crossing triangles counted by the referee
+the full-resolution surface's (a `mode = "none"` run), crossing or touching triangles counted by the referee
 (`crates/meshcheck`, its `self_intersections` example), the face-target miss and peak RSS; `--pipeline`
 runs the simplified jobs with extra `[pipeline]` lines (the tightest budget, one stage or two).
 `boundary`: `[simplify] boundary = "exact"` against the default `"planar"` (default runs, RMS and
@@ -88,9 +88,10 @@ def run(binary, work, volume, rate, simplify_extra="", pipeline_extra=""):
 
 
 def referee_count(binary, ply):
-    """Crossing triangles of a PLY mesh by the referee (the `self_intersections` example of
-    `crates/meshcheck`, next to `binary`; built when missing): exact orientation signs, triangles
-    that only touch do not count."""
+    """Self-intersecting triangles of a PLY mesh by the referee (the `self_intersections` example
+    of `crates/meshcheck`, next to `binary`; built when missing): triangles that cross or touch
+    another beyond their shared corners, in exact orientation signs (its last field; the field
+    before it counts the crossing ones alone)."""
     referee = Path(binary).parent / "examples" / "self_intersections"
     if not referee.exists():
         subprocess.run(["cargo", "build", "--release", "-p", "isostream-meshcheck", "--example",
@@ -100,7 +101,7 @@ def referee_count(binary, ply):
 
 
 def crossings(binary, out):
-    """Crossing triangles of an SMB output, by the referee."""
+    """Crossing or touching triangles of an SMB output, by the referee."""
     ply = out.with_suffix(".ply")
     subprocess.run([binary, "convert", str(out), str(ply)], check=True, capture_output=True)
     count = referee_count(binary, ply)
@@ -132,7 +133,7 @@ def rates(args, work):
 
 def validity(args, work):
     rows = []
-    print("| volume | R | faces (target) | edge/vertex-manifold, oriented | zero-area | Euler out / full (components) | crossing triangles | peak RSS MiB | s |")
+    print("| volume | R | faces (target) | edge/vertex-manifold, oriented | zero-area | Euler out / full (components) | crossing or touching triangles | peak RSS MiB | s |")
     print("|---|---|---|---|---|---|---|---|---|")
     for v in args.volumes.split(","):
         full = run(args.bin, work, v, None)["quality"]
