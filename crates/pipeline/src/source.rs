@@ -60,11 +60,21 @@ const AXES: [char; 3] = ['x', 'y', 'z'];
 /// A job's grid, not every `Grid`: the volume crate's grids go to 2^64 voxels, and only what
 /// is written must fit `f32`.
 fn check_f32_positions(grid: &Grid) -> Result<(), String> {
-    let fix = "move the origin near 0 ([input] origin = [0, 0, 0]) and add the offset back to \
-               the mesh afterwards, or check the origin and spacing";
+    let move_origin = "move the origin near 0 ([input] origin = [0, 0, 0]) and add the offset \
+                       back to the mesh afterwards, or check the origin and spacing";
     for (k, axis) in AXES.iter().enumerate() {
         let end = grid.origin[k] + grid.spacing[k] * grid.dims[k].saturating_sub(1) as f64;
         let far = grid.origin[k].abs().max(end.abs());
+        // Where the extent, not the origin, makes the positions unrepresentable, moving the
+        // origin cannot help (a spacing of 1e-300 underflows f32 wherever the grid lies).
+        let fix = if grid.origin[k].abs() * 2.0 < far {
+            format!(
+                "give [input] spacing in a unit where it is nearer 1 (the {axis} spacing is {})",
+                number(grid.spacing[k])
+            )
+        } else {
+            move_origin.to_string()
+        };
         if far >= f64::from(f32::MAX) {
             return Err(format!(
                 "{axis} positions reach {far:e}, past what an f32 mesh can hold; {fix}"
@@ -75,13 +85,26 @@ fn check_f32_positions(grid: &Grid) -> Result<(), String> {
         let spacing = grid.spacing[k];
         if step * MIN_VOXEL_STEPS > spacing {
             return Err(format!(
-                "{axis} positions reach {far}, where the f32 coordinates of the mesh step by \
-                 {step}, more than 1/{MIN_VOXEL_STEPS} of the {axis} spacing {spacing}: the \
-                 surface would be rounded onto a few positions; {fix}"
+                "{axis} positions reach {}, where the f32 coordinates of the mesh step by {}, \
+                 more than 1/{MIN_VOXEL_STEPS} of the {axis} spacing {}: the surface would be \
+                 rounded onto a few positions; {fix}",
+                number(far),
+                number(step),
+                number(spacing)
             ));
         }
     }
     Ok(())
+}
+
+/// `x` as written by hand: plain where that is short, in exponent form far from 1 (a spacing
+/// of 1e-300 printed plainly made a 1,000-character error line).
+fn number(x: f64) -> String {
+    if x == 0.0 || (1e-4..1e9).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }
 
 /// Whole slices in memory at once, at the least, when a volume is read slice by slice (the
@@ -281,7 +304,6 @@ mod tests {
         for (spacing, origin) in [
             ([0.5; 3], [1e9, 0.0, 0.0]),
             ([0.1; 3], [4e6; 3]),
-            ([1e37, 1.0, 1.0], [0.0; 3]),
             ([1.0; 3], [1e39, 0.0, 0.0]),
         ] {
             let e = check_f32_positions(&Grid {
@@ -292,6 +314,20 @@ mod tests {
             .unwrap_err();
             assert!(
                 e.contains("f32") && e.contains("[input] origin") && e.starts_with('x'),
+                "{e}"
+            );
+        }
+        // A spacing f32 cannot resolve anywhere: short numbers, and the spacing is the fix.
+        for spacing in [[1e-300; 3], [1e300; 3], [1e37, 1.0, 1.0]] {
+            let e = check_f32_positions(&Grid {
+                dims: [40; 3],
+                spacing,
+                origin: [0.0; 3],
+            })
+            .unwrap_err();
+            assert!(e.len() < 300, "{} characters: {e}", e.len());
+            assert!(
+                e.contains("give [input] spacing in a unit") && !e.contains("origin near 0"),
                 "{e}"
             );
         }
