@@ -102,14 +102,22 @@ impl Metrics {
         self.voxels.inc_by(n);
     }
 
+    /// Every stage of the run summary's `stage_seconds`, labelled with its key there:
+    /// `simplify_second` (a cascade's second simplifier, 0 without one) and `prune` (only
+    /// from jobs that prune) included.
     pub fn stage_seconds(&self, s: &StageSeconds) {
+        let prune = s.prune.map(|secs| ("prune", secs));
         for (stage, secs) in [
             ("read", s.read),
             ("extract", s.extract),
             ("detect", s.detect),
             ("simplify", s.simplify),
+            ("simplify_second", s.simplify_second),
             ("write", s.write),
-        ] {
+        ]
+        .into_iter()
+        .chain(prune)
+        {
             self.stage_busy
                 .get_or_create(&label("stage", stage))
                 .inc_by(secs);
@@ -141,6 +149,52 @@ impl Metrics {
 mod tests {
     use super::*;
 
+    /// The second simplifier of a cascade (the default in mode rate) was left out, and so was
+    /// the prune stage: every key of the run summary's `stage_seconds` is a label now.
+    #[test]
+    fn stage_busy_has_every_stage_of_the_summary() {
+        let m = Metrics::new();
+        let s = StageSeconds {
+            read: 0.25,
+            extract: 0.75,
+            detect: 1.25,
+            prune: Some(1.75),
+            simplify: 2.25,
+            simplify_second: 2.75,
+            write: 3.25,
+        };
+        m.stage_seconds(&s);
+        m.stage_seconds(&s);
+        let text = m.render(&Snapshot {
+            jobs: Vec::new(),
+            resident_faces: 0,
+        });
+        let summary = serde_json::to_value(s).unwrap();
+        let keys = summary.as_object().unwrap();
+        assert_eq!(keys.len(), 7, "{summary}");
+        let missing: Vec<String> = keys
+            .iter()
+            .map(|(key, secs)| {
+                let twice = 2.0 * secs.as_f64().unwrap();
+                format!("isostream_stage_busy_seconds_total{{stage=\"{key}\"}} {twice}")
+            })
+            .filter(|needle| !text.contains(needle))
+            .collect();
+        assert!(missing.is_empty(), "{missing:?} missing from\n{text}");
+        // Without pruning, no prune series.
+        let m = Metrics::new();
+        m.stage_seconds(&StageSeconds::default());
+        let text = m.render(&Snapshot {
+            jobs: Vec::new(),
+            resident_faces: 0,
+        });
+        assert!(
+            text.contains("isostream_stage_busy_seconds_total{stage=\"simplify_second\"} 0")
+                && !text.contains("stage=\"prune\""),
+            "{text}"
+        );
+    }
+
     #[test]
     fn text_names_every_family() {
         let m = Metrics::new();
@@ -160,6 +214,7 @@ mod tests {
             "isostream_resident_faces 5",
             "isostream_peak_rss_bytes",
             "isostream_stage_busy_seconds_total{stage=\"simplify\"}",
+            "isostream_stage_busy_seconds_total{stage=\"simplify_second\"}",
             "isostream_errors_total{kind=\"bad_job\"} 1",
         ] {
             assert!(text.contains(needle), "{needle} missing from\n{text}");
