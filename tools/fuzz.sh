@@ -4,8 +4,26 @@
 # because libFuzzer's sanitizer flags are nightly-only. Seeds come from the test fixtures.
 #   tools/fuzz.sh [seconds-per-target]
 set -euo pipefail
-cd "$(dirname "$0")/../fuzz"
+usage="usage: tools/fuzz.sh [seconds-per-target] (a whole number of seconds, 60 by default)"
+# Arguments first, before anything is installed or built: `--help` ran `cargo install
+# cargo-fuzz` and was then handed to libFuzzer as the seconds.
+case "${1:-}" in
+  -h|--help)
+    echo "$usage"
+    echo "Runs every cargo-fuzz target in fuzz/ for that long (installs cargo-fuzz if missing)."
+    exit 0 ;;
+esac
+if [ $# -gt 1 ]; then
+  echo "tools/fuzz.sh: at most one argument; $usage" >&2
+  exit 2
+fi
 secs="${1:-60}"
+if ! [[ "$secs" =~ ^[0-9]+$ ]] || [ "$((10#$secs))" -eq 0 ]; then
+  echo "tools/fuzz.sh: '$secs' is not a positive whole number of seconds; $usage" >&2
+  exit 2
+fi
+secs="$((10#$secs))"
+cd "$(dirname "$0")/../fuzz"
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 export RUSTC_BOOTSTRAP=1
 mkdir -p corpus/volume_formats corpus/mesh_formats
