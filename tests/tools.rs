@@ -104,3 +104,57 @@ fn open3d_open_says_why_a_count_fails() {
         format!("{triangles} triangles, --expect-faces 5"),
     );
 }
+
+/// `tools/fuzz.sh` with `PATH` holding only a `cargo` that records being called: what it was
+/// asked to do before anything ran.
+#[cfg(unix)]
+fn fuzz_sh(args: &[&str]) -> (Output, bool) {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let called = dir.path().join("cargo-called");
+    let cargo = dir.path().join("cargo");
+    std::fs::write(
+        &cargo,
+        format!("#!/bin/sh\necho \"$@\" >> '{}'\nexit 1\n", called.display()),
+    )
+    .unwrap();
+    std::fs::set_permissions(&cargo, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let path = format!("{}:/usr/bin:/bin", dir.path().display());
+    let o = Command::new("bash")
+        .arg(Path::new(ROOT).join("tools/fuzz.sh"))
+        .args(args)
+        .env("PATH", path)
+        .output()
+        .unwrap();
+    (o, called.exists())
+}
+
+/// `tools/fuzz.sh --help` ran `cargo install cargo-fuzz` and then handed `--help` to libFuzzer
+/// as the seconds: it prints its usage and exits 0 before anything runs, and a seconds argument
+/// that is not a whole number is a one-line usage error (exit 2), also before anything runs.
+#[cfg(unix)]
+#[test]
+fn fuzz_sh_help_and_bad_seconds_run_nothing() {
+    for help in ["--help", "-h"] {
+        let (o, cargo) = fuzz_sh(&[help]);
+        assert_eq!(o.status.code(), Some(0), "{help}: {}", stderr(&o));
+        assert!(
+            String::from_utf8_lossy(&o.stdout).starts_with("usage: tools/fuzz.sh"),
+            "{help}: {}",
+            String::from_utf8_lossy(&o.stdout)
+        );
+        assert!(!cargo, "{help} ran cargo");
+    }
+    for bad in ["abc", "10s", "0", "-5", ""] {
+        let (o, cargo) = fuzz_sh(&[bad]);
+        assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", stderr(&o));
+        let err = stderr(&o);
+        assert_eq!(err.trim_end().lines().count(), 1, "{bad:?}: {err}");
+        assert!(err.contains("usage: tools/fuzz.sh"), "{bad:?}: {err}");
+        assert!(!cargo, "{bad:?} ran cargo");
+    }
+    // A good number goes on to cargo (here the recording one, which fails).
+    let (o, cargo) = fuzz_sh(&["5"]);
+    assert_ne!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(cargo, "5 s did not reach cargo: {}", stderr(&o));
+}

@@ -17,7 +17,7 @@ if [ $# -gt 1 ]; then
   echo "tools/fuzz.sh: at most one argument; $usage" >&2
   exit 2
 fi
-secs="${1:-60}"
+secs="${1-60}"
 if ! [[ "$secs" =~ ^[0-9]+$ ]] || [ "$((10#$secs))" -eq 0 ]; then
   echo "tools/fuzz.sh: '$secs' is not a positive whole number of seconds; $usage" >&2
   exit 2
