@@ -158,3 +158,41 @@ fn fuzz_sh_help_and_bad_seconds_run_nothing() {
     assert_ne!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(cargo, "5 s did not reach cargo: {}", stderr(&o));
 }
+
+/// `tools/tandem_experiment.py --quick`, the smoke run tools/README.md suggests, rewrote the
+/// committed docs/tandem.md: it writes to its work folder unless `--doc` is given.
+#[test]
+fn tandem_quick_leaves_docs_tandem_md_alone() {
+    if !python_with("argparse") {
+        println!("skipped: python3 is not installed here");
+        return;
+    }
+    let doc_of = |args: &[&str]| -> String {
+        let script = format!(
+            "import sys; sys.path.insert(0, {tools:?}); import tandem_experiment as t; \
+             print(t.parse_args({args:?}).doc)",
+            tools = Path::new(ROOT).join("tools").to_string_lossy(),
+        );
+        let o = Command::new("python3")
+            .args(["-c", &script])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+        String::from_utf8_lossy(&o.stdout).trim().to_string()
+    };
+    let committed = Path::new(ROOT).join("docs/tandem.md");
+    assert_eq!(doc_of(&[]), committed.to_string_lossy());
+    assert_eq!(
+        doc_of(&["--quick", "--work", "/tmp/w"]),
+        "/tmp/w/tandem-quick.md"
+    );
+    assert!(
+        doc_of(&["--quick"]).ends_with("out/tandem-experiment/tandem-quick.md"),
+        "{}",
+        doc_of(&["--quick"])
+    );
+    assert_eq!(
+        doc_of(&["--quick", "--doc", "docs/tandem.md"]),
+        "docs/tandem.md"
+    );
+}

@@ -5,7 +5,8 @@ A benchmark, not a test. Drives the release binary through generated job files:
 
     cargo build --release
     python3 tools/tandem_experiment.py            # full grid, writes docs/tandem.md
-    python3 tools/tandem_experiment.py --quick    # smaller volumes, a smoke run
+    python3 tools/tandem_experiment.py --quick    # smaller volumes, a smoke run, written to
+                                                  # out/tandem-experiment/tandem-quick.md
 
 The binary is `$CARGO_TARGET_DIR/release/isostream` (else `target/release/isostream`), or `--bin`.
 
@@ -228,12 +229,20 @@ def checks(rows: list[dict], e0s: list[float], alphas: list[float], alpha_e0: fl
     return out
 
 
-def main() -> int:
+QUICK_DOC = "tandem-quick.md"
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The options, `--doc` resolved: a `--quick` smoke run writes its tables to
+    `WORK/tandem-quick.md` unless `--doc` names a file (it overwrote the committed
+    docs/tandem.md)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bin", type=Path, default=Path(os.environ.get(
         "CARGO_TARGET_DIR", ROOT / "target")) / "release" / "isostream")
     ap.add_argument("--work", type=Path, default=ROOT / "out" / "tandem-experiment")
-    ap.add_argument("--doc", type=Path, default=ROOT / "docs" / "tandem.md")
+    ap.add_argument("--doc", type=Path, default=None,
+                    help="the markdown file whose GENERATED block is rewritten (default: "
+                    f"docs/tandem.md; with --quick, WORK/{QUICK_DOC})")
     ap.add_argument("--datasets", default="pillow,link,tooth,headsq")
     ap.add_argument("--size", type=int, default=128, help="procedural grid size (paper: 128)")
     ap.add_argument("--e0", default="0.05,0.1,0.2,0.4", help="in voxels (see DATASETS)")
@@ -242,10 +251,21 @@ def main() -> int:
     ap.add_argument("--samples-per-area", type=float, default=10.0,
                     help="Metro sample density per voxel area (scaled by the dataset's voxel "
                     "length; 0: the measure command's default per physical unit²)")
-    ap.add_argument("--quick", action="store_true", help="procedural only, size 48")
-    args = ap.parse_args()
+    ap.add_argument("--quick", action="store_true",
+                    help=f"procedural only, size 48; writes WORK/{QUICK_DOC} unless --doc is given")
+    args = ap.parse_args(argv)
     if args.quick:
         args.datasets, args.size = "pillow,link", 48
+    if args.doc is None:
+        args.doc = args.work / QUICK_DOC if args.quick else ROOT / "docs" / "tandem.md"
+    return args
+
+
+def main() -> int:
+    args = parse_args()
+    if args.quick:
+        print(f"--quick: the tables go to {args.doc} (--doc docs/tandem.md to replace the "
+              "committed ones)", flush=True)
     e0s = [float(x) for x in args.e0.split(",")]
     alphas = [float(x) for x in args.alpha.split(",")]
     if not args.bin.exists():
