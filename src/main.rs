@@ -2,9 +2,11 @@
 //!
 //! Errors reach the user as one line (`error: ...`) naming the file and the fix, with a
 //! non-zero exit code: 2 for a bad job or bad input (a mesh given to check, convert, measure or
-//! report included, and a service configuration `serve` refuses), 130 for Ctrl-C, SIGTERM or
-//! SIGHUP, 1 otherwise (a failed write of the answer to stdout included, `> /dev/full`). A stdout
-//! whose reader closed it (`| head`) ends the command quietly with 0.
+//! report included, and a service configuration `serve` refuses), 130 for a run or conversion
+//! stopped by Ctrl-C, SIGTERM or SIGHUP, 1 otherwise (a failed write of the answer to stdout
+//! included, `> /dev/full`, and an output locked by another run or conversion). A stdout whose
+//! reader closed it (`| head`) ends the command quietly with 0, as `serve` does when a signal
+//! stops it (a clean stop). README.md lists them.
 
 #![deny(unsafe_code)]
 
