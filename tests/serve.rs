@@ -304,6 +304,8 @@ fn a_job_is_submitted_followed_and_its_mesh_fetched() {
         "isostream_faces_in_total",
         "isostream_voxels_total 32768",
         "isostream_stage_busy_seconds_total{stage=\"simplify\"}",
+        // A cascade's second simplifier (the default in mode rate), as the run summary names it.
+        "isostream_stage_busy_seconds_total{stage=\"simplify_second\"}",
         "isostream_peak_rss_bytes",
         "isostream_resident_faces",
     ] {
