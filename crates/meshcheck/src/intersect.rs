@@ -268,6 +268,13 @@ pub fn triangles_meet(ia: [u32; 3], a: [[f64; 3]; 3], ib: [u32; 3], b: [[f64; 3]
     pair_test(ia, a, ib, b, segment_meets_triangle)
 }
 
+/// A segment against a triangle: [`segment_crosses_triangle`] or [`segment_meets_triangle`].
+type SegmentTest = fn([f64; 3], [f64; 3], [[f64; 3]; 3]) -> bool;
+
+/// A pair of triangles by corner indices and positions: [`triangles_intersect`] or
+/// [`triangles_meet`].
+type PairTest = fn([u32; 3], [[f64; 3]; 3], [u32; 3], [[f64; 3]; 3]) -> bool;
+
 /// The pair rule shared by [`triangles_intersect`] and [`triangles_meet`] (see the module
 /// documentation), with `edge` the segment test.
 fn pair_test(
@@ -275,7 +282,7 @@ fn pair_test(
     a: [[f64; 3]; 3],
     ib: [u32; 3],
     b: [[f64; 3]; 3],
-    edge: fn([f64; 3], [f64; 3], [[f64; 3]; 3]) -> bool,
+    edge: SegmentTest,
 ) -> bool {
     match shared_corner(ia, ib) {
         Some(None) => {
@@ -303,11 +310,7 @@ pub fn self_intersections(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> usi
 }
 
 /// Triangles of which `bad` holds for at least one pair, the pairs found by a uniform grid.
-fn count_pairs(
-    positions: &[[f64; 3]],
-    triangles: &[[u32; 3]],
-    bad_pair: fn([u32; 3], [[f64; 3]; 3], [u32; 3], [[f64; 3]; 3]) -> bool,
-) -> usize {
+fn count_pairs(positions: &[[f64; 3]], triangles: &[[u32; 3]], bad_pair: PairTest) -> usize {
     let corners = |t: &[u32; 3]| -> Option<[[f64; 3]; 3]> {
         let p = |i: u32| positions.get(i as usize).copied();
         Some([p(t[0])?, p(t[1])?, p(t[2])?])
