@@ -37,6 +37,23 @@ fn a_tight_budget_never_crosses_written_triangles() {
 /// A generated volume's value at voxel `(x, y, z)`.
 type Field = dyn Fn(u64, u64, u64) -> f32;
 
+/// `field` sampled on a grid of `dims` voxels, its surface at 0.
+fn sampled(dims: [u64; 3], field: &Field) -> common::TestVolume {
+    let mut data = Vec::with_capacity((dims[0] * dims[1] * dims[2]) as usize);
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                data.push(field(x, y, z));
+            }
+        }
+    }
+    common::TestVolume {
+        dims,
+        data,
+        iso: 0.0,
+    }
+}
+
 /// Volumes whose surface is planar, or made of planar strips, where every contraction costs
 /// nothing: a straight tube along z (a prism) and a plane across the sweep, in mode rate, in
 /// core by the shape measure (`classical`) and by the attribute quadric. Decimated shortest
@@ -72,19 +89,7 @@ fn planar_surfaces_are_decimated_without_slivers() {
         ),
     ];
     for (name, dims, field, simplify) in cases {
-        let mut data = Vec::with_capacity((dims[0] * dims[1] * dims[2]) as usize);
-        for z in 0..dims[2] {
-            for y in 0..dims[1] {
-                for x in 0..dims[0] {
-                    data.push(field(x, y, z));
-                }
-            }
-        }
-        let volume = common::TestVolume {
-            dims,
-            data,
-            iso: 0.0,
-        };
+        let volume = sampled(dims, field);
         let dir = tempfile::tempdir().unwrap();
         let job = volume.job(dir.path(), simplify, "out.smb");
         let summary = common::run_job(&job);
@@ -157,19 +162,7 @@ fn blocky_volumes_are_simplified_without_contacts() {
         ([24, 24, 24], "mode = \"classical\"\nerror = 1.0", ""),
     ];
     for (dims, simplify, pipeline) in cases {
-        let mut data = Vec::with_capacity((dims[0] * dims[1] * dims[2]) as usize);
-        for z in 0..dims[2] {
-            for y in 0..dims[1] {
-                for x in 0..dims[0] {
-                    data.push(blocks(x, y, z));
-                }
-            }
-        }
-        let volume = common::TestVolume {
-            dims,
-            data,
-            iso: 0.0,
-        };
+        let volume = sampled(dims, &blocks);
         let dir = tempfile::tempdir().unwrap();
         let job = volume.job(dir.path(), simplify, "out.smb");
         // The job's last section is `[pipeline]`.
