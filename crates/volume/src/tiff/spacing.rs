@@ -73,31 +73,32 @@ fn imagej(
     if value("unit").is_none() && value("spacing").is_none() {
         return Ok(None);
     }
-    // ImageJ writes ResolutionUnit 1 (none) and its unit in `unit=`; a TIFF unit wins for x and
-    // y, whose resolutions it is the unit of. An absent tag is taken as ImageJ's "none" rather
-    // than TIFF's default inch: an ImageJ description is what says the unit here.
-    let tag_unit = match d
+    // ImageJ's own reading (`FileOpener.decodeDescriptionString`, `TiffDecoder`), which is what
+    // a user compares the mesh with in Fiji: the description's unit wins for every axis; the
+    // resolution tags are numbers in it, but for a centimetre tag under a micrometre unit (a
+    // tag unit ImageJ converts, x 10,000) and 72 per inch, the print size other writers leave,
+    // which ImageJ takes as uncalibrated. (Taking the tag's unit for x and y made a file re-saved
+    // with 72 dpi 353 um wide a pixel where ImageJ shows 1 um.)
+    let tag_unit = d
         .find_tag_unsigned::<u16>(Tag::ResolutionUnit)
         .ok()
-        .flatten()
-    {
-        Some(2) => Some(unit("inch")),
-        Some(3) => Some(unit("cm")),
-        _ => None,
+        .flatten();
+    let base = value("unit").map(unit).unwrap_or_else(|| unit("pixel"));
+    let xy_scale = if tag_unit == Some(3) && base.name == "um" {
+        1e4
+    } else {
+        1.0
     };
-    // ImageJ's unit of an uncalibrated axis.
-    let base = value("unit")
-        .map(unit)
-        .or_else(|| tag_unit.clone())
-        .unwrap_or_else(|| unit("pixel"));
-    let x_unit = tag_unit.clone().unwrap_or_else(|| base.clone());
-    let y_unit = tag_unit
-        .or_else(|| value("yunit").map(unit))
-        .unwrap_or_else(|| base.clone());
-    let z_unit = value("zunit").map(unit).unwrap_or(base);
+    let y_unit = value("yunit").map(unit).unwrap_or_else(|| base.clone());
+    let z_unit = value("zunit").map(unit).unwrap_or_else(|| base.clone());
+    let mut xy = |tag: Tag| {
+        resolution(d, tag)
+            .filter(|&s| !(tag_unit == Some(2) && s == 1.0 / 72.0))
+            .map(|s| s * xy_scale)
+    };
     let sizes = [
-        (resolution(d, Tag::XResolution), x_unit),
-        (resolution(d, Tag::YResolution), y_unit),
+        (xy(Tag::XResolution), base),
+        (xy(Tag::YResolution), y_unit),
         (value("spacing").map(number), z_unit),
     ];
     in_x_unit(path, "ImageJ", sizes).map(Some)

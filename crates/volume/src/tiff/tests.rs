@@ -362,7 +362,8 @@ fn imagej_spacing_and_unit_are_read() {
     assert_eq!(grid.spacing, [1.0; 3]);
     assert_eq!(describe, format!("{} (3x2x4 TIFF stack)", p.display()));
 
-    // Axes in other length units are brought to x's; a TIFF unit (inch, cm) is x and y's.
+    // Axes in other length units are brought to x's; the description's unit is every axis's,
+    // as ImageJ reads it.
     tagged(
         &p,
         4,
@@ -378,11 +379,29 @@ fn imagej_spacing_and_unit_are_read() {
         Some((ResolutionUnit::Centimeter, 1000, 1)),
     );
     let (grid, describe) = opened(&p, &OpenOptions::default());
-    assert!(close(grid.spacing, [0.001, 0.001, 0.05]), "{grid:?}");
+    assert!(close(grid.spacing, [0.001, 0.001, 0.5]), "{grid:?}");
     assert!(
-        describe.ends_with(" cm from its ImageJ metadata)"),
+        describe.ends_with(" mm from its ImageJ metadata)"),
         "{describe}"
     );
+    // ImageJ's two exceptions: a centimetre tag under a micrometre unit is converted (x
+    // 10,000), and 72 per inch (a print size other writers leave) is no calibration.
+    tagged(
+        &p,
+        4,
+        Some("ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2\n"),
+        Some((ResolutionUnit::Centimeter, 5000, 1)),
+    );
+    let (grid, _) = opened(&p, &OpenOptions::default());
+    assert!(close(grid.spacing, [2.0, 2.0, 2.0]), "{grid:?}");
+    tagged(
+        &p,
+        4,
+        Some("ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2\n"),
+        Some((ResolutionUnit::Inch, 72, 1)),
+    );
+    let (grid, _) = opened(&p, &OpenOptions::default());
+    assert!(close(grid.spacing, [1.0, 1.0, 2.0]), "{grid:?}");
     // An axis in a unit that is no length is refused in one line naming the override, which
     // runs it.
     tagged(
