@@ -16,11 +16,16 @@
 //! rear's complete region (`Sweep::clear_of`: at or above its plane, and at or above its next
 //! slab's top or beyond its rows). The second stage uses the rear as its sweep front, so its
 //! contractions wait until their new fan lies in one of that region's two boxes
-//! ([`crate::Sweep`]). A triangle on either side of a box's wall cannot cross one on the other
-//! (the referee's predicate is strict), and each stage's guard sees every triangle that can
-//! meet its fans: the first stage's emitted triangles stay in its guard index ("ghosts"), and
-//! the second stage only changes them inside the region, where the first stage's fans never
-//! reach.
+//! ([`crate::Sweep`]). A triangle on either side of a box's wall cannot cross one on the other,
+//! and each stage's guard sees every triangle that can meet its fans: the first stage's
+//! emitted triangles stay in its guard index ("ghosts"), and the second stage only changes them
+//! inside the region, where the first stage's fans never reach. The walls are closed on both
+//! sides, so this argument does not rule out a *contact* on a wall (a first-stage vertex and a
+//! second-stage one placed at the same point of the rear's plane), which the referee counts
+//! since the fifty-seventh session and each stage's guard refuses only among the triangles it
+//! sees; none was found on 611 random blocky volumes with two stages (checkerboards and block
+//! masks, R = 0.01 to 0.3, 16 MiB and the default budget) nor on the real volumes. A half-open
+//! split, as `seam.rs` has, would close it.
 //!
 //! The rear is what the first stage's lowest held triangles allow ([`rear_of`]): a triangle
 //! stays until its three corners are retired. It would trail the first stage's front by its

@@ -1567,17 +1567,20 @@ mod tests {
         #[test]
         fn the_guard_agrees_with_the_referee(
             grid in prop::collection::vec((0u8..4, 0u8..4, 0u8..4), 6),
-            shared in 0usize..3,
+            shared in 0usize..10,
         ) {
             let p: Vec<DVec3> = grid
                 .iter()
                 .map(|&(x, y, z)| DVec3::new(f64::from(x), f64::from(y), f64::from(z)) * 0.1)
                 .collect();
-            // No shared index, or one: then the second triangle's first corner is the first's.
-            let (ia, ib) = match shared {
-                0 => ([0, 1, 2], [3, 4, 5]),
-                _ => ([0, 1, 2], [0, 4, 5]),
-            };
+            // No shared index (9), or one: corner `i` of the first is corner `j` of the second,
+            // so that `crosses_fan` meets its shared-ring-corner branches too (with `i = 0` the
+            // shared corner is the fan's apex).
+            let ia = [0u32, 1, 2];
+            let mut ib = [3u32, 4, 5];
+            if shared < 9 {
+                ib[shared % 3] = ia[shared / 3];
+            }
             let at = |i: [u32; 3]| i.map(|k| p[k as usize]);
             let referee = isostream_meshcheck::triangles_meet(
                 ia,
@@ -1588,7 +1591,9 @@ mod tests {
             let ta = Tri64::new(ia.map(u64::from), at(ia));
             let tb = Tri64::new(ib.map(u64::from), at(ib));
             prop_assert_eq!(cross(&ta, &tb), referee);
+            prop_assert_eq!(cross(&tb, &ta), referee);
             prop_assert_eq!(crosses_fan(&ta, tb.side(ta.p[0]), &tb), referee);
+            prop_assert_eq!(crosses_fan(&tb, ta.side(tb.p[0]), &ta), referee);
         }
     }
 

@@ -66,7 +66,7 @@ impl BloscError {
     pub(crate) fn fix(&self) -> &'static str {
         match self {
             BloscError::Version(_) | BloscError::Flags(_) => {
-                "Blosc2 frames are not read; write the array with numcodecs' Blosc (Blosc 1) or zstd"
+                "only Blosc 1 frames of format version 2 are read (not Blosc2 frames, not a damaged or foreign chunk); write the array with numcodecs' Blosc (Blosc 1) or zstd"
             }
             BloscError::Compressor(_) => {
                 "re-encode the array with Blosc cname lz4, zstd, zlib or blosclz, or with zstd"
