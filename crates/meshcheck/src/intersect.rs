@@ -174,9 +174,19 @@ pub fn segment_meets_triangle(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> boo
     !(s.contains(&1.0) && s.contains(&-1.0))
 }
 
-/// [`segment_meets_triangle`] for a segment in the triangle's plane, exactly, in the
-/// projection onto the coordinate plane where the triangle keeps an area.
-fn coplanar_segment_meets_triangle(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> bool {
+/// [`segment_meets_triangle`] for a segment in the triangle's plane (the caller knows both
+/// ends are on it), exactly, in the projection onto the coordinate plane where the triangle
+/// keeps an area. Boxes first: flat parts of a surface put many such pairs side by side.
+pub fn coplanar_segment_meets_triangle(p: [f64; 3], q: [f64; 3], t: [[f64; 3]; 3]) -> bool {
+    let apart = (0..3).any(|k| {
+        let (lo, hi) = (p[k].min(q[k]), p[k].max(q[k]));
+        let tlo = t[0][k].min(t[1][k]).min(t[2][k]);
+        let thi = t[0][k].max(t[1][k]).max(t[2][k]);
+        hi < tlo || lo > thi
+    });
+    if apart {
+        return false;
+    }
     let Some(axes) = [[0, 1], [1, 2], [2, 0]].into_iter().find(|&[i, j]| {
         orient2d([t[0][i], t[0][j]], [t[1][i], t[1][j]], [t[2][i], t[2][j]]) != 0.0
     }) else {

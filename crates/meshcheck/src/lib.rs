@@ -11,8 +11,9 @@
 
 mod intersect;
 pub use intersect::{
-    ORIENT_ERROR, certify, crossing_triangles, orient, segment_crosses_triangle,
-    segment_meets_triangle, self_intersections, triangles_intersect, triangles_meet,
+    ORIENT_ERROR, certify, coplanar_segment_meets_triangle, crossing_triangles, orient,
+    segment_crosses_triangle, segment_meets_triangle, self_intersections, triangles_intersect,
+    triangles_meet,
 };
 
 use std::collections::HashMap;

@@ -1132,7 +1132,7 @@ fn edge_meets(p: DVec3, q: DVec3, [sp, sq]: [i8; 2], t: &Tri64) -> bool {
 #[cold]
 #[inline(never)]
 fn in_plane_edge_meets(p: DVec3, q: DVec3, t: &Tri64) -> bool {
-    isostream_meshcheck::segment_meets_triangle(
+    isostream_meshcheck::coplanar_segment_meets_triangle(
         p.to_array(),
         q.to_array(),
         t.p.map(|x| x.to_array()),
