@@ -50,9 +50,10 @@
 //!   (crossing only), contractions on blocky volumes put a vertex of one component exactly on a
 //!   vertex or an edge of another, a surface that is not embedded (an STL welds such corners
 //!   into non-manifold vertices). Edges in the other triangle's plane take the referee's
-//!   two-dimensional test (`in_plane_edge_meets`). The new fan is also checked against itself (its triangles share
-//!   the new vertex): first by a proof that its star is embedded (`star`), which covers every
-//!   pair at once and almost always holds, then, when it does not, pair by pair.
+//!   two-dimensional test (`in_plane_edge_meets`). The new fan is also checked against itself
+//!   (its triangles share the new vertex): first by a proof that its star is embedded (`star`),
+//!   which covers every pair at once and almost always holds, then, when it does not, pair by
+//!   pair.
 
 use std::collections::VecDeque;
 
