@@ -430,7 +430,11 @@ fn beyond_front(at: &At, patch: &Patch, pos: DVec3) -> Option<f64> {
     }
     let sweep = at.config.sweep?;
     let corners = patch.tris.iter().flat_map(|pt| pt.p);
-    let far = sweep.key_of(std::iter::once(pos).chain(corners))?;
+    let points = std::iter::once(pos).chain(corners);
+    let far = match at.config.cascade {
+        Cascade::Second => sweep.key_inside(points),
+        _ => sweep.key_of(points),
+    }?;
     (far > at.front).then_some(far)
 }
 

@@ -189,20 +189,39 @@ impl Sweep {
     /// ceiling); with rows, `k - 1 + ceil(y) / count` for the highest rank `z`, `k = ceil(z)`,
     /// and the farthest row coordinate `y`, at least 0. `None` for no points.
     pub(crate) fn key_of(&self, points: impl IntoIterator<Item = DVec3>) -> Option<f64> {
+        self.key_with(points, false)
+    }
+
+    /// [`Sweep::key_of`] for the open region: the least front key at which every point lies
+    /// strictly inside the complete region, off its walls (`k = floor(z) + 1`, `floor(y) + 1`
+    /// rows). A cascade's second stage keys its fans so (`decimate::beyond_front`): the first
+    /// stage's triangles lie on or beyond the rear's walls (`Sweep::clear_of`), so the two
+    /// stages' new geometry never shares a point, a contact included.
+    pub(crate) fn key_inside(&self, points: impl IntoIterator<Item = DVec3>) -> Option<f64> {
+        self.key_with(points, true)
+    }
+
+    /// The keys of [`Sweep::key_of`] and of [`Sweep::key_inside`] (`inside`).
+    fn key_with(&self, points: impl IntoIterator<Item = DVec3>, inside: bool) -> Option<f64> {
+        // A rank or a row rounded up to the whole slab or row that holds it (off its far wall
+        // for `inside`).
+        let up = |x: f64| if inside { x.floor() + 1.0 } else { x.ceil() };
         let mut points = points.into_iter();
         let first = points.next()?;
         match self.rows {
             None => {
                 let top = points.fold(self.height(first), |top, p| top.max(self.height(p)));
-                Some(self.rank_at(top))
+                // A fraction compares with whole fronts as its ceiling does.
+                let rank = self.rank_at(top);
+                Some(if inside { up(rank) } else { rank })
             }
             Some(r) => {
                 let across = |p: DVec3| p.dot(r.direction);
                 let (top, far) = points.fold((self.height(first), across(first)), |(t, f), p| {
                     (t.max(self.height(p)), f.max(across(p)))
                 });
-                let k = self.rank_at(top).ceil();
-                let row = ((far - r.origin) / r.spacing).ceil();
+                let k = up(self.rank_at(top));
+                let row = up((far - r.origin) / r.spacing);
                 let count = f64::from(r.count);
                 let key = if row >= count {
                     k
@@ -254,6 +273,36 @@ pub(crate) mod tests {
 
     fn swept(count: Option<u32>) -> Sweep {
         along_z(0.0, 1.0, count)
+    }
+
+    /// Inside the complete region means off its walls: a point on the front's plane, on its
+    /// row wall or on the top of its next slab is not inside until the front has passed it,
+    /// with rows and without; points off the walls are inside exactly when they are behind.
+    #[test]
+    fn inside_the_front_is_off_its_walls() {
+        for rows in [Some(10), None] {
+            let s = swept(rows);
+            let inside = |p: [f64; 3], f: Front| {
+                s.key_inside([DVec3::from_array(p)]).expect("a point") <= s.front_key(f)
+            };
+            let behind = |p: [f64; 3], f: Front| {
+                s.key_of([DVec3::from_array(p)]).expect("a point") <= s.front_key(f)
+            };
+            let whole = Front::from(3);
+            assert!(behind([0.0, 9.5, 3.0], whole) && !inside([0.0, 9.5, 3.0], whole));
+            assert!(inside([0.0, 9.5, 2.999], whole) && inside([0.0, 9.5, 3.0], Front::from(4)));
+            if rows.is_some() {
+                let part = Front { slabs: 3, rows: 5 };
+                assert!(behind([0.0, 5.0, 3.5], part) && !inside([0.0, 5.0, 3.5], part));
+                assert!(behind([0.0, 4.5, 4.0], part) && !inside([0.0, 4.5, 4.0], part));
+                assert!(inside([0.0, 4.5, 3.5], part));
+            }
+            for p in [[0.0, 1.3, 2.2], [0.0, 7.7, 1.1], [0.0, 4.4, 3.6]] {
+                for f in [Front::from(3), Front { slabs: 3, rows: 5 }] {
+                    assert_eq!(inside(p, f), behind(p, f), "{p:?} {f:?}");
+                }
+            }
+        }
     }
 
     /// A set is behind the front exactly when it lies in one of the front's two boxes.
