@@ -1448,7 +1448,18 @@ fn jobs_running_when_the_service_died_run_alone_afterwards() {
     let s = Server::start(&state, &two);
     let started = Instant::now();
     loop {
-        let views = ids.clone().map(|id| job(&s, &id));
+        // One snapshot of both (two requests one after the other saw the first job still
+        // running and the second already started, when the first ended between them).
+        let (status, body) = send(agent().get(&s.url("/jobs")), None);
+        assert_eq!(status, 200, "{body}");
+        let listed = json(&body);
+        let views = ids.clone().map(|id| {
+            listed["jobs"]
+                .as_array()
+                .and_then(|jobs| jobs.iter().find(|j| j["id"] == id.as_str()))
+                .cloned()
+                .unwrap_or_else(|| panic!("{id} not listed: {body}"))
+        });
         assert!(views.iter().all(|v| v["crashes"] == 1), "{views:?}");
         let running = views.iter().filter(|v| v["state"] == "running").count();
         assert!(running <= 1, "both ran at once: {views:?}");
