@@ -19,13 +19,10 @@
 //! ([`crate::Sweep`]). A triangle on either side of a box's wall cannot cross one on the other,
 //! and each stage's guard sees every triangle that can meet its fans: the first stage's
 //! emitted triangles stay in its guard index ("ghosts"), and the second stage only changes them
-//! inside the region, where the first stage's fans never reach. The walls are closed on both
-//! sides, so this argument does not rule out a *contact* on a wall (a first-stage vertex and a
-//! second-stage one placed at the same point of the rear's plane), which the referee counts
-//! since the fifty-seventh session and each stage's guard refuses only among the triangles it
-//! sees; none was found on 611 random blocky volumes with two stages (checkerboards and block
-//! masks, R = 0.01 to 0.3, 16 MiB and the default budget) nor on the real volumes. A half-open
-//! split, as `seam.rs` has, would close it.
+//! inside the region, where the first stage's fans never reach. Contacts are ruled out too: the
+//! first stage's triangles lie on or beyond the region's walls, and the second stage keys its
+//! new fans strictly inside it, off the walls (`Sweep::key_inside`, as `seam.rs` splits its two
+//! workers by a half-open plane), so the two stages' new geometry never shares a point.
 //!
 //! The rear is what the first stage's lowest held triangles allow ([`rear_of`]): a triangle
 //! stays until its three corners are retired. It would trail the first stage's front by its

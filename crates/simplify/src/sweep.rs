@@ -131,8 +131,8 @@ impl Sweep {
     /// the module documentation): all of them at rank `slabs` or beyond, and, with rows, all at
     /// rank `slabs + 1` or beyond or all at row `rows` or beyond. The hull then meets the
     /// region's two boxes at most on their walls, and a triangle there cannot cross a triangle
-    /// inside them: this is what keeps a cascade's stages apart ([`crate::Handoff::rear`]); a
-    /// contact on a wall is not ruled out by it (see `cascade.rs`).
+    /// inside them: this is what keeps a cascade's stages apart ([`crate::Handoff::rear`]), the
+    /// second keeping its new fans off the walls ([`Sweep::key_inside`]).
     ///
     /// The lowest rank is that of the lowest point (`rank_at` is monotonic, in floating point
     /// too), so one division serves all points, and the same for rows.
