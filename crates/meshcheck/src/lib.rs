@@ -11,7 +11,7 @@
 
 mod intersect;
 pub use intersect::{
-    ORIENT_ERROR, certify, coplanar_segment_meets_triangle, crossing_triangles, orient,
+    ORIENT_ERROR, certify, coplanar_segment_meets_triangle, crossing_triangles, folded, orient,
     segment_crosses_triangle, segment_meets_triangle, self_intersections, triangles_intersect,
     triangles_meet,
 };
