@@ -386,22 +386,19 @@ fn imagej_spacing_and_unit_are_read() {
     );
     // ImageJ's two exceptions: a centimetre tag under a micrometre unit is converted (x
     // 10,000), and 72 per inch (a print size other writers leave) is no calibration.
-    tagged(
-        &p,
-        4,
-        Some("ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2\n"),
-        Some((ResolutionUnit::Centimeter, 5000, 1)),
-    );
-    let (grid, _) = opened(&p, &OpenOptions::default());
-    assert!(close(grid.spacing, [2.0, 2.0, 2.0]), "{grid:?}");
-    tagged(
-        &p,
-        4,
-        Some("ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2\n"),
-        Some((ResolutionUnit::Inch, 72, 1)),
-    );
-    let (grid, _) = opened(&p, &OpenOptions::default());
-    assert!(close(grid.spacing, [1.0, 1.0, 2.0]), "{grid:?}");
+    for (tag, per, spacing) in [
+        (ResolutionUnit::Centimeter, 5000, [2.0, 2.0, 2.0]),
+        (ResolutionUnit::Inch, 72, [1.0, 1.0, 2.0]),
+    ] {
+        tagged(
+            &p,
+            4,
+            Some("ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2\n"),
+            Some((tag, per, 1)),
+        );
+        let (grid, _) = opened(&p, &OpenOptions::default());
+        assert!(close(grid.spacing, spacing), "{grid:?}");
+    }
     // An axis in a unit that is no length is refused in one line naming the override, which
     // runs it.
     tagged(
