@@ -1,4 +1,4 @@
-//! Self-intersection count: triangles that cross another triangle of the same mesh.
+//! Self-intersection counts: triangles that cross another triangle of the same mesh, or meet it.
 //!
 //! Broad phase: a uniform grid with cells of twice the mean edge length; every triangle is filed
 //! in each cell its bounding box overlaps, and each pair met in a shared cell is tested once
@@ -14,17 +14,19 @@
 //!   (touching) are not counted.
 //! * **one common vertex** `x`: they meet at `x` anyway; they *cross* iff the edge opposite `x` in
 //!   one strictly crosses the other triangle.
-//! * **two or three common vertices** (neighbours across an edge, duplicates): skipped; folds
-//!   there are normal flips, the topology checks' business.
+//! * **two or three common vertices** (neighbours across an edge, duplicates): not crossing;
+//!   duplicates are the topology report's business.
 //!
 //! [`self_intersections`], the count every guarantee is checked with, is stricter: it counts
 //! triangles that *meet* another beyond their shared corners ([`triangles_meet`]), touching
 //! included (a corner on another triangle, edges meeting, coplanar overlap, coincident corners
-//! with distinct indices), by the same rules with closed segments and triangles. A simplifier
-//! that only avoided crossings welded separate surfaces at a point on blocky volumes (a
-//! checkerboard of 2-voxel blocks: two components' vertices at one position), which an STL
-//! writer turns into a non-manifold vertex. [`crossing_triangles`] keeps the strict count, the
-//! one the peers' crossings were compared by.
+//! with distinct indices), by the rules above with closed segments and triangles, and
+//! neighbours across an edge folded onto each other ([`folded`]: in one plane, their third
+//! corners on one side of the edge), which no topology check sees. A simplifier that only
+//! avoided crossings welded separate surfaces at a point on blocky volumes (a checkerboard of
+//! 2-voxel blocks: two components' vertices at one position), which an STL writer turns into a
+//! non-manifold vertex. [`crossing_triangles`] keeps the strict count, the one the peers'
+//! crossings were compared by.
 
 /// The sign of `(b - a) . ((c - a) x (d - a))`, exactly: positive when `d` lies above the plane
 /// `abc` (CCW seen from above), zero when the four points are coplanar.
@@ -246,8 +248,9 @@ fn sgn(x: f64) -> f64 {
     }
 }
 
-/// The corners two triangles share, by index: `None` past one (neighbours across an edge and
-/// duplicates are the topology checks' business), else the shared corner's place in each.
+/// The corners two triangles share, by index: `None` past one (neighbours across an edge:
+/// [`folded`] in [`triangles_meet`], never crossing; duplicates: the topology report's), else
+/// the shared corner's place in each.
 fn shared_corner(ia: [u32; 3], ib: [u32; 3]) -> Option<Option<(usize, usize)>> {
     let mut shared = (0..3)
         .flat_map(|i| (0..3).map(move |j| (i, j)))

@@ -1152,7 +1152,8 @@ fn crosses_fan(t: &Tri64, apex: i8, u: &Tri64) -> bool {
     let shared = |x: u64| u.v.iter().position(|&y| y == x);
     match (shared(t.v[1]), shared(t.v[2])) {
         // A neighbour across the fan's far edge: folded onto it when in one plane with it.
-        (Some(j1), Some(j2)) => apex == 0 && folded_onto(t, 0, u.p[3 - j1 - j2]),
+        (Some(j1), Some(j2)) if j1 != j2 => apex == 0 && folded_onto(t, 0, u.p[3 - j1 - j2]),
+        (Some(_), Some(_)) => false,
         (Some(j), None) => cross_at_corner(t, 1, [u.side(t.p[2]), apex], u, j),
         (None, Some(j)) => cross_at_corner(t, 2, [apex, u.side(t.p[1])], u, j),
         (None, None) => cross_apart(t, [apex, u.side(t.p[1]), u.side(t.p[2])], u),
