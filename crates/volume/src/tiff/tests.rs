@@ -315,11 +315,16 @@ fn huge_tag_counts_are_refused_not_allocated() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("huge.tif");
     std::fs::write(&p, &bytes).unwrap();
-    let e = open_path(&p, &OpenOptions::default())
+    let e = refusal(&p);
+    assert!(e.contains("huge.tif") && !e.contains('\n'), "{e}");
+}
+
+/// The one-line error opening `p` with default options gives.
+fn refusal(p: &Path) -> String {
+    open_path(p, &OpenOptions::default())
         .err()
         .expect("refused")
-        .to_string();
-    assert!(e.contains("huge.tif") && !e.contains('\n'), "{e}");
+        .to_string()
 }
 
 /// The stack's grid and description as opened with `opts`.
@@ -407,10 +412,7 @@ fn imagej_spacing_and_unit_are_read() {
         Some(&format!("{ij}zunit=frame\n")),
         Some((ResolutionUnit::None, 2, 1)),
     );
-    let e = open_path(&p, &OpenOptions::default())
-        .err()
-        .expect("refused")
-        .to_string();
+    let e = refusal(&p);
     assert_eq!(
         e,
         format!(
@@ -509,10 +511,7 @@ fn impossible_sizes_are_refused_naming_the_override() {
     let p = dir.path().join("zero.tif");
     let ij = "ImageJ=1.54f\nimages=4\nslices=4\nunit=micron\nspacing=2.5\n";
     tagged(&p, 4, Some(ij), Some((ResolutionUnit::None, 0, 1)));
-    let e = open_path(&p, &OpenOptions::default())
-        .err()
-        .expect("refused")
-        .to_string();
+    let e = refusal(&p);
     assert_eq!(
         e,
         format!(
@@ -527,19 +526,13 @@ fn impossible_sizes_are_refused_naming_the_override() {
     assert_eq!(opened(&p, &given).0.spacing, [0.5, 0.5, 2.5]);
     let ome = r#"<OME><Image><Pixels SizeX="3" SizeY="2" SizeZ="4" PhysicalSizeX="0.3" PhysicalSizeY="0.3" PhysicalSizeZ="0"/></Image></OME>"#;
     described(&p, 4, ome);
-    let e = open_path(&p, &OpenOptions::default())
-        .err()
-        .expect("refused")
-        .to_string();
+    let e = refusal(&p);
     assert!(
         e.contains(": the header's spacing [0.3, 0.3, 0.0] must be finite and > 0"),
         "{e}"
     );
     described(&p, 4, &ome.replace("\"0\"", "\"1,2\""));
-    let e = open_path(&p, &OpenOptions::default())
-        .err()
-        .expect("refused")
-        .to_string();
+    let e = refusal(&p);
     assert!(e.contains("spacing [0.3, 0.3, NaN]"), "{e}");
 }
 
@@ -569,10 +562,7 @@ fn a_slice_folder_takes_the_first_files_metadata() {
         Some(ij),
         Some((ResolutionUnit::None, 0, 1)),
     );
-    let e = open_path(&stack, &OpenOptions::default())
-        .err()
-        .expect("refused")
-        .to_string();
+    let e = refusal(&stack);
     assert!(
         e.starts_with(&format!(
             "{}: the header's spacing [inf, inf, 1.0]",
