@@ -248,24 +248,40 @@ fn sgn(x: f64) -> f64 {
     }
 }
 
-/// The corners two triangles share, by index: `None` past one (neighbours across an edge:
-/// [`folded`] in [`triangles_meet`], never crossing; duplicates: the topology report's), else
-/// the shared corner's place in each.
-fn shared_corner(ia: [u32; 3], ib: [u32; 3]) -> Option<Option<(usize, usize)>> {
-    let mut shared = (0..3)
+/// What two triangles share, by index, with the places in each.
+enum Shared {
+    Nothing,
+    /// One corner: its place in the first and in the second.
+    Corner(usize, usize),
+    /// An edge: the places of its two corners in the first, and of each triangle's third
+    /// corner (the topology report's neighbours, [`folded`] in [`triangles_meet`]).
+    Edge {
+        ends: [usize; 2],
+        off: [usize; 2],
+    },
+    /// Duplicates and repeated indices: the topology report's business.
+    More,
+}
+
+fn shared(ia: [u32; 3], ib: [u32; 3]) -> Shared {
+    let mut pairs = (0..3)
         .flat_map(|i| (0..3).map(move |j| (i, j)))
         .filter(|&(i, j)| ia[i] == ib[j]);
-    match (shared.next(), shared.next()) {
-        (None, _) => Some(None),
-        (Some(one), None) => Some(Some(one)),
-        _ => None,
+    match (pairs.next(), pairs.next(), pairs.next()) {
+        (None, _, _) => Shared::Nothing,
+        (Some((i, j)), None, _) => Shared::Corner(i, j),
+        (Some((i, j)), Some((k, l)), None) if i != k && j != l => Shared::Edge {
+            ends: [i, k],
+            off: [3 - i - k, 3 - j - l],
+        },
+        _ => Shared::More,
     }
 }
 
 /// Whether two triangles given by corner indices `ia`, `ib` and positions `a`, `b` cross (see the
 /// module documentation for shared vertices).
 pub fn triangles_intersect(ia: [u32; 3], a: [[f64; 3]; 3], ib: [u32; 3], b: [[f64; 3]; 3]) -> bool {
-    pair_test(ia, a, ib, b, segment_crosses_triangle)
+    pair_test(shared(ia, ib), a, b, segment_crosses_triangle)
 }
 
 /// Whether two triangles meet beyond the corners they share: they cross, or touch (a corner
@@ -281,19 +297,10 @@ pub fn triangles_intersect(ia: [u32; 3], a: [[f64; 3]; 3], ib: [u32; 3], b: [[f6
 /// Neighbours across an edge meet beyond it when they are folded onto each other
 /// ([`folded`]): in one plane, their third corners on one side of the edge.
 pub fn triangles_meet(ia: [u32; 3], a: [[f64; 3]; 3], ib: [u32; 3], b: [[f64; 3]; 3]) -> bool {
-    let mut shared = (0..3)
-        .flat_map(|i| (0..3).map(move |j| (i, j)))
-        .filter(|&(i, j)| ia[i] == ib[j]);
-    if let (Some((i, j)), Some((k, l)), None) = (shared.next(), shared.next(), shared.next())
-        && i != k
-        && j != l
-    {
-        // The corner of each that is not on the shared edge (repeated indices, the topology
-        // report's, never get here).
-        let (p, w) = (a[3 - i - k], b[3 - j - l]);
-        return folded(a[i], a[k], p, w);
+    match shared(ia, ib) {
+        Shared::Edge { ends: [i, k], off } => folded(a[i], a[k], a[off[0]], b[off[1]]),
+        other => pair_test(other, a, b, segment_meets_triangle),
     }
-    pair_test(ia, a, ib, b, segment_meets_triangle)
 }
 
 /// Whether triangles `(u, v, p)` and `(u, v, w)`, neighbours across the edge `uv`, are folded
@@ -327,21 +334,15 @@ type PairTest = fn([u32; 3], [[f64; 3]; 3], [u32; 3], [[f64; 3]; 3]) -> bool;
 
 /// The pair rule shared by [`triangles_intersect`] and [`triangles_meet`] (see the module
 /// documentation), with `edge` the segment test.
-fn pair_test(
-    ia: [u32; 3],
-    a: [[f64; 3]; 3],
-    ib: [u32; 3],
-    b: [[f64; 3]; 3],
-    edge: SegmentTest,
-) -> bool {
-    match shared_corner(ia, ib) {
-        Some(None) => {
+fn pair_test(shared: Shared, a: [[f64; 3]; 3], b: [[f64; 3]; 3], edge: SegmentTest) -> bool {
+    match shared {
+        Shared::Nothing => {
             (0..3).any(|i| edge(a[i], a[(i + 1) % 3], b) || edge(b[i], b[(i + 1) % 3], a))
         }
-        Some(Some((i, j))) => {
+        Shared::Corner(i, j) => {
             edge(a[(i + 1) % 3], a[(i + 2) % 3], b) || edge(b[(j + 1) % 3], b[(j + 2) % 3], a)
         }
-        None => false,
+        Shared::Edge { .. } | Shared::More => false,
     }
 }
 
