@@ -68,6 +68,7 @@ fn a_cut_final_decimation_is_valid_and_independent_of_threads() {
             "{faces} faces for {target}"
         );
         assert_eq!(report.sorted_eulers(), full.sorted_eulers(), "R = {r}");
+        assert_eq!(report.closed_by_sign(), full.closed_by_sign(), "R = {r}");
         assert_eq!(report.boundary_edges > 0, full.boundary_edges > 0);
     }
 }

@@ -38,6 +38,11 @@ fn simplified_keeps_the_surface(
     prop_assert!(got.is_valid_manifold(), "{got:?}");
     prop_assert_eq!(mesh.self_intersections(), 0);
     prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
+    prop_assert_eq!(
+        got.closed_by_sign(),
+        want.closed_by_sign(),
+        "turned inside out"
+    );
     prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
     prop_assert_eq!(mesh.boundary_off_the_box(vol.dims), 0);
     Ok((summary, got))

@@ -312,6 +312,8 @@ proptest! {
         let report = mesh.check();
         prop_assert!(report.is_valid_manifold(), "{report:?}");
         prop_assert_eq!(mesh.self_intersections(), 0);
-        prop_assert_eq!(report.sorted_eulers(), want.check().sorted_eulers());
+        let want = want.check();
+        prop_assert_eq!(report.sorted_eulers(), want.sorted_eulers());
+        prop_assert_eq!(report.closed_by_sign(), want.closed_by_sign());
     }
 }

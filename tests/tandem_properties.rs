@@ -50,6 +50,11 @@ fn check_run(summary: &RunSummary, path: &Path, full: &Mesh, e0: f64) -> Result<
     prop_assert!(got.is_valid_manifold(), "{got:?}");
     prop_assert_eq!(got.zero_area_triangles, 0);
     prop_assert_eq!(got.sorted_eulers(), want.sorted_eulers());
+    prop_assert_eq!(
+        got.closed_by_sign(),
+        want.closed_by_sign(),
+        "turned inside out"
+    );
     prop_assert_eq!(got.boundary_edges == 0, want.boundary_edges == 0);
     prop_assert!(
         summary.shape_error <= e0 + 1e-9,

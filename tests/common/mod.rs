@@ -169,6 +169,37 @@ pub fn random_levels(dims: [u64; 3], levels: u32, iso: f32, seed: u64) -> TestVo
     TestVolume { dims, data, iso }
 }
 
+/// Uniform noise smoothed by three box filters of width 3 along each axis (close to a Gaussian
+/// of sigma 1.4), scaled to unit deviation, with its surface at `iso` deviations: many small
+/// closed components, blobs and cavities of a few dozen faces each.
+pub fn smoothed_noise(n: u64, iso: f32, seed: u64) -> TestVolume {
+    let mut rng = Rng(seed);
+    let len = (n * n * n) as usize;
+    let mut data: Vec<f64> = (0..len).map(|_| rng.unit() - 0.5).collect();
+    let stride = [1, n as usize, (n * n) as usize];
+    for _ in 0..3 {
+        for s in stride {
+            let prev = data.clone();
+            for (i, v) in data.iter_mut().enumerate() {
+                let at = (i / s) % n as usize;
+                let lo = if at > 0 { prev[i - s] } else { prev[i] };
+                let hi = if at + 1 < n as usize {
+                    prev[i + s]
+                } else {
+                    prev[i]
+                };
+                *v = (lo + prev[i] + hi) / 3.0;
+            }
+        }
+    }
+    let deviation = (data.iter().map(|v| v * v).sum::<f64>() / len as f64).sqrt();
+    TestVolume {
+        dims: [n; 3],
+        data: data.iter().map(|v| (v / deviation) as f32).collect(),
+        iso,
+    }
+}
+
 /// A smooth field: sum of random Gaussian blobs, so surfaces are closed or touch the box.
 pub fn random_blobs(dims: [u64; 3], blobs: usize, seed: u64) -> TestVolume {
     let mut rng = Rng(seed);

@@ -27,6 +27,20 @@ pub struct Component {
     pub boundary_edges: usize,
     /// V - E + F of the component.
     pub euler: i64,
+    /// Which way a closed component faces (`None` for an open one).
+    pub enclosure: Option<Enclosure>,
+}
+
+/// The sign of a closed component's signed volume (`sum p0 . (p1 x p2) / 6`): positive when its
+/// triangles face away from what it encloses (isostream's surfaces around high values),
+/// negative when they face into it (a cavity's surface, or one turned inside out). A
+/// simplification must keep each component's sign; [`Report::closed_by_sign`] counts them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Enclosure {
+    Positive,
+    Negative,
+    /// Too small a volume for its sign to be told from rounding (a flat closed component).
+    Flat,
 }
 
 /// What [`check`] found. A valid closed surface has every count except `triangles`, `vertices`
@@ -74,6 +88,19 @@ impl Report {
         self.components.iter().map(|c| c.euler).sum()
     }
 
+    /// Closed components enclosing positive and negative volume (see [`Enclosure`]): the same
+    /// for a surface and its simplification unless one was turned inside out, which leaves it
+    /// manifold, oriented and without crossings.
+    pub fn closed_by_sign(&self) -> [usize; 2] {
+        let count = |e| {
+            self.components
+                .iter()
+                .filter(|c| c.enclosure == Some(e))
+                .count()
+        };
+        [count(Enclosure::Positive), count(Enclosure::Negative)]
+    }
+
     /// Euler characteristics of the components, sorted, for comparing two meshes whose
     /// components are not matched one to one.
     pub fn sorted_eulers(&self) -> Vec<i64> {
@@ -82,6 +109,10 @@ impl Report {
         e
     }
 }
+
+/// A closed component's signed volume within this fraction of the sum of its terms'
+/// magnitudes is [`Enclosure::Flat`]: rounding could give it either sign.
+const FLAT_VOLUME: f64 = 1e-9;
 
 fn edge_key(a: u32, b: u32) -> (u32, u32) {
     if a < b { (a, b) } else { (b, a) }
@@ -131,7 +162,7 @@ pub fn check(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> Report {
     }
 
     report.non_manifold_vertices = count_non_manifold_vertices(triangles);
-    report.components = components(triangles, &edges);
+    report.components = components(positions, triangles, &edges);
     report.vertices = report.components.iter().map(|c| c.vertices).sum();
     report
 }
@@ -203,7 +234,11 @@ fn link_is_disk_or_half_disk(link: &[(u32, u32)]) -> bool {
     seen.len() == degree.len()
 }
 
-fn components(triangles: &[[u32; 3]], edges: &HashMap<(u32, u32), (u32, i32)>) -> Vec<Component> {
+fn components(
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    edges: &HashMap<(u32, u32), (u32, i32)>,
+) -> Vec<Component> {
     let mut uf = UnionFind::default();
     for t in triangles {
         uf.union(t[0], t[1]);
@@ -216,18 +251,34 @@ fn components(triangles: &[[u32; 3]], edges: &HashMap<(u32, u32), (u32, i32)>) -
         triangles: 0,
         boundary_edges: 0,
         euler: 0,
+        enclosure: None,
     };
     let verts: Vec<u32> = uf.parent.keys().copied().collect();
     for v in verts {
         let r = uf.find(v);
         by_root.entry(r).or_insert_with(|| blank.clone()).vertices += 1;
     }
+    // Signed volume terms about the component's root vertex (its terms are then as small as the
+    // component, wherever it lies), with the sum of their magnitudes for the rounding bound.
+    let mut volumes: HashMap<u32, (f64, f64)> = HashMap::new();
+    let p = |i: u32| positions.get(i as usize).copied().unwrap_or([0.0; 3]);
     for t in triangles {
         if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
             continue;
         }
         let r = uf.find(t[0]);
         by_root.entry(r).or_insert_with(|| blank.clone()).triangles += 1;
+        let o = p(r);
+        let d = |i: usize| {
+            let q = p(t[i]);
+            [q[0] - o[0], q[1] - o[1], q[2] - o[2]]
+        };
+        let (a, b, c) = (d(0), d(1), d(2));
+        let term = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+            + a[2] * (b[0] * c[1] - b[1] * c[0]);
+        let v = volumes.entry(r).or_insert((0.0, 0.0));
+        v.0 += term;
+        v.1 += term.abs();
     }
     for (&(a, _), &(count, _)) in edges {
         let r = uf.find(a);
@@ -238,9 +289,19 @@ fn components(triangles: &[[u32; 3]], edges: &HashMap<(u32, u32), (u32, i32)>) -
         }
     }
     let mut out: Vec<Component> = by_root
-        .into_values()
-        .map(|mut c| {
+        .into_iter()
+        .map(|(r, mut c)| {
             c.euler = c.vertices as i64 - c.edges as i64 + c.triangles as i64;
+            if c.boundary_edges == 0 && c.triangles > 0 {
+                let (sum, magnitude) = volumes.get(&r).copied().unwrap_or_default();
+                c.enclosure = Some(if sum.abs() <= FLAT_VOLUME * magnitude {
+                    Enclosure::Flat
+                } else if sum > 0.0 {
+                    Enclosure::Positive
+                } else {
+                    Enclosure::Negative
+                });
+            }
             c
         })
         .collect();
@@ -285,6 +346,34 @@ mod tests {
         ];
         let t = vec![[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]];
         (p, t)
+    }
+
+    /// Outward triangles enclose positive volume, the same turned inside out negative (the
+    /// flip changes nothing else the report counts), far from the origin too; an open piece
+    /// has no sign.
+    #[test]
+    fn closed_components_are_counted_by_the_sign_of_their_volume() {
+        let (p, t) = tetrahedron();
+        let far: Vec<[f64; 3]> = p.iter().map(|q| q.map(|x| x * 1e-3 + 1e6)).collect();
+        let inverted: Vec<[u32; 3]> = t.iter().map(|&[a, b, c]| [a, c, b]).collect();
+        let both: Vec<[u32; 3]> = t
+            .iter()
+            .copied()
+            .chain(inverted.iter().map(|x| x.map(|i| i + 4)))
+            .collect();
+        let two: Vec<[f64; 3]> = far.iter().chain(&p).copied().collect();
+        assert_eq!(check(&p, &t).closed_by_sign(), [1, 0]);
+        assert_eq!(check(&far, &t).closed_by_sign(), [1, 0]);
+        assert_eq!(check(&p, &inverted).closed_by_sign(), [0, 1]);
+        assert_eq!(check(&two, &both).closed_by_sign(), [1, 1]);
+        let (good, bad) = (check(&p, &t), check(&p, &inverted));
+        assert!(bad.is_closed_manifold());
+        assert_eq!(bad.sorted_eulers(), good.sorted_eulers());
+        assert_eq!(check(&p, &t[..3]).closed_by_sign(), [0, 0], "open");
+        let flat = [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
+        let r = check(&flat, &t);
+        assert_eq!(r.components[0].enclosure, Some(Enclosure::Flat));
+        assert_eq!(r.closed_by_sign(), [0, 0]);
     }
 
     #[test]

@@ -10,6 +10,7 @@ use glam::DVec3;
 use crate::band::Band;
 use crate::candidates::{Candidate, Candidates};
 use crate::cost::{COINCIDENT, Eval, Evaluator};
+use crate::enclosure;
 use crate::intersect::Verdict;
 use crate::seam::HalfSpace;
 use crate::store::Store;
@@ -201,7 +202,9 @@ impl Decimator {
                 stats.rejected_other += 1;
             } else if !topology::link_ok(&patch, c.a, c.b) {
                 stats.rejected_link += 1;
-            } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos) {
+            } else if !topology::geometry_ok(&patch, c.a, c.b, eval.pos)
+                || !enclosure::keeps_enclosure(&band.store, &patch, c.a, c.b, eval.pos)
+            {
                 stats.rejected_flip += 1;
             } else {
                 // Merging coincident vertices moves nothing: any crossing of the new fan existed.

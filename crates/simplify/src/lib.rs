@@ -105,6 +105,7 @@ mod cascade;
 mod cost;
 mod data_dependent;
 mod decimate;
+mod enclosure;
 mod intersect;
 mod passthrough;
 mod policy;
@@ -267,7 +268,8 @@ pub struct SimplifyStats {
     pub contractions: u64,
     /// Candidates refused by the link condition.
     pub rejected_link: u64,
-    /// Candidates refused because a triangle would flip or degenerate.
+    /// Candidates refused because a triangle would flip or degenerate, or a closed component
+    /// could turn inside out (`enclosure`).
     pub rejected_flip: u64,
     /// Candidates refused because the new fan would cross another triangle (`intersect`).
     pub rejected_intersection: u64,

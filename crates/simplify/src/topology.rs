@@ -344,6 +344,11 @@ impl Patch {
         }));
     }
 
+    /// Whether triangle `t` is one of the patch's (as gathered by [`Patch::gather_into`]).
+    pub(crate) fn holds(&self, t: TriId) -> bool {
+        self.ids.binary_search(&t).is_ok()
+    }
+
     /// A patch of the given triangles.
     #[cfg(test)]
     pub(crate) fn of(tris: SmallVec<[PatchTri; 16]>) -> Self {

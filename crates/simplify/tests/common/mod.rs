@@ -591,6 +591,7 @@ pub fn assert_same_topology(input: &Mesh, run: &Run) {
         "closed stays closed: {b:?}"
     );
     assert_eq!(a.sorted_eulers(), b.sorted_eulers(), "{b:?}");
+    assert_eq!(a.closed_by_sign(), b.closed_by_sign(), "turned inside out");
     assert!(
         a.zero_area_triangles > 0 || b.zero_area_triangles == 0,
         "{b:?}"
