@@ -46,6 +46,10 @@ pub struct MeshQuality {
     /// V - E + F over the whole mesh.
     pub euler: i64,
     pub components: usize,
+    /// Closed components enclosing positive volume (facing out, as isostream writes a surface
+    /// around high values) and negative volume (a cavity, or a component turned inside out):
+    /// a simplification keeps both counts of its full-resolution surface.
+    pub closed_by_sign: [usize; 2],
     /// `(bin start in degrees, triangles)` for bins 0-5, 5-10, ..., 55-60 of the smallest angle of
     /// each triangle; an equilateral triangle counts in the last bin.
     pub min_angle_histogram: Vec<(f64, u64)>,
@@ -81,6 +85,7 @@ pub fn mesh_quality(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> MeshQuali
         zero_area_triangles: report.zero_area_triangles + report.repeated_index_triangles,
         euler: report.euler(),
         components: report.components.len(),
+        closed_by_sign: report.closed_by_sign(),
         min_angle_histogram: min_angle_histogram(&tris),
         anisotropy: anisotropy(tris.iter()),
         directional_bias: directional_bias(tris.iter()),

@@ -36,6 +36,12 @@ impl MeasureReport {
             q.euler
         );
         let _ = writeln!(s, "topology: {}", topology(q));
+        let [out, inward] = q.closed_by_sign;
+        let _ = writeln!(
+            s,
+            "closed components: {out} enclosing positive volume (facing out), {inward} negative \
+             (cavities; a simplification keeps both counts)"
+        );
         let _ = writeln!(
             s,
             "anisotropy {:.4}, directional bias {:.4}",
