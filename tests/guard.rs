@@ -60,6 +60,40 @@ fn closed_components_are_never_turned_inside_out() {
     assert!(turned.is_empty(), "{turned:?}");
 }
 
+/// Spacings 10^4 to 10^8 apart between axes: no zero-area triangle by the referee's measure
+/// (`|cross| <= 1e-12 longest^2`, in physical units) where the full-resolution surface has
+/// none. The flip test judged a new triangle's degeneracy against its fan's largest, and a
+/// sliver a voxel wide along a 10^7-times-longer axis is large there: a torture trial found
+/// 9 of 48 such jobs writing one.
+#[test]
+fn extreme_spacings_make_no_zero_area_triangle() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut made = Vec::new();
+    for spacing in ["[3e7, 1, 1]", "[1e8, 1, 1]", "[0.01, 1e4, 1e-4]"] {
+        for seed in 0..8 {
+            let vol = common::random_levels([10, 10, 10], 4, 1.0, seed);
+            let count = |simplify: &str| {
+                let job = vol.job(dir.path(), simplify, "out.smb");
+                let text = std::fs::read_to_string(&job).unwrap().replace(
+                    "\n\n[extract]",
+                    &format!("\nspacing = {spacing}\n\n[extract]"),
+                );
+                std::fs::write(&job, text).unwrap();
+                common::run_job(&job);
+                let mesh = common::Mesh::read(&dir.path().join("out.smb"));
+                mesh.check().zero_area_triangles
+            };
+            if count("mode = \"none\"") == 0 {
+                let zero = count("rate = 0.05");
+                if zero > 0 {
+                    made.push((spacing, seed, zero));
+                }
+            }
+        }
+    }
+    assert!(made.is_empty(), "{made:?}");
+}
+
 /// A generated volume's value at voxel `(x, y, z)`.
 type Field = dyn Fn(u64, u64, u64) -> f32;
 

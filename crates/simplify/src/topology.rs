@@ -24,6 +24,9 @@ const DEGENERATE_FRACTION: f64 = 1e-6;
 /// fraction of its longest edge squared; a little above the referee's bound so that what passes
 /// here passes there.
 const COLLINEAR_FRACTION: f64 = 1e-10;
+/// The referee's zero-area bound (`isostream-meshcheck`): `|cross|` at most this fraction of
+/// the longest edge squared.
+const ZERO_AREA_FRACTION: f64 = 1e-12;
 /// A boundary vertex lies on a straight boundary when the sine of its turning angle is below this.
 const STRAIGHT_SINE: f64 = 1e-6;
 
@@ -366,7 +369,10 @@ impl Patch {
 /// fan's largest) may not become [`collinear`] unless it was: a sliver with an edge of two `f32`
 /// steps (marching-cubes vertices either side of a corner valued almost exactly iso, on the
 /// volume box where the boundary rule keeps both) counts as small, and moving its third corner
-/// onto the line of that edge wrote a zero-area triangle (bonsai upsampled 4x, R = 0.0006).
+/// onto the line of that edge wrote a zero-area triangle (bonsai upsampled 4x, R = 0.0006). Nor
+/// may any surviving triangle become zero-area by the referee's measure unless it was: a
+/// sliver a voxel wide along an axis 10^8 times longer has a large `|cross|` next to its
+/// neighbours and none to the referee.
 pub(crate) fn geometry_ok(patch: &Patch, a: u64, b: u64, pos: DVec3) -> bool {
     let cross = |p: [DVec3; 3]| (p[1] - p[0]).cross(p[2] - p[0]);
     let mut max_old = 0.0_f64;
@@ -404,6 +410,12 @@ pub(crate) fn geometry_ok(patch: &Patch, a: u64, b: u64, pos: DVec3) -> bool {
             }
             let n_new = cross(new);
             let l_new = n_new.length();
+            // Never a zero-area triangle the referee would count where there was none: a
+            // sliver collinear by `COLLINEAR_FRACTION` may stay collinear (below), but not
+            // flatten past the referee's bound (spacings 10^8 apart between axes).
+            if zero_area(new, l_new) && !zero_area(old, l_old) {
+                return false;
+            }
             if l_new <= tiny {
                 return l_old <= tiny && (collinear(old, l_old) || !collinear(new, l_new));
             }
@@ -418,11 +430,20 @@ pub(crate) fn geometry_ok(patch: &Patch, a: u64, b: u64, pos: DVec3) -> bool {
 /// corners are in a line, which the fan-relative `tiny` of [`geometry_ok`] cannot tell from a
 /// small triangle. Coincident corners count as collinear.
 fn collinear(p: [DVec3; 3], l: f64) -> bool {
-    let longest = (p[1] - p[0])
+    l <= COLLINEAR_FRACTION * longest_squared(p)
+}
+
+/// Zero-area by the referee's measure (`|cross| <= 1e-12 longest^2`, what `isostream measure`
+/// counts as a zero-area triangle).
+fn zero_area(p: [DVec3; 3], l: f64) -> bool {
+    l <= ZERO_AREA_FRACTION * longest_squared(p)
+}
+
+fn longest_squared(p: [DVec3; 3]) -> f64 {
+    (p[1] - p[0])
         .length_squared()
         .max((p[2] - p[0]).length_squared())
-        .max((p[2] - p[1]).length_squared());
-    l <= COLLINEAR_FRACTION * longest
+        .max((p[2] - p[1]).length_squared())
 }
 
 /// Test support: marks every vertex modifiable, with its boundary flag, as `set_modifiable`
