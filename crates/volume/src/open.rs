@@ -16,7 +16,13 @@ enum Format {
     Nifti,
     Tiff,
     Zarr,
+    /// A format users try that no reader here reads (its name): refused by name rather than
+    /// read as raw voxels, which asked for dims and then meshed its header as data.
+    Unsupported(&'static str),
 }
+
+/// What to convert an unsupported format to: the formats read here, as the README lists them.
+const SUPPORTED: &str = "NRRD, NIfTI, VTK/VTI, TIFF, Zarr, or raw with [input] dims and dtype";
 
 /// Opens any supported volume file, choosing the reader from the extension, or else from the
 /// first bytes. A `.raw` (or unrecognised) file needs `dims` and `dtype` in `opts`.
@@ -30,7 +36,54 @@ pub fn open_path(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource
         Format::Nifti => nifti::open(path, opts),
         Format::Tiff => tiff::open(path, opts),
         Format::Zarr => zarr::open(path, opts),
+        Format::Unsupported(name) => Err(unsupported(path, name)),
     }
+}
+
+/// The one-line refusal of a format no reader here reads, with the conversion to make.
+fn unsupported(path: &Path, name: &str) -> VolumeError {
+    let fix = match name {
+        "MetaImage" => {
+            "convert it (e.g. to NRRD or NIfTI), or give a .mhd's data file (ElementDataFile) \
+             as a raw path with [input] dims and dtype"
+        }
+        "DICOM" => "convert the series to one volume file (e.g. NIfTI with dcm2niix)",
+        _ => "convert it to one of those (e.g. NRRD or NIfTI)",
+    };
+    let article = if name == "HDF5" { "an" } else { "a" };
+    VolumeError::Format {
+        file: path.display().to_string(),
+        at: "input".into(),
+        expected: format!("a supported volume format ({SUPPORTED})"),
+        found: format!("{article} {name} file, which isostream does not read; {fix}"),
+    }
+}
+
+/// Recognises by their signatures the unsupported formats a raw (or unrecognised) file could
+/// be. Checked whatever `dims` and `dtype` say: a raw volume whose first bytes are exactly one
+/// of these signatures is implausible, and with matching dims the header was meshed as voxels.
+fn unsupported_signature(head: &[u8]) -> Option<Format> {
+    if head.starts_with(b"\x89HDF\r\n\x1a\n") {
+        Some(Format::Unsupported("HDF5"))
+    } else if head.get(128..132) == Some(b"DICM") {
+        // Part 10 files: a 128-byte preamble, then the magic.
+        Some(Format::Unsupported("DICOM"))
+    } else if head.starts_with(b"ObjectType") {
+        // A MetaImage text header (.mhd, or a .mha with its data attached).
+        Some(Format::Unsupported("MetaImage"))
+    } else {
+        None
+    }
+}
+
+/// The first bytes of a file, enough for every signature [`detect`] looks at (DICOM's ends at
+/// byte 132); fewer if the file is shorter.
+fn read_head(path: &Path) -> std::io::Result<Vec<u8>> {
+    let mut head = Vec::with_capacity(132);
+    std::fs::File::open(path)?
+        .take(132)
+        .read_to_end(&mut head)?;
+    Ok(head)
 }
 
 /// Refuses what is neither a regular file nor a folder (Zarr, TIFF stacks) before anything opens
@@ -91,9 +144,21 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
         (".hdr.gz", Format::Nifti),
         (".tif", Format::Tiff),
         (".tiff", Format::Tiff),
+        (".h5", Format::Unsupported("HDF5")),
+        (".hdf5", Format::Unsupported("HDF5")),
+        (".mha", Format::Unsupported("MetaImage")),
+        (".mhd", Format::Unsupported("MetaImage")),
+        (".dcm", Format::Unsupported("DICOM")),
     ];
-    if let Some((_, f)) = by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
-        return Ok(*f);
+    match by_ext.iter().find(|(ext, _)| name.ends_with(ext)) {
+        // A `.raw` file that cannot be opened is reported by the raw reader, which asks for
+        // dims first.
+        Some((_, Format::Raw)) => {
+            let head = read_head(path).unwrap_or_default();
+            return Ok(unsupported_signature(&head).unwrap_or(Format::Raw));
+        }
+        Some((_, f)) => return Ok(*f),
+        None => {}
     }
     // A Zarr store is a directory with zarr.json (v3), or .zarray / .zgroup (v2), or that file.
     let zarr_files = zarr::NODE_FILES;
@@ -104,12 +169,10 @@ fn detect(path: &Path) -> Result<Format, VolumeError> {
     if path.is_dir() {
         return Ok(Format::Tiff);
     }
-    let mut head = [0u8; 16];
-    let n = std::fs::File::open(path)
-        .and_then(|mut f| f.read(&mut head))
-        .map_err(|e| VolumeError::io(path, "open", e))?;
-    let head = &head[..n];
-    Ok(if head.starts_with(b"NRRD000") {
+    let head = read_head(path).map_err(|e| VolumeError::io(path, "open", e))?;
+    Ok(if let Some(f) = unsupported_signature(&head) {
+        f
+    } else if head.starts_with(b"NRRD000") {
         Format::Nrrd
     } else if head.starts_with(b"# vtk DataFile") {
         Format::Vtk
@@ -193,6 +256,54 @@ mod tests {
             e.contains("found a gzip file; for a NIfTI pair give its .hdr.gz") && !e.contains('\n'),
             "{e}"
         );
+    }
+
+    /// HDF5, DICOM and MetaImage files are refused by name, by extension or by signature, even
+    /// with dims and dtype that fit their size (they were read as raw and their headers meshed).
+    #[test]
+    fn unsupported_formats_are_refused_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut dicom = vec![0u8; 128];
+        dicom.extend_from_slice(b"DICM");
+        dicom.resize(136, 0);
+        let mut hdf5 = b"\x89HDF\r\n\x1a\n".to_vec();
+        hdf5.resize(136, 0);
+        let mut mha = b"ObjectType = Image\nNDims = 3\n".to_vec();
+        mha.resize(136, 0);
+        let fits = OpenOptions {
+            dims: Some([2, 4, 17]),
+            dtype: Some(Dtype::U8),
+            ..Default::default()
+        };
+        for (file, bytes, name, fix) in [
+            ("x.h5", &hdf5, "an HDF5", "convert it to one of those"),
+            ("x.raw", &hdf5, "an HDF5", "convert it to one of those"),
+            ("x", &hdf5, "an HDF5", "convert it to one of those"),
+            ("x.dcm", &dicom, "a DICOM", "dcm2niix"),
+            ("IM0001", &dicom, "a DICOM", "dcm2niix"),
+            ("x.mha", &mha, "a MetaImage", "ElementDataFile"),
+            ("x.mhd", &vec![0u8; 136], "a MetaImage", "ElementDataFile"),
+            ("header", &mha, "a MetaImage", "ElementDataFile"),
+        ] {
+            let p = dir.path().join(file);
+            std::fs::write(&p, bytes).unwrap();
+            for opts in [&OpenOptions::default(), &fits] {
+                let e = open_path(&p, opts).err().unwrap().to_string();
+                assert!(
+                    e.starts_with(&format!("{}: input: expected a supported volume format (NRRD, NIfTI, VTK/VTI, TIFF, Zarr, or raw with [input] dims and dtype), found {name} file, which isostream does not read; ", p.display()))
+                        && e.contains(fix)
+                        && !e.contains('\n'),
+                    "{file}: {e}"
+                );
+            }
+        }
+        // The signatures elsewhere in a raw file are voxels.
+        let p = dir.path().join("v.raw");
+        let mut bytes = vec![0u8; 136];
+        bytes[1..9].copy_from_slice(b"\x89HDF\r\n\x1a\n");
+        bytes[129..133].copy_from_slice(b"DICM");
+        std::fs::write(&p, &bytes).unwrap();
+        assert!(open_path(&p, &fits).is_ok());
     }
 
     #[test]
