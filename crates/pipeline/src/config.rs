@@ -878,7 +878,7 @@ impl JobConfig {
                 return Err(bad(
                     "output.faces",
                     "used only with [simplify] mode = \"rate\" (remove it or change the mode)",
-                    format!("{n} with mode {mode:?}"),
+                    format!("{n} with mode = \"{mode}\""),
                 ));
             }
             _ => {}
@@ -1587,10 +1587,19 @@ mod tests {
         );
         let err = with("faces = 0", "").unwrap_err().to_string();
         assert!(err.contains("output.faces"), "{err}");
-        let err = with("faces = 10", "[simplify]\nmode = \"none\"")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("mode"), "{err}");
+        // The mode as the job file spells it, not its `Debug` name.
+        for (mode, simplify) in [
+            ("none", "mode = \"none\""),
+            ("classical", "mode = \"classical\"\nerror = 0.1"),
+        ] {
+            let err = with("faces = 100", &format!("[simplify]\n{simplify}"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.ends_with(&format!("got 100 with mode = \"{mode}\"")),
+                "{err}"
+            );
+        }
         assert_eq!(with("faces = 10", "").unwrap().output.faces, Some(10));
     }
 
