@@ -408,7 +408,7 @@ fn run_job(
     let target_faces = (job.simplify.mode == Mode::Rate).then(|| {
         job.output
             .faces
-            .unwrap_or_else(|| (rate * faces_kept as f64).round() as u64)
+            .unwrap_or_else(|| rate_target(rate, faces_kept))
     });
     let late: Vec<String> = target_faces
         .and_then(|target| {
@@ -812,6 +812,13 @@ fn simplifier_config(
     }
 }
 
+/// The face count `rate` aims at on `faces` extracted (and kept) faces: at least 1 face when
+/// there are any, since no surface has fewer and a rate small enough to round to 0 (1e-300)
+/// missed its target of 0 with "+0 %".
+fn rate_target(rate: f64, faces: u64) -> u64 {
+    ((rate * faces as f64).round() as u64).max(faces.min(1))
+}
+
 /// The rate target missed by more than 2 %: say by how much and why. Every contraction keeps the
 /// topology (the link condition keeps each closed component at least a tetrahedron, and boundary
 /// vertices stay on the box's faces: all of them with `boundary = "exact"`), so a surface of many
@@ -1086,6 +1093,27 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rate_aims_at_one_face_at_least() {
+        assert_eq!(rate_target(1e-300, 115_809), 1);
+        assert_eq!(rate_target(0.2, 115_809), 23_162);
+        assert_eq!(
+            rate_target(1e-300, 0),
+            0,
+            "an empty surface aims at nothing"
+        );
+        assert_eq!(
+            rate_missed(
+                rate_target(1e-300, 115_809),
+                1,
+                &Default::default(),
+                0,
+                false
+            ),
+            None
+        );
+    }
 
     #[test]
     fn a_missed_rate_names_the_budget_when_it_retired_vertices_early() {
