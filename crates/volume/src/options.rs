@@ -34,13 +34,15 @@ impl OpenOptions {
         .filter(|(_, set)| *set)
         .map(|(k, _)| *k)
         .collect();
-        if given.is_empty() {
-            return Ok(());
-        }
+        let (verb, them) = match given.len() {
+            0 => return Ok(()),
+            1 => ("applies", "it"),
+            _ => ("apply", "them"),
+        };
         Err(VolumeError::Grid {
             origin: path.display().to_string(),
             problem: format!(
-                "{} apply only to .raw files but this is {format}, whose header defines them; remove them from [input]",
+                "{} {verb} only to .raw files but this is {format}, whose header defines {them}; remove {them} from [input]",
                 given.join(", ")
             ),
         })
@@ -105,6 +107,16 @@ mod tests {
         assert_eq!(
             e.to_string(),
             "a.nrrd: dims, header_bytes apply only to .raw files but this is NRRD, whose header defines them; remove them from [input]"
+        );
+        let one = OpenOptions {
+            endian: Some(Default::default()),
+            ..Default::default()
+        };
+        assert_eq!(
+            one.reject_raw_params(Path::new("a.nrrd"), "NRRD")
+                .unwrap_err()
+                .to_string(),
+            "a.nrrd: endian applies only to .raw files but this is NRRD, whose header defines it; remove it from [input]"
         );
         assert!(
             OpenOptions::default()

@@ -160,7 +160,7 @@ fn bad_stacks_give_one_line_errors() {
         read_all(&empty, &opts)
             .unwrap_err()
             .to_string()
-            .contains("apply only to .raw files")
+            .contains("dtype applies only to .raw files")
     );
 }
 

@@ -397,7 +397,7 @@ fn raw_only_keys_and_empty_zarr_v2_metadata_are_refused() {
     assert_eq!(
         open_path(&store, &raw).err().unwrap().to_string(),
         format!(
-            "{}: dtype apply only to .raw files but this is Zarr, whose header defines them; remove them from [input]",
+            "{}: dtype applies only to .raw files but this is Zarr, whose header defines it; remove it from [input]",
             store.display()
         )
     );
