@@ -67,6 +67,26 @@ pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSour
     refuse_hyperstack(&first, desc.as_deref())?;
     let (w, h) = d.dimensions().map_err(|e| page_err(&first, 0, e))?;
     let dims = [u64::from(w), u64::from(h), count];
+    // The grid's own refusal says "check the dims", a key a TIFF has none of: say what the
+    // stack holds instead.
+    if count < 2 {
+        let (held, fix) = match pages {
+            Pages::Files(_) => (
+                "the folder holds 1 TIFF file",
+                "put one file per z slice in it",
+            ),
+            Pages::MultiPage(_) => (
+                "the TIFF holds 1 page",
+                "save the stack as a multi-page TIFF or a folder of one file per slice",
+            ),
+        };
+        return Err(VolumeError::Grid {
+            origin: path.display().to_string(),
+            problem: format!(
+                "{held} (a {w}x{h} image) and a volume needs at least 2 z slices; {fix}"
+            ),
+        });
+    }
     // The metadata is not read under an override: `[input] spacing` is the way to run a stack
     // whose metadata is refused.
     let voxel = match opts.spacing {

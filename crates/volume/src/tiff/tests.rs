@@ -503,6 +503,32 @@ fn plain_resolution_tags_are_not_a_voxel_size() {
     }
 }
 
+/// A single page (or a folder of one file) is refused saying what the stack holds, not with the
+/// grid's "check the dims" (a TIFF has no dims key).
+#[test]
+fn a_single_page_is_refused_as_one_slice() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("one.tif");
+    pages(&p, 1);
+    assert_eq!(
+        refusal(&p),
+        format!(
+            "{}: the TIFF holds 1 page (a 3x2 image) and a volume needs at least 2 z slices; save the stack as a multi-page TIFF or a folder of one file per slice",
+            p.display()
+        )
+    );
+    let folder = dir.path().join("slices");
+    std::fs::create_dir(&folder).unwrap();
+    pages(&folder.join("s0.tif"), 1);
+    assert_eq!(
+        refusal(&folder),
+        format!(
+            "{}: the folder holds 1 TIFF file (a 3x2 image) and a volume needs at least 2 z slices; put one file per z slice in it",
+            folder.display()
+        )
+    );
+}
+
 /// A zero resolution (an infinite pixel size), or a size that is not a number, is refused as
 /// any header's impossible spacing is, naming `[input] spacing`, which runs the stack.
 #[test]
