@@ -294,12 +294,15 @@ fn read_page(
     }
     let color = d.colortype().map_err(|e| page_err(path, page, e))?;
     if !matches!(color, ColorType::Gray(_)) {
-        return Err(VolumeError::format(
-            path,
-            at(),
-            "a single-channel grayscale page",
-            format!("{color:?}"),
-        ));
+        return Err(VolumeError::Format {
+            file: path.display().to_string(),
+            at: at(),
+            expected: "a single-channel grayscale page".into(),
+            found: format!(
+                "{color:?}; convert the stack to single-channel grayscale, one channel per \
+                 stack (Fiji: Image > Color > Split Channels, or Image > Type > 8-bit)"
+            ),
+        });
     }
     let image = d.read_image().map_err(|e| page_err(path, page, e))?;
     fn copy<T: Copy>(src: &[T], out: &mut [f32], f: impl Fn(T) -> f32) {

@@ -110,7 +110,7 @@ fn bad_stacks_give_one_line_errors() {
     assert_eq!(
         e,
         format!(
-            "{}: page 0: expected a single-channel grayscale page, found \"RGB(8)\"",
+            "{}: page 0: expected a single-channel grayscale page, found RGB(8); convert the stack to single-channel grayscale, one channel per stack (Fiji: Image > Color > Split Channels, or Image > Type > 8-bit)",
             name(&p)
         )
     );
