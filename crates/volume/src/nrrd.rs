@@ -273,6 +273,8 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
         VolumeError::format(path, format!("header line {n}"), expected, found)
     };
     let dir = path.parent().unwrap_or(Path::new("."));
+    let unit = unit_axis(&lines);
+    let axes = |value: &str| without_axis(value, unit);
     let mut dims = None;
     let mut dtype = None;
     let mut encoding = None;
@@ -298,11 +300,18 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
         };
         let value = value.trim();
         match key.trim() {
-            "dimension" if value != "3" => {
-                return Err(err(n, "dimension: 3 (a scalar volume)", value));
+            "dimension" if value != "3" && !(value == "4" && unit.is_some()) => {
+                return Err(err(
+                    n,
+                    "dimension: 3 (a scalar volume), or 4 with a first or last axis of size 1 \
+                     (save other 4-D data as one 3-D volume per component or time point, e.g. \
+                     with unu slice)",
+                    value,
+                ));
             }
             "sizes" => {
-                dims = Some(parse_n::<u64>(value).ok_or_else(|| err(n, "three sizes", value))?)
+                dims =
+                    Some(parse_n::<u64>(&axes(value)).ok_or_else(|| err(n, "three sizes", value))?)
             }
             "type" => {
                 dtype = Some(parse_type(value).ok_or_else(|| {
@@ -329,13 +338,15 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
                 })
             }
             "spacings" => {
-                let s = parse_n::<f64>(value).ok_or_else(|| err(n, "three spacings", value))?;
+                let s =
+                    parse_n::<f64>(&axes(value)).ok_or_else(|| err(n, "three spacings", value))?;
                 spacing = Some(s.map(|v| if v.is_nan() { 1.0 } else { v }));
             }
             "space directions" => {
                 // `none` (a non-spatial axis) steps by 1 along its own axis.
                 let mut d = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-                let vecs: Vec<&str> = value.split_whitespace().collect();
+                let kept = axes(value);
+                let vecs: Vec<&str> = kept.split_whitespace().collect();
                 if vecs.len() != 3 {
                     return Err(err(n, "three space direction vectors", value));
                 }
@@ -353,11 +364,13 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
                 )
             }
             "axis mins" | "axismins" => {
-                let m = parse_n::<f64>(value).ok_or_else(|| err(n, "three axis mins", value))?;
+                let m =
+                    parse_n::<f64>(&axes(value)).ok_or_else(|| err(n, "three axis mins", value))?;
                 mins = Some(m.map(|v| if v.is_nan() { 0.0 } else { v }));
             }
             "centerings" | "centers" => {
-                let words: Vec<&str> = value.split_whitespace().collect();
+                let kept = axes(value);
+                let words: Vec<&str> = kept.split_whitespace().collect();
                 let known = ["cell", "node", "???", "none"];
                 if words.len() != 3 || words.iter().any(|w| !known.contains(w)) {
                     return Err(err(
@@ -421,6 +434,40 @@ fn parse(path: &Path) -> Result<Header, VolumeError> {
         byte_skip,
         len,
     })
+}
+
+/// The axis a 4-D header may drop: one of size 1 first or last in `sizes` (the first if both
+/// are), as a one-component vector or a one-frame series is written (`sizes: 1 X Y Z`). Such a
+/// file is one 3-D volume, and dropping the axis leaves its samples in the same order. `None`
+/// unless the header says `dimension: 4`.
+fn unit_axis(lines: &[String]) -> Option<usize> {
+    let field = |name: &str| {
+        lines.iter().skip(1).find_map(|l| {
+            let (key, value) = l.split_once(": ")?;
+            (key.trim() == name).then(|| value.trim())
+        })
+    };
+    if field("dimension")? != "4" {
+        return None;
+    }
+    match field("sizes")?.split_whitespace().collect::<Vec<_>>()[..] {
+        ["1", _, _, _] => Some(0),
+        [_, _, _, "1"] => Some(3),
+        _ => None,
+    }
+}
+
+/// A per-axis field's value without the word of the axis [`unit_axis`] drops; a value of
+/// another length is left whole for its parser to refuse.
+fn without_axis(value: &str, unit: Option<usize>) -> String {
+    let words: Vec<&str> = value.split_whitespace().collect();
+    match unit {
+        Some(k) if words.len() == 4 => {
+            let kept: Vec<&str> = (0..4).filter(|&i| i != k).map(|i| words[i]).collect();
+            kept.join(" ")
+        }
+        _ => value.to_string(),
+    }
 }
 
 fn parse_n<T: std::str::FromStr>(s: &str) -> Option<[T; 3]> {

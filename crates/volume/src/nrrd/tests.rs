@@ -54,6 +54,37 @@ fn attached_raw_and_gzip_every_type_and_endian() {
     }
 }
 
+/// A 4-D header with an axis of size 1 first or last (`sizes: 1 X Y Z`, a one-component
+/// vector) is read as the 3-D volume it is, every per-axis field without that axis.
+#[test]
+fn a_unit_axis_first_or_last_is_dropped() {
+    let dir = tempfile::tempdir().unwrap();
+    for (sizes, per_axis) in [
+        (
+            "1 3 2 4",
+            "spacings: nan 0.5 1 2\naxis mins: nan 1 2 3\ncenterings: none node node node\n",
+        ),
+        (
+            "3 2 4 1",
+            "space directions: (0.5,0,0) (0,1,0) (0,0,2) none\nspace origin: (1,2,3)\n",
+        ),
+    ] {
+        let text = header(Dtype::U8, Endian::Little, "raw", &format!("{per_axis}\n")).replace(
+            "dimension: 3\nsizes: 3 2 4",
+            &format!("dimension: 4\nsizes: {sizes}"),
+        );
+        let mut file = text.into_bytes();
+        file.extend(0..24u8);
+        let p = write(dir.path(), "v.nrrd", &file);
+        let v = open_path(&p, &OpenOptions::default()).unwrap();
+        assert_eq!(v.grid().dims, [3, 2, 4], "{sizes}");
+        assert_eq!(v.grid().spacing, [0.5, 1.0, 2.0], "{sizes}");
+        assert_eq!(v.grid().origin, [1.0, 2.0, 3.0], "{sizes}");
+        let values: Vec<f32> = (0..24).map(|v| v as f32).collect();
+        assert_eq!(read_all(&p, &OpenOptions::default()).unwrap(), values);
+    }
+}
+
 #[test]
 fn space_directions_and_origin() {
     let dir = tempfile::tempdir().unwrap();
@@ -301,7 +332,11 @@ fn bad_files_give_one_line_errors() {
         ),
         (
             b"NRRD0004\ndimension: 4\n".to_vec(),
-            "DIR/bad.nrrd: header line 2: expected dimension: 3 (a scalar volume), found \"4\"",
+            "DIR/bad.nrrd: header line 2: expected dimension: 3 (a scalar volume), or 4 with a first or last axis of size 1 (save other 4-D data as one 3-D volume per component or time point, e.g. with unu slice), found \"4\"",
+        ),
+        (
+            b"NRRD0004\ndimension: 4\nsizes: 3 2 2 4\n".to_vec(),
+            "DIR/bad.nrrd: header line 2: expected dimension: 3 (a scalar volume), or 4 with a first or last axis of size 1 (save other 4-D data as one 3-D volume per component or time point, e.g. with unu slice), found \"4\"",
         ),
         (
             b"NRRD0004\nsizes 3 2 4\n".to_vec(),
