@@ -127,8 +127,17 @@ impl MeshSink for StlSink {
 /// header this crate wrote.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let mut input = BufReader::new(File::open(path).map_err(|e| SmeshError::io(path, "open", e))?);
-    let stl = stl_io::read_stl(&mut input)
-        .map_err(|e| SmeshError::foreign(path, format!("invalid STL: {e}")))?;
+    // A file cut short failed with stl_io's bare "failed to fill whole buffer", which said
+    // neither what was wrong with the file nor what to do.
+    let stl = stl_io::read_stl(&mut input).map_err(|e| {
+        let message = match e.kind() {
+            std::io::ErrorKind::UnexpectedEof => {
+                format!("invalid STL: the file is truncated ({e}); copy or export it again")
+            }
+            _ => format!("invalid STL: {e}"),
+        };
+        SmeshError::foreign(path, message)
+    })?;
     // Up to 80 bytes: an ASCII STL may be shorter (`solid t\nendsolid t\n`).
     let mut head = Vec::with_capacity(80);
     input
@@ -169,4 +178,32 @@ fn comments(head: &[u8]) -> Vec<String> {
         .filter(|c| !c.starts_with(ATTRIBUTES_DROPPED) && crate::sma::free_comment(c))
         .map(str::to_string)
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A binary STL cut inside its triangles, and an ASCII one cut inside a facet, are named
+    /// truncated, with the fix.
+    #[test]
+    fn a_truncated_stl_is_named_truncated() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut binary = vec![0u8; 80];
+        binary.extend_from_slice(&2u32.to_le_bytes());
+        binary.extend_from_slice(&[0u8; 50 + 20]);
+        let ascii = "solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n";
+        for (name, bytes) in [("b.stl", binary), ("a.stl", ascii.as_bytes().to_vec())] {
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).unwrap();
+            let e = read(&p).unwrap_err().to_string();
+            assert!(
+                e.starts_with(&format!(
+                    "{}: invalid STL: the file is truncated (",
+                    p.display()
+                )) && e.ends_with("); copy or export it again"),
+                "{name}: {e}"
+            );
+        }
+    }
 }
