@@ -133,8 +133,9 @@ def rates(args, work):
 
 def validity(args, work):
     rows = []
-    print("| volume | R | faces (target) | edge/vertex-manifold, oriented | zero-area | Euler out / full (components) | crossing or touching triangles | peak RSS MiB | s |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| volume | R | faces (target) | edge/vertex-manifold, oriented | zero-area | Euler out / full (components) "
+          "| closed facing out / in, out (full) | crossing or touching triangles | peak RSS MiB | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for v in args.volumes.split(","):
         full = run(args.bin, work, v, None)["quality"]
         for r in [float(x) for x in args.rates.split(",")]:
@@ -142,12 +143,17 @@ def validity(args, work):
             q = s["quality"]
             s["crossings"] = crossings(args.bin, s["out"])
             s["euler_kept"] = (q["euler"], q["components"]) == (full["euler"], full["components"])
+            # A closed component turned inside out keeps every count above: only the sign of
+            # its volume tells.
+            s["signs_kept"] = q["closed_by_sign"] == full["closed_by_sign"]
             rows.append(s)
             miss = 100 * (s["faces"] - s["target"]) / s["target"]
             floor = " (topology floor)" if any("topology" in w for w in s["warnings"]) else ""
             print(f"| {v} | {r} | {s['faces']} ({s['target']}, {miss:+.1f} %{floor}) | {'yes' if s['valid'] else 'NO'} "
                   f"| {q['zero_area_triangles']} | {q['euler']} / {full['euler']} ({q['components']} / {full['components']})"
-                  f"{'' if s['euler_kept'] else ' CHANGED'} | {s['crossings']} | {s['rss_mib']:.0f} | {s['seconds']:.1f} |",
+                  f"{'' if s['euler_kept'] else ' CHANGED'} "
+                  f"| {q['closed_by_sign'][0]} / {q['closed_by_sign'][1]} ({full['closed_by_sign'][0]} / {full['closed_by_sign'][1]})"
+                  f"{'' if s['signs_kept'] else ' CHANGED'} | {s['crossings']} | {s['rss_mib']:.0f} | {s['seconds']:.1f} |",
                   flush=True)
     return rows
 

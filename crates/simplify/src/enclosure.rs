@@ -50,6 +50,16 @@ pub(crate) fn keeps_enclosure(store: &Store, patch: &Patch, a: u64, b: u64, pos:
         .flat_map(|t| t.p)
         .fold((pos, pos), |(lo, hi), p| (lo.min(p), hi.max(p)));
     let outside = |p: DVec3| p.cmplt(lo).any() || p.cmpgt(hi).any();
+    // The usual proof first, without the walk's bookkeeping: a triangle next to the patch with
+    // a corner out of the box (the walk cost 2.5 % of a stage's instructions on bonsai).
+    let ring = patch.tris.iter().flat_map(|t| t.v).filter(|&v| v != a && v != b);
+    for v in ring {
+        for &t in store.tris_of(v) {
+            if !patch.holds(t) && store.tri(t).v.iter().any(|&c| outside(store.pos(c))) {
+                return true;
+            }
+        }
+    }
     // The walk's vertices: the ring first (every patch corner but `a` and `b`).
     let mut seen: SmallVec<[u64; 32]> = SmallVec::new();
     for t in &patch.tris {
