@@ -23,9 +23,12 @@
 //! stopping at the first corner outside `B`: one or two triangles for almost every contraction.
 //! Only when it exhausts the component are the signed volumes before and after compared (the
 //! same sign, and not so small that rounding could decide it). A walk that exhausts what it can
-//! see but met a vertex whose star may be incomplete (not free: not yet modifiable, or retired
-//! with triangles written), or that reads more than [`MAX_WALK`] triangles all inside `B`,
-//! cannot conclude and refuses.
+//! see without closing a surface, having met a vertex whose star may be incomplete (not free:
+//! not yet modifiable, or retired with triangles written), or that reads more than
+//! [`MAX_WALK`] triangles all inside `B`, cannot conclude and refuses. (Refusing every walk that
+//! met such a vertex, closed or not, took bonsai's streamed RMS distance at R = 0.01 from 0.835 %
+//! to 0.971 %: small components written in part, or let in vertex by vertex, lost contractions
+//! the in-core run made.)
 
 use glam::DVec3;
 use smallvec::SmallVec;
@@ -52,7 +55,11 @@ pub(crate) fn keeps_enclosure(store: &Store, patch: &Patch, a: u64, b: u64, pos:
     let outside = |p: DVec3| p.cmplt(lo).any() || p.cmpgt(hi).any();
     // The usual proof first, without the walk's bookkeeping: a triangle next to the patch with
     // a corner out of the box (the walk cost 2.5 % of a stage's instructions on bonsai).
-    let ring = patch.tris.iter().flat_map(|t| t.v).filter(|&v| v != a && v != b);
+    let ring = patch
+        .tris
+        .iter()
+        .flat_map(|t| t.v)
+        .filter(|&v| v != a && v != b);
     for v in ring {
         for &t in store.tris_of(v) {
             if !patch.holds(t) && store.tri(t).v.iter().any(|&c| outside(store.pos(c))) {
@@ -97,8 +104,16 @@ pub(crate) fn keeps_enclosure(store: &Store, patch: &Patch, a: u64, b: u64, pos:
             }
         }
     }
-    if incomplete {
-        return false;
+    // What the walk read is closed: then it is the whole component (a closed, connected piece of
+    // an edge- and vertex-manifold surface is one of its components), whatever stars it passed.
+    // Open, it is either a component with a boundary (on the volume's box: no inside to lose)
+    // or one whose missing triangles the walk could not see.
+    let closed = rest
+        .iter()
+        .map(|&t| store.tri(t).v)
+        .chain(patch.tris.iter().map(|t| t.v));
+    if !is_closed(closed) {
+        return !incomplete;
     }
     // The whole component lies in the box: compare its signed volumes (about the box's centre,
     // so that the terms are as small as the component).
@@ -124,13 +139,6 @@ pub(crate) fn keeps_enclosure(store: &Store, patch: &Patch, a: u64, b: u64, pos:
             }
         });
         after.add(term(moved));
-    }
-    let closed = rest
-        .iter()
-        .map(|&t| store.tri(t).v)
-        .chain(patch.tris.iter().map(|t| t.v));
-    if !is_closed(closed) {
-        return true; // an open piece has no inside to lose
     }
     match (before.sign(), after.sign()) {
         (Some(x), Some(y)) => x == y,
@@ -221,13 +229,28 @@ mod tests {
         assert!(!keeps(&s, [-0.5, 0.0, 0.0]), "on it: a flat tetrahedron");
     }
 
-    /// A component whose triangles outside the patch all lie in its box, read through a vertex
-    /// whose star may lack triangles, cannot be proven either way.
+    /// A component read whole (closed) is decided by its volume whatever stars the walk passed;
+    /// an open piece read through a vertex whose star may lack triangles cannot be proven either
+    /// way, and one whose stars are all complete has a boundary, so no inside to lose.
     #[test]
-    fn a_walk_through_an_incomplete_star_refuses() {
+    fn a_walk_through_an_incomplete_star() {
+        let (good, bad) = ([0.5, 0.0, 0.2], [-1.0, 0.0, 0.0]);
         let mut s = bipyramid();
         s.retire(1);
-        assert!(!keeps(&s, [0.5, 0.0, 0.2]));
+        assert!(keeps(&s, good) && !keeps(&s, bad), "closed: read whole");
+        let open = |mut s: Store| {
+            let t = *s
+                .tris_of(1)
+                .iter()
+                .find(|&&t| s.tri(t).v == [1, 4, 3])
+                .unwrap();
+            s.remove_triangle(t);
+            s
+        };
+        let s = open(s);
+        assert!(!keeps(&s, good), "open, and vertex 1 may lack triangles");
+        let s = open(bipyramid());
+        assert!(keeps(&s, bad), "open, every star complete: a boundary");
     }
 
     /// A closed triangular tube along z through rings at z = 0, 1 and 10 (vertices `3k + i`),
@@ -258,19 +281,13 @@ mod tests {
 
     /// A corner of the component outside the patch's box proves the contraction safe, however
     /// far the vertex moves and whatever stars the walk passed (contracting the tube's end 0-1
-    /// to the far side of the ring at z = 1: the ring at z = 10 is out of the box).
+    /// to the far side of the ring at z = 1, vertex 4 of that ring retired: the ring at z = 10
+    /// is out of the box).
     #[test]
     fn a_corner_outside_the_box_proves_it() {
         let mut s = tube();
         s.retire(4);
         let patch = Patch::gather(&s, 0, 1);
         assert!(keeps_enclosure(&s, &patch, 0, 1, DVec3::new(0.0, 0.0, 2.0)));
-        s.set_pos(7, DVec3::new(0.0, 0.5, 1.0));
-        s.set_pos(8, DVec3::new(0.0, -0.5, 1.0));
-        s.set_pos(6, DVec3::new(0.5, 0.0, 1.0));
-        assert!(
-            !keeps_enclosure(&s, &patch, 0, 1, DVec3::new(0.0, 0.0, 2.0)),
-            "the far ring pulled into the box: the walk reads the retired vertex 4"
-        );
     }
 }
