@@ -242,10 +242,12 @@ fn attributes_survive_round_trips_through_every_output_format() {
             .zip(first.attrs.chunks(2))
             .map(|(p, a)| (f64::from(a[0]) - linear(*p)).abs())
             .fold(0.0, f64::max);
-        // The attribute quadric's joint solve reproduces it on the curved surface too; the
-        // interpolating merges are exact on flat patches only (crates/simplify/tests).
+        // The attribute quadric's joint solve reproduces it on the curved surface too, up to
+        // the clamp to the replaced patch's values (0.032 on values spanning about 16; 1e-3
+        // unclamped); the interpolating merges are exact on flat patches only
+        // (crates/simplify/tests).
         let bound = if s.contains("attribute-quadric") {
-            1e-3
+            0.05
         } else {
             4.0
         };
