@@ -137,6 +137,8 @@ pub struct ExtractStats {
     pub non_finite_voxels: u64,
     /// Attribute values at vertices that came out NaN or infinite and were replaced (see
     /// `attributes::sample`): the attribute volumes' own non-finite voxels next to the surface.
+    /// Per surface vertex and attribute, however many cubes list the vertex, so a full sweep
+    /// counts each once.
     pub non_finite_attribute_values: u64,
     /// Voxels of the iso volume whose stored values were finite but beyond f32's range (an f64
     /// volume's 1e40), read as `±f32::MAX`: counted by the reader as it converts them (the
