@@ -69,7 +69,8 @@ pub enum RunError {
     )]
     EmptySurface {
         input: String,
-        iso: f32,
+        /// As written in the job (extraction compares in f32).
+        iso: f64,
         /// Why, from the data range, and what iso to set (`DataRange::empty_surface`).
         why: String,
     },

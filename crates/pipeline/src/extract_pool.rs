@@ -617,7 +617,7 @@ mod tests {
                 }
             }
             assert_eq!(whole_range[0], whole_range[1], "NaN at {nan:?}");
-            let said = whole_range[0].empty_surface(iso);
+            let said = whole_range[0].empty_surface(f64::from(iso));
             assert_eq!(said.contains("NaN or infinite"), nan.is_some(), "{said}");
         }
     }

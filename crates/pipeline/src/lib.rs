@@ -382,7 +382,7 @@ fn run_job(
     let mut outputs = stages::Stages {
         reader,
         input: input.clone(),
-        iso: job.extract.iso as f32,
+        iso: job.extract.iso,
         filter,
         simplifier,
         second,

@@ -114,7 +114,12 @@ impl DataRange {
     /// a surface needs a finite voxel above iso and one at or below it, so only an iso in
     /// [min, max) gives one. "Set extract.iso inside the data range" was wrong advice at the
     /// maximum (iso 7 on data [0, 7]: 7 is inside the range, and nothing is above it).
-    pub fn empty_surface(&self, iso: f32) -> String {
+    ///
+    /// `iso` is the job's, as written: extraction compares in f32, so where the iso and every
+    /// finite voxel lie within one [`f32_step`] of each other the rounding itself may have
+    /// emptied the surface (u32 voxels 4000000001 and 4000000003 and iso 4000000002 all read
+    /// as 4000000000), and that is what is said, with the fix: no iso helps there.
+    pub fn empty_surface(&self, iso: f64) -> String {
         let (lo, hi) = (self.min, self.max);
         if lo > hi {
             return format!(
@@ -124,6 +129,23 @@ impl DataRange {
             );
         }
         let range = self.range_text();
+        let step = f32_step(iso);
+        let spread = f64::from(hi).max(iso) - f64::from(lo).min(iso);
+        let exact = lo == hi && f64::from(lo) == iso;
+        if spread <= step && !exact {
+            return format!(
+                "extract.iso and every finite voxel differ by less than f32's resolution at \
+                 magnitude {} ({}, the step between neighbouring f32 values there), and voxels \
+                 and iso are compared in f32, where they read as {} ({range}); subtract an \
+                 offset near {} from the data (and from extract.iso), or rescale it, so that its \
+                 variations are large against its magnitude",
+                value_f64(iso.abs()),
+                value_f64(step),
+                value(iso as f32),
+                value(iso as f32),
+            );
+        }
+        let iso = iso as f32;
         let (iso_s, lo_s, hi_s) = (value(iso), value(lo), value(hi));
         if lo == hi {
             format!(
@@ -149,6 +171,21 @@ impl DataRange {
         } else {
             format!("{range}; set extract.iso at least {lo_s} and below {hi_s}")
         }
+    }
+}
+
+/// The spacing of `f32` values at `x`'s magnitude (the gap above `|x|` rounded to f32): how
+/// finely extraction, which computes in f32, tells values near `x` apart.
+pub(crate) fn f32_step(x: f64) -> f64 {
+    let a = (x.abs() as f32).min(f32::MAX);
+    f64::from(f32::from_bits(a.to_bits() + 1)) - f64::from(a)
+}
+
+/// [`value`] for an `f64` (the job's iso, a step): plainly where that is short.
+fn value_f64(v: f64) -> String {
+    match v.abs() {
+        a if a == 0.0 || (1e-4..1e16).contains(&a) => v.to_string(),
+        _ => format!("{v:e}"),
     }
 }
 
@@ -224,6 +261,28 @@ mod tests {
             range.empty_surface(0.5),
             "every finite voxel is 3.4028235e38 (the data range is [3.4028235e38, 3.4028235e38], 8 voxels finite beyond f32's range read as ±3.4028235e38), so no extract.iso gives a surface: voxels above iso are inside and those equal to it outside"
         );
+    }
+
+    /// u32 voxels 4000000001 and 4000000003 read as 4000000000 in f32, and iso 4000000002 too:
+    /// "every finite voxel is 4000000000 ... no extract.iso gives a surface" misstated both
+    /// and gave no fix. What is said is the rounding, its size, and the offset to take off.
+    #[test]
+    fn an_iso_within_f32_resolution_of_the_data_says_so() {
+        let mut range = DataRange::default();
+        range.add(&[4_000_000_001.0f64 as f32, 4_000_000_003.0f64 as f32]);
+        assert_eq!(
+            range.empty_surface(4_000_000_002.0),
+            "extract.iso and every finite voxel differ by less than f32's resolution at magnitude 4000000002 (256, the step between neighbouring f32 values there), and voxels and iso are compared in f32, where they read as 4000000000 (the data range is [4000000000, 4000000000]); subtract an offset near 4000000000 from the data (and from extract.iso), or rescale it, so that its variations are large against its magnitude"
+        );
+        // Data constant at the iso as written: nothing was rounded, the range's own words.
+        let mut seven = DataRange::default();
+        seven.add(&[7.0; 4]);
+        assert!(
+            seven
+                .empty_surface(7.0)
+                .starts_with("every finite voxel is 7")
+        );
+        assert!(f32_step(1.0) == f64::from(f32::EPSILON) && f32_step(-3e9) == 256.0);
     }
 
     /// Each side of the range says what is wrong and what to set. At the maximum, iso is inside

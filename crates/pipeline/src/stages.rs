@@ -129,7 +129,9 @@ pub(crate) struct Stages<'a> {
     pub reader: SliceReader,
     /// What the volume is, for the empty-surface error.
     pub input: String,
-    pub iso: f32,
+    /// The job's iso, as written: extraction compares in `iso as f32`, and the empty-surface
+    /// error tells the two apart (`DataRange::empty_surface`).
+    pub iso: f64,
     /// `[simplify] min_component_faces`: the stage between the detector and the simplifier
     /// (restored already when resuming); `None`: no such stage.
     pub filter: Option<Filter>,
@@ -239,7 +241,7 @@ impl Stages<'_> {
 
         let extraction = Extraction {
             reader,
-            iso,
+            iso: iso as f32,
             batch_triangles,
             threads,
             skip_empty,
@@ -998,7 +1000,7 @@ impl Step for SecondStep<'_> {
 #[derive(Clone, Copy)]
 struct EmptyCheck<'a> {
     input: &'a str,
-    iso: f32,
+    iso: f64,
 }
 
 /// Simplified batches -> the output file, complete under its temporary name at the end (the run
