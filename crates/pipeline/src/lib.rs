@@ -446,6 +446,7 @@ fn run_job(
         .chain(non_finite_attributes(&outputs.extract))
         .chain(saturated_voxels(&outputs.extract, &input))
         .chain(saturated_attribute_voxels(&outputs.extract, job))
+        .chain(outputs.range.coarse_iso(job.extract.iso, &input))
         .collect();
     if let Some(p) = &outputs.prune {
         info!(

@@ -122,6 +122,8 @@ pub(crate) struct StageOutputs {
     pub sink: crate::sink::SinkStats,
     /// The output, complete under its temporary name.
     pub output: Completed,
+    /// The values the run saw (the whole volume's, as read in f32), for the precision warning.
+    pub range: DataRange,
 }
 
 pub(crate) struct Stages<'a> {
@@ -357,6 +359,7 @@ impl Stages<'_> {
                     simplify_stages,
                     sink,
                     output,
+                    range: ctl.range(),
                 }),
                 (read, extract, detect, prune, simplify, write) => {
                     Err(ctl.take_first().unwrap_or_else(|| {
