@@ -565,6 +565,75 @@ fn mesh_commands_refuse_a_fifo_or_a_device() {
     assert!(leftovers(dir.path(), &["m.smb", "m.obj", "m.ply"]).is_empty());
 }
 
+/// `run`, `convert` and `report` wrote by temporary file and rename, so whatever was at the
+/// output path became a regular file: a device (`-o /dev/full` replaced the machine's), a FIFO,
+/// a link (replaced, its target untouched). A FIFO (as a device would, which needs root to
+/// make) is refused before any work with exit 2; a link is followed: it stays, and the file it
+/// points to gets the output.
+#[cfg(unix)]
+#[test]
+fn outputs_refuse_a_fifo_and_write_through_a_link() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, mesh) = sphere_mesh(dir.path(), "m.smb");
+    let run_json = format!("{mesh}.run.json");
+    let p = |name: &str| dir.path().join(name).to_string_lossy().into_owned();
+    let inputs = ["m.smb", "m.smb.run.json"];
+    for name in ["f.stl", "f.html", "f.smb"] {
+        mkfifo(&dir.path().join(name));
+    }
+    let fifo_job = sphere_job(dir.path(), "f.smb", "");
+    for args in [
+        vec!["convert".to_string(), mesh.clone(), p("f.stl")],
+        vec!["report".into(), run_json.clone(), "-o".into(), p("f.html")],
+        vec!["run".into(), fifo_job.clone()],
+    ] {
+        let o = wait_at_most(bin().args(&args).spawn().unwrap(), 60);
+        let name = args.last().unwrap().rsplit('/').next().unwrap().to_string();
+        let name = if name == "job.toml" {
+            "f.smb".into()
+        } else {
+            name
+        };
+        assert_one_line_error(&o, 2, &[&name, "is a FIFO, not a file; give a file path"]);
+        let kind = std::fs::symlink_metadata(p(&name)).unwrap().file_type();
+        assert!(std::os::unix::fs::FileTypeExt::is_fifo(&kind), "{name}");
+    }
+    let mut left = leftovers(dir.path(), &inputs);
+    left.sort();
+    assert_eq!(left, ["f.html", "f.smb", "f.stl"]);
+
+    // Links into another folder, to files there: the link stays, the target is written.
+    let real = dir.path().join("real");
+    std::fs::create_dir(&real).unwrap();
+    for name in ["l.stl", "l.html", "l.smb"] {
+        std::fs::write(real.join(name), b"old").unwrap();
+        std::os::unix::fs::symlink(format!("real/{name}"), dir.path().join(name)).unwrap();
+    }
+    let link_job = sphere_job(dir.path(), "l.smb", "");
+    for args in [
+        vec!["convert".to_string(), mesh.clone(), p("l.stl")],
+        vec!["report".into(), run_json.clone(), "-o".into(), p("l.html")],
+        vec!["run".into(), link_job],
+    ] {
+        let o = wait_at_most(bin().args(&args).spawn().unwrap(), 60);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+    }
+    for name in ["l.stl", "l.html", "l.smb"] {
+        let link = dir.path().join(name);
+        assert!(
+            link.symlink_metadata().unwrap().file_type().is_symlink(),
+            "{name}"
+        );
+        let written = std::fs::read(real.join(name)).unwrap();
+        assert!(written.len() > 100, "{name}: the target was not written");
+    }
+    assert_eq!(
+        std::fs::read(real.join("l.smb")).unwrap(),
+        std::fs::read(&mesh).unwrap(),
+        "the run through the link wrote the same mesh"
+    );
+}
+
 fn sphere_job(dir: &Path, output: &str, extra: &str) -> String {
     write_job(
         dir,

@@ -158,7 +158,10 @@ impl FileMark {
 }
 
 pub(crate) struct AtomicFile {
+    /// The path as given, for error messages.
     path: PathBuf,
+    /// What the rename replaces: `path` with its links followed ([`output_target`]).
+    target: PathBuf,
     tmp: TempFile,
 }
 
@@ -172,21 +175,24 @@ impl AtomicFile {
             );
             return Err(SmeshError::io(path, "write the output", folder));
         }
-        let tmp = TempFile::create(path).map_err(|e| {
+        let target = output_target(path)?;
+        let tmp = TempFile::create(&target).map_err(|e| {
             SmeshError::io(
                 path,
-                format!("create a temporary file in {}", dir_of(path).display()),
+                format!("create a temporary file in {}", dir_of(&target).display()),
                 e,
             )
         })?;
         Ok(AtomicFile {
             path: path.to_path_buf(),
+            target,
             tmp,
         })
     }
 
     /// The temporary output of an interrupted run, cut back to its checkpointed length.
     pub(crate) fn reopen(path: &Path, mark: &FileMark) -> Result<AtomicFile, SmeshError> {
+        let target = output_target(path)?;
         let tmp = TempFile::reopen(mark).map_err(|e| {
             SmeshError::io(
                 path,
@@ -199,6 +205,7 @@ impl AtomicFile {
         })?;
         Ok(AtomicFile {
             path: path.to_path_buf(),
+            target,
             tmp,
         })
     }
@@ -285,18 +292,97 @@ impl AtomicFile {
 
     /// Renames the file [`AtomicFile::complete`] made complete to the final name.
     pub(crate) fn persist(self) -> Result<(), SmeshError> {
-        let path = self.path;
+        let (path, target) = (self.path, self.target);
         self.tmp
-            .persist(&path)
+            .persist(&target)
             .map_err(|e| SmeshError::io(&path, "rename the temporary file to it", e))?;
-        sync_folder(&path)
+        sync_folder(&target)
+    }
+}
+
+/// Links followed at most, as Linux's `ELOOP` limit.
+const MAX_LINKS: usize = 40;
+
+/// What an output written by temporary file and rename may replace, checked before any work: a
+/// rename puts a regular file in place of whatever is there, so a device (`-o /dev/full`
+/// replaced the machine's), a FIFO, a socket or a folder is refused (`SmeshError::NotAFile`).
+/// A symbolic link is followed, not refused: the answer is the file its chain ends at (existing
+/// or not), so the temporary file is made beside that file and renamed over it, the link stays
+/// and its target gets the new content, as a plain `open` and write would do. Relative links
+/// are resolved against the folder of the link that holds them; a missing path is its own
+/// target.
+pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
+    let mut target = path.to_path_buf();
+    for _ in 0..=MAX_LINKS {
+        let meta = match std::fs::symlink_metadata(&target) {
+            Ok(m) => m,
+            // Nothing there (or a file where a folder should be, which creating the output's
+            // folder reports): the rename makes it.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
+                ) =>
+            {
+                return Ok(target);
+            }
+            Err(e) => return Err(SmeshError::io(path, "look at the output path", e)),
+        };
+        let kind = meta.file_type();
+        if kind.is_file() {
+            return Ok(target);
+        }
+        if !kind.is_symlink() {
+            let what = file_kind(&kind);
+            let what = match target == path {
+                true => format!("is {what}, not a file"),
+                false => format!("links to {}, which is {what}, not a file", target.display()),
+            };
+            return Err(SmeshError::NotAFile {
+                path: path.to_path_buf(),
+                what,
+            });
+        }
+        let link = std::fs::read_link(&target)
+            .map_err(|e| SmeshError::io(path, "read the link at the output path", e))?;
+        target = dir_of(&target).join(link);
+    }
+    Err(SmeshError::NotAFile {
+        path: path.to_path_buf(),
+        what: format!("is a chain of more than {MAX_LINKS} links"),
+    })
+}
+
+/// What a file that is neither a regular file nor a link is, for [`output_target`]'s message.
+fn file_kind(kind: &std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if kind.is_char_device() {
+            return "a character device";
+        }
+        if kind.is_block_device() {
+            return "a block device";
+        }
+        if kind.is_fifo() {
+            return "a FIFO";
+        }
+        if kind.is_socket() {
+            return "a socket";
+        }
+    }
+    match kind.is_dir() {
+        true => "a folder",
+        false => "not a regular file",
     }
 }
 
 /// Renames `temp`, a complete output a checkpointed run left under its temporary name (the
-/// pipeline's record of a run that finished its output), to `target`, durably.
+/// pipeline's record of a run that finished its output), to `target` (its links followed, as
+/// [`output_target`] does), durably.
 pub fn put_in_place(temp: &Path, target: &Path) -> Result<(), SmeshError> {
-    std::fs::rename(temp, target).map_err(|e| {
+    let resolved = output_target(target)?;
+    std::fs::rename(temp, &resolved).map_err(|e| {
         SmeshError::io(
             target,
             format!(
@@ -306,7 +392,7 @@ pub fn put_in_place(temp: &Path, target: &Path) -> Result<(), SmeshError> {
             e,
         )
     })?;
-    sync_folder(target)
+    sync_folder(&resolved)
 }
 
 /// Makes a rename to `path` durable. Best effort: not every platform can open a directory.
@@ -404,6 +490,58 @@ impl Spill {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The rename put a regular file in place of a FIFO (or a device) and of a link itself;
+    /// now a FIFO is refused before any file is made, and a link is written through.
+    #[cfg(unix)]
+    #[test]
+    fn outputs_refuse_a_fifo_and_follow_links() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("f.sma");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap();
+        assert!(made.success());
+        let err = AtomicFile::create(&fifo).err().unwrap().to_string();
+        assert!(
+            err.contains("is a FIFO, not a file; give a file path"),
+            "{err}"
+        );
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+
+        // A link to a link to a file in another folder; and a dangling link.
+        let sub = dir.path().join("sub");
+        std::fs::create_dir(&sub).unwrap();
+        std::fs::write(sub.join("t.sma"), b"old").unwrap();
+        std::os::unix::fs::symlink("t.sma", sub.join("u.sma")).unwrap();
+        let link = dir.path().join("l.sma");
+        std::os::unix::fs::symlink("sub/u.sma", &link).unwrap();
+        let dangling = dir.path().join("d.sma");
+        std::os::unix::fs::symlink("sub/new.sma", &dangling).unwrap();
+        for (path, target) in [(&link, "t.sma"), (&dangling, "new.sma")] {
+            let mut f = AtomicFile::create(path).unwrap();
+            f.write_all(b"new").unwrap();
+            f.complete().unwrap();
+            f.persist().unwrap();
+            assert!(path.symlink_metadata().unwrap().file_type().is_symlink());
+            assert_eq!(std::fs::read(sub.join(target)).unwrap(), b"new");
+        }
+        // A link to the FIFO is refused, naming both.
+        let to_fifo = dir.path().join("lf.sma");
+        std::os::unix::fs::symlink("f.sma", &to_fifo).unwrap();
+        let err = output_target(&to_fifo).unwrap_err().to_string();
+        assert!(
+            err.contains("lf.sma: links to") && err.contains("a FIFO"),
+            "{err}"
+        );
+        // A loop ends.
+        let a = dir.path().join("a.sma");
+        std::os::unix::fs::symlink("b.sma", &a).unwrap();
+        std::os::unix::fs::symlink("a.sma", dir.path().join("b.sma")).unwrap();
+        let err = output_target(&a).unwrap_err().to_string();
+        assert!(err.contains("chain of more than 40 links"), "{err}");
+    }
 
     /// Finished outputs carry the permissions of any file the user creates (umask applied), not
     /// the temporary file's owner-only `0o600`.

@@ -136,6 +136,10 @@ pub enum SmeshError {
     /// The caller's stop flag was raised (Ctrl-C): the output was not written.
     #[error("{}: interrupted: no output was written (the partial file was removed)", path.display())]
     Interrupted { path: PathBuf },
+    /// An output path naming something the final rename would replace with a regular file (a
+    /// device, a FIFO, a socket, a folder), or a chain of links that never ends.
+    #[error("{}: {what}; give a file path", path.display())]
+    NotAFile { path: PathBuf, what: String },
 }
 
 /// A full disk or a file-size limit gets the fix in its message (and loses the temporary file's
