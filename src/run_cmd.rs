@@ -166,6 +166,8 @@ fn report(s: &RunSummary) -> Result<(), crate::stdout::StdoutError> {
         extract_s = ms(s.stage_seconds.extract),
         detect_s = ms(s.stage_seconds.detect),
         simplify_s = ms(s.stage_seconds.simplify),
+        // A cascade's second simplifier (0 without one): it is the busiest stage of many runs.
+        simplify_second_s = ms(s.stage_seconds.simplify_second),
         write_s = ms(s.stage_seconds.write),
         peak_rss_mib = s.peak_rss_bytes.map(|b| (mib(b) * 10.0).round() / 10.0),
         peak_resident_faces = s.peak_resident_faces,

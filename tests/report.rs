@@ -78,6 +78,7 @@ fn run(dir: &Path) -> Value {
         "extract_s",
         "detect_s",
         "simplify_s",
+        "simplify_second_s",
         "write_s",
         "peak_rss_mib",
         "faces_written",
@@ -98,7 +99,15 @@ fn run(dir: &Path) -> Value {
         );
     }
     let summary = std::fs::read_to_string(dir.join("gyroid.smb.run.json")).unwrap();
-    serde_json::from_str(&summary).unwrap()
+    let summary: Value = serde_json::from_str(&summary).unwrap();
+    // The second simplifier's seconds, as the summary has them (it was left out of the line).
+    let second = summary["stage_seconds"]["simplify_second"]
+        .as_f64()
+        .unwrap();
+    assert!(second > 0.0, "the job runs a cascade: {summary}");
+    let logged = done[0]["fields"]["simplify_second_s"].as_f64().unwrap();
+    assert!((logged - second).abs() <= 5e-4, "{logged} vs {second}");
+    summary
 }
 
 /// A job with a first pass (`[output] faces`) reports its slabs too, in lines that say which
