@@ -105,6 +105,23 @@ pub struct RunSummary {
     pub series: TimeSeries,
 }
 
+impl RunSummary {
+    /// The voxels this run read: all of them, or for a resumed run those from its checkpoint's
+    /// slab on ([`voxels_from_slab`]). Its counters cover the whole job, its times this run only:
+    /// a rate, or a metric counted per run, needs this.
+    pub fn voxels_this_run(&self) -> u64 {
+        voxels_from_slab(self.dims, self.resumed_at_slab)
+    }
+}
+
+/// The voxels of a `dims` volume a run that started at slab `start` reads (`None`: at the
+/// beginning, all of them): the slices from `start` on, as the progress monitor counts them.
+pub fn voxels_from_slab(dims: [u64; 3], start: Option<u64>) -> u64 {
+    let per_slice = dims[0] * dims[1];
+    let all = per_slice * dims[2];
+    all.saturating_sub(start.unwrap_or(0).saturating_mul(per_slice))
+}
+
 /// How a run treats the checkpoint an earlier run of the same output left (see `checkpoint`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Start {
@@ -1097,6 +1114,16 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A resumed run reads the slices from its checkpoint's slab on, not the whole volume
+    /// (the service's voxel metric and the report's rate counted all of them).
+    #[test]
+    fn a_resumed_run_reads_the_voxels_from_its_slab_on() {
+        assert_eq!(voxels_from_slab([4, 5, 10], None), 200);
+        assert_eq!(voxels_from_slab([4, 5, 10], Some(0)), 200);
+        assert_eq!(voxels_from_slab([4, 5, 10], Some(6)), 80);
+        assert_eq!(voxels_from_slab([4, 5, 10], Some(11)), 0);
+    }
 
     #[test]
     fn a_rate_aims_at_one_face_at_least() {

@@ -57,7 +57,7 @@ impl Metrics {
         registry.register("jobs", "Jobs by state", m.jobs.clone());
         registry.register(
             "voxels",
-            "Voxels swept by finished runs (counted when a run ends)",
+            "Voxels swept by finished runs (counted when a run ends; a resumed run's from its checkpoint on)",
             m.voxels.clone(),
         );
         registry.register(

@@ -713,7 +713,9 @@ impl Queue {
         match outcome {
             Ok(summary) => {
                 self.metrics.stage_seconds(&summary.stage_seconds);
-                self.metrics.voxels(summary.voxels);
+                // This run's voxels only, as the face counters count only this run's faces: a
+                // resumed run's summary counts the whole volume.
+                self.metrics.voxels(summary.voxels_this_run());
                 end.state = JobState::Done;
                 end.summary = serde_json::to_value(&summary).ok().map(without_series);
                 info!(
