@@ -1016,6 +1016,17 @@ fn requests_from_other_sites_are_refused_and_every_refusal_is_json() {
     let (code, body) = send(agent().put(&s.url("/jobs")), Some("x"));
     assert_eq!(code, 405, "{body}");
     assert!(error_of(&body).contains("PUT is not allowed"), "{body}");
+    // A job id that is not UTF-8 once decoded: axum's plain-text rejection, now JSON, on every
+    // route that takes an id.
+    for path in ["/jobs/%ff%fe", "/jobs/%ff%fe/log"] {
+        let (code, body) = send(agent().get(&s.url(path)), None);
+        assert_eq!(code, 400, "{body}");
+        let reason = error_of(&body);
+        assert!(
+            reason.contains("Invalid UTF-8") && reason.contains("POST /jobs answered"),
+            "{body}"
+        );
+    }
 }
 
 #[test]

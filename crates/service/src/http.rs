@@ -12,7 +12,8 @@ use axum::Json;
 use axum::Router;
 use axum::body::Body;
 use axum::extract::rejection::StringRejection;
-use axum::extract::{DefaultBodyLimit, FromRequest, Path, Request, State};
+use axum::extract::{DefaultBodyLimit, FromRequest, FromRequestParts, Path, Request, State};
+use axum::http::request::Parts;
 use axum::http::{HeaderMap, Method, StatusCode, header};
 use axum::middleware::{self, Next};
 use axum::response::sse::{Event, KeepAlive, Sse};
@@ -175,6 +176,29 @@ fn new_id() -> Result<String, ApiError> {
     Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
 }
 
+/// The `{id}` of a job's route. axum's `Path` refused an id that is not UTF-8 once decoded
+/// (`GET /jobs/%ff%fe`) with a plain-text 400; this answers in the API's JSON, as every other
+/// refusal does.
+struct JobId(String);
+
+impl<S: Send + Sync> FromRequestParts<S> for JobId {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        match Path::<String>::from_request_parts(parts, state).await {
+            Ok(Path(id)) => Ok(JobId(id)),
+            Err(r) => Err(ApiError::new(
+                r.status(),
+                format!(
+                    "{}: {}; a job id is the one POST /jobs answered (GET /jobs lists them)",
+                    parts.uri.path(),
+                    r.body_text()
+                ),
+            )),
+        }
+    }
+}
+
 /// Unknown paths answer in the API's JSON, as every other refusal does.
 async fn no_route(method: Method, uri: axum::http::Uri) -> ApiError {
     ApiError::new(
@@ -219,10 +243,7 @@ async fn list(State(s): State<AppState>) -> Json<serde_json::Value> {
     Json(serde_json::json!({ "jobs": s.queue.list() }))
 }
 
-async fn show(
-    State(s): State<AppState>,
-    Path(id): Path<String>,
-) -> Result<Json<JobView>, ApiError> {
+async fn show(State(s): State<AppState>, JobId(id): JobId) -> Result<Json<JobView>, ApiError> {
     s.queue
         .get(&id)
         .map(Json)
@@ -314,7 +335,7 @@ async fn job_text(req: Request) -> Result<String, ApiError> {
 
 /// Cancels a queued or running job; removes a finished one with its output (see
 /// [`Queue::delete`]).
-async fn delete(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn delete(State(s): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
     let queue = Arc::clone(&s.queue);
     let job = id.clone();
     let outcome = tokio::task::spawn_blocking(move || queue.delete(&job))
@@ -356,7 +377,7 @@ enum Follow {
 /// `running`, as saved: the stream waits for the drain, not for the job to leave `running`.
 async fn events(
     State(s): State<AppState>,
-    Path(id): Path<String>,
+    JobId(id): JobId,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let rx = s.queue.watch(&id).ok_or_else(|| ApiError::not_found(&id))?;
     let stream = futures_util::stream::unfold(
@@ -415,7 +436,7 @@ fn done_job(s: &AppState, id: &str, what: &str) -> Result<JobView, ApiError> {
 }
 
 /// The run report (`isostream report`'s page) from the run summary in the job's folder.
-async fn report(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn report(State(s): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
     let view = done_job(&s, &id, "report")?;
     let summary = isostream_pipeline::summary_path(&s.queue.job_dir(&id).join(&view.record.output));
     let page = tokio::task::spawn_blocking(move || {
@@ -429,7 +450,7 @@ async fn report(State(s): State<AppState>, Path(id): Path<String>) -> Result<Res
 }
 
 /// The job's log lines (every attempt's), as plain text; empty until its first run.
-async fn log(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn log(State(s): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
     s.queue.get(&id).ok_or_else(|| ApiError::not_found(&id))?;
     let text = match tokio::fs::read(s.queue.job_dir(&id).join(crate::joblog::LOG_FILE)).await {
         Ok(bytes) => bytes,
@@ -440,7 +461,7 @@ async fn log(State(s): State<AppState>, Path(id): Path<String>) -> Result<Respon
 }
 
 /// The mesh, streamed from its file (it may be far larger than memory).
-async fn output(State(s): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn output(State(s): State<AppState>, JobId(id): JobId) -> Result<Response, ApiError> {
     let view = done_job(&s, &id, "output")?;
     let path = s.queue.job_dir(&id).join(&view.record.output);
     let file = tokio::fs::File::open(&path)
