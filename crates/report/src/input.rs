@@ -34,6 +34,10 @@ pub struct Run {
     pub stage_seconds: BTreeMap<String, f64>,
     pub peak_rss_bytes: Option<u64>,
     pub peak_resident_faces: u64,
+    /// The slab a resumed run continued from (absent or null when it started at the beginning):
+    /// its times cover that run only, its counters the whole job.
+    #[serde(default)]
+    pub resumed_at_slab: Option<u64>,
     #[serde(default)]
     pub warnings: Vec<String>,
     /// Absent in summaries written before the series existed.
