@@ -168,13 +168,6 @@ pub(crate) struct AtomicFile {
 impl AtomicFile {
     pub(crate) fn create(path: &Path) -> Result<AtomicFile, SmeshError> {
         // Found now rather than when the finished file is renamed over it, after all the work.
-        if path.is_dir() {
-            let folder = io::Error::new(
-                io::ErrorKind::IsADirectory,
-                "it is a folder; name a file (in it, or beside it)",
-            );
-            return Err(SmeshError::io(path, "write the output", folder));
-        }
         let target = output_target(path)?;
         let tmp = TempFile::create(&target).map_err(|e| {
             SmeshError::io(
@@ -333,10 +326,13 @@ pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
             return Ok(target);
         }
         if !kind.is_symlink() {
-            let what = file_kind(&kind);
+            let what = match kind.is_dir() {
+                true => "a folder; name a file (in it, or beside it)".to_string(),
+                false => format!("{}, not a file; give a file path", file_kind(&kind)),
+            };
             let what = match target == path {
-                true => format!("is {what}, not a file"),
-                false => format!("links to {}, which is {what}, not a file", target.display()),
+                true => format!("it is {what}"),
+                false => format!("it links to {}, which is {what}", target.display()),
             };
             return Err(SmeshError::NotAFile {
                 path: path.to_path_buf(),
@@ -349,11 +345,13 @@ pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
     }
     Err(SmeshError::NotAFile {
         path: path.to_path_buf(),
-        what: format!("is a chain of more than {MAX_LINKS} links"),
+        what: format!("it is a chain of more than {MAX_LINKS} links; give a file path"),
     })
 }
 
-/// What a file that is neither a regular file nor a link is, for [`output_target`]'s message.
+/// What a file that is neither a regular file, a folder nor a link is, for [`output_target`]'s
+/// message.
+#[cfg_attr(not(unix), allow(unused_variables))]
 fn file_kind(kind: &std::fs::FileType) -> &'static str {
     #[cfg(unix)]
     {
@@ -371,10 +369,7 @@ fn file_kind(kind: &std::fs::FileType) -> &'static str {
             return "a socket";
         }
     }
-    match kind.is_dir() {
-        true => "a folder",
-        false => "not a regular file",
-    }
+    "not a regular file"
 }
 
 /// Renames `temp`, a complete output a checkpointed run left under its temporary name (the
@@ -532,7 +527,7 @@ mod tests {
         std::os::unix::fs::symlink("f.sma", &to_fifo).unwrap();
         let err = output_target(&to_fifo).unwrap_err().to_string();
         assert!(
-            err.contains("lf.sma: links to") && err.contains("a FIFO"),
+            err.contains("lf.sma: it links to") && err.contains("a FIFO"),
             "{err}"
         );
         // A loop ends.

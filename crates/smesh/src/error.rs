@@ -138,7 +138,7 @@ pub enum SmeshError {
     Interrupted { path: PathBuf },
     /// An output path naming something the final rename would replace with a regular file (a
     /// device, a FIFO, a socket, a folder), or a chain of links that never ends.
-    #[error("{}: {what}; give a file path", path.display())]
+    #[error("{}: {what}", path.display())]
     NotAFile { path: PathBuf, what: String },
 }
 
