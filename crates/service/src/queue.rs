@@ -1048,6 +1048,62 @@ mod tests {
         }
     }
 
+    /// A resumed run's end adds the voxels it read, from its checkpoint's slab on, as its
+    /// faces count from the checkpoint: it added the whole volume's.
+    #[test]
+    fn a_resumed_run_counts_only_the_voxels_it_reads() {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path();
+        Store::open(state)
+            .unwrap()
+            .create(
+                &JobRecord::queued(RUNNING.into(), 0, "output.smb".into()),
+                SPHERE,
+            )
+            .unwrap();
+        let q = queue(state);
+        let summary = RunSummary {
+            input: "sphere".into(),
+            dims: [10, 10, 100],
+            voxels: 10_000,
+            iso: 0.0,
+            mode: isostream_pipeline::Mode::Rate,
+            output: "output.smb".into(),
+            faces_extracted: 0,
+            faces_kept: 0,
+            target_faces: None,
+            rate: None,
+            faces_written: 0,
+            vertices_written: 0,
+            seconds: 1.0,
+            stage_seconds: Default::default(),
+            peak_rss_bytes: None,
+            peak_resident_faces: 0,
+            shape_error: 0.0,
+            extract: Default::default(),
+            detect: Default::default(),
+            prune: None,
+            simplify: Default::default(),
+            simplify_stages: None,
+            sink: Default::default(),
+            resumed_at_slab: Some(90),
+            warnings: Vec::new(),
+            series: isostream_pipeline::TimeSeries {
+                stride: 1,
+                points: Vec::new(),
+            },
+        };
+        q.end_of_run(RUNNING, Ok(summary));
+        let text = q.metrics.render(&Snapshot {
+            jobs: Vec::new(),
+            resident_faces: 0,
+        });
+        assert!(
+            text.contains("isostream_voxels_total 1000\n"),
+            "the last 10 of 100 slices of 10 x 10 voxels:\n{text}"
+        );
+    }
+
     /// A job found `running` is done only when its run summary is whole and names the
     /// output's size: the pipeline writes it last, once the output is complete.
     #[test]
