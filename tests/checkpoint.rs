@@ -805,9 +805,13 @@ fn saturated_voxels_are_counted_once_across_resumes() {
         "job.toml",
         &text("out.smb", "threads = 2\ncheckpoint = { every_slabs = 1 }"),
     );
+    // Stopped only once a checkpoint exists: with two extraction threads the slabs reported
+    // run ahead of the checkpoints, and a stop at slab 3 came before the first one in 3 of 8
+    // runs (cancelled, nothing to resume).
+    let ckpt = checkpoint_path(&dir.path().join("out.smb"));
     let mut start = Start::Fresh;
     for stop in [3, 8] {
-        match run(&job, start, Some(stop)) {
+        match run_until(&job, start, |p| p.slabs_done >= stop && ckpt.exists()) {
             Err(RunError::Interrupted { .. }) => {}
             other => panic!("stop at {stop}: {other:?}"),
         }
