@@ -1005,13 +1005,8 @@ mod tests {
         assert_eq!(q.get(QUEUED).unwrap().record.state, JobState::Cancelled);
     }
 
-    /// A run resumed from a checkpoint reports the faces it restored in its totals, from its
-    /// first report on: the metrics count only the faces it adds (they counted the restored
-    /// ones again, as if new).
-    #[test]
-    fn a_resumed_run_counts_only_the_faces_it_adds() {
-        let dir = tempfile::tempdir().unwrap();
-        let state = dir.path();
+    /// A queue over `state` holding one job, `RUNNING`, as recorded when it was submitted.
+    fn running_queue(state: &Path) -> Arc<Queue> {
         Store::open(state)
             .unwrap()
             .create(
@@ -1019,7 +1014,16 @@ mod tests {
                 SPHERE,
             )
             .unwrap();
-        let q = queue(state);
+        queue(state)
+    }
+
+    /// A run resumed from a checkpoint reports the faces it restored in its totals, from its
+    /// first report on: the metrics count only the faces it adds (they counted the restored
+    /// ones again, as if new).
+    #[test]
+    fn a_resumed_run_counts_only_the_faces_it_adds() {
+        let dir = tempfile::tempdir().unwrap();
+        let q = running_queue(dir.path());
         let report = |pass, slabs_done, faces_in, faces_out| Progress {
             pass,
             slabs_done,
@@ -1053,15 +1057,7 @@ mod tests {
     #[test]
     fn a_resumed_run_counts_only_the_voxels_it_reads() {
         let dir = tempfile::tempdir().unwrap();
-        let state = dir.path();
-        Store::open(state)
-            .unwrap()
-            .create(
-                &JobRecord::queued(RUNNING.into(), 0, "output.smb".into()),
-                SPHERE,
-            )
-            .unwrap();
-        let q = queue(state);
+        let q = running_queue(dir.path());
         let summary = RunSummary {
             input: "sphere".into(),
             dims: [10, 10, 100],
