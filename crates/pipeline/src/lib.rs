@@ -1091,8 +1091,8 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
 
 /// Writes a small file (a summary, a report) under a temporary name next to it, then renames
 /// it: a failure leaves nothing under the final name. The temporary name is
-/// `.NAME.XXXXXX.tmp`, named after the file, so a stale one is recognised. A link at `path` is
-/// followed and a device, FIFO or socket refused, as for a mesh (`smesh::output_target`).
+/// `.NAME.XXXXXX.tmp`, named after the file, so a stale one is recognised. A link, device, FIFO
+/// or socket at `path` is refused, as for a mesh (`smesh::output_target`).
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::Write as _;
     let path = &isostream_smesh::output_target(path)

@@ -293,59 +293,49 @@ impl AtomicFile {
     }
 }
 
-/// Links followed at most, as Linux's `ELOOP` limit.
-const MAX_LINKS: usize = 40;
-
 /// What an output written by temporary file and rename may replace, checked before any work: a
 /// rename puts a regular file in place of whatever is there, so a device (`-o /dev/full`
 /// replaced the machine's), a FIFO, a socket or a folder is refused (`SmeshError::NotAFile`).
-/// A symbolic link is followed, not refused: the answer is the file its chain ends at (existing
-/// or not), so the temporary file is made beside that file and renamed over it, the link stays
-/// and its target gets the new content, as a plain `open` and write would do. Relative links
-/// are resolved against the folder of the link that holds them; a missing path is its own
-/// target.
+/// So is a symbolic link: the rename would replace the link itself, and following it would
+/// leave the output's lock, checkpoint and stale-file scan (all named after the path given)
+/// beside the link while the file written is elsewhere, so two runs through two names could
+/// write one file and one could delete the other's live temporary file as stale (found by
+/// review). A link in a folder of the path is followed as the kernel follows it. The answer is
+/// the path itself, which the rename may replace (existing or not).
 pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
-    let mut target = path.to_path_buf();
-    for _ in 0..=MAX_LINKS {
-        let meta = match std::fs::symlink_metadata(&target) {
-            Ok(m) => m,
-            // Nothing there (or a file where a folder should be, which creating the output's
-            // folder reports): the rename makes it.
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
-                ) =>
-            {
-                return Ok(target);
-            }
-            Err(e) => return Err(SmeshError::io(path, "look at the output path", e)),
-        };
-        let kind = meta.file_type();
-        if kind.is_file() {
-            return Ok(target);
+    let meta = match std::fs::symlink_metadata(path) {
+        Ok(m) => m,
+        // Nothing there (or a file where a folder should be, which creating the output's folder
+        // reports): the rename makes it.
+        Err(e)
+            if matches!(
+                e.kind(),
+                io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
+            ) =>
+        {
+            return Ok(path.to_path_buf());
         }
-        if !kind.is_symlink() {
-            let what = match kind.is_dir() {
-                true => "a folder; name a file (in it, or beside it)".to_string(),
-                false => format!("{}, not a file; give a file path", file_kind(&kind)),
-            };
-            let what = match target == path {
-                true => format!("it is {what}"),
-                false => format!("it links to {}, which is {what}", target.display()),
-            };
-            return Err(SmeshError::NotAFile {
-                path: path.to_path_buf(),
-                what,
-            });
-        }
-        let link = std::fs::read_link(&target)
-            .map_err(|e| SmeshError::io(path, "read the link at the output path", e))?;
-        target = dir_of(&target).join(link);
+        Err(e) => return Err(SmeshError::io(path, "look at the output path", e)),
+    };
+    let kind = meta.file_type();
+    if kind.is_file() {
+        return Ok(path.to_path_buf());
     }
+    let what = if kind.is_symlink() {
+        let to = std::fs::read_link(path).unwrap_or_default();
+        format!(
+            "a link (to {}); give the file's own path, as the lock, checkpoint and temporary \
+             files are named after the path given",
+            to.display()
+        )
+    } else if kind.is_dir() {
+        "a folder; name a file (in it, or beside it)".to_string()
+    } else {
+        format!("{}, not a file; give a file path", file_kind(&kind))
+    };
     Err(SmeshError::NotAFile {
         path: path.to_path_buf(),
-        what: format!("it is a chain of more than {MAX_LINKS} links; give a file path"),
+        what: format!("it is {what}"),
     })
 }
 
@@ -487,10 +477,10 @@ mod tests {
     use super::*;
 
     /// The rename put a regular file in place of a FIFO (or a device) and of a link itself;
-    /// now a FIFO is refused before any file is made, and a link is written through.
+    /// now both are refused before any file is made.
     #[cfg(unix)]
     #[test]
-    fn outputs_refuse_a_fifo_and_follow_links() {
+    fn outputs_refuse_a_fifo_and_a_link() {
         let dir = tempfile::tempdir().unwrap();
         let fifo = dir.path().join("f.sma");
         let made = std::process::Command::new("mkfifo")
@@ -503,39 +493,26 @@ mod tests {
             err.contains("is a FIFO, not a file; give a file path"),
             "{err}"
         );
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
-
-        // A link to a link to a file in another folder; and a dangling link.
-        let sub = dir.path().join("sub");
-        std::fs::create_dir(&sub).unwrap();
-        std::fs::write(sub.join("t.sma"), b"old").unwrap();
-        std::os::unix::fs::symlink("t.sma", sub.join("u.sma")).unwrap();
+        std::fs::write(dir.path().join("t.sma"), b"old").unwrap();
         let link = dir.path().join("l.sma");
-        std::os::unix::fs::symlink("sub/u.sma", &link).unwrap();
-        let dangling = dir.path().join("d.sma");
-        std::os::unix::fs::symlink("sub/new.sma", &dangling).unwrap();
-        for (path, target) in [(&link, "t.sma"), (&dangling, "new.sma")] {
-            let mut f = AtomicFile::create(path).unwrap();
-            f.write_all(b"new").unwrap();
-            f.complete().unwrap();
-            f.persist().unwrap();
-            assert!(path.symlink_metadata().unwrap().file_type().is_symlink());
-            assert_eq!(std::fs::read(sub.join(target)).unwrap(), b"new");
-        }
-        // A link to the FIFO is refused, naming both.
-        let to_fifo = dir.path().join("lf.sma");
-        std::os::unix::fs::symlink("f.sma", &to_fifo).unwrap();
-        let err = output_target(&to_fifo).unwrap_err().to_string();
+        std::os::unix::fs::symlink("t.sma", &link).unwrap();
+        let err = AtomicFile::create(&link).err().unwrap().to_string();
         assert!(
-            err.contains("lf.sma: it links to") && err.contains("a FIFO"),
+            err.contains("l.sma: it is a link (to t.sma); give the file's own path"),
             "{err}"
         );
-        // A loop ends.
-        let a = dir.path().join("a.sma");
-        std::os::unix::fs::symlink("b.sma", &a).unwrap();
-        std::os::unix::fs::symlink("a.sma", dir.path().join("b.sma")).unwrap();
-        let err = output_target(&a).unwrap_err().to_string();
-        assert!(err.contains("chain of more than 40 links"), "{err}");
+        assert_eq!(std::fs::read(dir.path().join("t.sma")).unwrap(), b"old");
+        assert!(link.symlink_metadata().unwrap().file_type().is_symlink());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
+        // A link among the folders is the kernel's to follow.
+        let sub = dir.path().join("sub");
+        std::fs::create_dir(&sub).unwrap();
+        std::os::unix::fs::symlink("sub", dir.path().join("via")).unwrap();
+        let mut f = AtomicFile::create(&dir.path().join("via/n.sma")).unwrap();
+        f.write_all(b"new").unwrap();
+        f.complete().unwrap();
+        f.persist().unwrap();
+        assert_eq!(std::fs::read(sub.join("n.sma")).unwrap(), b"new");
     }
 
     /// Finished outputs carry the permissions of any file the user creates (umask applied), not
