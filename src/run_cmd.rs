@@ -192,7 +192,7 @@ fn report(s: &RunSummary) -> Result<(), crate::stdout::StdoutError> {
 /// `isostream report`: the run summary (and a measure report) as one HTML page.
 pub fn report_page(run: &Path, output: &Path, measure: Option<&Path>) -> anyhow::Result<()> {
     // Before any work: a device, FIFO or socket at `-o` is refused (exit 2), a link followed.
-    isostream_smesh::output_target(output)?;
+    isostream_smesh::check_replaceable(output)?;
     let same = |input: &Path| isostream_pipeline::one_file(input, output);
     if same(run) || measure.is_some_and(same) {
         return Err(isostream_report::ReportError::OverInput {
@@ -261,7 +261,7 @@ pub fn convert(
 ) -> anyhow::Result<()> {
     // Before any work (the lock, the input): a device, FIFO or socket at the output is refused
     // (exit 2), a link followed.
-    isostream_smesh::output_target(output)?;
+    isostream_smesh::check_replaceable(output)?;
     // Ctrl-C, SIGTERM and SIGHUP stop a conversion as they stop a run: its temporary file
     // removed, exit code 130 (killed by the signal, it was left behind).
     let stop = Arc::new(AtomicBool::new(false));

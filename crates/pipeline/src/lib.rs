@@ -1092,10 +1092,10 @@ fn write_summary(summary: &RunSummary, path: &Path) -> Result<(), RunError> {
 /// Writes a small file (a summary, a report) under a temporary name next to it, then renames
 /// it: a failure leaves nothing under the final name. The temporary name is
 /// `.NAME.XXXXXX.tmp`, named after the file, so a stale one is recognised. A link, device, FIFO
-/// or socket at `path` is refused, as for a mesh (`smesh::output_target`).
+/// or socket at `path` is refused, as for a mesh (`smesh::check_replaceable`).
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::Write as _;
-    let path = &isostream_smesh::output_target(path)
+    isostream_smesh::check_replaceable(path)
         .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e.to_string()))?;
     let dir = path
         .parent()

@@ -18,7 +18,7 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
         ));
     }
     // A device, FIFO or socket there would be replaced by the finished file's rename.
-    isostream_smesh::output_target(path).map_err(|e| e.to_string())?;
+    isostream_smesh::check_replaceable(path).map_err(|e| e.to_string())?;
     // The run summary is written (and an earlier one removed) after the whole job: a folder in
     // its place failed the run only then.
     let summary = crate::summary_path(path);
@@ -29,7 +29,7 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
             summary.display()
         ));
     }
-    isostream_smesh::output_target(&summary).map_err(|e| e.to_string())?;
+    isostream_smesh::check_replaceable(&summary).map_err(|e| e.to_string())?;
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),

@@ -158,34 +158,30 @@ impl FileMark {
 }
 
 pub(crate) struct AtomicFile {
-    /// The path as given, for error messages.
     path: PathBuf,
-    /// What the rename replaces: `path` with its links followed ([`output_target`]).
-    target: PathBuf,
     tmp: TempFile,
 }
 
 impl AtomicFile {
     pub(crate) fn create(path: &Path) -> Result<AtomicFile, SmeshError> {
         // Found now rather than when the finished file is renamed over it, after all the work.
-        let target = output_target(path)?;
-        let tmp = TempFile::create(&target).map_err(|e| {
+        check_replaceable(path)?;
+        let tmp = TempFile::create(path).map_err(|e| {
             SmeshError::io(
                 path,
-                format!("create a temporary file in {}", dir_of(&target).display()),
+                format!("create a temporary file in {}", dir_of(path).display()),
                 e,
             )
         })?;
         Ok(AtomicFile {
             path: path.to_path_buf(),
-            target,
             tmp,
         })
     }
 
     /// The temporary output of an interrupted run, cut back to its checkpointed length.
     pub(crate) fn reopen(path: &Path, mark: &FileMark) -> Result<AtomicFile, SmeshError> {
-        let target = output_target(path)?;
+        check_replaceable(path)?;
         let tmp = TempFile::reopen(mark).map_err(|e| {
             SmeshError::io(
                 path,
@@ -198,7 +194,6 @@ impl AtomicFile {
         })?;
         Ok(AtomicFile {
             path: path.to_path_buf(),
-            target,
             tmp,
         })
     }
@@ -285,11 +280,11 @@ impl AtomicFile {
 
     /// Renames the file [`AtomicFile::complete`] made complete to the final name.
     pub(crate) fn persist(self) -> Result<(), SmeshError> {
-        let (path, target) = (self.path, self.target);
+        let path = self.path;
         self.tmp
-            .persist(&target)
+            .persist(&path)
             .map_err(|e| SmeshError::io(&path, "rename the temporary file to it", e))?;
-        sync_folder(&target)
+        sync_folder(&path)
     }
 }
 
@@ -300,9 +295,9 @@ impl AtomicFile {
 /// leave the output's lock, checkpoint and stale-file scan (all named after the path given)
 /// beside the link while the file written is elsewhere, so two runs through two names could
 /// write one file and one could delete the other's live temporary file as stale (found by
-/// review). A link in a folder of the path is followed as the kernel follows it. The answer is
-/// the path itself, which the rename may replace (existing or not).
-pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
+/// review). A link in a folder of the path is followed as the kernel follows it. Nothing there
+/// is fine: the rename makes it.
+pub fn check_replaceable(path: &Path) -> Result<(), SmeshError> {
     let meta = match std::fs::symlink_metadata(path) {
         Ok(m) => m,
         // Nothing there (or a file where a folder should be, which creating the output's folder
@@ -313,13 +308,13 @@ pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
                 io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
             ) =>
         {
-            return Ok(path.to_path_buf());
+            return Ok(());
         }
         Err(e) => return Err(SmeshError::io(path, "look at the output path", e)),
     };
     let kind = meta.file_type();
     if kind.is_file() {
-        return Ok(path.to_path_buf());
+        return Ok(());
     }
     let what = if kind.is_symlink() {
         let to = std::fs::read_link(path).unwrap_or_default();
@@ -339,7 +334,7 @@ pub fn output_target(path: &Path) -> Result<PathBuf, SmeshError> {
     })
 }
 
-/// What a file that is neither a regular file, a folder nor a link is, for [`output_target`]'s
+/// What a file that is neither a regular file, a folder nor a link is, for [`check_replaceable`]'s
 /// message.
 #[cfg_attr(not(unix), allow(unused_variables))]
 fn file_kind(kind: &std::fs::FileType) -> &'static str {
@@ -363,11 +358,11 @@ fn file_kind(kind: &std::fs::FileType) -> &'static str {
 }
 
 /// Renames `temp`, a complete output a checkpointed run left under its temporary name (the
-/// pipeline's record of a run that finished its output), to `target` (its links followed, as
-/// [`output_target`] does), durably.
+/// pipeline's record of a run that finished its output), to `target` (refused where
+/// [`check_replaceable`] refuses), durably.
 pub fn put_in_place(temp: &Path, target: &Path) -> Result<(), SmeshError> {
-    let resolved = output_target(target)?;
-    std::fs::rename(temp, &resolved).map_err(|e| {
+    check_replaceable(target)?;
+    std::fs::rename(temp, target).map_err(|e| {
         SmeshError::io(
             target,
             format!(
@@ -377,7 +372,7 @@ pub fn put_in_place(temp: &Path, target: &Path) -> Result<(), SmeshError> {
             e,
         )
     })?;
-    sync_folder(&resolved)
+    sync_folder(target)
 }
 
 /// Makes a rename to `path` durable. Best effort: not every platform can open a directory.

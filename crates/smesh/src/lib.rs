@@ -36,7 +36,7 @@ mod validate;
 mod writer;
 
 pub use atomic::FileMark;
-pub use atomic::{output_builder, output_target, put_in_place};
+pub use atomic::{check_replaceable, output_builder, put_in_place};
 pub use convert::{
     ConvertOptions, ConvertStats, convert, convert_until, convert_with, create_sink, resume_sink,
 };
