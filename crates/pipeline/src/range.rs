@@ -139,8 +139,8 @@ impl DataRange {
                  and iso are compared in f32, where they read as {} ({range}); subtract an \
                  offset near {} from the data (and from extract.iso), or rescale it, so that its \
                  variations are large against its magnitude",
-                value_f64(iso.abs()),
-                value_f64(step),
+                value(iso.abs()),
+                value(step),
                 value(iso as f32),
                 value(iso as f32),
             );
@@ -195,8 +195,8 @@ impl DataRange {
                  rounded to that step before the surface is placed, which moves it by up to the \
                  step over the values' change across a voxel, in voxels; subtract an offset near \
                  {} from the data (and from extract.iso), or rescale it",
-                value_f64(iso),
-                value_f64(step),
+                value(iso),
+                value(step),
                 100.0 * step / (hi - lo),
                 value(self.min),
                 value(self.max),
@@ -213,18 +213,14 @@ pub(crate) fn f32_step(x: f64) -> f64 {
     f64::from(f32::from_bits(a.to_bits() + 1)) - f64::from(a)
 }
 
-/// [`value`] for an `f64` (the job's iso, a step): plainly where that is short.
-fn value_f64(v: f64) -> String {
-    match v.abs() {
-        a if a == 0.0 || (1e-4..1e16).contains(&a) => v.to_string(),
-        _ => format!("{v:e}"),
-    }
-}
-
-/// A value as the messages show it: plainly, but in scientific notation where plain would be
-/// a row of zeros (f32::MAX is "340282350000000000000000000000000000000").
-pub(crate) fn value(v: f32) -> String {
-    match v.abs() {
+/// A value as the messages show it (an `f32` voxel or an `f64` iso or step, each printed as its
+/// own type prints it): plainly, but in scientific notation where plain would be a row of zeros
+/// (f32::MAX is "340282350000000000000000000000000000000").
+pub(crate) fn value<T>(v: T) -> String
+where
+    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+{
+    match v.into().abs() {
         a if a == 0.0 || (1e-4..1e16).contains(&a) => v.to_string(),
         _ => format!("{v:e}"),
     }
