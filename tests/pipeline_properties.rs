@@ -104,7 +104,7 @@ proptest! {
         let target = summary.target_faces.expect("mode rate has a target");
         if summary.faces_written as f64 > 1.02 * target as f64 {
             prop_assert!(
-                summary.warnings.iter().any(|w| w.contains("rate target missed")),
+                summary.warnings.iter().any(|w| w.contains("target missed")),
                 "{:?}", summary.warnings
             );
         }
