@@ -98,8 +98,9 @@ const FINISHED_MAGIC: &[u8; 16] = b"isostream-done\n\0";
 /// one pool; 34: the costs' tie-break by edge length, so the queued costs of a 33 are not this
 /// build's; 35: the extraction's count of non-finite attribute values; 36: axis flips applied,
 /// so a flipped input's half-written output of a 35 is in other coordinates; 37: the
-/// extraction's and the data range's counts of voxels saturated to f32's range).
-const FORMAT: u32 = 37;
+/// extraction's and the data range's counts of voxels saturated to f32's range; 38: the
+/// volume's box in the simplifier's configuration, placements kept within it).
+const FORMAT: u32 = 38;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

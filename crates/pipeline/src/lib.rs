@@ -31,7 +31,7 @@ use isostream_detect::{Detector, MeshDelta};
 use isostream_extract::{CubeBatch, ExtractStats};
 use isostream_prune::{Census, Filter, SmallPieces};
 use isostream_simplify::{
-    Boundary, Cascade, Policy, Simplifier, SimplifyConfig as SimplifierConfig,
+    Boundary, Cascade, Domain, Policy, Simplifier, SimplifyConfig as SimplifierConfig,
 };
 use isostream_smesh::Header;
 use isostream_volume::VolumeSource;
@@ -817,16 +817,24 @@ fn simplifier_config(
         cascade: Cascade::Single,
         boundary: match s.boundary() {
             config::BoundaryKind::Exact => Boundary::Exact,
-            // Where the extractor puts vertices on the box's faces (`Grid::position`), rounded
-            // like every position the simplifier holds.
-            config::BoundaryKind::Planar => {
-                let far = grid.dims.map(|n| n.saturating_sub(1) as f64);
-                Boundary::Planar {
-                    lo: grid.position(0.0, 0.0, 0.0).as_vec3().as_dvec3(),
-                    hi: grid.position(far[0], far[1], far[2]).as_vec3().as_dvec3(),
-                }
-            }
+            config::BoundaryKind::Planar => Boundary::Planar,
         },
+        domain: Some(domain(&grid)),
+    }
+}
+
+/// The volume's box where the extractor puts vertices on its faces (`Grid::position`), rounded
+/// like every position the simplifier holds.
+fn domain(grid: &isostream_volume::Grid) -> Domain {
+    let far = grid.dims.map(|n| n.saturating_sub(1) as f64);
+    let [p, q] = [
+        grid.position(0.0, 0.0, 0.0),
+        grid.position(far[0], far[1], far[2]),
+    ]
+    .map(|x| x.as_vec3().as_dvec3());
+    Domain {
+        lo: p.min(q),
+        hi: p.max(q),
     }
 }
 

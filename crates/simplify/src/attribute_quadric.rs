@@ -189,10 +189,16 @@ fn solve(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
 
 /// Placement of `ab -> c` under the attribute quadric: `(position, cost, shape measure eps0)`.
 /// `None` when the boundary rule admits no site.
-pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(DVec3, f64, f64)> {
+pub(crate) fn place(
+    store: &Store,
+    a: u64,
+    b: u64,
+    weights: &[f64],
+    domain: Option<&topology::Domain>,
+) -> Option<(DVec3, f64, f64)> {
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
     // The attribute quadric has no boundary term: its boundary stays exact (`Simplifier::new`).
-    let sites = topology::sites(store, a, b, &topology::Boundary::Exact)?;
+    let sites = topology::sites(store, a, b, None)?;
     let n = 3 + weights.len();
     let quadric = |v| store.extra(v).and_then(|e| e.attr_quadric.as_deref());
     let q = match (quadric(a), quadric(b)) {
@@ -202,8 +208,8 @@ pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(D
     };
     let (pos, cost) = crate::cost::place(
         sites,
-        store.pos(a),
-        store.pos(b),
+        (store.pos(a), store.pos(b)),
+        domain,
         || q.minimizer().map(|v| DVec3::new(v[0], v[1], v[2])),
         |p| q.cost_at(p).unwrap_or(f64::INFINITY),
     )?;

@@ -10,7 +10,7 @@ use glam::DVec3;
 use crate::priority::Priority;
 use crate::quadric::Quadric;
 use crate::store::Store;
-use crate::topology::{self, Boundary, Sites};
+use crate::topology::{self, Boundary, Domain, Sites};
 use crate::{attribute_quadric, data_dependent};
 
 /// An optimal placement farther than this many edge lengths from the edge midpoint is treated
@@ -61,10 +61,13 @@ pub(crate) fn output_precision(p: DVec3) -> DVec3 {
 /// the cheapest of the endpoints and the midpoint); coincident endpoints stay where they are.
 /// Every candidate is rounded by [`output_precision`] before it is costed, so the cost and every
 /// later check judge the coordinates that are written.
+///
+/// The minimiser is moved into the volume's box `within` when it lies outside (see
+/// [`Domain`]); the fallback sites are inside since the endpoints are.
 pub(crate) fn place(
     sites: Sites,
-    pa: DVec3,
-    pb: DVec3,
+    (pa, pb): (DVec3, DVec3),
+    within: Option<&Domain>,
     minimizer: impl FnOnce() -> Option<DVec3>,
     cost: impl Fn(DVec3) -> f64,
 ) -> Option<(DVec3, f64)> {
@@ -74,7 +77,7 @@ pub(crate) fn place(
         Sites::Free if pa == pb => [Some(pa), None, None],
         Sites::Free => {
             match minimizer().filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length()) {
-                Some(x) => [Some(x), None, None],
+                Some(x) => [Some(within.map_or(x, |d| d.clamp(x))), None, None],
                 None => [Some(pa), Some(pb), Some(mid)],
             }
         }
@@ -98,23 +101,36 @@ pub(crate) fn place(
 pub(crate) struct Evaluator {
     objective: Objective,
     priority: Priority,
-    boundary: Boundary,
+    within: Within,
     /// Physical length of one rank, for the time-lag's patch radius (`Eval::reach`, and the
     /// merged vertex's in `contract`).
     pub(crate) rank_spacing: f64,
+}
+
+/// The boxes a contraction is placed within.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub(crate) struct Within {
+    /// The box whose faces a planar boundary is simplified within (`topology::sites`); `None`
+    /// for an exact boundary.
+    faces: Option<Domain>,
+    /// The volume's box, where placements are kept (see [`Domain`]).
+    domain: Option<Domain>,
 }
 
 impl Evaluator {
     pub(crate) fn new(
         objective: Objective,
         priority: Priority,
-        boundary: Boundary,
+        (boundary, domain): (Boundary, Option<Domain>),
         rank_spacing: f64,
     ) -> Self {
         Self {
             objective,
             priority,
-            boundary,
+            within: Within {
+                faces: domain.filter(|_| boundary.is_planar()),
+                domain,
+            },
             rank_spacing,
         }
     }
@@ -124,7 +140,7 @@ impl Evaluator {
     pub(crate) fn evaluate(&self, store: &Store, a: u64, b: u64) -> Option<Eval> {
         let mut eval = self
             .objective
-            .evaluate(store, (a, b), &self.boundary, self.rank_spacing)?;
+            .evaluate(store, (a, b), &self.within, self.rank_spacing)?;
         if eval.cost == COINCIDENT {
             return Some(eval);
         }
@@ -139,7 +155,8 @@ impl Evaluator {
                     Objective::Shape { e0, .. } => e0,
                     Objective::Quadric => f64::INFINITY,
                 };
-                let (pos, cost, shape) = attribute_quadric::place(store, a, b, weights)?;
+                let (pos, cost, shape) =
+                    attribute_quadric::place(store, a, b, weights, self.within.domain.as_ref())?;
                 if shape > e0 {
                     return None;
                 }
@@ -156,25 +173,25 @@ impl Evaluator {
 }
 
 impl Objective {
-    /// `None` when the edge is no candidate: no admissible site under the boundary `rule`, or
+    /// `None` when the edge is no candidate: no admissible site under the boundary rule, or
     /// above the error threshold.
     pub(crate) fn evaluate(
         &self,
         store: &Store,
         (a, b): (u64, u64),
-        rule: &Boundary,
+        within: &Within,
         rank_spacing: f64,
     ) -> Option<Eval> {
         let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
-        let sites = topology::sites(store, a, b, rule)?;
+        let sites = topology::sites(store, a, b, within.faces.as_ref())?;
         let h = va.quadric + vb.quadric;
         let w = va.area + vb.area;
         let isotropic = self.isotropy_metric(store, a, b, h, w);
         let m = isotropic.unwrap_or(h);
         let (pos, value) = place(
             sites,
-            store.pos(a),
-            store.pos(b),
+            (store.pos(a), store.pos(b)),
+            within.domain.as_ref(),
             || m.minimizer(),
             |p| m.eval(p).max(0.0),
         )?;
@@ -344,9 +361,9 @@ mod tests {
         let mut compared = 0;
         for (a, b) in interior_edges(&s) {
             let gh = Objective::Quadric
-                .evaluate(&s, (a, b), &Boundary::Exact, 1.0)
+                .evaluate(&s, (a, b), &Within::default(), 1.0)
                 .unwrap();
-            let e = plain.evaluate(&s, (a, b), &Boundary::Exact, 1.0).unwrap();
+            let e = plain.evaluate(&s, (a, b), &Within::default(), 1.0).unwrap();
             assert_eq!(e.pos, gh.pos, "edge {a}-{b}");
             let w = s.vertex(a).unwrap().area + s.vertex(b).unwrap().area;
             let tie = TIE_BREAK * (s.pos(a) - s.pos(b)).length_squared();
@@ -363,7 +380,7 @@ mod tests {
         let (a, b) = (14, 15);
         let eps = |alpha| {
             Objective::Shape { e0: 1.0, alpha }
-                .evaluate(&s, (a, b), &Boundary::Exact, 1.0)
+                .evaluate(&s, (a, b), &Within::default(), 1.0)
                 .unwrap()
         };
         let centroid: DVec3 = {
@@ -392,9 +409,13 @@ mod tests {
             e0: 1e-12,
             alpha: 0.0,
         };
-        assert!(tight.evaluate(&s, (a, b), &Boundary::Exact, 1.0).is_none());
+        assert!(
+            tight
+                .evaluate(&s, (a, b), &Within::default(), 1.0)
+                .is_none()
+        );
         let e = Objective::Quadric
-            .evaluate(&s, (a, b), &Boundary::Exact, 2.0)
+            .evaluate(&s, (a, b), &Within::default(), 2.0)
             .unwrap();
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
         let len = (s.pos(a) - s.pos(b)).length();
@@ -407,19 +428,41 @@ mod tests {
     fn placements_are_rounded_and_the_cheapest_site_wins() {
         let (pa, pb) = (DVec3::new(0.1, 0.2, 0.3), DVec3::new(1.1, 0.2, 0.3));
         let odd = DVec3::new(0.123_456_789_012_3, 0.2, 0.3);
-        let (p, _) = place(Sites::Free, pa, pb, || Some(odd), |_| 0.0).unwrap();
+        let (p, _) = place(Sites::Free, (pa, pb), None, || Some(odd), |_| 0.0).unwrap();
         assert_eq!(p, output_precision(p));
         assert_ne!(p, odd);
         // Far minimiser: the best of the endpoints and the midpoint.
         let far = DVec3::splat(100.0);
-        let (p, c) = place(Sites::Free, pa, pb, || Some(far), |x| (x - pb).length()).unwrap();
+        let (p, c) = place(
+            Sites::Free,
+            (pa, pb),
+            None,
+            || Some(far),
+            |x| (x - pb).length(),
+        )
+        .unwrap();
         assert_eq!(
             (p, c),
             (output_precision(pb), (output_precision(pb) - pb).length())
         );
         // Coincident endpoints stay; the minimiser is not even asked.
-        let (p, _) = place(Sites::Free, pa, pa, || panic!("asked"), |_| 0.0).unwrap();
+        let (p, _) = place(Sites::Free, (pa, pa), None, || panic!("asked"), |_| 0.0).unwrap();
         assert_eq!(p, output_precision(pa));
-        assert!(place(Sites::Fixed([None, None]), pa, pb, || None, |_| 0.0).is_none());
+        assert!(place(Sites::Fixed([None, None]), (pa, pb), None, || None, |_| 0.0).is_none());
+    }
+
+    /// A minimiser outside the volume's box is moved onto it, rounded inside.
+    #[test]
+    fn placements_stay_in_the_volume_box() {
+        let d = Domain {
+            lo: DVec3::ZERO,
+            hi: DVec3::new(10.0, 10.0, 10.0),
+        };
+        let (pa, pb) = (DVec3::new(1.0, 0.1, 1.0), DVec3::new(2.0, 0.1, 1.0));
+        let below = DVec3::new(1.5, -0.4, 1.0);
+        let (p, _) = place(Sites::Free, (pa, pb), Some(&d), || Some(below), |_| 0.0).unwrap();
+        assert_eq!(p, DVec3::new(1.5, 0.0, 1.0));
+        let (p, _) = place(Sites::Free, (pa, pb), None, || Some(below), |_| 0.0).unwrap();
+        assert_eq!(p, output_precision(below), "no box: where the minimiser is");
     }
 }

@@ -46,7 +46,7 @@
 //!   [`Boundary::Exact`] the removed one must sit on a straight piece of boundary, so the
 //!   polyline keeps its exact shape (shards to be stitched need that; the default of
 //!   [`SimplifyConfig::new`], which knows no box); with [`Boundary::Planar`] (the pipeline's
-//!   default, given the grid's box) it may also lie on a curve, on one face of the box with both
+//!   default, given the grid's box as [`Domain`]) it may also lie on a curve, on one face of the box with both
 //!   its boundary neighbours, costed by boundary quadrics, so the cut is simplified within the
 //!   box's faces. Exact boundaries were the floor of every open surface at low rates: bonsai
 //!   asked for 10,000 faces wrote 26,871 (its cut alone has 11 k edges).
@@ -127,7 +127,7 @@ pub use policy::Policy;
 pub use priority::Priority;
 pub use seam::{Join, Serial};
 pub use sweep::{Front, Rows, Sweep};
-pub use topology::Boundary;
+pub use topology::{Boundary, Domain};
 
 use passthrough::PassThrough;
 use stage::Stage;
@@ -161,6 +161,10 @@ pub struct SimplifyConfig {
     /// What may happen to the surface's boundary (the volume box's cut; see [`Boundary`]).
     #[serde(default)]
     pub boundary: Boundary,
+    /// The volume's box: placements stay within it (see [`Domain`]); [`Boundary::Planar`]
+    /// needs it. `None`: placements anywhere.
+    #[serde(default)]
+    pub domain: Option<Domain>,
 }
 
 impl SimplifyConfig {
@@ -182,9 +186,10 @@ impl SimplifyConfig {
         {
             return Err(SimplifyError::InvalidCascade);
         }
-        if let Boundary::Planar { lo, hi } = self.boundary
-            && (matches!(self.priority, Priority::AttributeQuadric { .. })
-                || !(lo.is_finite() && hi.is_finite() && lo.cmple(hi).all()))
+        if self.domain.is_some_and(|d| !d.is_valid())
+            || (self.boundary == Boundary::Planar
+                && (matches!(self.priority, Priority::AttributeQuadric { .. })
+                    || self.domain.is_none()))
         {
             return Err(SimplifyError::InvalidBoundary);
         }
@@ -211,6 +216,7 @@ impl SimplifyConfig {
             in_core: false,
             cascade: Cascade::Single,
             boundary: Boundary::default(),
+            domain: None,
         }
     }
 }
@@ -228,7 +234,7 @@ pub enum SimplifyError {
     #[error("a cascade stage needs the rate policy, the geometric priority and a sweep, streaming")]
     InvalidCascade,
     #[error(
-        "a planar boundary needs a finite box with lo <= hi and a priority with boundary costs (not the attribute quadric)"
+        "the volume's box must be finite with lo <= hi, and a planar boundary needs it and a priority with boundary costs (not the attribute quadric)"
     )]
     InvalidBoundary,
 }

@@ -107,7 +107,7 @@ impl Stage {
             let evaluator = Evaluator::new(
                 objective,
                 config.priority.clone(),
-                config.boundary,
+                (config.boundary, config.domain),
                 config.sweep.map_or(1.0, |w| w.spacing),
             );
             Decimator::new(&config, evaluator)

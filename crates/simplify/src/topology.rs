@@ -192,12 +192,13 @@ fn third(v: [u64; 3], a: u64, b: u64) -> u64 {
 /// * both on the boundary: only along a boundary edge, into one endpoint's position, and only if
 ///   the removed endpoint lies on a straight piece of boundary (its two boundary neighbours and
 ///   itself collinear within `STRAIGHT_SINE`, or it coincides with the kept one), or, with
-///   [`Boundary::Planar`], on one face of the volume's box with both (see [`Boundary`]). With
+///   [`Boundary::Planar`] (`faces`: the box), on one face of the volume's box with both (see
+///   [`Boundary`]). With
 ///   [`Boundary::Exact`] the boundary polyline therefore keeps its exact shape. Closed surfaces
 ///   have no boundary and are not restricted at all.
 ///
 /// `None`: no admissible position.
-pub(crate) fn sites(store: &Store, a: u64, b: u64, rule: &Boundary) -> Option<Sites> {
+pub(crate) fn sites(store: &Store, a: u64, b: u64, faces: Option<&Domain>) -> Option<Sites> {
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
     let (pa, pb) = (store.pos(a), store.pos(b));
     match (va.boundary, vb.boundary) {
@@ -210,22 +211,22 @@ pub(crate) fn sites(store: &Store, a: u64, b: u64, rule: &Boundary) -> Option<Si
             if !boundary_edge {
                 return None;
             }
-            let keep_a = removable_onto(store, &rb, pb, pa, rule).then_some(pa);
-            let keep_b = removable_onto(store, &ra, pa, pb, rule).then_some(pb);
+            let keep_a = removable_onto(store, &rb, pb, pa, faces).then_some(pa);
+            let keep_b = removable_onto(store, &ra, pa, pb, faces).then_some(pb);
             (keep_a.is_some() || keep_b.is_some()).then_some(Sites::Fixed([keep_a, keep_b]))
         }
     }
 }
 
 /// Whether boundary vertex `r` (at `pr`, with ring `ring`) can be merged into its boundary
-/// neighbour at `pk` under `rule`: without changing the boundary polyline, or keeping it in the
-/// box face it runs on there.
+/// neighbour at `pk`: without changing the boundary polyline, or keeping it in the face of the
+/// box `faces` (planar boundaries) it runs on there.
 fn removable_onto(
     store: &Store,
     ring: &[(u64, u8)],
     pr: DVec3,
     pk: DVec3,
-    rule: &Boundary,
+    faces: Option<&Domain>,
 ) -> bool {
     if pr == pk {
         return true;
@@ -241,7 +242,7 @@ fn removable_onto(
     else {
         return false;
     };
-    if rule.on_one_face([pr, po, pk]) {
+    if faces.is_some_and(|d| d.on_one_face([pr, po, pk])) {
         return true;
     }
     let (to_r, to_k) = (pr - po, pk - pr);
@@ -259,27 +260,50 @@ pub enum Boundary {
     #[default]
     Exact,
     /// A boundary vertex may also be merged into a boundary neighbour when it lies on one face
-    /// of the box `[lo, hi]` with both its boundary neighbours (coordinates as written, see
-    /// `cost::output_precision`), so the shortened cut stays on that face; where the cut turns
-    /// from one face to another it stays put. The removal is costed by boundary quadrics: for
-    /// each boundary edge, the plane through it perpendicular to its triangle, weighted by
-    /// `BOUNDARY_WEIGHT` times its squared length (Garland and Heckbert 1997, "preserving
-    /// boundaries"), so straight and gently curved stretches of the cut go first.
-    Planar { lo: DVec3, hi: DVec3 },
+    /// of the volume's box (`SimplifyConfig::domain`, which it needs) with both its boundary
+    /// neighbours (coordinates as written, see `cost::output_precision`), so the shortened cut
+    /// stays on that face; where the cut turns from one face to another it stays put. The
+    /// removal is costed by boundary quadrics: for each boundary edge, the plane through it
+    /// perpendicular to its triangle, weighted by `BOUNDARY_WEIGHT` times its squared length
+    /// (Garland and Heckbert 1997, "preserving boundaries"), so straight and gently curved
+    /// stretches of the cut go first.
+    Planar,
 }
 
 impl Boundary {
-    /// Whether the three points lie on one face of the box (never for [`Boundary::Exact`]).
+    /// Whether boundary edges carry boundary quadrics (see [`Boundary::Planar`]).
+    pub(crate) fn is_planar(&self) -> bool {
+        *self == Boundary::Planar
+    }
+}
+
+/// The volume's box `[lo, hi]`, in coordinates as written (`f32`-exact), where the
+/// full-resolution surface lies. Placements are kept within it: a quadric's minimiser near a
+/// face the surface nearly touches lies beyond it (bonsai at R = 0.2: 73 vertices up to 0.25
+/// voxel outside its box; a sphere 0.01 voxel from a face at R = 0.01: 0.42 voxel), which puts
+/// the mesh outside the sampled domain and, for pieces simplified apart, into a neighbour's.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Domain {
+    pub lo: DVec3,
+    pub hi: DVec3,
+}
+
+impl Domain {
+    /// Finite, with `lo <= hi`.
+    pub(crate) fn is_valid(&self) -> bool {
+        self.lo.is_finite() && self.hi.is_finite() && self.lo.cmple(self.hi).all()
+    }
+
+    /// Whether the three points lie on one face of the box.
     fn on_one_face(&self, p: [DVec3; 3]) -> bool {
-        let Boundary::Planar { lo, hi } = self else {
-            return false;
-        };
+        let (lo, hi) = (self.lo, self.hi);
         (0..3).any(|i| [lo[i], hi[i]].iter().any(|&c| p.iter().all(|x| x[i] == c)))
     }
 
-    /// Whether boundary edges carry boundary quadrics (see [`Boundary::Planar`]).
-    pub(crate) fn is_planar(&self) -> bool {
-        matches!(self, Boundary::Planar { .. })
+    /// The point of the box nearest `p`. With `f32`-exact bounds, rounding the result to `f32`
+    /// keeps it inside (rounding is monotonic).
+    pub(crate) fn clamp(&self, p: DVec3) -> DVec3 {
+        p.clamp(self.lo, self.hi)
     }
 }
 
@@ -603,26 +627,26 @@ mod tests {
         let p = |i: u64| s.pos(i);
         assert!(link(&s, 4, 0), "interior vertex to corner");
         assert_eq!(
-            sites(&s, 4, 0, &Boundary::Exact),
+            sites(&s, 4, 0, None),
             Some(Sites::Fixed([Some(p(0)), None]))
         );
         assert_eq!(
-            sites(&s, 4, 5, &Boundary::Exact),
+            sites(&s, 4, 5, None),
             Some(Sites::Fixed([Some(p(5)), None]))
         );
         // 1 lies on the straight bottom side 0-2 and may merge into corner 0; the corner turns
         // and may not merge into anything.
         assert!(link(&s, 0, 1));
         assert_eq!(
-            sites(&s, 0, 1, &Boundary::Exact),
+            sites(&s, 0, 1, None),
             Some(Sites::Fixed([Some(p(0)), None]))
         );
         assert_eq!(
-            sites(&s, 0, 3, &Boundary::Exact),
+            sites(&s, 0, 3, None),
             Some(Sites::Fixed([Some(p(0)), None]))
         );
         assert_eq!(
-            sites(&s, 1, 2, &Boundary::Exact),
+            sites(&s, 1, 2, None),
             Some(Sites::Fixed([None, Some(p(2))]))
         );
     }
@@ -635,30 +659,30 @@ mod tests {
         let bent = crate::cost::output_precision(s.pos(1).with_z(0.3));
         s.set_pos(1, bent);
         let p = |i: u64| s.pos(i);
-        let planar = Boundary::Planar {
+        let planar = Some(&Domain {
             lo: DVec3::new(0.0, 0.0, -1.0),
             hi: DVec3::new(2.0, 2.0, 1.0),
-        };
+        });
         // Exact: 1 is not on a straight piece, and the corners turn.
-        assert_eq!(sites(&s, 0, 1, &Boundary::Exact), None);
-        assert_eq!(sites(&s, 1, 2, &Boundary::Exact), None);
+        assert_eq!(sites(&s, 0, 1, None), None);
+        assert_eq!(sites(&s, 1, 2, None), None);
         // Planar: 1 lies on the face y = 0 with both boundary neighbours, and goes into either;
         // corner 0's boundary neighbours (1 on y = 0, 3 on x = 0) share no face with it.
         assert_eq!(
-            sites(&s, 0, 1, &planar),
+            sites(&s, 0, 1, planar),
             Some(Sites::Fixed([Some(p(0)), None]))
         );
         assert_eq!(
-            sites(&s, 1, 2, &planar),
+            sites(&s, 1, 2, planar),
             Some(Sites::Fixed([None, Some(p(2))]))
         );
-        assert_eq!(sites(&s, 0, 3, &planar), sites(&s, 0, 3, &Boundary::Exact));
+        assert_eq!(sites(&s, 0, 3, planar), sites(&s, 0, 3, None));
         // Off the box's faces (a box larger than the grid), nothing changes.
-        let far = Boundary::Planar {
+        let far = Domain {
             lo: DVec3::splat(-5.0),
             hi: DVec3::splat(5.0),
         };
-        assert_eq!(sites(&s, 0, 1, &far), None);
+        assert_eq!(sites(&s, 0, 1, Some(&far)), None);
     }
 
     #[test]

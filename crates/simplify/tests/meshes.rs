@@ -6,7 +6,7 @@ use std::collections::HashMap;
 
 use common::*;
 use glam::DVec3;
-use isostream_simplify::{Boundary, Cascade, Policy, SimplifyConfig, SimplifyStats};
+use isostream_simplify::{Boundary, Cascade, Domain, Policy, SimplifyConfig, SimplifyStats};
 
 /// Output faces within 10% of `rate * input`.
 fn assert_rate_met(input: &Mesh, run: &Run, rate: f64) {
@@ -89,10 +89,10 @@ fn rate_on_open_surfaces_keeps_the_boundary() {
 fn a_planar_boundary_is_simplified_within_the_box_faces() {
     let h = |u: f64, v: f64| 2.0 * (6.0 * u).sin() * (5.0 * v).cos();
     let bumpy = height_field(48, 48, 24.0, h);
-    let planar = Boundary::Planar {
+    let domain = Some(Domain {
         lo: DVec3::new(0.0, -2.0, 0.0),
         hi: DVec3::new(24.0, 2.0, 24.0),
-    };
+    });
     let rate_low = 0.02;
     let exact = run(&bumpy, config(rate(rate_low, 400), 2), &Sweep::default());
     assert!(
@@ -101,7 +101,8 @@ fn a_planar_boundary_is_simplified_within_the_box_faces() {
         exact.mesh.tris.len()
     );
     let cfg = SimplifyConfig {
-        boundary: planar,
+        boundary: Boundary::Planar,
+        domain,
         ..config(rate(rate_low, 400), 2)
     };
     let got = run(&bumpy, cfg, &Sweep::default());
