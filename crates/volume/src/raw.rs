@@ -206,8 +206,9 @@ impl std::ops::Deref for MappedFile {
 /// Maps the file at `path` (see [`MappedFile`]).
 pub(crate) fn map_file(path: &Path) -> Result<Arc<MappedFile>, VolumeError> {
     let file = File::open(path).map_err(|e| VolumeError::io(path, "open", e))?;
-    // SAFETY: as in `RawVolume::open_payload`: read-only map of an input treated as immutable;
-    // `MapReader` checks the file's size before it reads each window of it.
+    // SAFETY: as in `RawVolume::open_payload`: read-only map of an input treated as immutable.
+    // Only the header is parsed from the map, when the volume is opened; payload streams read
+    // through the file (`RangeReader`), so a truncation during the run cannot fault here.
     let map = unsafe { Mmap::map(&file) }.map_err(|e| VolumeError::io(path, "map", e))?;
     Ok(Arc::new(MappedFile {
         map,
@@ -216,84 +217,108 @@ pub(crate) fn map_file(path: &Path) -> Result<Arc<MappedFile>, VolumeError> {
     }))
 }
 
-/// A `BufRead` over a byte range of a shared map: streams start anywhere in a mapped file
-/// without copying it.
+/// A `BufRead` over a byte range of a mapped file that reads through the file, not the map:
+/// streams start anywhere in the file, a window of [`RangeReader::WINDOW`] bytes at a time.
 ///
-/// It reads in windows of [`MapReader::WINDOW`] bytes. Before each window it checks that the
-/// file still holds it (one fstat): touching a page past the end of a file truncated while
-/// mapped is SIGBUS, which a long run reading an input being rewritten met as a crash instead
-/// of an error naming the file (the raw reader checks each slice likewise). After each window
-/// it hands the pages read back to the kernel: a compressed VTI is read once, front to back,
-/// and without that every page of it stayed resident to the end of the run (bonsai's 3.3 MB
-/// file: 0.1 -> 3.0 MiB of a run's RSS, growing with the file however large).
-pub(crate) struct MapReader {
-    map: Arc<MappedFile>,
-    pos: usize,
-    /// End of the window the file was last checked to hold.
-    checked: usize,
-    /// Page-aligned start of the pages not yet handed back.
-    released: usize,
+/// Touching a page of a map past the end of a file truncated meanwhile is SIGBUS, and no
+/// check before reading closes that race: the zlib streams of a compressed VTI decode a window
+/// over seconds, so a file cut short during the run killed the process (and the service with
+/// every job it ran) in 11 of 11 trials, where a check of the size before each window (the
+/// forty-eighth session's fix) had caught only cuts landing between windows. A read of the
+/// file (`pread`) into an owned window meets a short file as a short read, which is reported
+/// as the truncation it is, naming the file. The window is read once and dropped, so nothing
+/// of the file stays resident (a map read front to back kept every page of bonsai's 3.3 MB
+/// file resident until its pages were handed back).
+pub(crate) struct RangeReader {
+    file: Arc<MappedFile>,
+    /// File offset of `window[0]`.
+    at: usize,
+    window: Vec<u8>,
+    /// Bytes of `window` consumed.
+    used: usize,
 }
 
-impl MapReader {
-    /// Bytes checked and handed back at a time: one fstat and one madvise call per window.
+impl RangeReader {
+    /// Bytes read at a time.
     const WINDOW: usize = 1 << 20;
 
-    /// Reads from `pos` to the end of the map (an out-of-range `pos` reads nothing).
-    pub(crate) fn new(map: Arc<MappedFile>, pos: usize) -> Self {
-        let pos = pos.min(map.len());
-        MapReader {
-            map,
-            pos,
-            checked: pos,
-            released: pos / PAGE * PAGE,
+    /// Reads from `pos` to the end the file had when mapped (an out-of-range `pos` reads
+    /// nothing).
+    pub(crate) fn new(file: Arc<MappedFile>, pos: usize) -> Self {
+        RangeReader {
+            at: pos.min(file.len()),
+            file,
+            window: Vec::new(),
+            used: 0,
         }
     }
 
-    /// The next window, once the file is known to still hold it.
-    fn check(&mut self) -> std::io::Result<()> {
-        let end = self.pos.saturating_add(Self::WINDOW).min(self.map.len());
-        let now = self.map.file.metadata()?.len();
-        if now < end as u64 {
+    /// The next window. What a file cut short still holds is handed out first; the read after
+    /// it finds nothing and says the file was truncated.
+    fn refill(&mut self) -> std::io::Result<()> {
+        self.at += self.window.len();
+        self.used = 0;
+        let want = Self::WINDOW.min(self.file.len() - self.at);
+        self.window.resize(want, 0);
+        let mut got = 0;
+        while got < want {
+            match read_at(
+                &self.file.file,
+                &mut self.window[got..],
+                (self.at + got) as u64,
+            ) {
+                Ok(0) => break,
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        self.window.truncate(got);
+        if got == 0 && want > 0 {
+            let now = self.file.file.metadata()?.len();
             return Err(std::io::Error::other(truncated(
-                &self.map.path,
-                format!("byte {}", self.pos),
-                end as u64,
-                self.map.len(),
+                &self.file.path,
+                format!("byte {}", self.at),
+                (self.at + want) as u64,
+                self.file.len(),
                 now,
             )));
         }
-        self.checked = end;
         Ok(())
-    }
-
-    fn advance(&mut self, n: usize) {
-        self.pos = (self.pos + n).min(self.checked);
-        if self.pos - self.released >= Self::WINDOW {
-            self.released = drop_pages(&self.map.map, self.released, self.pos);
-        }
     }
 }
 
-impl Read for MapReader {
+/// Reads into `buf` from `offset` of `file`, leaving the file's cursor alone (the file is
+/// shared by every stream of it).
+#[cfg(unix)]
+fn read_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<usize> {
+    std::os::unix::fs::FileExt::read_at(file, buf, offset)
+}
+
+#[cfg(windows)]
+fn read_at(file: &File, buf: &mut [u8], offset: u64) -> std::io::Result<usize> {
+    std::os::windows::fs::FileExt::seek_read(file, buf, offset)
+}
+
+impl Read for RangeReader {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         let window = self.fill_buf()?;
         let n = window.len().min(buf.len());
         buf[..n].copy_from_slice(&window[..n]);
-        self.advance(n);
+        self.consume(n);
         Ok(n)
     }
 }
 
-impl BufRead for MapReader {
+impl BufRead for RangeReader {
     fn fill_buf(&mut self) -> std::io::Result<&[u8]> {
-        if self.pos == self.checked && self.pos < self.map.len() {
-            self.check()?;
+        if self.used == self.window.len() && self.at + self.window.len() < self.file.len() {
+            self.refill()?;
         }
-        Ok(&self.map[self.pos..self.checked])
+        Ok(&self.window[self.used..])
     }
     fn consume(&mut self, amt: usize) {
-        self.advance(amt);
+        self.used = (self.used + amt).min(self.window.len());
     }
 }
 
@@ -504,17 +529,16 @@ mod tests {
         kib
     }
 
-    /// A map read front to back hands its pages back as it goes (a compressed VTI kept every
-    /// page resident to the end of the run), and a second reader of the same map still reads
-    /// the released bytes.
+    /// A file read front to back leaves none of its map resident (a compressed VTI kept every
+    /// page resident to the end of the run), and a second reader of the same file reads it all.
     #[cfg(target_os = "linux")]
     #[test]
-    fn a_map_reader_releases_what_it_has_read() {
-        let len = 6 * MapReader::WINDOW + 12_345;
+    fn a_range_reader_leaves_nothing_resident() {
+        let len = 6 * RangeReader::WINDOW + 12_345;
         let bytes: Vec<u8> = (0..len).map(|i| (i % 251) as u8).collect();
         let f = write(&bytes);
         let map = map_file(f.path()).unwrap();
-        let mut reader = MapReader::new(map.clone(), 100);
+        let mut reader = RangeReader::new(map.clone(), 100);
         let mut seen = Vec::new();
         let mut chunk = vec![0u8; 70_000];
         loop {
@@ -527,12 +551,12 @@ mod tests {
         assert_eq!(seen, bytes[100..]);
         let resident = resident_kib(f.path());
         assert!(
-            resident * 1024 <= MapReader::WINDOW as u64 + 8192,
+            resident * 1024 <= RangeReader::WINDOW as u64 + 8192,
             "{resident} KiB of a {} KiB file still resident",
             len / 1024
         );
         // Through `BufRead` too, from the start of the released pages.
-        let mut again = MapReader::new(map, 0);
+        let mut again = RangeReader::new(map, 0);
         let mut all = Vec::new();
         while let Ok(buf) = again.fill_buf() {
             if buf.is_empty() {
@@ -545,25 +569,24 @@ mod tests {
         assert_eq!(all, bytes);
     }
 
-    /// A mapped file truncated while a stream reads it: the stream stops at the end of the
-    /// window it checked and reports the truncation, naming the file, instead of faulting
-    /// (SIGBUS) on a page past the new end.
+    /// A mapped file truncated while a stream reads it: the stream stops at the new end and
+    /// reports the truncation, naming the file, instead of faulting (SIGBUS) on a page past it.
     #[test]
-    fn a_map_reader_truncated_while_reading_reports_it() {
-        let len = 3 * MapReader::WINDOW;
+    fn a_range_reader_truncated_while_reading_reports_it() {
+        let len = 3 * RangeReader::WINDOW;
         let bytes: Vec<u8> = (0..len).map(|i| (i % 253) as u8).collect();
         let f = write(&bytes);
         let map = map_file(f.path()).unwrap();
-        let mut reader = MapReader::new(map, 0);
-        let mut head = vec![0u8; MapReader::WINDOW + MapReader::WINDOW / 2];
+        let mut reader = RangeReader::new(map, 0);
+        let mut head = vec![0u8; RangeReader::WINDOW + RangeReader::WINDOW / 2];
         reader.read_exact(&mut head).unwrap();
         assert_eq!(head, bytes[..head.len()]);
-        f.as_file().set_len(2 * MapReader::WINDOW as u64).unwrap();
+        f.as_file().set_len(2 * RangeReader::WINDOW as u64).unwrap();
         let mut rest = Vec::new();
         let e = reader.read_to_end(&mut rest).unwrap_err();
         assert_eq!(
             rest,
-            bytes[head.len()..2 * MapReader::WINDOW],
+            bytes[head.len()..2 * RangeReader::WINDOW],
             "up to the new end"
         );
         let inner = e.into_inner().unwrap().downcast::<VolumeError>().unwrap();
@@ -573,6 +596,29 @@ mod tests {
                 && text.contains("truncated while being read"),
             "{text}"
         );
+    }
+
+    /// The file cut short inside the window being read: what was read is handed out, then the
+    /// truncation is reported. Reading that window from the map after checking the file's size
+    /// once faulted (SIGBUS) here, killing the test process: the decoder of a compressed VTI
+    /// reads a window over seconds.
+    #[test]
+    fn a_file_cut_short_inside_the_window_being_read_is_an_error() {
+        let len = 3 * RangeReader::WINDOW;
+        let bytes: Vec<u8> = (0..len).map(|i| (i % 241) as u8).collect();
+        let f = write(&bytes);
+        let mut reader = RangeReader::new(map_file(f.path()).unwrap(), 0);
+        let mut head = vec![0u8; RangeReader::WINDOW / 2];
+        reader.read_exact(&mut head).unwrap();
+        f.as_file().set_len(RangeReader::WINDOW as u64 / 4).unwrap();
+        let mut rest = Vec::new();
+        let e = reader.read_to_end(&mut rest).unwrap_err();
+        assert_eq!(
+            rest,
+            bytes[head.len()..RangeReader::WINDOW],
+            "the window read"
+        );
+        assert!(e.to_string().contains("truncated while being read"), "{e}");
     }
 
     #[test]

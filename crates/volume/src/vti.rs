@@ -8,7 +8,7 @@
 //! source reports its flips or rotation ([`VolumeSource::orientation`]).
 
 use crate::codec::{AsciiValues, Base64Reader, ZlibBlocks, ZlibLayout};
-use crate::raw::{MapReader, MappedFile, Payload, RawVolume, checked_payload, map_file};
+use crate::raw::{MappedFile, Payload, RangeReader, RawVolume, checked_payload, map_file};
 use crate::stream::{Stream, StreamSpec, StreamVolume};
 use crate::xml::{Tag, Tags};
 use crate::{Dtype, Endian, Grid, OpenOptions, Orientation, VolumeError, VolumeSource};
@@ -250,7 +250,7 @@ fn open_stream(
     l: Layout,
     payload: u64,
 ) -> Result<(Stream, usize), VolumeError> {
-    let reader = MapReader::new(map.clone(), l.start);
+    let reader = RangeReader::new(map.clone(), l.start);
     let mut encoded: Stream = match l.form {
         Form::Ascii => return Ok((Box::new(AsciiValues::new(reader, Some(b'<'))), l.start)),
         Form::Base64 => Box::new(Base64Reader::new(reader)),
