@@ -46,10 +46,12 @@ pub(crate) struct TiffStack {
 
 /// Opens a multi-page TIFF file or a directory of TIFF files.
 pub(crate) fn open(path: &Path, opts: &OpenOptions) -> Result<Box<dyn VolumeSource>, VolumeError> {
+    // A folder is TIFF only if it holds TIFF files: listed first, so that `dims` given for a
+    // folder of something else is not told "this is TIFF".
+    let files = path.is_dir().then(|| list_dir(path)).transpose()?;
     opts.reject_raw_params(path, "TIFF")?;
     opts.reject_array(path, "TIFF")?;
-    let (first, count, pages) = if path.is_dir() {
-        let files = list_dir(path)?;
+    let (first, count, pages) = if let Some(files) = files {
         let first = files[0].clone();
         (first, files.len() as u64, Pages::Files(files))
     } else {

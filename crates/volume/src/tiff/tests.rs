@@ -156,11 +156,12 @@ fn bad_stacks_give_one_line_errors() {
         dtype: Some(Dtype::U8),
         ..Default::default()
     };
+    // A folder without TIFF files is not told "this is TIFF" (a user trial gave a folder as a
+    // raw input's path, with its dims and dtype): the folder's content is the error.
+    let e = read_all(&empty, &opts).unwrap_err().to_string();
     assert!(
-        read_all(&empty, &opts)
-            .unwrap_err()
-            .to_string()
-            .contains("dtype applies only to .raw files")
+        e.contains("expected at least one .tif or .tiff file") && !e.contains("this is TIFF"),
+        "{e}"
     );
 }
 
