@@ -4,10 +4,11 @@
 //! STL stores positions per triangle, so the sink needs the positions of active vertices only:
 //! the tracker keeps them until finalization, memory stays bounded by the stream width. The count
 //! is patched in place on finish. Reading goes through `stl_io` (ascii or binary), which welds
-//! identical corners back into shared vertices.
+//! identical corners back into shared vertices; which of the two a file is, we decide
+//! ([`is_ascii`]), since `stl_io` takes a file for ASCII exactly when it starts with `solid `.
 
 use std::fs::File;
-use std::io::{BufReader, Read, Seek, SeekFrom};
+use std::io::{self, BufRead, BufReader, Read, Seek, SeekFrom};
 use std::path::Path;
 
 use crate::atomic::AtomicFile;
@@ -127,26 +128,39 @@ impl MeshSink for StlSink {
 /// header this crate wrote.
 pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let mut input = BufReader::new(File::open(path).map_err(|e| SmeshError::io(path, "open", e))?);
+    let read_error = |e| SmeshError::io(path, "read", e);
+    let size = input.get_ref().metadata().map_err(read_error)?.len();
+    // Up to 84 bytes: an ASCII STL may be shorter (`solid t\nendsolid t\n`).
+    let mut head = Vec::with_capacity(84);
+    (&mut input)
+        .take(84)
+        .read_to_end(&mut head)
+        .map_err(read_error)?;
+    // stl_io is shown the file with its start replaced so that it reads it as we decided: a
+    // first line of exactly `solid ` for ASCII (it refused a bare `solid`), a first line that is
+    // not for binary (a binary header may start with `solid`).
+    input.seek(SeekFrom::Start(0)).map_err(read_error)?;
+    let (start, skip) = match is_ascii(&head, size) {
+        true => (
+            b"solid \n".to_vec(),
+            input.skip_until(b'\n').map_err(read_error)?,
+        ),
+        false => (b"\n".repeat(80), 80),
+    };
     // A file cut short failed with stl_io's bare "failed to fill whole buffer", which said
     // neither what was wrong with the file nor what to do.
-    let stl = stl_io::read_stl(&mut input).map_err(|e| {
+    let stl = stl_io::read_stl(&mut Spliced::new(start, skip as u64, input)).map_err(|e| {
         let message = match e.kind() {
-            std::io::ErrorKind::UnexpectedEof => {
+            io::ErrorKind::UnexpectedEof => {
                 format!("invalid STL: the file is truncated ({e}); copy or export it again")
             }
             _ => format!("invalid STL: {e}"),
         };
         SmeshError::foreign(path, message)
     })?;
-    // Up to 80 bytes: an ASCII STL may be shorter (`solid t\nendsolid t\n`).
-    let mut head = Vec::with_capacity(80);
-    input
-        .seek(SeekFrom::Start(0))
-        .and_then(|_| (&mut input).take(80).read_to_end(&mut head))
-        .map_err(|e| SmeshError::io(path, "read", e))?;
     let mut mesh = IndexedMesh {
         positions: stl.vertices.iter().map(|v| v.0.map(f64::from)).collect(),
-        comments: comments(&head),
+        comments: comments(&head[..head.len().min(80)]),
         ..IndexedMesh::default()
     };
     for f in &stl.faces {
@@ -162,6 +176,80 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         }
     }
     Ok(mesh)
+}
+
+/// Whether an STL file of `size` bytes starting with `head` (its first 84 bytes, fewer in a
+/// shorter file) is ASCII: its first line is `solid`, with or without a name (the name is
+/// optional; meshio writes a bare `solid`), unless the size is exactly that of a binary STL
+/// with the triangle count at byte 80 (84 + 50 per triangle): binary headers are free bytes,
+/// and some writers start them with `solid` too. An ASCII file has text at byte 80, which as a
+/// count asks for gigabytes to the byte: a real one meets that size only by coincidence.
+fn is_ascii(head: &[u8], size: u64) -> bool {
+    if let Some(count) = head.get(80..84) {
+        let count = u32::from_le_bytes([count[0], count[1], count[2], count[3]]);
+        if size == 84 + 50 * u64::from(count) {
+            return false;
+        }
+    }
+    let line = head.split(|&b| b == b'\n').next().unwrap_or_default();
+    line.split(u8::is_ascii_whitespace)
+        .find(|w| !w.is_empty())
+        .is_some_and(|w| w == b"solid")
+}
+
+/// A file seen with its first `skip` bytes replaced by `start`; seeks go from the start only,
+/// as stl_io's (it rewinds after probing the first line).
+struct Spliced<R> {
+    start: Vec<u8>,
+    skip: u64,
+    rest: R,
+    pos: u64,
+}
+
+impl<R: Seek> Spliced<R> {
+    fn new(start: Vec<u8>, skip: u64, rest: R) -> Spliced<R> {
+        Spliced {
+            start,
+            skip,
+            rest,
+            pos: 0,
+        }
+    }
+}
+
+impl<R: Read + Seek> Read for Spliced<R> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let from_start = self.start.get(self.pos as usize..).unwrap_or_default();
+        if from_start.is_empty() {
+            let n = self.rest.read(buf)?;
+            self.pos += n as u64;
+            return Ok(n);
+        }
+        let n = from_start.len().min(buf.len());
+        buf[..n].copy_from_slice(&from_start[..n]);
+        self.pos += n as u64;
+        if self.pos == self.start.len() as u64 {
+            self.rest.seek(SeekFrom::Start(self.skip))?;
+        }
+        Ok(n)
+    }
+}
+
+impl<R: Read + Seek> Seek for Spliced<R> {
+    fn seek(&mut self, to: SeekFrom) -> io::Result<u64> {
+        let SeekFrom::Start(pos) = to else {
+            return Err(io::Error::new(
+                io::ErrorKind::Unsupported,
+                "an STL input is only read from its start",
+            ));
+        };
+        let start = self.start.len() as u64;
+        if pos >= start {
+            self.rest.seek(SeekFrom::Start(self.skip + pos - start))?;
+        }
+        self.pos = pos;
+        Ok(pos)
+    }
 }
 
 /// The comments of an 80-byte header [`StlSink`] wrote (whole, each after `; `, the note on
@@ -183,6 +271,41 @@ fn comments(head: &[u8]) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An ASCII STL whose first line is a bare `solid` (meshio's), with `\n` or `\r\n`, reads:
+    /// stl_io wants `solid ` and took it for binary, "truncated".
+    #[test]
+    fn an_ascii_stl_without_a_name_reads() {
+        let dir = tempfile::tempdir().unwrap();
+        let facet = " facet normal 0 0 0\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   \
+                     vertex 0 1 0\n  endloop\n endfacet\nendsolid\n";
+        for (name, first) in [("n.stl", "solid\n"), ("r.stl", "solid\r\n")] {
+            let p = dir.path().join(name);
+            std::fs::write(&p, format!("{first}{facet}")).unwrap();
+            let m = read(&p).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(m.positions, [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+            assert_eq!(m.triangles, [[0, 1, 2]]);
+        }
+    }
+
+    /// A binary STL whose free header starts with `solid ` reads as binary: its size is
+    /// exactly 84 + 50 per triangle (stl_io read it as ASCII and failed).
+    #[test]
+    fn a_binary_stl_whose_header_starts_with_solid_reads() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut bytes = b"solid exported by some CAD tool\n".to_vec();
+        bytes.resize(80, b' ');
+        bytes.extend_from_slice(&1u32.to_le_bytes());
+        let corners = [0f32, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        bytes.extend(corners.iter().flat_map(|c| c.to_le_bytes()));
+        bytes.extend_from_slice(&[0, 0]);
+        let p = dir.path().join("b.stl");
+        std::fs::write(&p, bytes).unwrap();
+        let m = read(&p).unwrap();
+        assert_eq!(m.positions, [[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        assert_eq!(m.triangles, [[0, 1, 2]]);
+        assert!(m.comments.is_empty());
+    }
 
     /// A binary STL cut inside its triangles, and an ASCII one cut inside a facet, are named
     /// truncated, with the fix.
