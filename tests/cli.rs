@@ -113,6 +113,35 @@ fn convert_writes_ascii_ply_and_glb_normals_on_request() {
     }
 }
 
+/// An input path holding an `é` and a line break runs (exit 0; the line break in the header
+/// comment naming the input failed it with exit 1, after `validate` had passed it), and the PLY
+/// it writes has a pure ASCII header: the comment names the path with those escaped.
+#[test]
+fn an_input_path_outside_printable_ascii_runs_and_writes_an_ascii_header() {
+    let dir = tempfile::tempdir().unwrap();
+    let odd = dir.path().join("dir \u{e9}\nx");
+    std::fs::create_dir(&odd).unwrap();
+    let job = random_blobs([12, 12, 12], 2, 7).job(&odd, "rate = 0.5", "out.ply");
+    let job = job.to_string_lossy();
+    let o = isostream(&["validate", &job]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = isostream(&["run", "--quiet", &job]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let ply = std::fs::read(odd.join("out.ply")).unwrap();
+    let end = ply
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .expect("a PLY header");
+    let header = &ply[..end];
+    assert!(header.is_ascii(), "{}", String::from_utf8_lossy(header));
+    let header = String::from_utf8_lossy(header);
+    assert!(
+        header.contains("\ncomment input ")
+            && header.contains("/dir \\u{e9}\\u{a}x/volume.raw iso 0.5\n"),
+        "{header}"
+    );
+}
+
 #[test]
 fn bundled_example_configs_validate() {
     for entry in std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples")).unwrap()

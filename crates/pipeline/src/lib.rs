@@ -317,7 +317,7 @@ fn run_job(
     let header = Header {
         comments: vec![
             format!("isostream {}", env!("CARGO_PKG_VERSION")),
-            format!("input {input} iso {}", job.extract.iso),
+            format!("input {} iso {}", printable_ascii(&input), job.extract.iso),
         ],
         attribute_names: job.attributes.iter().map(|a| a.name.clone()).collect(),
     };
@@ -934,6 +934,20 @@ fn non_finite_attributes(extract: &ExtractStats) -> Option<String> {
     })
 }
 
+/// `text` with every character outside printable ASCII written as its Rust escape (`é` as
+/// `\u{e9}`, a line break as `\u{a}`), for the header comment naming the input: a PLY header
+/// is ASCII (readers such as python's plyfile refused an `é`), and every format holds a
+/// comment of one line only, so a path with a line break failed the run (exit 1, though the
+/// job had passed `validate`) when the output was made.
+fn printable_ascii(text: &str) -> String {
+    text.chars()
+        .map(|c| match c {
+            ' '..='~' => c.to_string(),
+            _ => c.escape_unicode().to_string(),
+        })
+        .collect()
+}
+
 /// Voxels of the iso volume whose finite values were beyond f32's range (an f64 volume's 1e40),
 /// read as `±f32::MAX`. `as f32` made them infinite, meshed as outside (holes, and a spurious
 /// inner surface around a core of large values) and warned about as "NaN or infinite" though
@@ -1138,6 +1152,15 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What is not printable ASCII in the input's path is escaped; the rest is kept as written.
+    #[test]
+    fn the_input_comment_is_printable_ascii() {
+        assert_eq!(
+            printable_ascii("/tmp/dir é ü/e\tng\nine.vti~"),
+            "/tmp/dir \\u{e9} \\u{fc}/e\\u{9}ng\\u{a}ine.vti~"
+        );
+    }
 
     /// A resumed run reads the slices from its checkpoint's slab on, not the whole volume
     /// (the service's voxel metric and the report's rate counted all of them).
