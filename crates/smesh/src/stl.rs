@@ -36,11 +36,10 @@ impl StlSink {
         let mut out = AtomicFile::create(path)?;
         // Must not start with "solid": readers would take the file for ASCII STL.
         let mut text = String::from(SIGNATURE);
-        // The loss is stated before the comments, which the 80 bytes may cut.
+        // The loss is stated before the comments, which the 80 bytes may leave out.
         if !header.attribute_names.is_empty() {
             text.push_str("; ");
-            text.push_str(ATTRIBUTES_DROPPED);
-            text.push_str(&header.attribute_names.join(" "));
+            text.push_str(&dropped_note(&header.attribute_names, 80 - text.len()));
         }
         // Each comment whole or not at all: `read` takes them back, and a cut one would come
         // back as another comment (a path cut short).
@@ -67,6 +66,21 @@ impl StlSink {
         let (core, out, _) = state.reopen_one(path, header, |f| matches!(f, Saved::Stl), "STL")?;
         Ok(StlSink { core, out })
     }
+}
+
+/// The header part naming the dropped attributes `names` in at most `room` bytes: the whole
+/// names that fit, then how many more there were (cut at 80 bytes, a name came out cut short,
+/// read as another name, and the rest unsaid).
+fn dropped_note(names: &[String], room: usize) -> String {
+    let n = names.len();
+    (1..=n)
+        .rev()
+        .map(|k| match n - k {
+            0 => format!("{ATTRIBUTES_DROPPED}{}", names.join(" ")),
+            more => format!("{ATTRIBUTES_DROPPED}{} +{more} more", names[..k].join(" ")),
+        })
+        .find(|note| note.len() <= room)
+        .unwrap_or_else(|| format!("{ATTRIBUTES_DROPPED}{n} (too long to name)"))
 }
 
 /// Unit normal of a counter-clockwise triangle (zero for a degenerate one), computed in f64.
@@ -271,6 +285,42 @@ fn comments(head: &[u8]) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Dropped attributes whose names overflow the 80-byte header are named whole as far as
+    /// they fit, then counted (the note was cut mid-name, `pressure_pascal`), and a comment
+    /// still fits after it.
+    #[test]
+    fn the_dropped_attributes_note_names_whole_names_and_counts_the_rest() {
+        let dir = tempfile::tempdir().unwrap();
+        let names = [
+            "temperature_celsius",
+            "pressure_pascals_abs",
+            "velocity_magnitude",
+            "density_kg_m3",
+        ];
+        let header = |names: &[&str]| Header {
+            comments: vec!["iso 1".into()],
+            attribute_names: names.iter().map(|n| n.to_string()).collect(),
+        };
+        let long = "a".repeat(60);
+        let cases: [(&[&str], &str, &[&str]); 3] = [
+            (&names, "temperature_celsius +3 more; iso 1", &["iso 1"]),
+            (&names[2..], "velocity_magnitude density_kg_m3", &[]),
+            (&[long.as_str()], "1 (too long to name); iso 1", &["iso 1"]),
+        ];
+        for (names, note, kept) in cases {
+            let p = dir.path().join(format!("t{}.stl", names.len()));
+            let sink = Box::new(StlSink::create(&p, &header(names)).unwrap());
+            let done = sink.complete().unwrap();
+            let head = std::fs::read(done.temp_path()).unwrap()[..80].to_vec();
+            let text = String::from_utf8(head.clone()).unwrap();
+            assert_eq!(
+                text.trim_end(),
+                format!("{SIGNATURE}; {ATTRIBUTES_DROPPED}{note}")
+            );
+            assert_eq!(comments(&head), kept);
+        }
+    }
 
     /// An ASCII STL whose first line is a bare `solid` (meshio's), with `\n` or `\r\n`, reads:
     /// stl_io wants `solid ` and took it for binary, "truncated".
