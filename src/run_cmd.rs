@@ -165,6 +165,9 @@ fn report(s: &RunSummary) -> Result<(), crate::stdout::StdoutError> {
         read_s = ms(s.stage_seconds.read),
         extract_s = ms(s.stage_seconds.extract),
         detect_s = ms(s.stage_seconds.detect),
+        // Only when the job prunes (`[simplify] min_component_faces`): its stage between the
+        // detector and the simplifier, left out of the line before.
+        prune_s = s.stage_seconds.prune.map(ms),
         simplify_s = ms(s.stage_seconds.simplify),
         // A cascade's second simplifier (0 without one): it is the busiest stage of many runs.
         simplify_second_s = ms(s.stage_seconds.simplify_second),

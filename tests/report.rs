@@ -85,6 +85,8 @@ fn run(dir: &Path) -> Value {
     ] {
         assert!(done[0]["fields"][key].is_number(), "{key}: {}", done[0]);
     }
+    // The job does not prune: no prune stage, no seconds of it.
+    assert!(done[0]["fields"].get("prune_s").is_none(), "{}", done[0]);
     for key in [
         "voxels_per_s",
         "percent",
@@ -108,6 +110,42 @@ fn run(dir: &Path) -> Value {
     let logged = done[0]["fields"]["simplify_second_s"].as_f64().unwrap();
     assert!((logged - second).abs() <= 5e-4, "{logged} vs {second}");
     summary
+}
+
+/// A job that prunes (`[simplify] min_component_faces`) logs its prune stage's seconds in `job
+/// done` as the summary has them: the line had every other stage's but that one.
+#[test]
+fn job_done_logs_the_prune_stage_s_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        JOB.replace("rate = 0.2\n", "rate = 0.2\nmin_component_faces = 10\n"),
+    )
+    .unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(["run", "--quiet"])
+        .arg(&job)
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let done: Vec<Value> = stderr(&o)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["fields"]["message"] == "job done")
+        .collect();
+    assert_eq!(done.len(), 1, "{}", stderr(&o));
+    let summary: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("gyroid.smb.run.json")).unwrap())
+            .unwrap();
+    let seconds = summary["stage_seconds"]["prune"].as_f64().unwrap();
+    let logged = done[0]["fields"]["prune_s"].as_f64();
+    assert!(
+        logged.is_some_and(|l| (l - seconds).abs() <= 5e-4),
+        "{logged:?} vs {seconds}: {}",
+        done[0]
+    );
 }
 
 /// A job with a first pass (`[output] faces`) reports its slabs too, in lines that say which
