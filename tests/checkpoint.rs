@@ -69,6 +69,26 @@ fn run_until(
     run_from(&job.0, &job.1, start, &cancel, &observer)
 }
 
+/// [`run`], and whether it ran a first pass over the volume (its progress events say so).
+fn run_seeing_first_pass(
+    job: &(JobConfig, PathBuf),
+    start: Start,
+    stop_at: Option<u64>,
+) -> (Result<isostream_pipeline::RunSummary, RunError>, bool) {
+    let cancel = AtomicBool::new(false);
+    let first = AtomicBool::new(false);
+    let observer = |p: &Progress| match p.pass {
+        Pass::First => first.store(true, Ordering::Relaxed),
+        Pass::Run => {
+            if stop_at.is_some_and(|s| p.slabs_done >= s) {
+                cancel.store(true, Ordering::Relaxed);
+            }
+        }
+    };
+    let result = run_from(&job.0, &job.1, start, &cancel, &observer);
+    (result, first.into_inner())
+}
+
 /// Leftovers next to the output: temporary files, checkpoints, locks.
 fn hidden_files(dir: &Path) -> Vec<String> {
     let mut names: Vec<String> = std::fs::read_dir(dir)
@@ -164,9 +184,10 @@ proptest! {
     }
 }
 
-/// Slices too large to decide the stage count by their size: the counting pass decides it,
-/// and runs it again on resume, so the resumed job has the same two stages and writes the
-/// bytes of one that went through.
+/// Slices too large to decide the stage count by their size: the counting pass decides it, and
+/// the checkpoint keeps what it found, so the resumed job does not run it again (it did, over
+/// the whole volume, before continuing), has the same two stages and writes the bytes of one
+/// that went through.
 #[test]
 fn a_cascade_decided_by_the_largest_slab_resumes_to_the_same_bytes() {
     let dir = tempfile::tempdir().unwrap();
@@ -186,11 +207,13 @@ fn a_cascade_decided_by_the_largest_slab_resumes_to_the_same_bytes() {
         "job.toml",
         &text("out.smb", "checkpoint = { every_slabs = 10 }"),
     );
-    match run(&job, Start::Fresh, Some(70)) {
-        Err(RunError::Cancelled | RunError::Interrupted { .. }) => {}
-        other => panic!("not stopped: {other:?}"),
+    match run_seeing_first_pass(&job, Start::Fresh, Some(70)) {
+        (Err(RunError::Cancelled | RunError::Interrupted { .. }), true) => {}
+        other => panic!("not stopped after a first pass: {other:?}"),
     }
-    let resumed = run(&job, Start::Resume, None).unwrap();
+    let (resumed, counted) = run_seeing_first_pass(&job, Start::Resume, None);
+    let resumed = resumed.unwrap();
+    assert!(!counted, "the resumed run counted again");
     assert_eq!(
         resumed.resumed_at_slab.map(|z| z >= 60),
         Some(true),
@@ -825,6 +848,57 @@ fn saturated_voxels_are_counted_once_across_resumes() {
         std::fs::read(dir.path().join("out.smb")).unwrap(),
         std::fs::read(dir.path().join("ref.smb")).unwrap()
     );
+}
+
+/// `[output] faces` with pruning: the first pass (the count and the census) runs once, and a run
+/// resumed from any of a few slabs takes the rate from the checkpoint's count, not from a pass
+/// again, and writes the bytes of a run that went through.
+#[test]
+fn a_job_with_a_face_target_resumes_without_a_first_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = |output: &str, pipeline: &str| {
+        format!(
+            "[input]\nshape = \"gyroid\"\nsize = [24, 24, 29]\n\n[extract]\niso = 0.0\n\n\
+             [simplify]\nmin_component_faces = 50\n\n[output]\npath = \"{output}\"\nfaces = 800\n\n\
+             [pipeline]\n{pipeline}\n"
+        )
+    };
+    let reference = load(dir.path(), "ref.toml", &text("ref.smb", ""));
+    let (summary, counted) = run_seeing_first_pass(&reference, Start::Fresh, None);
+    assert!(counted);
+    let summary = summary.unwrap();
+    let expected = std::fs::read(dir.path().join("ref.smb")).unwrap();
+    for stop in [5, 17] {
+        let output = format!("out{stop}.smb");
+        let job = load(
+            dir.path(),
+            &format!("job{stop}.toml"),
+            &text(&output, "checkpoint = { every_slabs = 2 }"),
+        );
+        let ckpt = checkpoint_path(&dir.path().join(&output));
+        let cancel = AtomicBool::new(false);
+        let stopped = run_from(&job.0, &job.1, Start::Fresh, &cancel, &|p: &Progress| {
+            if p.pass == Pass::Run && p.slabs_done >= stop && ckpt.exists() {
+                cancel.store(true, Ordering::Relaxed);
+            }
+        });
+        assert!(
+            matches!(stopped, Err(RunError::Interrupted { .. })),
+            "stop at {stop}: {stopped:?}"
+        );
+        let (resumed, counted) = run_seeing_first_pass(&job, Start::Resume, None);
+        let resumed = resumed.unwrap();
+        assert!(!counted, "stop at {stop}: the resumed run counted again");
+        assert!(
+            resumed.resumed_at_slab.is_some_and(|z| z > 0),
+            "{resumed:?}"
+        );
+        assert_eq!(resumed.rate, summary.rate);
+        assert!(
+            std::fs::read(dir.path().join(&output)).unwrap() == expected,
+            "stop at {stop}"
+        );
+    }
 }
 
 /// A resume of a changed job is refused before the first pass of `[output] faces` (which ran to

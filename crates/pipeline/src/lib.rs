@@ -270,38 +270,47 @@ fn run_job(
     };
     let rate = job.simplify.rate();
     let prune = NonZeroU64::new(job.simplify.min_component_faces);
-    // A resumed run finds the pruning state in its checkpoint; `[output] faces` needs the counts,
-    // and the stage count on large slices the largest slab's (a resumed run counts again and
-    // decides as the interrupted one did).
-    let counted = job.output.faces.is_some()
-        || (prune.is_some() && saved.is_none())
-        || job.counts_slabs_for_stages(grid.dims);
+    // `[output] faces` needs the counts, pruning the census, and the stage count on large slices
+    // the largest slab's. A resumed run finds the pruning state and the counts in its
+    // checkpoint (the interrupted run's, which the same job and input give again).
+    let counted =
+        job.output.faces.is_some() || prune.is_some() || job.counts_slabs_for_stages(grid.dims);
     // From the job's start: the first pass's progress goes through it too.
     let monitor = monitor::Monitor::new(started, grid, job.log.progress_interval(), observer);
     let observe = |p: &Progress| monitor.observe(p);
-    let pass = match counted {
-        true => {
-            monitor.pass_begins();
-            Some(first_pass(job, prune, cancel, &observe)?)
+    let mut filter = None;
+    let counts = match &saved {
+        Some(c) => {
+            if let Some(counts) = &c.first_pass {
+                info!(
+                    kept = counts.kept,
+                    largest_slab = counts.largest_slab,
+                    "first pass's counts from the checkpoint: not run again"
+                );
+            }
+            c.first_pass
         }
-        false => None,
+        None if counted => {
+            monitor.pass_begins();
+            let pass = first_pass(job, prune, cancel, &observe)?;
+            if !job.output.allow_empty {
+                pass.check_something_kept(job, job_path)?;
+            }
+            let counts = pass.counts();
+            filter = pass.small.map(Filter::new);
+            Some(counts)
+        }
+        None => None,
     };
-    if let Some(p) = pass.as_ref().filter(|_| !job.output.allow_empty) {
-        p.check_something_kept(job, job_path)?;
-    }
-    let largest_slab = pass.as_ref().map(|p| p.largest_slab);
-    let rate = match (job.output.faces, &pass) {
+    let largest_slab = counts.map(|c| c.largest_slab);
+    let rate = match (job.output.faces, counts) {
         // R applies to the faces kept: `faces` is what the simplifier is asked to write.
-        (Some(faces), Some(pass)) => (faces as f64 / pass.kept().max(1) as f64).min(1.0),
+        (Some(faces), Some(counts)) => (faces as f64 / counts.kept.max(1) as f64).min(1.0),
         _ => rate,
     };
     let (config, second_config) = simplifier_configs(job, grid, rate, largest_slab);
     // The faces of the whole budget: a cascade's second stage has it all, less what the first holds.
     let budget_faces = second_config.as_ref().unwrap_or(&config).max_resident_faces;
-    let mut filter = pass
-        .and_then(|p| p.small)
-        .filter(|_| saved.is_none())
-        .map(Filter::new);
     let new_simplifier = |config: &SimplifierConfig| {
         Simplifier::new(config.clone()).map_err(|e| {
             RunError::Config(ConfigError::Invalid {
@@ -390,6 +399,7 @@ fn run_job(
             path: ckpt_path.to_path_buf(),
             job: checkpoint::job_hash(job),
             input,
+            first_pass: counts,
         });
     if let Some(r) = &resume {
         // The checkpoint's carried slice is read again (and checked against its hash).
@@ -570,6 +580,14 @@ impl FirstPass {
     /// The faces the simplifier will receive.
     fn kept(&self) -> u64 {
         self.extracted - self.small.as_ref().map_or(0, |s| s.stats.faces_pruned)
+    }
+
+    /// What the run depends on, saved with its checkpoints.
+    fn counts(&self) -> checkpoint::FirstPassCounts {
+        checkpoint::FirstPassCounts {
+            kept: self.kept(),
+            largest_slab: self.largest_slab,
+        }
     }
 
     /// A surface whose every component `min_component_faces` drops is that key's error, not an

@@ -164,6 +164,8 @@ pub(crate) struct Plan {
     pub path: PathBuf,
     pub job: u64,
     pub input: InputIdentity,
+    /// The first pass's counts, saved with every checkpoint (a resume does not count again).
+    pub first_pass: Option<checkpoint::FirstPassCounts>,
 }
 
 /// What the stages before the simplifier saved at the checkpoint a run continues from.
@@ -1054,6 +1056,7 @@ impl Step for WriteStep<'_, '_> {
                 prune,
                 sink: self.sink.checkpoint()?,
             },
+            first_pass: plan.first_pass,
             simplify: Default::default(),
             simplify_second: Default::default(),
         };
