@@ -901,6 +901,54 @@ fn a_job_with_a_face_target_resumes_without_a_first_pass() {
     }
 }
 
+/// A checkpoint after every slab, with two simplifier stages (the second, the slowest stage,
+/// holds the cuts back): at most two checkpoints are being written at a time. The first stage
+/// began a temporary file with its state at every cut, and those waiting for the second stage
+/// and the writer piled up (13 of 2 MB at once). Two: one saved by the writer while the next is
+/// encoded.
+#[test]
+fn at_most_two_checkpoints_are_being_written_at_a_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = load(
+        dir.path(),
+        "job.toml",
+        &job_text(
+            "gyroid",
+            64,
+            MODES[1],
+            "out.smb",
+            "simplify_stages = 2\nchannel_capacity = 12\ncheckpoint = { every_slabs = 1 }",
+        ),
+    );
+    let temporary = || {
+        std::fs::read_dir(dir.path())
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .filter(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                name.starts_with(".out.smb.ckpt.") && name.ends_with(".tmp")
+            })
+            .count()
+    };
+    let ckpt = checkpoint_path(&dir.path().join("out.smb"));
+    let most = std::sync::atomic::AtomicUsize::new(0);
+    let saved = AtomicBool::new(false);
+    let summary = run_until(&job, Start::Fresh, |_| {
+        most.fetch_max(temporary(), Ordering::Relaxed);
+        saved.fetch_or(ckpt.exists(), Ordering::Relaxed);
+        false
+    })
+    .unwrap();
+    assert!(summary.faces_written > 0);
+    assert!(saved.into_inner(), "no checkpoint was saved");
+    let most = most.into_inner();
+    assert!(
+        most <= 2,
+        "{most} checkpoint files were being written at once"
+    );
+    assert_eq!(hidden_files(dir.path()), Vec::<String>::new());
+}
+
 /// A resume of a changed job is refused before the first pass of `[output] faces` (which ran to
 /// its end first): with the cancel flag already raised, the refusal comes, not a cancellation.
 #[test]

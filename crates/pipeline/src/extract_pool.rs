@@ -105,12 +105,17 @@ impl<'c> ReadStep<'c> {
 }
 
 /// When the reader sends the checkpoint marker: after slice `z` (the cut after slab `z - 1`),
-/// once the interval has passed. Never after the run's first slice nor after the volume's last:
-/// a checkpoint there would save nothing new.
+/// once the interval has passed and there is room for it (`Control::checkpoints_held`: one due
+/// before waits for a checkpoint to be saved, and those of `every_slabs` after it stay on their
+/// slabs). Never after the run's first slice nor after the volume's
+/// last: a checkpoint there would save nothing new.
 pub(crate) struct Schedule {
     every: Option<CheckpointEvery>,
     first: u64,
     last: u64,
+    /// `every_slabs`: the slice after which the next marker is due (a multiple of the interval
+    /// from the run's first slice).
+    next: u64,
     since: Instant,
 }
 
@@ -121,6 +126,10 @@ impl Schedule {
             every,
             first,
             last: slices.saturating_sub(1),
+            next: match every {
+                Some(CheckpointEvery::Slabs(n)) => first.saturating_add(n),
+                _ => first,
+            },
             since: Instant::now(),
         }
     }
@@ -130,13 +139,20 @@ impl Schedule {
         Self::new(None, 0, 0)
     }
 
-    fn due(&mut self, z: u64) -> bool {
-        if z == self.first || z >= self.last {
+    /// `held`: the markers sent before are not saved yet, and no other may be sent.
+    fn due(&mut self, z: u64, held: bool) -> bool {
+        if held || z == self.first || z >= self.last {
             return false;
         }
         let due = match self.every {
             None => false,
-            Some(CheckpointEvery::Slabs(n)) => (z - self.first).is_multiple_of(n),
+            Some(CheckpointEvery::Slabs(n)) => {
+                let due = z >= self.next;
+                if due {
+                    self.next = z.saturating_add(n - (z - self.first) % n);
+                }
+                due
+            }
             Some(CheckpointEvery::Seconds(s)) => self.since.elapsed().as_secs_f64() >= s,
         };
         if due {
@@ -164,8 +180,12 @@ impl Step for ReadStep<'_> {
                 what: format!("slice {z} holds other values than when the checkpoint was saved"),
             }));
         }
-        let cut = match self.schedule.due(z) {
-            true => Some(Cut::new(z, self.reader.hash(&upper)?)),
+        let cut = match self.schedule.due(z, self.ctl.checkpoints_held()) {
+            true => {
+                let cut = Cut::new(z, self.reader.hash(&upper)?);
+                self.ctl.checkpoint_sent();
+                Some(cut)
+            }
             false => None,
         };
         if let Some(lower) = self.prev.replace(upper.clone()) {
@@ -513,6 +533,16 @@ mod tests {
     use isostream_volume::{MemoryVolume, Upsampled, VolumeSource};
 
     use super::*;
+
+    /// A marker due while no other may be sent waits for room; the next of `every_slabs` stays
+    /// on its multiple of the interval from the run's first slice.
+    #[test]
+    fn a_checkpoint_due_while_others_are_pending_waits_for_them() {
+        let mut schedule = Schedule::new(Some(CheckpointEvery::Slabs(4)), 2, 30);
+        let held = |z: u64| (6..9).contains(&z);
+        let cuts: Vec<u64> = (2..30).filter(|&z| schedule.due(z, held(z))).collect();
+        assert_eq!(cuts, vec![9, 10, 14, 18, 22, 26]);
+    }
 
     /// One slab's reply, gathered.
     struct Slab {

@@ -18,7 +18,7 @@
 //! they go (`stages::interruptible`).
 
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, SendTimeoutError, Sender};
@@ -58,6 +58,12 @@ impl From<RunError> for Stop {
 
 pub(crate) type StageResult<T> = Result<T, Stop>;
 
+/// Checkpoints on their way at once: one the writer saves while the simplifiers encode the next
+/// into its file. With one, the next marker waited for the last to go the whole way from the
+/// reader to the writer, more than 10 slabs with two simplifier stages: with `every_slabs = 10`
+/// a run stopped at slab 70 resumed from slab 54-56, not 60 (`tests/checkpoint.rs`).
+const PENDING_CHECKPOINTS: usize = 2;
+
 /// How long a blocked send or receive waits before it looks at the abort and cancel flags again.
 const POLL: Duration = Duration::from_millis(20);
 
@@ -69,6 +75,12 @@ pub(crate) struct Control<'a> {
     first: Mutex<Option<RunError>>,
     /// Values the extractors saw, for the empty-surface error.
     range: Mutex<DataRange>,
+    /// Checkpoint markers the reader sent and the writer has not saved yet: at most
+    /// [`PENDING_CHECKPOINTS`], so at most that many checkpoint files are being written at a
+    /// time. (The simplifier begins the file as the marker passes it; with a checkpoint after
+    /// every slab the markers held back behind the slowest stage each had one, 13 files of 2 MB
+    /// at once.)
+    checkpoints_pending: AtomicUsize,
     /// The caller's span (the service's `job{id}`), parent of every stage's span: each log line
     /// of a stage thread carries the caller's fields.
     parent: tracing::Span,
@@ -81,6 +93,7 @@ impl<'a> Control<'a> {
             abort: AtomicBool::new(false),
             first: Mutex::new(None),
             range: Mutex::new(DataRange::default()),
+            checkpoints_pending: AtomicUsize::new(0),
             parent: tracing::Span::current(),
         }
     }
@@ -111,6 +124,22 @@ impl<'a> Control<'a> {
     /// early, a hang-up is the quiet answer (whoever failed reports).
     pub fn stop(&self) -> Stop {
         self.check().err().unwrap_or(Stop::Disconnected)
+    }
+
+    /// Whether the reader must wait before it sends another checkpoint marker: the most that
+    /// may be on their way to being saved are.
+    pub fn checkpoints_held(&self) -> bool {
+        self.checkpoints_pending.load(Ordering::Acquire) >= PENDING_CHECKPOINTS
+    }
+
+    /// The reader sent a checkpoint marker.
+    pub fn checkpoint_sent(&self) {
+        self.checkpoints_pending.fetch_add(1, Ordering::AcqRel);
+    }
+
+    /// The writer saved a checkpoint.
+    pub fn checkpoint_saved(&self) {
+        self.checkpoints_pending.fetch_sub(1, Ordering::AcqRel);
     }
 
     pub fn take_first(&self) -> Option<RunError> {

@@ -1061,6 +1061,7 @@ impl Step for WriteStep<'_, '_> {
             simplify_second: Default::default(),
         };
         let bytes = partial.finish(&ckpt)?;
+        self.ctl.checkpoint_saved();
         info!(
             slab = ckpt.slabs_done(),
             of = ckpt.slabs_total,
