@@ -62,8 +62,9 @@ pub(crate) fn output_precision(p: DVec3) -> DVec3 {
 /// Every candidate is rounded by [`output_precision`] before it is costed, so the cost and every
 /// later check judge the coordinates that are written.
 ///
-/// The minimiser is moved into the volume's box `within` when it lies outside (see
-/// [`Domain`]); the fallback sites are inside since the endpoints are.
+/// A minimiser outside the volume's box `within` (see [`Domain`]) is moved onto it, and then
+/// competes with the endpoints and the midpoint (inside, as the endpoints are): the nearest
+/// point of the box is not the cheapest point in it for an uneven quadric.
 pub(crate) fn place(
     sites: Sites,
     (pa, pb): (DVec3, DVec3),
@@ -74,14 +75,17 @@ pub(crate) fn place(
     let mid = 0.5 * (pa + pb);
     let candidates = match sites {
         // Coincident vertices (marching cubes at value == iso): nothing to optimise.
-        Sites::Free if pa == pb => [Some(pa), None, None],
+        Sites::Free if pa == pb => [Some(pa), None, None, None],
         Sites::Free => {
             match minimizer().filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length()) {
-                Some(x) => [Some(within.map_or(x, |d| d.clamp(x))), None, None],
-                None => [Some(pa), Some(pb), Some(mid)],
+                Some(x) => match within.map(|d| d.clamp(x)).filter(|&c| c != x) {
+                    None => [Some(x), None, None, None],
+                    Some(c) => [Some(c), Some(pa), Some(pb), Some(mid)],
+                },
+                None => [Some(pa), Some(pb), Some(mid), None],
             }
         }
-        Sites::Fixed([p, q]) => [p, q, None],
+        Sites::Fixed([p, q]) => [p, q, None, None],
     };
     candidates
         .into_iter()
@@ -462,6 +466,16 @@ mod tests {
         let below = DVec3::new(1.5, -0.4, 1.0);
         let (p, _) = place(Sites::Free, (pa, pb), Some(&d), || Some(below), |_| 0.0).unwrap();
         assert_eq!(p, DVec3::new(1.5, 0.0, 1.0));
+        // Moved onto the box, it competes with the endpoints.
+        let (p, _) = place(
+            Sites::Free,
+            (pa, pb),
+            Some(&d),
+            || Some(below),
+            |x| (x - pb).length(),
+        )
+        .unwrap();
+        assert_eq!(p, output_precision(pb));
         let (p, _) = place(Sites::Free, (pa, pb), None, || Some(below), |_| 0.0).unwrap();
         assert_eq!(p, output_precision(below), "no box: where the minimiser is");
     }

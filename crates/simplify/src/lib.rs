@@ -647,6 +647,32 @@ mod tests {
             Simplifier::new(weights),
             Err(SimplifyError::InvalidPolicy(_))
         ));
+        // A planar boundary needs the volume's box; a box must be finite, f32-exact and ordered.
+        let planar = SimplifyConfig {
+            boundary: Boundary::Planar,
+            ..config(Policy::None)
+        };
+        assert!(matches!(
+            Simplifier::new(planar.clone()),
+            Err(SimplifyError::InvalidBoundary)
+        ));
+        let boxed = |lo: f64, hi: f64| SimplifyConfig {
+            domain: Some(Domain {
+                lo: DVec3::splat(lo),
+                hi: DVec3::splat(hi),
+            }),
+            ..planar.clone()
+        };
+        assert!(Simplifier::new(boxed(0.0, 1.5)).is_ok());
+        for (lo, hi) in [(0.0, f64::NAN), (1.0, 0.0), (0.1, 1.0)] {
+            assert!(
+                matches!(
+                    Simplifier::new(boxed(lo, hi)),
+                    Err(SimplifyError::InvalidBoundary)
+                ),
+                "[{lo}, {hi}]"
+            );
+        }
     }
 
     /// One triangle, pass-through: vertices right before it, all finalized by it, attributes

@@ -289,9 +289,15 @@ pub struct Domain {
 }
 
 impl Domain {
-    /// Finite, with `lo <= hi`.
+    /// Finite, `f32`-exact (as written: `on_one_face` compares coordinates, and `clamp`
+    /// relies on rounding staying inside), with `lo <= hi`.
     pub(crate) fn is_valid(&self) -> bool {
-        self.lo.is_finite() && self.hi.is_finite() && self.lo.cmple(self.hi).all()
+        let exact = |p: DVec3| crate::cost::output_precision(p) == p;
+        self.lo.is_finite()
+            && self.hi.is_finite()
+            && exact(self.lo)
+            && exact(self.hi)
+            && self.lo.cmple(self.hi).all()
     }
 
     /// Whether the three points lie on one face of the box.
