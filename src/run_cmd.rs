@@ -169,8 +169,12 @@ fn report(s: &RunSummary) -> Result<(), crate::stdout::StdoutError> {
         // detector and the simplifier, left out of the line before.
         prune_s = s.stage_seconds.prune.map(ms),
         simplify_s = ms(s.stage_seconds.simplify),
-        // A cascade's second simplifier (0 without one): it is the busiest stage of many runs.
-        simplify_second_s = ms(s.stage_seconds.simplify_second),
+        // A cascade's second simplifier: it is the busiest stage of many runs. Left out of a
+        // one-stage run, where a 0.0 read as a stage that ran (a user trial).
+        simplify_second_s = s
+            .simplify_stages
+            .is_some()
+            .then(|| ms(s.stage_seconds.simplify_second)),
         write_s = ms(s.stage_seconds.write),
         peak_rss_mib = s.peak_rss_bytes.map(|b| (mib(b) * 10.0).round() / 10.0),
         peak_resident_faces = s.peak_resident_faces,

@@ -148,6 +148,34 @@ fn job_done_logs_the_prune_stage_s_seconds() {
     );
 }
 
+/// A one-stage job logs no second simplifier's seconds in `job done` (a `0.0` read as a stage
+/// that ran, in a user trial).
+#[test]
+fn a_one_stage_job_logs_no_second_stage_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(&job, format!("{JOB}[pipeline]\nsimplify_stages = 1\n")).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
+        .args(["run", "--quiet"])
+        .arg(&job)
+        .env("RUST_LOG", "info")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let done: Vec<Value> = stderr(&o)
+        .lines()
+        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .filter(|v| v["fields"]["message"] == "job done")
+        .collect();
+    assert_eq!(done.len(), 1, "{}", stderr(&o));
+    assert!(done[0]["fields"]["simplify_s"].is_number(), "{}", done[0]);
+    assert!(
+        done[0]["fields"].get("simplify_second_s").is_none(),
+        "{}",
+        done[0]
+    );
+}
+
 /// A job with a first pass (`[output] faces`) reports its slabs too, in lines that say which
 /// pass they are of; every clock counts from the job's start. The pass logged nothing before
 /// (20 s and more at `upsample` 16), and the run's first line and series started after it
