@@ -89,6 +89,26 @@ fn attributes_are_sampled_at_the_vertices() {
     }
 }
 
+/// Attributes asked for an output format without a place for them (OBJ, STL) are said to be
+/// dropped, on the screen and in the summary; a format that keeps them says nothing. Before,
+/// only a comment inside the OBJ told.
+#[test]
+fn attributes_an_output_cannot_hold_are_warned_about() {
+    let dir = tempfile::tempdir().unwrap();
+    volumes(dir.path());
+    for (output, dropped) in [("out.obj", true), ("out.stl", true), ("out.ply", false)] {
+        let j = job(dir.path(), "job.toml", "rate = 0.2", output);
+        let o = isostream(&["run", &j]);
+        ok(&o);
+        let log = String::from_utf8_lossy(&o.stderr);
+        let summary =
+            std::fs::read_to_string(dir.path().join(format!("{output}.run.json"))).unwrap();
+        let said = "keeps no vertex attributes, so [[attributes]] lin, grad are not written";
+        assert_eq!(log.contains(said), dropped, "{output}: {log}");
+        assert_eq!(summary.contains(said), dropped, "{output}: {summary}");
+    }
+}
+
 /// A raw volume has no header, so it states no axis directions: a raw attribute beside a
 /// flipped (LPS) NRRD input takes the input's orientation, and a raw input takes an LPS NRRD
 /// attribute; both pair voxels by index (the raw file stored in the header's order). "attribute

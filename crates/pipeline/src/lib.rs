@@ -234,10 +234,13 @@ fn run_job(
     info!(input = %input, dims = ?grid.dims, iso = job.extract.iso, mode = %job.simplify.mode, "job start");
     // Said at the start (the mesh of a long run is in the wrong place from its first slab), and
     // kept for the summary's warnings.
-    let dropped_orientation = orientation_warning(source.as_ref());
+    let dropped_orientation = orientation_warning(source.as_ref())
+        .into_iter()
+        .chain(attributes_not_written(job))
+        .collect::<Vec<_>>();
     // The input's axis flips, undone on the way out (`mirror.rs`).
     let mirror = Mirror::of(source.as_ref());
-    if let Some(w) = &dropped_orientation {
+    for w in &dropped_orientation {
         warn!("{w}");
     }
     if source.loads_whole_volume() {
@@ -861,6 +864,23 @@ fn domain(grid: &isostream_volume::Grid) -> Domain {
 /// missed its target of 0 with "+0 %".
 fn rate_target(rate: f64, faces: u64) -> u64 {
     ((rate * faces as f64).round() as u64).max(faces.min(1))
+}
+
+/// `[[attributes]]` asked for an output format with no place for them: they still weigh in the
+/// simplification (a priority may read them), but nothing of them is written. The OBJ or STL
+/// file said so in a comment only, which a user reading the screen never saw.
+fn attributes_not_written(job: &JobConfig) -> Option<String> {
+    let format = isostream_smesh::Format::from_path(&job.output.path).ok()?;
+    (!job.attributes.is_empty() && !format.keeps_attributes()).then(|| {
+        let names: Vec<&str> = job.attributes.iter().map(|a| a.name.as_str()).collect();
+        format!(
+            "{}: this format keeps no vertex attributes, so [[attributes]] {} {} not written; \
+             write .smb, .sma, .ply or .glb to keep them",
+            job.output.path.display(),
+            names.join(", "),
+            if names.len() == 1 { "is" } else { "are" }
+        )
+    })
 }
 
 /// The rate target missed by more than 2 %: say by how much and why. Every contraction keeps the

@@ -42,6 +42,11 @@ impl Format {
         }
     }
 
+    /// Whether the format stores per-vertex attributes (OBJ and STL have no place for them).
+    pub fn keeps_attributes(self) -> bool {
+        !matches!(self, Format::Obj | Format::Stl)
+    }
+
     /// Whether the format is a streaming mesh (elements interleaved, vertices finalized), which
     /// can be read and converted with memory bounded by the stream width.
     pub fn is_streaming(self) -> bool {
