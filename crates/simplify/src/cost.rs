@@ -73,28 +73,32 @@ pub(crate) fn place(
     cost: impl Fn(DVec3) -> f64,
 ) -> Option<(DVec3, f64)> {
     let mid = 0.5 * (pa + pb);
-    let candidates = match sites {
+    // The first of the cheapest: slices of the length each case needs (one array of the longest
+    // for every case cost bonsai's stages about 1 % more instructions).
+    let cheapest = |sites: &[Option<DVec3>]| {
+        sites
+            .iter()
+            .flatten()
+            .map(|&p| {
+                let p = output_precision(p);
+                (p, cost(p))
+            })
+            .min_by(|x, y| x.1.total_cmp(&y.1))
+    };
+    match sites {
         // Coincident vertices (marching cubes at value == iso): nothing to optimise.
-        Sites::Free if pa == pb => [Some(pa), None, None, None],
+        Sites::Free if pa == pb => cheapest(&[Some(pa)]),
         Sites::Free => {
             match minimizer().filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length()) {
                 Some(x) => match within.map(|d| d.clamp(x)).filter(|&c| c != x) {
-                    None => [Some(x), None, None, None],
-                    Some(c) => [Some(c), Some(pa), Some(pb), Some(mid)],
+                    None => cheapest(&[Some(x)]),
+                    Some(c) => cheapest(&[Some(c), Some(pa), Some(pb), Some(mid)]),
                 },
-                None => [Some(pa), Some(pb), Some(mid), None],
+                None => cheapest(&[Some(pa), Some(pb), Some(mid)]),
             }
         }
-        Sites::Fixed([p, q]) => [p, q, None, None],
-    };
-    candidates
-        .into_iter()
-        .flatten()
-        .map(|p| {
-            let p = output_precision(p);
-            (p, cost(p))
-        })
-        .min_by(|x, y| x.1.total_cmp(&y.1))
+        Sites::Fixed(fixed) => cheapest(&fixed),
+    }
 }
 
 /// The one contraction evaluator every candidate goes through: the mode's [`Objective`], then
