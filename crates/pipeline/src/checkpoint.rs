@@ -102,7 +102,7 @@ const FINISHED_MAGIC: &[u8; 16] = b"isostream-done\n\0";
 /// build's; 35: the extraction's count of non-finite attribute values; 36: axis flips applied,
 /// so a flipped input's half-written output of a 35 is in other coordinates; 37: the
 /// extraction's and the data range's counts of voxels saturated to f32's range; 38: the
-/// volume's box in the simplifier's configuration, placements kept within it; 39: the first
+/// volume's box in the simplifier's configuration; 39: the first
 /// pass's counts, so a resume does not run it again).
 const FORMAT: u32 = 39;
 const VERSION: &str = env!("CARGO_PKG_VERSION");

@@ -189,13 +189,7 @@ fn solve(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
 
 /// Placement of `ab -> c` under the attribute quadric: `(position, cost, shape measure eps0)`.
 /// `None` when the boundary rule admits no site.
-pub(crate) fn place(
-    store: &Store,
-    a: u64,
-    b: u64,
-    weights: &[f64],
-    domain: Option<&topology::Domain>,
-) -> Option<(DVec3, f64, f64)> {
+pub(crate) fn place(store: &Store, a: u64, b: u64, weights: &[f64]) -> Option<(DVec3, f64, f64)> {
     let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
     // The attribute quadric has no boundary term: its boundary stays exact (`Simplifier::new`).
     let sites = topology::sites(store, a, b, None)?;
@@ -209,7 +203,6 @@ pub(crate) fn place(
     let (pos, cost) = crate::cost::place(
         sites,
         (store.pos(a), store.pos(b)),
-        domain,
         || q.minimizer().map(|v| DVec3::new(v[0], v[1], v[2])),
         |p| q.cost_at(p).unwrap_or(f64::INFINITY),
     )?;

@@ -62,19 +62,14 @@ pub(crate) fn output_precision(p: DVec3) -> DVec3 {
 /// Every candidate is rounded by [`output_precision`] before it is costed, so the cost and every
 /// later check judge the coordinates that are written.
 ///
-/// A minimiser outside the volume's box `within` (see [`Domain`]) is moved onto it, and then
-/// competes with the endpoints and the midpoint (inside, as the endpoints are): the nearest
-/// point of the box is not the cheapest point in it for an uneven quadric.
 pub(crate) fn place(
     sites: Sites,
     (pa, pb): (DVec3, DVec3),
-    within: Option<&Domain>,
     minimizer: impl FnOnce() -> Option<DVec3>,
     cost: impl Fn(DVec3) -> f64,
 ) -> Option<(DVec3, f64)> {
     let mid = 0.5 * (pa + pb);
-    // The first of the cheapest: slices of the length each case needs (one array of the longest
-    // for every case cost bonsai's stages about 1 % more instructions).
+    // The first of the cheapest, over a slice of the length each case needs.
     let cheapest = |sites: &[Option<DVec3>]| {
         sites
             .iter()
@@ -90,10 +85,7 @@ pub(crate) fn place(
         Sites::Free if pa == pb => cheapest(&[Some(pa)]),
         Sites::Free => {
             match minimizer().filter(|x| (*x - mid).length() <= FAR_FACTOR * (pa - pb).length()) {
-                Some(x) => match within.map(|d| d.clamp(x)).filter(|&c| c != x) {
-                    None => cheapest(&[Some(x)]),
-                    Some(c) => cheapest(&[Some(c), Some(pa), Some(pb), Some(mid)]),
-                },
+                Some(x) => cheapest(&[Some(x)]),
                 None => cheapest(&[Some(pa), Some(pb), Some(mid)]),
             }
         }
@@ -109,20 +101,12 @@ pub(crate) fn place(
 pub(crate) struct Evaluator {
     objective: Objective,
     priority: Priority,
-    within: Within,
-    /// Physical length of one rank, for the time-lag's patch radius (`Eval::reach`, and the
-    /// merged vertex's in `contract`).
-    pub(crate) rank_spacing: f64,
-}
-
-/// The boxes a contraction is placed within.
-#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub(crate) struct Within {
     /// The box whose faces a planar boundary is simplified within (`topology::sites`); `None`
     /// for an exact boundary.
     faces: Option<Domain>,
-    /// The volume's box, where placements are kept (see [`Domain`]).
-    domain: Option<Domain>,
+    /// Physical length of one rank, for the time-lag's patch radius (`Eval::reach`, and the
+    /// merged vertex's in `contract`).
+    pub(crate) rank_spacing: f64,
 }
 
 impl Evaluator {
@@ -135,10 +119,7 @@ impl Evaluator {
         Self {
             objective,
             priority,
-            within: Within {
-                faces: domain.filter(|_| boundary.is_planar()),
-                domain,
-            },
+            faces: domain.filter(|_| boundary.is_planar()),
             rank_spacing,
         }
     }
@@ -146,9 +127,9 @@ impl Evaluator {
     /// Cost and placement of `ab -> c`; `None` when the edge is no candidate (no admissible
     /// site, above the error threshold, or no attribute placement within it).
     pub(crate) fn evaluate(&self, store: &Store, a: u64, b: u64) -> Option<Eval> {
-        let mut eval = self
-            .objective
-            .evaluate(store, (a, b), &self.within, self.rank_spacing)?;
+        let mut eval =
+            self.objective
+                .evaluate(store, (a, b), self.faces.as_ref(), self.rank_spacing)?;
         if eval.cost == COINCIDENT {
             return Some(eval);
         }
@@ -163,8 +144,7 @@ impl Evaluator {
                     Objective::Shape { e0, .. } => e0,
                     Objective::Quadric => f64::INFINITY,
                 };
-                let (pos, cost, shape) =
-                    attribute_quadric::place(store, a, b, weights, self.within.domain.as_ref())?;
+                let (pos, cost, shape) = attribute_quadric::place(store, a, b, weights)?;
                 if shape > e0 {
                     return None;
                 }
@@ -187,11 +167,11 @@ impl Objective {
         &self,
         store: &Store,
         (a, b): (u64, u64),
-        within: &Within,
+        faces: Option<&Domain>,
         rank_spacing: f64,
     ) -> Option<Eval> {
         let (va, vb) = (store.vertex(a)?, store.vertex(b)?);
-        let sites = topology::sites(store, a, b, within.faces.as_ref())?;
+        let sites = topology::sites(store, a, b, faces)?;
         let h = va.quadric + vb.quadric;
         let w = va.area + vb.area;
         let isotropic = self.isotropy_metric(store, a, b, h, w);
@@ -199,7 +179,6 @@ impl Objective {
         let (pos, value) = place(
             sites,
             (store.pos(a), store.pos(b)),
-            within.domain.as_ref(),
             || m.minimizer(),
             |p| m.eval(p).max(0.0),
         )?;
@@ -368,10 +347,8 @@ mod tests {
         };
         let mut compared = 0;
         for (a, b) in interior_edges(&s) {
-            let gh = Objective::Quadric
-                .evaluate(&s, (a, b), &Within::default(), 1.0)
-                .unwrap();
-            let e = plain.evaluate(&s, (a, b), &Within::default(), 1.0).unwrap();
+            let gh = Objective::Quadric.evaluate(&s, (a, b), None, 1.0).unwrap();
+            let e = plain.evaluate(&s, (a, b), None, 1.0).unwrap();
             assert_eq!(e.pos, gh.pos, "edge {a}-{b}");
             let w = s.vertex(a).unwrap().area + s.vertex(b).unwrap().area;
             let tie = TIE_BREAK * (s.pos(a) - s.pos(b)).length_squared();
@@ -388,7 +365,7 @@ mod tests {
         let (a, b) = (14, 15);
         let eps = |alpha| {
             Objective::Shape { e0: 1.0, alpha }
-                .evaluate(&s, (a, b), &Within::default(), 1.0)
+                .evaluate(&s, (a, b), None, 1.0)
                 .unwrap()
         };
         let centroid: DVec3 = {
@@ -417,14 +394,8 @@ mod tests {
             e0: 1e-12,
             alpha: 0.0,
         };
-        assert!(
-            tight
-                .evaluate(&s, (a, b), &Within::default(), 1.0)
-                .is_none()
-        );
-        let e = Objective::Quadric
-            .evaluate(&s, (a, b), &Within::default(), 2.0)
-            .unwrap();
+        assert!(tight.evaluate(&s, (a, b), None, 1.0).is_none());
+        let e = Objective::Quadric.evaluate(&s, (a, b), None, 2.0).unwrap();
         // heights 2 and 2 (rank = row), rads 1: reach = 2 + (|a - b| / 2 + 2) / 2.
         let len = (s.pos(a) - s.pos(b)).length();
         assert!((e.reach - (2.0 + (len / 2.0 + 2.0) / 2.0)).abs() < 1e-12);
@@ -436,51 +407,19 @@ mod tests {
     fn placements_are_rounded_and_the_cheapest_site_wins() {
         let (pa, pb) = (DVec3::new(0.1, 0.2, 0.3), DVec3::new(1.1, 0.2, 0.3));
         let odd = DVec3::new(0.123_456_789_012_3, 0.2, 0.3);
-        let (p, _) = place(Sites::Free, (pa, pb), None, || Some(odd), |_| 0.0).unwrap();
+        let (p, _) = place(Sites::Free, (pa, pb), || Some(odd), |_| 0.0).unwrap();
         assert_eq!(p, output_precision(p));
         assert_ne!(p, odd);
         // Far minimiser: the best of the endpoints and the midpoint.
         let far = DVec3::splat(100.0);
-        let (p, c) = place(
-            Sites::Free,
-            (pa, pb),
-            None,
-            || Some(far),
-            |x| (x - pb).length(),
-        )
-        .unwrap();
+        let (p, c) = place(Sites::Free, (pa, pb), || Some(far), |x| (x - pb).length()).unwrap();
         assert_eq!(
             (p, c),
             (output_precision(pb), (output_precision(pb) - pb).length())
         );
         // Coincident endpoints stay; the minimiser is not even asked.
-        let (p, _) = place(Sites::Free, (pa, pa), None, || panic!("asked"), |_| 0.0).unwrap();
+        let (p, _) = place(Sites::Free, (pa, pa), || panic!("asked"), |_| 0.0).unwrap();
         assert_eq!(p, output_precision(pa));
-        assert!(place(Sites::Fixed([None, None]), (pa, pb), None, || None, |_| 0.0).is_none());
-    }
-
-    /// A minimiser outside the volume's box is moved onto it, rounded inside.
-    #[test]
-    fn placements_stay_in_the_volume_box() {
-        let d = Domain {
-            lo: DVec3::ZERO,
-            hi: DVec3::new(10.0, 10.0, 10.0),
-        };
-        let (pa, pb) = (DVec3::new(1.0, 0.1, 1.0), DVec3::new(2.0, 0.1, 1.0));
-        let below = DVec3::new(1.5, -0.4, 1.0);
-        let (p, _) = place(Sites::Free, (pa, pb), Some(&d), || Some(below), |_| 0.0).unwrap();
-        assert_eq!(p, DVec3::new(1.5, 0.0, 1.0));
-        // Moved onto the box, it competes with the endpoints.
-        let (p, _) = place(
-            Sites::Free,
-            (pa, pb),
-            Some(&d),
-            || Some(below),
-            |x| (x - pb).length(),
-        )
-        .unwrap();
-        assert_eq!(p, output_precision(pb));
-        let (p, _) = place(Sites::Free, (pa, pb), None, || Some(below), |_| 0.0).unwrap();
-        assert_eq!(p, output_precision(below), "no box: where the minimiser is");
+        assert!(place(Sites::Fixed([None, None]), (pa, pb), || None, |_| 0.0).is_none());
     }
 }

@@ -161,8 +161,8 @@ pub struct SimplifyConfig {
     /// What may happen to the surface's boundary (the volume box's cut; see [`Boundary`]).
     #[serde(default)]
     pub boundary: Boundary,
-    /// The volume's box: placements stay within it (see [`Domain`]); [`Boundary::Planar`]
-    /// needs it. `None`: placements anywhere.
+    /// The volume's box (see [`Domain`]), whose faces [`Boundary::Planar`] simplifies the cut
+    /// within: it needs it.
     #[serde(default)]
     pub domain: Option<Domain>,
 }
