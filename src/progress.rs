@@ -3,9 +3,10 @@
 
 use std::io::Write;
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
-use indicatif::{ProgressBar, ProgressState, ProgressStyle};
-use isostream_pipeline::{Pass, Progress};
+use indicatif::{HumanDuration, ProgressBar, ProgressState, ProgressStyle};
+use isostream_pipeline::{Done, Pass, Progress, eta_seconds};
 
 /// The bar on screen, if any: log lines are written around it.
 static SHOWN: Mutex<Option<ProgressBar>> = Mutex::new(None);
@@ -17,17 +18,27 @@ fn shown() -> std::sync::MutexGuard<'static, Option<ProgressBar>> {
 /// The bar of a run, and the pass it shows (`None` before the first slab).
 pub struct Bar {
     bar: ProgressBar,
-    pass: Mutex<Option<Pass>>,
+    pass: Mutex<Option<PassStart>>,
+}
+
+/// The pass the bar shows, from its first slab: its ETA paces from there.
+struct PassStart {
+    pass: Pass,
+    at: Instant,
+    slabs: u64,
+    faces_in: u64,
 }
 
 /// A bar on stderr, registered so that log lines go above it. Its clock counts from the job's
-/// start; its rate and ETA are those of the pass it shows.
+/// start; its rate and ETA are those of the pass it shows, the ETA as the `progress` log lines'
+/// (`eta_seconds`: the run's follows its faces when a first pass counted them, where indicatif's
+/// follows the slabs).
 pub fn bar() -> Bar {
     // Length 1 until the first slab says how many there are: 0 would show 100 %.
     let bar = ProgressBar::new(1);
     bar.set_style(
         ProgressStyle::with_template(
-            "{elapsed_precise} {prefix}[{bar:30}] {percent:>3}% slab {pos}/{len} {rate} ETA {eta} {msg}",
+            "{elapsed_precise} {prefix}[{bar:30}] {percent:>3}% slab {pos}/{len} {rate} {msg}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .with_key("rate", |s: &ProgressState, w: &mut dyn std::fmt::Write| {
@@ -45,9 +56,8 @@ pub fn bar() -> Bar {
 pub fn update(bar: &Bar, p: &Progress) {
     let Bar { bar, pass } = bar;
     let mut pass = pass.lock().unwrap_or_else(|e| e.into_inner());
-    let begins = *pass != Some(p.pass);
+    let begins = pass.as_ref().is_none_or(|s| s.pass != p.pass);
     if begins {
-        *pass = Some(p.pass);
         bar.set_prefix(match p.pass {
             Pass::First => "first pass ",
             Pass::Run => "",
@@ -60,15 +70,33 @@ pub fn update(bar: &Bar, p: &Progress) {
         // pass) a 78 s run promised its end in 15 minutes, and a resumed run's jump to its
         // checkpoint's slab counted as slabs done.
         bar.reset_eta();
+        *pass = None;
     }
+    let start = pass.get_or_insert_with(|| PassStart {
+        pass: p.pass,
+        at: Instant::now(),
+        slabs: p.slabs_done,
+        faces_in: p.faces_in,
+    });
+    let slabs = Done {
+        start: start.slabs,
+        now: p.slabs_done,
+        total: p.slabs_total,
+    };
+    let faces = p.faces_done().map(|f| Done {
+        start: start.faces_in,
+        ..f
+    });
+    let eta = eta_seconds(start.at.elapsed().as_secs_f64(), slabs, faces).unwrap_or(0.0);
+    let eta = HumanDuration(Duration::from_secs_f64(eta.min(1e9)));
     let rss = isostream_pipeline::current_rss_bytes().map_or(String::new(), |b| {
         format!(", RSS {:.0} MiB", b as f64 / (1 << 20) as f64)
     });
     bar.set_message(match p.pass {
         // Its faces are counted at its end.
-        Pass::First => format!("| counting faces{rss}"),
+        Pass::First => format!("ETA {eta:#} | counting faces{rss}"),
         Pass::Run => format!(
-            "| faces in {} out {} resident {}{rss}",
+            "ETA {eta:#} | faces in {} out {} resident {}{rss}",
             p.faces_in, p.faces_out, p.resident_faces
         ),
     });

@@ -46,7 +46,7 @@ pub use config::{
 };
 pub use error::{ConfigError, RunError};
 pub use mirror::Mirror;
-pub use monitor::{MAX_SERIES_POINTS, SeriesPoint, TimeSeries};
+pub use monitor::{Done, MAX_SERIES_POINTS, SeriesPoint, TimeSeries, eta_seconds};
 pub use output::{OutputLock, lock_output, lock_path, one_file, output_in_use, stale_temp_files};
 pub use rss::{current_rss_bytes, peak_rss_bytes};
 pub use sink::SinkStats;
@@ -294,7 +294,7 @@ fn run_job(
             c.first_pass
         }
         None if counted => {
-            monitor.pass_begins();
+            monitor.pass_begins(None);
             let pass = first_pass(job, prune, cancel, &observe)?;
             if !job.output.allow_empty {
                 pass.check_something_kept(job, job_path)?;
@@ -408,7 +408,8 @@ fn run_job(
         // The checkpoint's carried slice is read again (and checked against its hash).
         reader.seek(r.reader.z)?;
     }
-    monitor.pass_begins();
+    // The faces the simplifier receives are the first pass's kept ones.
+    monitor.pass_begins(counts.map(|c| c.kept));
     let mut outputs = stages::Stages {
         reader,
         input: input.clone(),

@@ -71,6 +71,10 @@ pub struct Progress {
     /// resumed run's restored faces again, as if new).
     pub faces_in_at_start: u64,
     pub faces_out_at_start: u64,
+    /// The faces the run's simplifier receives in all (`faces_in` at its end), when a first pass
+    /// counted them before the run: its ETA paces by them ([`crate::eta_seconds`]). `None`
+    /// otherwise and in the first pass. The job's monitor fills it in: the stages leave `None`.
+    pub faces_total: Option<u64>,
     pub resident_faces: u64,
     /// Slabs extracted or being extracted that the detector has not taken yet, and batches
     /// waiting in the detect->simplify and simplify->write channels (0 in the first pass).
@@ -89,9 +93,19 @@ impl Progress {
             faces_out: 0,
             faces_in_at_start: 0,
             faces_out_at_start: 0,
+            faces_total: None,
             resident_faces: 0,
             queued: [0; 3],
         }
+    }
+
+    /// The run's faces as an ETA paces by them, when their total is known.
+    pub fn faces_done(&self) -> Option<crate::Done> {
+        self.faces_total.map(|total| crate::Done {
+            start: self.faces_in_at_start,
+            now: self.faces_in,
+            total,
+        })
     }
 }
 
@@ -823,6 +837,7 @@ impl SimplifyStep<'_> {
                 faces_out,
                 faces_in_at_start: self.start.faces_in,
                 faces_out_at_start: self.start.faces_out,
+                faces_total: None,
                 resident_faces: resident,
                 queued: self.depth.queued(),
             };
@@ -994,6 +1009,7 @@ impl Step for SecondStep<'_> {
             faces_out: st.faces_out,
             faces_in_at_start: self.start.faces_in,
             faces_out_at_start: self.start.faces_out,
+            faces_total: None,
             resident_faces: st.faces_resident as u64,
             queued: self.depth.queued(),
         });

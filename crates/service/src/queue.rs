@@ -1033,6 +1033,7 @@ mod tests {
             faces_out,
             faces_in_at_start: 4000,
             faces_out_at_start: 700,
+            faces_total: None,
             resident_faces: 0,
             queued: [0; 3],
         };
