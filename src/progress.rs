@@ -87,19 +87,32 @@ pub fn update(bar: &Bar, p: &Progress) {
         start: start.faces_in,
         ..f
     });
-    let eta = eta_seconds(start.at.elapsed().as_secs_f64(), slabs, faces).unwrap_or(0.0);
-    let eta = HumanDuration(Duration::from_secs_f64(eta.min(1e9)));
+    let eta = eta_text(eta_seconds(start.at.elapsed().as_secs_f64(), slabs, faces));
     let rss = isostream_pipeline::current_rss_bytes().map_or(String::new(), |b| {
         format!(", RSS {:.0} MiB", b as f64 / (1 << 20) as f64)
     });
     bar.set_message(match p.pass {
         // Its faces are counted at its end.
-        Pass::First => format!("ETA {eta:#} | counting faces{rss}"),
+        Pass::First => format!("ETA {eta} | counting faces{rss}"),
         Pass::Run => format!(
-            "ETA {eta:#} | faces in {} out {} resident {}{rss}",
+            "ETA {eta} | faces in {} out {} resident {}{rss}",
             p.faces_in, p.faces_out, p.resident_faces
         ),
     });
+}
+
+/// `?` until the pass has done something to pace by: indicatif's ETA showed `0s` then, at a
+/// pass's first slab, as if it were about to end.
+fn eta_text(eta_s: Option<f64>) -> String {
+    eta_s.map_or_else(
+        || "?".into(),
+        |s| {
+            format!(
+                "{:#}",
+                HumanDuration(Duration::from_secs_f64(s.clamp(0.0, 1e9)))
+            )
+        },
+    )
 }
 
 pub fn finish(bar: &Bar) {
@@ -129,5 +142,17 @@ impl Write for LogWriter {
     fn flush(&mut self) -> std::io::Result<()> {
         let _ = std::io::stderr().flush();
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_eta_before_a_pace() {
+        assert_eq!(eta_text(None), "?");
+        assert_eq!(eta_text(Some(0.0)), "0s");
+        assert_eq!(eta_text(Some(120.0)), "2m");
     }
 }
