@@ -112,17 +112,10 @@ fn run(dir: &Path) -> Value {
     summary
 }
 
-/// A job that prunes (`[simplify] min_component_faces`) logs its prune stage's seconds in `job
-/// done` as the summary has them: the line had every other stage's but that one.
-#[test]
-fn job_done_logs_the_prune_stage_s_seconds() {
-    let dir = tempfile::tempdir().unwrap();
-    let job = dir.path().join("job.toml");
-    std::fs::write(
-        &job,
-        JOB.replace("rate = 0.2\n", "rate = 0.2\nmin_component_faces = 10\n"),
-    )
-    .unwrap();
+/// Runs `text` as a job in `dir` with JSON logs; the fields of its one `job done` line.
+fn job_done_fields(dir: &std::path::Path, text: &str) -> Value {
+    let job = dir.join("job.toml");
+    std::fs::write(&job, text).unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
         .args(["run", "--quiet"])
         .arg(&job)
@@ -136,15 +129,26 @@ fn job_done_logs_the_prune_stage_s_seconds() {
         .filter(|v| v["fields"]["message"] == "job done")
         .collect();
     assert_eq!(done.len(), 1, "{}", stderr(&o));
+    done[0]["fields"].clone()
+}
+
+/// A job that prunes (`[simplify] min_component_faces`) logs its prune stage's seconds in `job
+/// done` as the summary has them: the line had every other stage's but that one.
+#[test]
+fn job_done_logs_the_prune_stage_s_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    let done = job_done_fields(
+        dir.path(),
+        &JOB.replace("rate = 0.2\n", "rate = 0.2\nmin_component_faces = 10\n"),
+    );
     let summary: Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("gyroid.smb.run.json")).unwrap())
             .unwrap();
     let seconds = summary["stage_seconds"]["prune"].as_f64().unwrap();
-    let logged = done[0]["fields"]["prune_s"].as_f64();
+    let logged = done["prune_s"].as_f64();
     assert!(
         logged.is_some_and(|l| (l - seconds).abs() <= 5e-4),
-        "{logged:?} vs {seconds}: {}",
-        done[0]
+        "{logged:?} vs {seconds}: {done}"
     );
 }
 
@@ -153,27 +157,12 @@ fn job_done_logs_the_prune_stage_s_seconds() {
 #[test]
 fn a_one_stage_job_logs_no_second_stage_seconds() {
     let dir = tempfile::tempdir().unwrap();
-    let job = dir.path().join("job.toml");
-    std::fs::write(&job, format!("{JOB}[pipeline]\nsimplify_stages = 1\n")).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
-        .args(["run", "--quiet"])
-        .arg(&job)
-        .env("RUST_LOG", "info")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
-    let done: Vec<Value> = stderr(&o)
-        .lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .filter(|v| v["fields"]["message"] == "job done")
-        .collect();
-    assert_eq!(done.len(), 1, "{}", stderr(&o));
-    assert!(done[0]["fields"]["simplify_s"].is_number(), "{}", done[0]);
-    assert!(
-        done[0]["fields"].get("simplify_second_s").is_none(),
-        "{}",
-        done[0]
+    let done = job_done_fields(
+        dir.path(),
+        &format!("{JOB}[pipeline]\nsimplify_stages = 1\n"),
     );
+    assert!(done["simplify_s"].is_number(), "{done}");
+    assert!(done.get("simplify_second_s").is_none(), "{done}");
 }
 
 /// A job with a first pass (`[output] faces`) reports its slabs too, in lines that say which
