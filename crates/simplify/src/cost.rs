@@ -61,7 +61,6 @@ pub(crate) fn output_precision(p: DVec3) -> DVec3 {
 /// the cheapest of the endpoints and the midpoint); coincident endpoints stay where they are.
 /// Every candidate is rounded by [`output_precision`] before it is costed, so the cost and every
 /// later check judge the coordinates that are written.
-///
 pub(crate) fn place(
     sites: Sites,
     (pa, pb): (DVec3, DVec3),
