@@ -38,9 +38,10 @@ fn texts(svg: &str) -> Vec<&str> {
         .collect()
 }
 
-fn run(dir: &Path) -> Value {
+/// Runs `text` as a job in `dir` (it must succeed): its stderr and the JSON objects of its log.
+fn run_logged(dir: &Path, text: &str) -> (String, Vec<Value>) {
     let job = dir.join("job.toml");
-    std::fs::write(&job, JOB).unwrap();
+    std::fs::write(&job, text).unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
         .args(["run", "--quiet"])
         .arg(&job)
@@ -48,30 +49,40 @@ fn run(dir: &Path) -> Value {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
-    // The periodic progress line: one JSON object with the rate and the ETA.
-    let progress: Vec<Value> = stderr(&o)
+    let log = stderr(&o);
+    let lines = log
         .lines()
         .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+        .collect();
+    (log, lines)
+}
+
+/// The fields of the one `job done` line of `lines` (`log` for the message).
+fn job_done(log: &str, lines: &[Value]) -> Value {
+    let done: Vec<&Value> = lines
+        .iter()
+        .filter(|v| v["fields"]["message"] == "job done")
+        .collect();
+    assert_eq!(done.len(), 1, "{log}");
+    done[0]["fields"].clone()
+}
+
+fn run(dir: &Path) -> Value {
+    let (log, lines) = run_logged(dir, JOB);
+    // The periodic progress line: one JSON object with the rate and the ETA.
+    let progress: Vec<&Value> = lines
+        .iter()
         .filter(|v| v["fields"]["message"] == "progress" && v["fields"]["eta_s"].is_number())
         .collect();
-    assert!(!progress.is_empty(), "{}", stderr(&o));
+    assert!(!progress.is_empty(), "{log}");
     // The stage's span names the stage under its own key: a field `name` beside the span's
     // name gave `"span":{"name":"simplify","name":"stage"}`, a duplicate key.
     assert_eq!(progress[0]["span"]["name"], "stage", "{}", progress[0]);
     let stage = progress[0]["span"]["stage"].as_str().unwrap_or_default();
     assert!(stage.starts_with("simplify"), "{}", progress[0]);
-    assert!(
-        !stderr(&o).contains(r#""name":"simplify"#),
-        "{}",
-        stderr(&o)
-    );
+    assert!(!log.contains(r#""name":"simplify"#), "{log}");
     // The run's last line: numbers as JSON numbers, not strings ("seconds":"6.443").
-    let done: Vec<Value> = stderr(&o)
-        .lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .filter(|v| v["fields"]["message"] == "job done")
-        .collect();
-    assert_eq!(done.len(), 1, "{}", stderr(&o));
+    let done = job_done(&log, &lines);
     for key in [
         "seconds",
         "read_s",
@@ -83,10 +94,10 @@ fn run(dir: &Path) -> Value {
         "peak_rss_mib",
         "faces_written",
     ] {
-        assert!(done[0]["fields"][key].is_number(), "{key}: {}", done[0]);
+        assert!(done[key].is_number(), "{key}: {done}");
     }
     // The job does not prune: no prune stage, no seconds of it.
-    assert!(done[0]["fields"].get("prune_s").is_none(), "{}", done[0]);
+    assert!(done.get("prune_s").is_none(), "{done}");
     for key in [
         "voxels_per_s",
         "percent",
@@ -107,29 +118,9 @@ fn run(dir: &Path) -> Value {
         .as_f64()
         .unwrap();
     assert!(second > 0.0, "the job runs a cascade: {summary}");
-    let logged = done[0]["fields"]["simplify_second_s"].as_f64().unwrap();
+    let logged = done["simplify_second_s"].as_f64().unwrap();
     assert!((logged - second).abs() <= 5e-4, "{logged} vs {second}");
     summary
-}
-
-/// Runs `text` as a job in `dir` with JSON logs; the fields of its one `job done` line.
-fn job_done_fields(dir: &std::path::Path, text: &str) -> Value {
-    let job = dir.join("job.toml");
-    std::fs::write(&job, text).unwrap();
-    let o = Command::new(env!("CARGO_BIN_EXE_isostream"))
-        .args(["run", "--quiet"])
-        .arg(&job)
-        .env("RUST_LOG", "info")
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
-    let done: Vec<Value> = stderr(&o)
-        .lines()
-        .filter_map(|l| serde_json::from_str::<Value>(l).ok())
-        .filter(|v| v["fields"]["message"] == "job done")
-        .collect();
-    assert_eq!(done.len(), 1, "{}", stderr(&o));
-    done[0]["fields"].clone()
 }
 
 /// A job that prunes (`[simplify] min_component_faces`) logs its prune stage's seconds in `job
@@ -137,10 +128,11 @@ fn job_done_fields(dir: &std::path::Path, text: &str) -> Value {
 #[test]
 fn job_done_logs_the_prune_stage_s_seconds() {
     let dir = tempfile::tempdir().unwrap();
-    let done = job_done_fields(
+    let (log, lines) = run_logged(
         dir.path(),
         &JOB.replace("rate = 0.2\n", "rate = 0.2\nmin_component_faces = 10\n"),
     );
+    let done = job_done(&log, &lines);
     let summary: Value =
         serde_json::from_slice(&std::fs::read(dir.path().join("gyroid.smb.run.json")).unwrap())
             .unwrap();
@@ -157,10 +149,11 @@ fn job_done_logs_the_prune_stage_s_seconds() {
 #[test]
 fn a_one_stage_job_logs_no_second_stage_seconds() {
     let dir = tempfile::tempdir().unwrap();
-    let done = job_done_fields(
+    let (log, lines) = run_logged(
         dir.path(),
         &format!("{JOB}[pipeline]\nsimplify_stages = 1\n"),
     );
+    let done = job_done(&log, &lines);
     assert!(done["simplify_s"].is_number(), "{done}");
     assert!(done.get("simplify_second_s").is_none(), "{done}");
 }
