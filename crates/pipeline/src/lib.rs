@@ -79,6 +79,8 @@ pub struct RunSummary {
     /// ([`TimeSeries::peak_rss_bytes`]): the kernel updates its mark lazily, and it came out
     /// below the series' highest value.
     pub peak_rss_bytes: Option<u64>,
+    /// The simplifiers' most faces held ([`isostream_simplify::SimplifyStats::peak_resident_faces`]:
+    /// for two stages, the sum of their peaks).
     pub peak_resident_faces: u64,
     /// Tandem section 4: Error(K) = max eps0 over the vertices made by contractions (0 when
     /// nothing was contracted). Bounded by E0 in mode = "error".

@@ -266,6 +266,9 @@ pub struct SimplifyStats {
     pub faces_out: u64,
     pub vertices_out: u64,
     pub faces_resident: usize,
+    /// The most faces held at a time. For a cascade, the sum of its two stages' peaks: an
+    /// upper bound on what both held at once (their peaks come at different moments; a user
+    /// trial found it beside a budget warning's one-stage figure and took them for one measure).
     pub peak_resident_faces: usize,
     /// Vertices in memory.
     pub vertices_resident: usize,
