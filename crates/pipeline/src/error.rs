@@ -71,7 +71,8 @@ pub enum RunError {
         input: String,
         /// As written in the job (extraction compares in f32).
         iso: f64,
-        /// Why, from the data range, and what iso to set (`DataRange::empty_surface`).
+        /// Why, from the data range or before any work from the stored type's, and what iso to
+        /// set (`DataRange::empty_surface`, `range::ruled_out_by_type`).
         why: String,
     },
     #[error(

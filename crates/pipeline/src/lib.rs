@@ -251,7 +251,7 @@ fn run_job(
 
     // What `preflight` checks, checked before the first pass of `[output] faces` (a bad
     // attribute file failed only after it).
-    index_limit::check_job(job, grid.voxel_count())?;
+    source::check_against_input(job, source.as_ref())?;
     let attribute_sources =
         attributes::open(&job.attributes, &job.input, grid, source.orientation())?;
     // A resume of a changed job or input is refused before the first pass of `[output] faces`

@@ -90,6 +90,9 @@ impl VolumeSource for Mirrored {
     fn dtype(&self) -> Option<isostream_volume::Dtype> {
         self.inner.dtype()
     }
+    fn stored_range(&self) -> Option<(f32, f32)> {
+        self.inner.stored_range()
+    }
     fn orientation(&self) -> Orientation {
         self.inner.orientation()
     }

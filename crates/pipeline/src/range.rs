@@ -174,6 +174,28 @@ impl DataRange {
     }
 }
 
+/// Why a stored type whose voxels all lie in `[lo, hi]` (`VolumeSource::stored_range`,
+/// `dtype` its name) leaves no surface at `iso`, known before any voxel is read; `None` when
+/// the type allows one. [`DataRange::empty_surface`]'s rule (only an iso in [min, max) gives a
+/// surface) on the type's range, compared in f32 as extraction compares.
+pub(crate) fn ruled_out_by_type(iso: f64, dtype: &str, (lo, hi): (f32, f32)) -> Option<String> {
+    let iso32 = iso as f32;
+    let (iso_s, lo_s, hi_s) = (value(iso), value(lo), value(hi));
+    if iso32 >= hi {
+        Some(format!(
+            "the input's voxels are {dtype}, at most {hi_s}, so none is above iso {iso_s} and \
+             nothing is inside; set extract.iso below {hi_s}"
+        ))
+    } else if iso32 < lo {
+        Some(format!(
+            "the input's voxels are {dtype}, at least {lo_s}, so every one is above iso {iso_s} \
+             and nothing is outside; set extract.iso to at least {lo_s}"
+        ))
+    } else {
+        None
+    }
+}
+
 /// [`DataRange::coarse_iso`] warns when the f32 step at the iso passes this fraction of the
 /// data's range: there the rounding to f32 is a visible part of every voxel difference.
 const COARSE_STEP: f64 = 1e-3;
@@ -360,5 +382,33 @@ mod tests {
             range.empty_surface(3.0),
             "the data range is [0, 7], 1 NaN or infinite voxels; set extract.iso at least 0 and below 7"
         );
+    }
+
+    /// An iso the stored type rules out is told before any voxel is read, on the same rule as
+    /// the data range's: its maximum and beyond have nothing inside, below its minimum nothing
+    /// outside; the minimum itself and anything short of the maximum may give a surface.
+    #[test]
+    fn an_iso_the_stored_type_rules_out_says_what_to_set() {
+        let u8_range = (0.0, 255.0);
+        assert_eq!(
+            ruled_out_by_type(300.0, "u8", u8_range).as_deref(),
+            Some(
+                "the input's voxels are u8, at most 255, so none is above iso 300 and nothing is inside; set extract.iso below 255"
+            )
+        );
+        assert!(ruled_out_by_type(255.0, "u8", u8_range).is_some());
+        assert_eq!(
+            ruled_out_by_type(-5.0, "u8", u8_range).as_deref(),
+            Some(
+                "the input's voxels are u8, at least 0, so every one is above iso -5 and nothing is outside; set extract.iso to at least 0"
+            )
+        );
+        for iso in [0.0, 128.0, 254.5] {
+            assert_eq!(ruled_out_by_type(iso, "u8", u8_range), None, "iso {iso}");
+        }
+        // Compared in f32: an iso that rounds onto u32's largest value is as high as any voxel.
+        let u32_range = (0.0, u32::MAX as f32);
+        assert!(ruled_out_by_type(f64::from(u32::MAX), "u32", u32_range).is_some());
+        assert_eq!(ruled_out_by_type(4e9, "u32", u32_range), None);
     }
 }

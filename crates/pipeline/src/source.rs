@@ -27,8 +27,36 @@ pub fn preflight(job: &JobConfig) -> Result<Box<dyn VolumeSource>, RunError> {
     if !job.attributes.is_empty() {
         crate::attributes::SliceReader::open(job)?;
     }
-    crate::index_limit::check_job(job, source.grid().voxel_count())?;
+    check_against_input(job, source.as_ref())?;
     Ok(source)
+}
+
+/// What the job is checked for against its opened input before any work, by `run` and by
+/// [`preflight`] alike: the output format can index as many vertices as the job could write,
+/// and `[extract] iso` is one the input's stored type allows a surface at (unless `[output]
+/// allow_empty`): iso 300 on u8 data passed `validate`, and `run` read the whole volume before
+/// saying that its surface was empty.
+pub(crate) fn check_against_input(
+    job: &JobConfig,
+    source: &dyn VolumeSource,
+) -> Result<(), RunError> {
+    crate::index_limit::check_job(job, source.grid().voxel_count())?;
+    let iso = job.extract.iso;
+    let why = source
+        .stored_range()
+        .filter(|_| !job.output.allow_empty)
+        .and_then(|range| {
+            let dtype = source.dtype().map_or("stored".into(), |d| d.to_string());
+            crate::range::ruled_out_by_type(iso, &dtype, range)
+        });
+    match why {
+        Some(why) => Err(RunError::EmptySurface {
+            input: source.describe(),
+            iso,
+            why,
+        }),
+        None => Ok(()),
+    }
 }
 
 /// The warning for a rotation of the input's header, which the grid drops (axis flips are

@@ -39,6 +39,21 @@ impl Dtype {
         }
     }
 
+    /// The values an integer type can store, all of them exact in f32 as read (u32's and
+    /// i32's ends rounded to f32 as [`decode`] rounds them); `None` for the float types, whose
+    /// range bounds nothing a job could ask for.
+    pub fn integer_range(self) -> Option<(f32, f32)> {
+        Some(match self {
+            Dtype::U8 => (0.0, f32::from(u8::MAX)),
+            Dtype::I8 => (f32::from(i8::MIN), f32::from(i8::MAX)),
+            Dtype::U16 => (0.0, f32::from(u16::MAX)),
+            Dtype::I16 => (f32::from(i16::MIN), f32::from(i16::MAX)),
+            Dtype::U32 => (0.0, u32::MAX as f32),
+            Dtype::I32 => (i32::MIN as f32, i32::MAX as f32),
+            Dtype::F32 | Dtype::F64 => return None,
+        })
+    }
+
     /// Lower-case name as written in job files ("u8", "f32", ...).
     pub fn name(self) -> &'static str {
         match self {
@@ -142,6 +157,15 @@ pub(crate) fn saturated_f32(v: f64) -> (f32, bool) {
     let mut out = [v as f32];
     let n = saturate_f64(&mut out, |_| v);
     (out[0], n > 0)
+}
+
+/// The range of voxels decoded from `dtype` (`VolumeSource::stored_range`): scaled values
+/// (`value * slope + inter`) can lie anywhere, so a scaled type bounds nothing.
+pub(crate) fn decoded_range(dtype: Dtype, scale: Option<&Scale>) -> Option<(f32, f32)> {
+    match scale {
+        None => dtype.integer_range(),
+        Some(_) => None,
+    }
 }
 
 /// NIfTI's `scl_slope` / `scl_inter` (`value * slope + inter`), applied as the voxels are
@@ -270,6 +294,33 @@ pub(crate) mod tests {
             Dtype::I32 => enc!(i32),
             Dtype::F32 => enc!(f32),
             Dtype::F64 => enc!(f64),
+        }
+    }
+
+    /// An integer type's range is what its extremes decode to (the casts in `encode` saturate
+    /// at them), and a scaled type bounds nothing.
+    #[test]
+    fn integer_range_is_what_the_extremes_decode_to() {
+        for dtype in ALL {
+            let Some((lo, hi)) = dtype.integer_range() else {
+                assert!(matches!(dtype, Dtype::F32 | Dtype::F64));
+                continue;
+            };
+            let mut out = [0f32; 2];
+            decode(
+                dtype,
+                Endian::Little,
+                &encode(dtype, Endian::Little, &[-1e300, 1e300]),
+                &mut out,
+            );
+            assert_eq!(out, [lo, hi], "{dtype}");
+            assert_eq!(decoded_range(dtype, None), Some((lo, hi)));
+            let scale = Scale {
+                slope: 2.0,
+                inter: 0.0,
+                header: PathBuf::from("scaled.nii"),
+            };
+            assert_eq!(decoded_range(dtype, Some(&scale)), None);
         }
     }
 

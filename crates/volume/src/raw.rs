@@ -6,7 +6,7 @@
 //! VTK legacy binary, NIfTI `.nii`).
 #![allow(unsafe_code)]
 
-use crate::dtype::{Scale, decode};
+use crate::dtype::{Scale, decode, decoded_range};
 use crate::grid::dims_text;
 use crate::source::check_request;
 use crate::{Dtype, Endian, Grid, Orientation, VolumeError, VolumeSource};
@@ -394,6 +394,10 @@ impl VolumeSource for RawVolume {
 
     fn dtype(&self) -> Option<Dtype> {
         Some(self.dtype)
+    }
+
+    fn stored_range(&self) -> Option<(f32, f32)> {
+        decoded_range(self.dtype, self.scale.as_ref())
     }
 
     fn saturated_voxels(&self) -> u64 {

@@ -19,6 +19,14 @@ pub trait VolumeSource: Send {
     fn dtype(&self) -> Option<Dtype> {
         None
     }
+    /// The range every finite voxel lies in, known before any is read: its stored integer
+    /// type's ([`Dtype::integer_range`]) by default. The pipeline refuses an iso outside it up
+    /// front, where otherwise a run read the whole volume to find its surface empty and
+    /// `validate` passed the job. A reader that rescales its stored values (NIfTI's
+    /// `scl_slope`) says `None`, and a source computed from another gives the other's.
+    fn stored_range(&self) -> Option<(f32, f32)> {
+        self.dtype().and_then(Dtype::integer_range)
+    }
     /// What of the header's axis directions the grid dropped (flips, a rotation): the grid is
     /// axis-aligned, so the pipeline warns that the mesh is not where the header puts the
     /// volume. Sources without a header say [`Orientation::Aligned`].
@@ -95,6 +103,9 @@ impl VolumeSource for Box<dyn VolumeSource> {
     }
     fn dtype(&self) -> Option<Dtype> {
         (**self).dtype()
+    }
+    fn stored_range(&self) -> Option<(f32, f32)> {
+        (**self).stored_range()
     }
     fn orientation(&self) -> Orientation {
         (**self).orientation()

@@ -2,7 +2,7 @@
 //! (base64, ASCII numbers) or split over many files. They decode one slice at a time from a
 //! `Read`, so memory stays at two slices of bytes whatever the volume size.
 
-use crate::dtype::{Scale, decode};
+use crate::dtype::{Scale, decode, decoded_range};
 use crate::grid::dims_text;
 use crate::source::check_request;
 use crate::{Dtype, Endian, Grid, Orientation, VolumeError, VolumeSource};
@@ -252,6 +252,12 @@ impl VolumeSource for StreamVolume {
 
     fn dtype(&self) -> Option<Dtype> {
         Some(self.stored)
+    }
+
+    /// The decoded type's, not the declared one's: an ASCII payload (decoded as f64) may hold
+    /// any number whatever type its header declares.
+    fn stored_range(&self) -> Option<(f32, f32)> {
+        decoded_range(self.dtype, self.scale.as_ref())
     }
 
     fn saturated_voxels(&self) -> u64 {

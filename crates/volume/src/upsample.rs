@@ -349,6 +349,11 @@ impl VolumeSource for Upsampled {
         self.inner.dtype()
     }
 
+    /// Trilinear interpolation stays within its corners' values.
+    fn stored_range(&self) -> Option<(f32, f32)> {
+        self.inner.stored_range()
+    }
+
     fn loads_whole_volume(&self) -> bool {
         self.inner.loads_whole_volume()
     }
