@@ -598,6 +598,87 @@ fn check_log_filter(level: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// serde's "unknown field `faces`, expected one of ..." with, when the key is one of another
+/// section, where it goes: "; `faces` belongs in [output]". serde lists only the keys of the
+/// section the key was found in, which did not tell a key put under the wrong header from a
+/// misspelt one.
+fn with_section_hint(message: &str) -> String {
+    let key = message
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split_once('`'))
+        .map(|(key, _)| key);
+    let homes: Vec<String> = key.map_or_else(Vec::new, |key| {
+        sections()
+            .into_iter()
+            .filter(|(_, keys)| keys.contains(&key))
+            .map(|(section, _)| section.to_string())
+            .collect()
+    });
+    match (key, homes.split_last()) {
+        (Some(key), Some((last, []))) => format!("{message}; `{key}` belongs in {last}"),
+        (Some(key), Some((last, rest))) => {
+            format!(
+                "{message}; `{key}` belongs in {} or {last}",
+                rest.join(", ")
+            )
+        }
+        _ => message.to_string(),
+    }
+}
+
+/// Each section of a job file with its keys, the keys as the config structs' derived
+/// `Deserialize` lists them ([`keys_of`]), so this table cannot drift from what is accepted.
+fn sections() -> [(&'static str, &'static [&'static str]); 8] {
+    [
+        ("the top level", keys_of::<JobConfig>()),
+        ("[input]", keys_of::<InputConfig>()),
+        ("[extract]", keys_of::<ExtractConfig>()),
+        ("[simplify]", keys_of::<SimplifyConfig>()),
+        ("[output]", keys_of::<OutputConfig>()),
+        ("[pipeline]", keys_of::<PipelineConfig>()),
+        ("[pipeline.checkpoint]", keys_of::<CheckpointConfig>()),
+        ("[log]", keys_of::<LogConfig>()),
+    ]
+}
+
+/// The field names a derived `Deserialize` struct accepts: the list it hands to
+/// `deserialize_struct` (the one serde's "expected one of" names), caught by a deserializer
+/// that asks for nothing else and stops there.
+fn keys_of<'de, T: Deserialize<'de>>() -> &'static [&'static str] {
+    use serde::de::{Error, Visitor, value::Error as Stop};
+
+    struct Keys<'a>(&'a mut &'static [&'static str]);
+
+    impl<'de> serde::Deserializer<'de> for Keys<'_> {
+        type Error = Stop;
+
+        fn deserialize_any<V: Visitor<'de>>(self, _: V) -> Result<V::Value, Stop> {
+            Err(Stop::custom("not a struct"))
+        }
+
+        fn deserialize_struct<V: Visitor<'de>>(
+            self,
+            _: &'static str,
+            fields: &'static [&'static str],
+            _: V,
+        ) -> Result<V::Value, Stop> {
+            *self.0 = fields;
+            Err(Stop::custom("keys listed"))
+        }
+
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map enum
+            identifier ignored_any
+        }
+    }
+
+    let mut keys: &'static [&'static str] = &[];
+    // Always an error: the deserializer stops as soon as it has the list.
+    let _ = T::deserialize(Keys(&mut keys));
+    keys
+}
+
 /// The text of a TOML error's span, run on to the end of the token it starts: a number too
 /// large for its type is reported with a span of its first digit (`(at `9`)` for
 /// 99999999999999999999999).
@@ -738,7 +819,7 @@ impl JobConfig {
     pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
         toml::from_str(text).map_err(|e| ConfigError::Parse {
             path: origin.to_path_buf(),
-            reason: e.message().to_string(),
+            reason: with_section_hint(e.message()),
             key: e
                 .span()
                 .and_then(|s| quoted_token(text, s))
@@ -1249,6 +1330,47 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("(at `bogus`)"), "{e}");
+    }
+
+    /// A key of another section says where it belongs, in one line; a misspelt key gets no
+    /// such hint.
+    #[test]
+    fn a_key_in_the_wrong_section_says_where_it_belongs() {
+        let text = format!("{MINIMAL}\n[simplify]\nfaces = 10\n");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(
+            err.starts_with("job.toml:10: unknown field `faces`"),
+            "{err}"
+        );
+        assert!(err.contains("; `faces` belongs in [output]"), "{err}");
+        assert!(!err.contains('\n'), "{err}");
+        let text = MINIMAL.replace("iso = 0.0", "iso = 0.0\npath = \"a.raw\"");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(
+            err.contains("; `path` belongs in [input] or [output]"),
+            "{err}"
+        );
+        let text = MINIMAL.replace("iso = 0.0", "iso = 0.0\nisovalue = 3");
+        let err = parse(&text).unwrap_err().to_string();
+        assert!(!err.contains("belongs"), "{err}");
+    }
+
+    /// The table of sections names every table of a job (but `[[attributes]]`, whose keys no
+    /// other section shares), with the keys serde accepts there.
+    #[test]
+    fn sections_are_the_jobs_tables() {
+        let names: Vec<String> = sections()[1..]
+            .iter()
+            .map(|(s, _)| s.trim_matches(['[', ']']).to_string())
+            .filter(|s| !s.contains('.'))
+            .chain(["attributes".to_string()])
+            .collect();
+        let mut top: Vec<&str> = keys_of::<JobConfig>().to_vec();
+        top.sort_unstable();
+        let mut names: Vec<&str> = names.iter().map(String::as_str).collect();
+        names.sort_unstable();
+        assert_eq!(top, names);
+        assert!(keys_of::<OutputConfig>().contains(&"faces"));
     }
 
     #[test]
