@@ -122,7 +122,11 @@ fn main() -> ExitCode {
             e.exit()
         }
         Err(e) => {
-            say_on_stderr(&one_line_usage_error(&e.render().to_string()));
+            let suggestion = subcommand_meant(&e);
+            say_on_stderr(&one_line_usage_error(
+                &e.render().to_string(),
+                suggestion.as_deref(),
+            ));
             return ExitCode::from(2);
         }
     };
@@ -155,17 +159,47 @@ fn say_on_stderr(line: &str) {
 }
 
 /// clap's usage error on one line, as every other error: its lines joined (the usage kept, as
-/// it says what is missing), without the blank lines and the "For more information" one.
-fn one_line_usage_error(text: &str) -> String {
-    let parts: Vec<&str> = text
+/// it says what is missing), without the blank lines and the "For more information" one. With
+/// `suggestion` (a mistyped subcommand's, [`subcommand_meant`]) the first line asks "did you
+/// mean `run`?" in place of clap's own tip.
+fn one_line_usage_error(text: &str, suggestion: Option<&str>) -> String {
+    let mut parts: Vec<String> = text
         .lines()
         .map(str::trim)
         .filter(|l| !l.is_empty() && !l.starts_with("For more information"))
+        .filter(|l| suggestion.is_none() || !l.starts_with("tip: a similar subcommand exists"))
+        .map(str::to_string)
         .collect();
+    if let (Some(meant), Some(first)) = (suggestion, parts.first_mut()) {
+        first.push_str(&format!("; did you mean `{meant}`?"));
+    }
     format!(
         "{} (--help for more)",
         parts.join(" ").replace(" Usage:", "; usage:")
     )
+}
+
+/// The subcommand a mistyped one most likely meant: clap's suggestion, or else the one a
+/// single edit away, a swap of two neighbouring letters counted as one (clap's similarity
+/// measure suggests nothing for short names: `rnu` and `rn` got no hint of `run`).
+fn subcommand_meant(e: &clap::Error) -> Option<String> {
+    use clap::CommandFactory;
+    use clap::error::{ContextKind, ContextValue};
+    if e.kind() != clap::error::ErrorKind::InvalidSubcommand {
+        return None;
+    }
+    if let Some(ContextValue::Strings(names)) = e.get(ContextKind::SuggestedSubcommand) {
+        return names.first().cloned();
+    }
+    let Some(ContextValue::String(typed)) = e.get(ContextKind::InvalidSubcommand) else {
+        return None;
+    };
+    cli::Cli::command()
+        .get_subcommands()
+        .map(|c| (strsim::osa_distance(typed, c.get_name()), c.get_name()))
+        .filter(|&(distance, _)| distance <= 1)
+        .min()
+        .map(|(_, name)| name.to_string())
 }
 
 /// Joins the context chain into one line: "reading job a.toml: a.toml:3: unknown field ...".

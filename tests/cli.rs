@@ -575,6 +575,14 @@ fn command_line_errors_are_one_line() {
     for (args, needles) in [
         (&["run"][..], &["<JOB>", "usage: isostream run"][..]),
         (&["frobnicate"], &["unrecognized subcommand 'frobnicate'"]),
+        // A close typo names the subcommand meant, short names too (clap alone said nothing
+        // for these two).
+        (
+            &["rnu", "x.toml"],
+            &["unrecognized subcommand 'rnu'; did you mean `run`?; usage:"],
+        ),
+        (&["rn", "x.toml"], &["did you mean `run`?"]),
+        (&["valdate", "x.toml"], &["did you mean `validate`?"]),
         (
             &["serve", "--listen", "example.org:1"],
             &["--listen", "is not IP:PORT"],
