@@ -628,7 +628,7 @@ fn with_section_hint(message: &str) -> String {
 
 /// Each section of a job file with its keys, the keys as the config structs' derived
 /// `Deserialize` lists them ([`keys_of`]), so this table cannot drift from what is accepted.
-fn sections() -> [(&'static str, &'static [&'static str]); 8] {
+fn sections() -> [(&'static str, &'static [&'static str]); 9] {
     [
         ("the top level", keys_of::<JobConfig>()),
         ("[input]", keys_of::<InputConfig>()),
@@ -638,6 +638,10 @@ fn sections() -> [(&'static str, &'static [&'static str]); 8] {
         ("[pipeline]", keys_of::<PipelineConfig>()),
         ("[pipeline.checkpoint]", keys_of::<CheckpointConfig>()),
         ("[log]", keys_of::<LogConfig>()),
+        (
+            "[[attributes]]",
+            keys_of::<crate::attributes::AttributeConfig>(),
+        ),
     ]
 }
 
@@ -1347,7 +1351,7 @@ mod tests {
         let text = MINIMAL.replace("iso = 0.0", "iso = 0.0\npath = \"a.raw\"");
         let err = parse(&text).unwrap_err().to_string();
         assert!(
-            err.contains("; `path` belongs in [input] or [output]"),
+            err.contains("; `path` belongs in [input], [output] or [[attributes]]"),
             "{err}"
         );
         let text = MINIMAL.replace("iso = 0.0", "iso = 0.0\nisovalue = 3");
@@ -1355,20 +1359,17 @@ mod tests {
         assert!(!err.contains("belongs"), "{err}");
     }
 
-    /// The table of sections names every table of a job (but `[[attributes]]`, whose keys no
-    /// other section shares), with the keys serde accepts there.
+    /// The table of sections names every table of a job, with the keys serde accepts there.
     #[test]
     fn sections_are_the_jobs_tables() {
-        let names: Vec<String> = sections()[1..]
+        let mut names: Vec<&str> = sections()[1..]
             .iter()
-            .map(|(s, _)| s.trim_matches(['[', ']']).to_string())
+            .map(|(s, _)| s.trim_matches(['[', ']']))
             .filter(|s| !s.contains('.'))
-            .chain(["attributes".to_string()])
             .collect();
-        let mut top: Vec<&str> = keys_of::<JobConfig>().to_vec();
-        top.sort_unstable();
-        let mut names: Vec<&str> = names.iter().map(String::as_str).collect();
         names.sort_unstable();
+        let mut top = keys_of::<JobConfig>().to_vec();
+        top.sort_unstable();
         assert_eq!(top, names);
         assert!(keys_of::<OutputConfig>().contains(&"faces"));
     }
