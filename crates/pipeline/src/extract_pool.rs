@@ -105,16 +105,24 @@ impl<'c> ReadStep<'c> {
 }
 
 /// When the reader sends the checkpoint marker: after slice `z` (the cut after slab `z - 1`),
-/// once the interval has passed and there is room for it (`Control::checkpoints_held`: one due
-/// before waits for a checkpoint to be saved, and those of `every_slabs` after it stay on their
-/// slabs). Never after the run's first slice nor after the volume's
-/// last: a checkpoint there would save nothing new.
+/// once the interval has passed and there is room for it (`Control::checkpoints_held`). Never
+/// after the run's first slice nor after the volume's last: a checkpoint there would save
+/// nothing new.
+///
+/// A marker due while two are still on their way waits for room and is sent as soon as there is
+/// some, and the interval counts again from there, for `every_slabs` as for `every_seconds`.
+/// Keeping `every_slabs` markers on their multiples of the interval sent the held one and the
+/// next back to back (slabs 9 and 10 with `every_slabs = 5`): the second saved a single slab
+/// more, cost a whole checkpoint (the simplifier's state encoded, a file written and fsynced)
+/// and, two being on their way again, was itself likely held. Skipping the held one instead
+/// would leave up to twice the interval unsaved; sent late with the interval restarted, no two
+/// markers are closer than the interval and none is later than it need be.
 pub(crate) struct Schedule {
     every: Option<CheckpointEvery>,
     first: u64,
     last: u64,
-    /// `every_slabs`: the slice after which the next marker is due (a multiple of the interval
-    /// from the run's first slice).
+    /// `every_slabs`: the slice after which the next marker is due (the interval after the
+    /// last one sent, or after the run's first slice).
     next: u64,
     since: Instant,
 }
@@ -149,7 +157,7 @@ impl Schedule {
             Some(CheckpointEvery::Slabs(n)) => {
                 let due = z >= self.next;
                 if due {
-                    self.next = z.saturating_add(n - (z - self.first) % n);
+                    self.next = z.saturating_add(n);
                 }
                 due
             }
@@ -534,14 +542,26 @@ mod tests {
 
     use super::*;
 
-    /// A marker due while no other may be sent waits for room; the next of `every_slabs` stays
-    /// on its multiple of the interval from the run's first slice.
+    /// A marker due while no other may be sent waits for room, and the next of `every_slabs`
+    /// is the interval after it: never two back to back (they were at 9 and 10 here, the next
+    /// kept on its multiple of the interval from the run's first slice).
     #[test]
     fn a_checkpoint_due_while_others_are_pending_waits_for_them() {
         let mut schedule = Schedule::new(Some(CheckpointEvery::Slabs(4)), 2, 30);
         let held = |z: u64| (6..9).contains(&z);
         let cuts: Vec<u64> = (2..30).filter(|&z| schedule.due(z, held(z))).collect();
-        assert_eq!(cuts, vec![9, 10, 14, 18, 22, 26]);
+        assert_eq!(cuts, vec![9, 13, 17, 21, 25]);
+    }
+
+    /// The example of a held marker with `every_slabs = 5` from slice 0, held twice: each is
+    /// sent when room comes, and no two are closer than the interval.
+    #[test]
+    fn held_checkpoints_are_never_back_to_back() {
+        let mut schedule = Schedule::new(Some(CheckpointEvery::Slabs(5)), 0, 40);
+        let held = |z: u64| (5..9).contains(&z) || (14..20).contains(&z);
+        let cuts: Vec<u64> = (0..40).filter(|&z| schedule.due(z, held(z))).collect();
+        assert_eq!(cuts, vec![9, 20, 25, 30, 35]);
+        assert!(cuts.windows(2).all(|w| w[1] - w[0] >= 5), "{cuts:?}");
     }
 
     /// One slab's reply, gathered.
