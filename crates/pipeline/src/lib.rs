@@ -33,7 +33,7 @@ use isostream_prune::{Census, Filter, SmallPieces};
 use isostream_simplify::{
     Boundary, Cascade, Domain, Policy, Simplifier, SimplifyConfig as SimplifierConfig,
 };
-use isostream_smesh::Header;
+use isostream_smesh::{Header, printable_ascii};
 use isostream_volume::VolumeSource;
 use serde::{Deserialize, Serialize};
 use tracing::{info, warn};
@@ -975,20 +975,6 @@ fn non_finite_attributes(extract: &ExtractStats) -> Option<String> {
     })
 }
 
-/// `text` with every character outside printable ASCII written as its Rust escape (`é` as
-/// `\u{e9}`, a line break as `\u{a}`), for the header comment naming the input: a PLY header
-/// is ASCII (readers such as python's plyfile refused an `é`), and every format holds a
-/// comment of one line only, so a path with a line break failed the run (exit 1, though the
-/// job had passed `validate`) when the output was made.
-fn printable_ascii(text: &str) -> String {
-    text.chars()
-        .map(|c| match c {
-            ' '..='~' => c.to_string(),
-            _ => c.escape_unicode().to_string(),
-        })
-        .collect()
-}
-
 /// Voxels of the iso volume whose finite values were beyond f32's range (an f64 volume's 1e40),
 /// read as `±f32::MAX`. `as f32` made them infinite, meshed as outside (holes, and a spurious
 /// inner surface around a core of large values) and warned about as "NaN or infinite" though
@@ -1193,15 +1179,6 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// What is not printable ASCII in the input's path is escaped; the rest is kept as written.
-    #[test]
-    fn the_input_comment_is_printable_ascii() {
-        assert_eq!(
-            printable_ascii("/tmp/dir é ü/e\tng\nine.vti~"),
-            "/tmp/dir \\u{e9} \\u{fc}/e\\u{9}ng\\u{a}ine.vti~"
-        );
-    }
 
     /// A resumed run reads the slices from its checkpoint's slab on, not the whole volume
     /// (the service's voxel metric and the report's rate counted all of them).

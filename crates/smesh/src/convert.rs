@@ -117,7 +117,7 @@ pub fn convert_until(
     let (written, dropped_vertices, dropped_triangles) = if input_format.is_streaming() {
         let mut stream = CheckedStream::open(input)?;
         let header = Header {
-            comments: stream.header().comments.clone(),
+            comments: crate::sma::carried_comments(&stream.header().comments),
             attribute_names: stream.header().attribute_names.clone(),
         };
         let mut sink = create_sink(output, &header, options)?;

@@ -633,9 +633,7 @@ fn comments(gltf: &gltf::Gltf) -> Vec<String> {
         .into_iter()
         .flatten()
         .filter_map(|c| c.as_str())
-        .map(str::trim)
-        .filter(|c| crate::sma::free_comment(c))
-        .map(str::to_string)
+        .filter_map(crate::sma::carried_comment)
         .collect()
 }
 

@@ -16,7 +16,7 @@ pub struct IndexedMesh {
     pub attrs: Vec<f32>,
     /// The file's header comments, one line each (a run writes its provenance there:
     /// `isostream VERSION`, `input PATH iso VALUE`), so that `convert` carries them on; only
-    /// those every format can store (`sma::free_comment`).
+    /// those every format can store, as they can store them (`sma::carried_comment`).
     pub comments: Vec<String>,
 }
 
@@ -62,7 +62,7 @@ fn read_stream(path: &Path) -> Result<IndexedMesh, SmeshError> {
     let mut stream = CheckedStream::open(path)?;
     let mut mesh = IndexedMesh {
         attribute_names: stream.header().attribute_names.clone(),
-        comments: stream.header().comments.clone(),
+        comments: crate::sma::carried_comments(&stream.header().comments),
         ..IndexedMesh::default()
     };
     while let Some(e) = stream.next_element() {

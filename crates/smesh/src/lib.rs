@@ -47,7 +47,7 @@ pub use indexed::{IndexedMesh, read_indexed};
 pub use obj::ObjSink;
 pub use ply::{PlyEncoding, PlySink};
 pub use reader::{Element, ReadHeader, StreamReader};
-pub use sink::{Completed, Header, MeshSink, SinkState, WriteStats};
+pub use sink::{Completed, Header, MeshSink, SinkState, WriteStats, printable_ascii};
 pub use stl::StlSink;
 pub use validate::{ValidationReport, validate};
 pub use writer::StreamWriter;

@@ -228,11 +228,13 @@ impl Reader<'_> {
         )
     }
 
-    /// A `#` line of the header, unless it is the sink's note on attributes or a comment other
-    /// formats cannot hold.
+    /// A `#` line of the header as other formats can hold it, unless it is the sink's note on
+    /// attributes or a comment they cannot.
     fn header_comment(&mut self, comment: &str) {
-        if !comment.starts_with(ATTRIBUTES_NOT_STORED) && crate::sma::free_comment(comment) {
-            self.mesh.comments.push(comment.to_string());
+        if !comment.starts_with(ATTRIBUTES_NOT_STORED)
+            && let Some(c) = crate::sma::carried_comment(comment)
+        {
+            self.mesh.comments.push(c);
         }
     }
 

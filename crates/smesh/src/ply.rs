@@ -289,12 +289,7 @@ pub(crate) fn read(path: &Path) -> Result<IndexedMesh, SmeshError> {
         .read_header(&mut input)
         .map_err(invalid)?;
     let mut mesh = IndexedMesh {
-        comments: header
-            .comments
-            .iter()
-            .map(|c| c.trim().to_string())
-            .filter(|c| crate::sma::free_comment(c))
-            .collect(),
+        comments: crate::sma::carried_comments(&header.comments),
         ..IndexedMesh::default()
     };
     let mut faces = Vec::new();

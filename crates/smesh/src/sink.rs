@@ -17,6 +17,22 @@ pub struct Header {
     pub attribute_names: Vec<String>,
 }
 
+/// `text` with every character outside printable ASCII written as its Rust escape (`é` as
+/// `\u{e9}`, a line break as `\u{a}`), for header comments: a PLY header is ASCII (readers such
+/// as python's plyfile refused an `é`), every format holds a comment of one line only (a run's
+/// input path with a line break failed it when the output was made), and a NUL in an OBJ makes
+/// it binary to our reader. The comment naming a run's input and those `convert` carries from
+/// another tool's file (`sma::carried_comment`) go through it. Printable ASCII is kept as
+/// written, so a comment escaped once is escaped again to itself.
+pub fn printable_ascii(text: &str) -> String {
+    text.chars()
+        .map(|c| match c {
+            ' '..='~' => c.to_string(),
+            _ => c.escape_unicode().to_string(),
+        })
+        .collect()
+}
+
 /// What a finished writer wrote.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct WriteStats {
@@ -339,5 +355,19 @@ impl SinkCore {
             bytes,
             max_active_vertices: self.tracker.max_active(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What is not printable ASCII (an input path's, a foreign comment's) is escaped; the rest,
+    /// and so a comment escaped before, is kept as written.
+    #[test]
+    fn comments_are_escaped_to_printable_ascii() {
+        let escaped = printable_ascii("/tmp/dir é ü/e\tng\nine.vti~");
+        assert_eq!(escaped, "/tmp/dir \\u{e9} \\u{fc}/e\\u{9}ng\\u{a}ine.vti~");
+        assert_eq!(printable_ascii(&escaped), escaped);
     }
 }

@@ -29,12 +29,23 @@ const ATTRIBUTES_KEY: &str = "vertex_attributes";
 /// Header comment keys the reader interprets; a free comment must not start with one.
 const KEYS: [&str; 5] = ["nverts", "nfaces", "bb_min", "bb_max", ATTRIBUTES_KEY];
 
-/// Whether a comment read from another format's header (trimmed) can be carried into every
-/// format: one line, not empty, and not starting with a key SMA readers interpret, which the
-/// SMA writer refuses (a foreign PLY's `comment nverts 3` would otherwise fail a conversion
-/// to SMA that succeeded before comments were carried).
-pub(crate) fn free_comment(c: &str) -> bool {
-    !c.is_empty() && !c.contains(['\n', '\r']) && !starts_with_key(c)
+/// A comment read from a file's header (another tool's as well as ours) as every format can
+/// carry it: trimmed and escaped to printable ASCII (`crate::printable_ascii`: another tool's
+/// `é`, control character or line break went into the output as it was, making a PLY header
+/// that is not ASCII or an OBJ our reader takes for binary), and `None` when it is empty or
+/// starts with a key SMA readers interpret, which the SMA writer refuses (a foreign PLY's
+/// `comment nverts 3` would otherwise fail a conversion to SMA that succeeded before comments
+/// were carried).
+pub(crate) fn carried_comment(c: &str) -> Option<String> {
+    let c = crate::printable_ascii(c.trim());
+    (!c.is_empty() && !starts_with_key(&c)).then_some(c)
+}
+
+/// [`carried_comment`] of each of a header's comments (a PLY's, or an SMA's or SMB's, which
+/// other tools write too: an SMB's comment table may hold a line break, which failed the
+/// conversion).
+pub(crate) fn carried_comments(comments: &[String]) -> Vec<String> {
+    comments.iter().filter_map(|c| carried_comment(c)).collect()
 }
 
 fn starts_with_key(c: &str) -> bool {

@@ -277,8 +277,8 @@ fn comments(head: &[u8]) -> Vec<String> {
         .split("; ")
         .skip(1)
         .map(str::trim)
-        .filter(|c| !c.starts_with(ATTRIBUTES_DROPPED) && crate::sma::free_comment(c))
-        .map(str::to_string)
+        .filter(|c| !c.starts_with(ATTRIBUTES_DROPPED))
+        .filter_map(crate::sma::carried_comment)
         .collect()
 }
 

@@ -235,6 +235,116 @@ fn comments_round_trip_through_every_format() {
     }
 }
 
+/// `path`'s bytes with `from` (present once) replaced by `to`, of the same length.
+fn patch(path: &Path, from: &[u8], to: &[u8]) {
+    assert_eq!(from.len(), to.len());
+    let mut bytes = std::fs::read(path).unwrap();
+    let at = bytes.windows(from.len()).position(|w| w == from).unwrap();
+    bytes[at..at + from.len()].copy_from_slice(to);
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// Only printable ASCII and line ends (`\n`).
+fn printable(bytes: &[u8]) -> bool {
+    bytes
+        .iter()
+        .all(|&b| b == b'\n' || (b' '..=b'~').contains(&b))
+}
+
+/// Trial bug: `convert` copied another tool's header comments into its output as they were: a
+/// non-ASCII or control character went into a PLY header (which is ASCII), a NUL into an OBJ
+/// our own reader then refused as binary, and a line break (in a GLB's extras or an SMB's
+/// comment table) was dropped or failed the conversion. Now they are escaped to printable ASCII
+/// (`é` as `\u{e9}`, a line break as `\u{a}`) as the comment naming a run's input is, and
+/// every output reads back with them.
+#[test]
+fn foreign_comments_are_carried_as_printable_ascii() {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("in.ply");
+    let mut text = b"ply\nformat ascii 1.0\ncomment Scanner \xc3\xa9 2.0\n".to_vec();
+    text.extend(b"comment bell\x07 nul\x00 esc\x1b[0m\n");
+    text.extend(b"element vertex 4\nproperty float x\nproperty float y\nproperty float z\n");
+    text.extend(b"element face 4\nproperty list uchar int vertex_indices\nend_header\n");
+    text.extend(b"0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n");
+    std::fs::write(&ply, text).unwrap();
+    let obj = dir.path().join("in.obj");
+    std::fs::write(
+        &obj,
+        b"# caf\xe9 (Latin-1)\n# form\x0cfeed\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n\
+          f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    // Our writers refuse a line break: put one in the files they wrote.
+    let placeholder = |n| Header {
+        comments: vec!["X".repeat(n)],
+        attribute_names: vec![],
+    };
+    let smb = dir.path().join("in.smb");
+    write(&smb, &placeholder(9), &tetrahedron());
+    patch(&smb, b"XXXXXXXXX", b"two\nlines");
+    let glb = dir.path().join("in.glb");
+    let tmp = dir.path().join("tmp.smb");
+    write(&tmp, &placeholder(25), &tetrahedron());
+    convert(&tmp, &glb).unwrap();
+    patch(&glb, &[b'X'; 25], br"line one\nline two \u00e9");
+    let ascii = ConvertOptions {
+        ply_encoding: PlyEncoding::Ascii,
+        ..ConvertOptions::default()
+    };
+    for (input, expected) in [
+        (
+            &ply,
+            &[r"Scanner \u{e9} 2.0", r"bell\u{7} nul\u{0} esc\u{1b}[0m"][..],
+        ),
+        (&obj, &[r"caf\u{fffd} (Latin-1)", r"form\u{c}feed"]),
+        (&smb, &[r"two\u{a}lines"]),
+        (&glb, &[r"line one\u{a}line two \u{e9}"]),
+    ] {
+        for (name, options) in [
+            ("out.sma", ConvertOptions::default()),
+            ("out.smb", ConvertOptions::default()),
+            ("out.ply", ConvertOptions::default()),
+            ("ascii.ply", ascii),
+            ("out.obj", ConvertOptions::default()),
+            ("out.stl", ConvertOptions::default()),
+            ("out.glb", ConvertOptions::default()),
+        ] {
+            let out = dir.path().join(name);
+            let case = format!("{input:?} -> {name}");
+            convert_with(input, &out, &options).unwrap_or_else(|e| panic!("{case}: {e}"));
+            let mesh = read_indexed(&out).unwrap_or_else(|e| panic!("{case}: {e}"));
+            assert_eq!(mesh.triangles.len(), 4, "{case}");
+            let bytes = std::fs::read(&out).unwrap();
+            let header = match name {
+                "out.ply" | "ascii.ply" => {
+                    let end = bytes
+                        .windows(11)
+                        .position(|w| w == b"end_header\n")
+                        .unwrap();
+                    &bytes[..end + 11]
+                }
+                "out.sma" | "out.obj" => &bytes[..],
+                "out.stl" => &bytes[..80],
+                _ => &[][..],
+            };
+            assert!(
+                printable(header),
+                "{case}: {}",
+                String::from_utf8_lossy(header)
+            );
+            match name {
+                // 80 bytes hold the comments that fit whole.
+                "out.stl" => assert!(
+                    mesh.comments.iter().all(|c| expected.contains(&c.as_str())),
+                    "{case}: {:?}",
+                    mesh.comments
+                ),
+                _ => assert_eq!(mesh.comments, expected, "{case}"),
+            }
+        }
+    }
+}
+
 /// STL's header holds 80 bytes: a comment that does not fit is left out whole (it came back cut
 /// short, as another comment), and those that fit come back.
 #[test]
