@@ -12,7 +12,9 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use isostream_pipeline::{JobConfig, Pass, Progress, RunError, RunSummary, Start};
+use isostream_pipeline::{
+    Done, JobConfig, Pass, Progress, RunError, RunSummary, Start, eta_seconds,
+};
 use serde::Serialize;
 use tokio::sync::{Notify, watch};
 use tokio_util::sync::CancellationToken;
@@ -32,19 +34,30 @@ pub(crate) struct ProgressView {
     pub slabs_done: u64,
     pub slabs_total: u64,
     /// Slabs done before this attempt (a run resumed from a checkpoint starts past 0):
-    /// the status page's ETA paces by the slabs done since, over the time since
-    /// `started_unix_ms` (counting the checkpoint's slabs too promised 10 s of 40).
+    /// the ETA paces by the slabs done since, over the time since `started_unix_ms`
+    /// (counting the checkpoint's slabs too promised 10 s of 40).
     pub slabs_at_start: u64,
     /// After a first pass: when the run's first slab was reported (the service's clock, Unix
-    /// ms) and the slabs done then. The status page paces its ETA from there: from the job's
-    /// start, the first pass's seconds counted as the run's (a 78 s job promised 15 minutes).
+    /// ms) and the slabs done then. The ETA paces from there: from the job's start, the first
+    /// pass's seconds counted as the run's (a 78 s job promised 15 minutes).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run_started_unix_ms: Option<u64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run_started_slab: Option<u64>,
     pub faces_in: u64,
     pub faces_out: u64,
+    /// The run's faces as the ETA paces by them, when a first pass counted them
+    /// ([`Progress::faces_done`]), from where its pace starts: the run's first reported slab
+    /// after a first pass, as the slabs (`run_started_slab`).
+    #[serde(skip)]
+    faces: Option<Done>,
     pub resident_faces: u64,
+    /// Seconds left in a running job's run, by the command line's estimate ([`eta_seconds`]):
+    /// the status page computed its own from the slabs, and promised a surface mid-volume's end
+    /// long before it. Worked out when the job is viewed (`view_of`), as its time goes on;
+    /// `None` in the table, and before the run has a pace.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eta_s: Option<f64>,
 }
 
 impl ProgressView {
@@ -64,8 +77,30 @@ impl ProgressView {
             run_started_slab: None,
             faces_in: count("faces_extracted"),
             faces_out: count("faces_written"),
+            faces: None,
             resident_faces: 0,
+            eta_s: None,
         }
+    }
+
+    /// Seconds left in the run of a job whose attempt started at `started_unix_ms`, `now_ms`
+    /// (both the service's clock); `None` in a first pass, whose end is not the job's, and
+    /// before the run has done anything to pace by.
+    fn eta_s(&self, started_unix_ms: Option<u64>, now_ms: u64) -> Option<f64> {
+        if self.pass != Pass::Run {
+            return None;
+        }
+        let since = self.run_started_unix_ms.or(started_unix_ms)?;
+        let slabs = Done {
+            start: self.run_started_slab.unwrap_or(self.slabs_at_start),
+            now: self.slabs_done,
+            total: self.slabs_total,
+        };
+        eta_seconds(
+            now_ms.saturating_sub(since) as f64 / 1000.0,
+            slabs,
+            self.faces,
+        )
     }
 }
 
@@ -80,7 +115,9 @@ impl From<&Progress> for ProgressView {
             run_started_slab: None,
             faces_in: p.faces_in,
             faces_out: p.faces_out,
+            faces: p.faces_done(),
             resident_faces: p.resident_faces,
+            eta_s: None,
         }
     }
 }
@@ -155,7 +192,12 @@ fn view_of(record: &JobRecord, progress: ProgressView) -> JobView {
         report_url: (record.state == JobState::Done).then(|| format!("{url}/report")),
         url,
         record: record.clone(),
-        progress,
+        progress: ProgressView {
+            eta_s: (record.state == JobState::Running)
+                .then(|| progress.eta_s(record.started_unix_ms, now_ms()))
+                .flatten(),
+            ..progress
+        },
     }
 }
 
@@ -654,12 +696,22 @@ impl Queue {
         let mut t = self.lock();
         if let Some(job) = t.jobs.get_mut(id) {
             let mut now = ProgressView::from(p);
-            (now.run_started_unix_ms, now.run_started_slab) =
+            let faces_start;
+            (now.run_started_unix_ms, now.run_started_slab, faces_start) =
                 match (job.progress.pass, job.progress.run_started_unix_ms, p.pass) {
-                    (_, Some(t), _) => (Some(t), job.progress.run_started_slab),
-                    (Pass::First, None, Pass::Run) => (Some(now_ms()), Some(p.slabs_done)),
-                    _ => (None, None),
+                    (_, Some(t), _) => (
+                        Some(t),
+                        job.progress.run_started_slab,
+                        job.progress.faces.map(|f| f.start),
+                    ),
+                    (Pass::First, None, Pass::Run) => {
+                        (Some(now_ms()), Some(p.slabs_done), Some(p.faces_in))
+                    }
+                    _ => (None, None, None),
                 };
+            if let (Some(faces), Some(start)) = (&mut now.faces, faces_start) {
+                faces.start = start;
+            }
             // Counted from where the run started: a resumed run's totals include the faces its
             // checkpoint restored, the work of the service that saved it.
             self.metrics.faces(
@@ -1051,6 +1103,86 @@ mod tests {
         ] {
             assert!(text.contains(needle), "{needle} missing from\n{text}");
         }
+    }
+
+    /// A job's ETA is the command line's ([`eta_seconds`]), paced by the faces when a first pass
+    /// counted them: the status page paced its own by the slabs, and promised the end of a run
+    /// whose surface lay in the volume's first half at the slabs' pace.
+    #[test]
+    fn the_eta_paces_by_the_faces_when_a_first_pass_counted_them() {
+        let faces = Done {
+            start: 100,
+            now: 9_100,
+            total: 10_100,
+        };
+        let view = ProgressView {
+            slabs_done: 60,
+            slabs_total: 100,
+            run_started_unix_ms: Some(10_000),
+            run_started_slab: Some(10),
+            faces: Some(faces),
+            ..ProgressView::default()
+        };
+        // 20 s since the run's first slab, over 50 slabs of 90 and 9000 faces of 10000.
+        let slabs = Done {
+            start: 10,
+            now: 60,
+            total: 100,
+        };
+        let eta = view.eta_s(Some(1_000), 30_000).unwrap();
+        assert_eq!(Some(eta), eta_seconds(20.0, slabs, Some(faces)));
+        assert!((eta - 20.0 * 1_000.0 / 9_000.0).abs() < 1e-9, "{eta}");
+        let by_slabs = ProgressView {
+            faces: None,
+            ..view
+        };
+        assert_eq!(by_slabs.eta_s(Some(1_000), 30_000), Some(16.0));
+        let first = ProgressView {
+            pass: Pass::First,
+            ..view
+        };
+        assert_eq!(first.eta_s(Some(1_000), 30_000), None, "not the job's end");
+    }
+
+    /// After a first pass, the faces pace from the run's first reported slab, as the slabs and
+    /// the time do; the job's view carries the estimate while it runs.
+    #[test]
+    fn after_a_first_pass_the_faces_pace_from_the_runs_first_slab() {
+        let dir = tempfile::tempdir().unwrap();
+        let q = running_queue(dir.path());
+        {
+            let mut t = q.lock();
+            let record = &mut t.jobs.get_mut(RUNNING).unwrap().record;
+            record.state = JobState::Running;
+            record.started_unix_ms = Some(now_ms());
+        }
+        let report = |pass, slabs_done, faces_in| Progress {
+            pass,
+            slabs_done,
+            slabs_at_start: 0,
+            slabs_total: 100,
+            faces_in,
+            faces_out: 0,
+            faces_in_at_start: 0,
+            faces_out_at_start: 0,
+            faces_total: (pass == Pass::Run).then_some(10_000),
+            resident_faces: 0,
+            queued: [0; 3],
+        };
+        q.progress(RUNNING, &report(Pass::First, 100, 0));
+        assert_eq!(q.get(RUNNING).unwrap().progress.eta_s, None);
+        q.progress(RUNNING, &report(Pass::Run, 3, 300));
+        q.progress(RUNNING, &report(Pass::Run, 5, 800));
+        let view = q.get(RUNNING).unwrap().progress;
+        assert_eq!(
+            q.lock().jobs[RUNNING].progress.faces,
+            Some(Done {
+                start: 300,
+                now: 800,
+                total: 10_000
+            })
+        );
+        assert!(view.eta_s.is_some(), "{view:?}");
     }
 
     /// A resumed run's end adds the voxels it read, from its checkpoint's slab on, as its
