@@ -1613,9 +1613,10 @@ fn a_relative_state_folder_survives_a_restart_from_another_folder() {
 }
 
 /// After a first pass (`[output] faces`), the view says when the run's first slab came, and
-/// the status page paces its ETA from there: from the job's start, a 78 s job with a first
-/// pass promised 15 minutes. A job without a first pass has no such field (its run starts with
-/// the job).
+/// its ETA (`eta_s`) paces from there: from the job's start, a 78 s job with a first pass
+/// promised 15 minutes. A job without a first pass has no such field (its run starts with the
+/// job). The service works the ETA out (the status page computed its own, by the slabs alone):
+/// absent in the first pass and once the job is done, there once the run has slabs to pace by.
 #[test]
 fn after_a_first_pass_the_view_says_when_the_run_began() {
     let dir = tempfile::tempdir().unwrap();
@@ -1631,7 +1632,12 @@ fn after_a_first_pass_the_view_says_when_the_run_began() {
     );
     let seen = wait_for(&s, &with_pass, "the run's slabs", |v| {
         let p = &v["progress"];
-        v["state"] == "done" || (p["pass"] == "run" && p["slabs_done"].as_u64() > Some(0))
+        if v["state"] == "running" && p["pass"] == "first" {
+            assert!(p.get("eta_s").is_none(), "{v}");
+        }
+        // Past the run's first reported slab: one to pace by.
+        let began = p["run_started_slab"].as_u64();
+        v["state"] == "done" || began.is_some_and(|b| p["slabs_done"].as_u64() > Some(b))
     });
     if seen["state"] == "running" {
         let p = &seen["progress"];
@@ -1639,9 +1645,11 @@ fn after_a_first_pass_the_view_says_when_the_run_began() {
             .as_u64()
             .unwrap_or_else(|| panic!("{seen}"));
         assert!(began >= seen["started_unix_ms"].as_u64().unwrap(), "{seen}");
-        assert!(p["run_started_slab"].as_u64().unwrap() <= p["slabs_done"].as_u64().unwrap());
+        assert!(p["run_started_slab"].as_u64().unwrap() < p["slabs_done"].as_u64().unwrap());
+        assert!(p["eta_s"].as_f64().is_some_and(|s| s >= 0.0), "{seen}");
     }
-    wait_for(&s, &with_pass, "done", |v| v["state"] == "done");
+    let done = wait_for(&s, &with_pass, "done", |v| v["state"] == "done");
+    assert!(done["progress"].get("eta_s").is_none(), "{done}");
     let without = submit(&s, &long_job("a.smb"));
     let running = wait_for(&s, &without, "running slabs", |v| {
         v["state"] == "done" || v["progress"]["slabs_done"].as_u64().unwrap_or(0) > 0
@@ -1650,6 +1658,9 @@ fn after_a_first_pass_the_view_says_when_the_run_began() {
         running["progress"].get("run_started_unix_ms").is_none(),
         "{running}"
     );
+    if running["state"] == "running" {
+        assert!(running["progress"]["eta_s"].as_f64().is_some(), "{running}");
+    }
 }
 
 /// With its stderr a closed pipe (`isostream serve 2>&1 | head -1`, `head` gone), the service
