@@ -54,8 +54,9 @@ pub(crate) struct ProgressView {
     pub resident_faces: u64,
     /// Seconds left in a running job's run, by the command line's estimate ([`eta_seconds`]):
     /// the status page computed its own from the slabs, and promised a surface mid-volume's end
-    /// long before it. Worked out when the job is viewed (`view_of`), as its time goes on;
-    /// `None` in the table, and before the run has a pace.
+    /// long before it. Worked out when the job is viewed (`view_of`), as its time goes on (a
+    /// `GET` afresh, an event as of its slab); `None` in the table, and before the run has a
+    /// pace.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub eta_s: Option<f64>,
 }
@@ -696,6 +697,7 @@ impl Queue {
         let mut t = self.lock();
         if let Some(job) = t.jobs.get_mut(id) {
             let mut now = ProgressView::from(p);
+            // The faces pace from where the time and the slabs do.
             let faces_start;
             (now.run_started_unix_ms, now.run_started_slab, faces_start) =
                 match (job.progress.pass, job.progress.run_started_unix_ms, p.pass) {
