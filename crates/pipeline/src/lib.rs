@@ -729,7 +729,11 @@ fn whole_extraction(job: &JobConfig, source: Box<dyn VolumeSource>) -> stages::E
 }
 
 /// Slabs the first stage of a cascade keeps a vertex editable behind its front: its output is
-/// not final, so a short band is enough, and the band is what it adds to the memory.
+/// not final, so a short band is enough, and the band is what it adds to the memory. In slabs
+/// as thick as the voxels are wide ([`config::thin_slabs`]): in slabs of a thick-slice CT
+/// upsampled along z, the band was a fraction of a voxel deep, and the first stage took it to
+/// its rate by contractions across it (hydrogen upsampled [2, 2, 40] at `faces = 2000`: 2.9x
+/// one stage's RMS distance, 282 triangles under 5 degrees; deepened, 1.00x and none).
 const FIRST_STAGE_LAG: u32 = 3;
 
 /// The rate a cascade's first stage decimates to, for a job at `rate`. The second stage's
@@ -778,7 +782,7 @@ fn simplifier_configs(
             batch: job.simplify.batch.unwrap_or(config::FIRST_STAGE_BATCH),
             initial_rate,
         },
-        retire_lag: FIRST_STAGE_LAG,
+        retire_lag: FIRST_STAGE_LAG * config::thin_slabs(grid.spacing),
         max_resident_faces: (budget / FIRST_STAGE_SHARE).max(1),
         cascade: Cascade::First,
         ..single.clone()
@@ -835,7 +839,7 @@ fn simplifier_config(
                 isotropy: s.isotropy(),
             },
         },
-        retire_lag: s.retire_lag(),
+        retire_lag: s.retire_lag_on(grid.spacing),
         max_resident_faces: job.max_resident_faces(grid.dims, largest_slab),
         attributes: job.attributes.len(),
         cascade: Cascade::Single,

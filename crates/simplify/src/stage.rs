@@ -45,10 +45,6 @@ const BOUNDARY_WEIGHT: f64 = 10.0;
 /// vertices' stars reach into the front's slab).
 const BAND_SLABS: u32 = 2;
 
-/// How far (in slabs, as front keys) a cascade's first stage keeps its rear behind its front
-/// ([`Stage::catch_up_due`]).
-const CATCH_UP: f64 = 2.0;
-
 /// The corners of the triangles held in `store` that can hold a rear back
 /// ([`cascade::rear_of`]): those of the vertices below the plane one slab above the lowest
 /// vertex (each once per such corner). The others lie at or beyond that plane and count for
@@ -587,17 +583,18 @@ impl Stage {
         });
     }
 
-    /// First stage of a cascade: the front [`CATCH_UP`] slabs behind its front, which the
+    /// First stage of a cascade: the front `retire_lag - 1` slabs behind its front (2 at the
+    /// default lag; more where the pipeline deepened the lag for thin slabs), which the
     /// catch-up keeps its rear at or above ([`Stage::catch_up_due`]); the origin elsewhere.
     ///
     /// The rear announced last is exactly what the triangles held then allowed (or the front
     /// then), and what came since lies beyond that front: so the rear lags behind this target
     /// exactly when some triangle held is not clear of it (unless the front has moved more
-    /// than [`CATCH_UP`] slabs since, over empty slabs: then a pass runs that finds nothing to
+    /// than that since, over empty slabs: then a pass runs that finds nothing to
     /// write). Asking this instead of scanning for such triangles removes one of the
     /// catch-up's two scans per slab.
     fn catch_up_target(&self) -> Front {
-        let key = self.front - CATCH_UP;
+        let key = self.front - f64::from(self.config.retire_lag.saturating_sub(1).max(1));
         match self.config.sweep {
             Some(sweep)
                 if self.config.cascade == Cascade::First && key > 0.0 && key.is_finite() =>
