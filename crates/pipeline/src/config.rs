@@ -477,7 +477,7 @@ pub struct PipelineConfig {
     /// When to save a resumable state (`isostream run --resume`).
     #[serde(default)]
     pub checkpoint: CheckpointConfig,
-    /// Threads extracting slabs in parallel (default: one per core), and above 1 the last
+    /// Threads extracting slabs in parallel (default: one per core, at most 8), and above 1 the last
     /// simplifier's final decimation on two threads when it is cut in two (`stages.rs`,
     /// `FinalWorkers`). The output does not depend on it: slabs reach the detector in order,
     /// and whether a final decimation is cut depends on its faces only.
@@ -489,13 +489,29 @@ pub struct PipelineConfig {
     pub simplify_stages: Option<u8>,
 }
 
+/// Extraction threads when `threads` is not given: the machine's cores, at most this many.
+/// Every extraction thread holds a slab in flight, outside the memory budget's faces (a user
+/// trial on this 2-core machine: bonsai at R = 0.2 peaked at 50.9 MiB with 2 threads and 85.8
+/// MiB with 64, hydrogen upsampled 16x in mode none at 14.0 / 27.1 / 69.0 MiB with 1 / 16 /
+/// 64), while the simplifier's one or two threads set the pace of every simplified job (bonsai:
+/// extraction 0.13 s of 3.2 s on two threads). So a many-core node would take a default job
+/// over its budget for no gain; a job that wants more asks for them.
+const DEFAULT_MAX_THREADS: usize = 8;
+
 impl PipelineConfig {
-    /// Extraction threads: `threads`, else the machine's cores.
+    /// Extraction threads: `threads`, else the machine's cores up to [`DEFAULT_MAX_THREADS`].
     pub fn threads(&self) -> usize {
         self.threads.unwrap_or_else(|| {
-            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+            default_threads(
+                std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get),
+            )
         })
     }
+}
+
+/// Extraction threads by default on a machine of `cores` cores.
+fn default_threads(cores: usize) -> usize {
+    cores.clamp(1, DEFAULT_MAX_THREADS)
 }
 
 /// `[pipeline] checkpoint = { every_seconds = 60 }` (or `every_slabs = N`, or `enabled = false`).
@@ -1097,7 +1113,7 @@ impl JobConfig {
         if let Some(n) = p.threads.filter(|n| !(1..=MAX_THREADS).contains(n)) {
             return Err(bad(
                 "pipeline.threads",
-                &format!("1 to {MAX_THREADS} (or leave it out for one per core)"),
+                &format!("1 to {MAX_THREADS} (or leave it out for one per core, at most 8)"),
                 n.to_string(),
             ));
         }
@@ -1590,6 +1606,15 @@ mod tests {
         ] {
             job(read).unwrap_or_else(|e| panic!("{read}: {e}"));
         }
+    }
+
+    /// One extraction thread per core by default, at most eight (each holds a slab in flight).
+    #[test]
+    fn default_threads_are_the_cores_up_to_eight() {
+        assert_eq!(default_threads(1), 1);
+        assert_eq!(default_threads(2), 2);
+        assert_eq!(default_threads(64), 8);
+        assert!((1..=8).contains(&PipelineConfig::default().threads()));
     }
 
     /// A slab count is in slabs as thick as the voxels are wide; a `retire_lag` given is kept.
