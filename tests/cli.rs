@@ -182,23 +182,28 @@ fn impossible_rate_names_the_key() {
     );
 }
 
-/// A job whose output format cannot index what it could write is refused by `validate` as by
-/// `run`, before any work (a procedural 2000^3 sphere kept whole is not generated).
+/// A job whose output format cannot index (SMB) or count (binary STL's u32 triangle count) what
+/// it could write is refused by `validate` as by `run`, before any work (a procedural 2000^3
+/// sphere kept whole is not generated).
 #[test]
 fn validate_refuses_an_output_past_its_index_limit() {
-    let dir = tempfile::tempdir().unwrap();
-    let job = write_job(
-        dir.path(),
-        "[input]\nshape = \"sphere\"\nsize = [2000, 2000, 2000]\n[extract]\niso = 0.0\n[simplify]\nmode = \"none\"\n[output]\npath = \"o.smb\"\n",
-    );
-    for command in ["validate", "run"] {
-        assert_one_line_error(
-            &isostream(&[command, &job]),
-            2,
-            &["o.smb", "could write up to", ".sma"],
+    for (output, fix) in [("o.smb", ".sma"), ("o.stl", ".obj")] {
+        let dir = tempfile::tempdir().unwrap();
+        let job = write_job(
+            dir.path(),
+            &format!(
+                "[input]\nshape = \"sphere\"\nsize = [2000, 2000, 2000]\n[extract]\niso = 0.0\n[simplify]\nmode = \"none\"\n[output]\npath = \"{output}\"\n"
+            ),
         );
+        for command in ["validate", "run"] {
+            assert_one_line_error(
+                &isostream(&[command, &job]),
+                2,
+                &["output.path", output, "could write up to", fix],
+            );
+        }
+        assert!(!dir.path().join(output).exists());
     }
-    assert!(!dir.path().join("o.smb").exists());
 }
 
 #[test]

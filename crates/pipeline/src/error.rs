@@ -76,14 +76,18 @@ pub enum RunError {
         why: String,
     },
     #[error(
-        "{}: this job could write up to {bound} vertices, past the {limit} that {what} hold (nothing was run): write .sma (64-bit indices), or lower the output with [output] faces or a lower [simplify] rate",
+        "output.path {}: this job could write up to {bound} {counted}, past the {limit} that {what} (nothing was run): write {instead}, or lower the output with [output] faces or a lower [simplify] rate",
         output.display()
     )]
     IndexLimit {
         output: PathBuf,
         bound: u64,
+        counted: crate::index_limit::Counted,
         limit: u64,
+        /// The format's field, with its verb ("binary STL's 32-bit triangle count holds").
         what: &'static str,
+        /// The formats without the limit.
+        instead: &'static str,
     },
     #[error(
         "{input}: slices of {nx} x {ny} voxels are read whole as f32, and {slices} of them take {need_gib:.1} GiB, more than this machine's {physical_gib:.1} GiB of memory (nothing was run): {fix}"

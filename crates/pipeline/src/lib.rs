@@ -45,6 +45,7 @@ pub use config::{
     Mode, OutputConfig, PipelineConfig, PriorityKind, SimplifyConfig,
 };
 pub use error::{ConfigError, RunError};
+pub use index_limit::Counted;
 pub use mirror::Mirror;
 pub use monitor::{Done, MAX_SERIES_POINTS, SeriesPoint, TimeSeries, eta_seconds};
 pub use output::{OutputLock, lock_output, lock_path, one_file, output_in_use, stale_temp_files};
