@@ -457,7 +457,7 @@ fn run_job(
                 sink_stats.triangles,
                 &outputs.simplify,
                 last.forced_retirements,
-                outputs.prune.is_some(),
+                job.simplify.min_component_faces,
             )
         })
         .into_iter()
@@ -470,6 +470,8 @@ fn run_job(
         ))
         .chain(over_budget(
             job,
+            grid.dims,
+            outputs.simplify_stages.is_some(),
             budget_faces,
             &outputs.simplify,
             peak_rss_mib,
@@ -906,12 +908,15 @@ fn attributes_not_written(job: &JobConfig) -> Option<String> {
 /// 11 faces got 10 with no word and for 13 got 14 with a warning blaming the topology checks,
 /// which had refused nothing (a torture trial: 8 jobs with targets of 8 to 22 one face under,
 /// silent); each now says why in one line.
+///
+/// The hint on `[simplify] min_component_faces` (`min_faces`, 0 when unset) is phrased for the
+/// job's value: a job that set it was told to set it.
 fn rate_missed(
     target: u64,
     written: u64,
     stats: &isostream_simplify::SimplifyStats,
     forced: u64,
-    pruning: bool,
+    min_faces: u64,
 ) -> Option<String> {
     let off = written as f64 / target.max(1) as f64 - 1.0;
     if written.abs_diff(target) == 1 && off.abs() > 0.02 {
@@ -924,11 +929,14 @@ fn rate_missed(
         ));
     }
     (written as f64 > 1.02 * target as f64).then(|| {
-        let hint = match pruning {
-            true => "; a larger [simplify] min_component_faces drops more small components",
-            false => {
-                "; [simplify] min_component_faces drops small components (it changes the topology)"
-            }
+        let hint = match min_faces {
+            0 => "; [simplify] min_component_faces drops small components (it changes the \
+                  topology)"
+                .to_string(),
+            n => format!(
+                "; [simplify] min_component_faces = {n} dropped the components of fewer faces: \
+                 a larger value drops more"
+            ),
         };
         let cause = if forced == 0 {
             "the topology and geometry checks allow no fewer here".to_string()
@@ -1090,10 +1098,15 @@ const OVER_BUDGET_TOLERANCE: f64 = 0.02;
 /// more than the budget sets aside for it. Small budgets did so silently: every run at 16 MiB
 /// peaked at 20-23.6 MiB, engine at 20 MiB at 20.9 (engine, bonsai and cthead, whatever they
 /// held: the code, the slices and slabs in flight, the channels, a cascade's first stage's band
-/// come to about 20 MiB on 256^2 slices). No budget is suggested: the faces the run held
-/// did not take it over, so a larger budget would give it more faces as well as more room.
+/// come to about 20 MiB on 256^2 slices). Every extraction thread holds a slab in flight:
+/// `[pipeline] threads = 64` took bonsai from 51 to 86 MiB. The warning names only what the run
+/// had (its stage count, or no simplifier at all with mode `none`, its slices, its threads): it
+/// spoke of a cascade and 256^2 slices to every run. No budget is suggested: the faces the run
+/// held did not take it over, so a larger budget would give it more faces as well as more room.
 fn over_budget(
     job: &JobConfig,
+    dims: [u64; 3],
+    two_stages: bool,
     faces: usize,
     stats: &isostream_simplify::SimplifyStats,
     peak_mib: Option<f64>,
@@ -1102,13 +1115,36 @@ fn over_budget(
     let peak = peak_mib.filter(|&p| {
         stats.front_stretch_faces == 0 && p > mib as f64 * (1.0 + OVER_BUDGET_TOLERANCE)
     })?;
+    let head = format!("peak RSS {peak:.1} MiB went over [pipeline] memory_budget_mib = {mib}");
+    let slabs = match job.pipeline.threads() {
+        1 => "the slab in flight".to_string(),
+        n => format!(
+            "a slab in flight on each of the {n} extraction threads: a lower [pipeline] threads \
+             holds fewer"
+        ),
+    };
+    let process = format!(
+        "code, channels, slices of {} x {} voxels, {slabs}",
+        dims[0], dims[1]
+    );
+    if job.simplify.mode == Mode::None {
+        return Some(format!(
+            "{head}: the budget bounds a simplifier's faces, and [simplify] mode = \"none\" \
+             simplifies nothing: the process ({process}) is what took it, which no budget bounds"
+        ));
+    }
+    let (simplifiers, stages) = match two_stages {
+        true => (
+            "the cascade's two simplifiers",
+            " (its first stage keeps its band of unfinished slabs beyond its share, and the \
+             second at least a third of the budget)",
+        ),
+        false => ("the simplifier", ""),
+    };
     Some(format!(
-        "peak RSS {peak:.1} MiB went over [pipeline] memory_budget_mib = {mib}: the \
-         simplifiers held up to {} faces against the {faces} of the budget (a cascade's first \
-         stage keeps its band of unfinished slabs beyond its share, and the second at least a \
-         third of the budget), and the rest of the process (code, slices and slabs in flight, \
-         channels) takes about 20 MiB on 256^2 slices; a budget this small does not bound this \
-         job",
+        "{head}: {simplifiers} held up to {} faces against the {faces} of the budget{stages}, \
+         and the rest of the process ({process}) took the rest; a budget this small does not \
+         bound this job",
         stats.peak_resident_faces,
     ))
 }
@@ -1205,13 +1241,7 @@ mod tests {
             "an empty surface aims at nothing"
         );
         assert_eq!(
-            rate_missed(
-                rate_target(1e-300, 115_809),
-                1,
-                &Default::default(),
-                0,
-                false
-            ),
+            rate_missed(rate_target(1e-300, 115_809), 1, &Default::default(), 0, 0),
             None
         );
     }
@@ -1219,22 +1249,23 @@ mod tests {
     #[test]
     fn a_missed_rate_names_the_budget_when_it_retired_vertices_early() {
         let stats = isostream_simplify::SimplifyStats::default();
-        assert_eq!(
-            rate_missed(1000, 1020, &stats, 0, false),
-            None,
-            "within 2 %"
-        );
-        let floor = rate_missed(1000, 1500, &stats, 0, false).unwrap();
+        assert_eq!(rate_missed(1000, 1020, &stats, 0, 0), None, "within 2 %");
+        let floor = rate_missed(1000, 1500, &stats, 0, 0).unwrap();
         assert!(
             floor.contains("+50 %")
                 && floor.contains("the topology and geometry checks allow no fewer")
         );
         assert!(!floor.contains("memory_budget_mib"), "{floor}");
-        let budget = rate_missed(1000, 1500, &stats, 37, true).unwrap();
+        assert!(
+            floor.contains("min_component_faces drops small components"),
+            "{floor}"
+        );
+        let budget = rate_missed(1000, 1500, &stats, 37, 50).unwrap();
         assert!(
             budget.contains("retired 37 vertices")
                 && budget.contains("a larger [pipeline] memory_budget_mib")
-                && budget.contains("a larger [simplify] min_component_faces"),
+                && budget.contains("min_component_faces = 50 dropped")
+                && !budget.contains("drops small components"),
             "{budget}"
         );
         assert!(!budget.contains("allows no fewer"), "{budget}");
@@ -1244,7 +1275,7 @@ mod tests {
     fn one_face_off_a_small_target_is_put_down_to_the_step_of_a_contraction() {
         let stats = isostream_simplify::SimplifyStats::default();
         for (target, written) in [(11, 10), (13, 14), (20, 19)] {
-            let said = rate_missed(target, written, &stats, 0, false).unwrap();
+            let said = rate_missed(target, written, &stats, 0, 0).unwrap();
             assert!(
                 said.contains("missed by one face")
                     && said.contains("an even number")
@@ -1253,9 +1284,9 @@ mod tests {
                 "{said}"
             );
         }
-        assert_eq!(rate_missed(51, 50, &stats, 0, false), None, "within 2 %");
+        assert_eq!(rate_missed(51, 50, &stats, 0, 0), None, "within 2 %");
         assert!(
-            rate_missed(12, 14, &stats, 0, false)
+            rate_missed(12, 14, &stats, 0, 0)
                 .unwrap()
                 .contains("the topology and geometry checks"),
             "two faces off is not one step"
@@ -1315,19 +1346,68 @@ mod tests {
     #[test]
     fn a_run_over_its_budget_warns_without_a_stretch() {
         let job = small_sphere("[pipeline]\nmemory_budget_mib = 20\n");
+        let dims = [8, 8, 8];
         let mut stats = isostream_simplify::SimplifyStats {
             peak_resident_faces: 7_000,
             ..Default::default()
         };
-        assert_eq!(over_budget(&job, 7_490, &stats, Some(20.3)), None);
-        let w = over_budget(&job, 7_490, &stats, Some(20.9)).unwrap();
+        assert_eq!(
+            over_budget(&job, dims, false, 7_490, &stats, Some(20.3)),
+            None
+        );
+        let w = over_budget(&job, dims, false, 7_490, &stats, Some(20.9)).unwrap();
         assert!(
             w.contains("peak RSS 20.9 MiB went over [pipeline] memory_budget_mib = 20")
                 && w.contains("held up to 7000 faces against the 7490"),
             "{w}"
         );
         stats.front_stretch_faces = 1;
-        assert_eq!(over_budget(&job, 7_490, &stats, Some(22.0)), None);
+        assert_eq!(
+            over_budget(&job, dims, false, 7_490, &stats, Some(22.0)),
+            None
+        );
+    }
+
+    /// The over-budget warning names what the run had: its stage count (or no simplifier with
+    /// mode `none`), its slices and its extraction threads; it spoke of a cascade's stages and
+    /// 256^2 slices to every run.
+    #[test]
+    fn the_over_budget_warning_says_what_the_run_had() {
+        let stats = isostream_simplify::SimplifyStats {
+            peak_resident_faces: 7_000,
+            ..Default::default()
+        };
+        let dims = [511, 300, 256];
+        let threaded = small_sphere("[pipeline]\nmemory_budget_mib = 20\nthreads = 64\n");
+        let one = over_budget(&threaded, dims, false, 7_490, &stats, Some(86.0)).unwrap();
+        assert!(
+            one.contains("the simplifier held up to 7000 faces")
+                && one.contains("slices of 511 x 300 voxels")
+                && one.contains("each of the 64 extraction threads")
+                && one.contains("[pipeline] threads")
+                && !one.contains("cascade")
+                && !one.contains("256^2"),
+            "{one}"
+        );
+        let two = over_budget(&threaded, dims, true, 7_490, &stats, Some(86.0)).unwrap();
+        assert!(
+            two.contains("two simplifiers") && two.contains("band of unfinished slabs"),
+            "{two}"
+        );
+        let single = small_sphere("[pipeline]\nmemory_budget_mib = 20\nthreads = 1\n");
+        let one = over_budget(&single, dims, false, 7_490, &stats, Some(30.0)).unwrap();
+        assert!(
+            one.contains("the slab in flight") && !one.contains("[pipeline] threads"),
+            "{one}"
+        );
+        let none = small_sphere(
+            "[simplify]\nmode = \"none\"\n[pipeline]\nmemory_budget_mib = 20\nthreads = 1\n",
+        );
+        let w = over_budget(&none, dims, false, 7_490, &stats, Some(30.0)).unwrap();
+        assert!(
+            w.contains("mode = \"none\"") && !w.contains("held up to") && !w.contains("cascade"),
+            "{w}"
+        );
     }
 
     /// A mode `error` run whose budget retired more than a hundredth of its vertices early
