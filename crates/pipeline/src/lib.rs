@@ -297,7 +297,7 @@ fn run_job(
             c.first_pass
         }
         None if counted => {
-            monitor.pass_begins(None);
+            monitor.pass_begins(Pass::First, stages::RunStart::default(), None);
             let pass = first_pass(job, prune, cancel, &observe)?;
             if !job.output.allow_empty {
                 pass.check_something_kept(job, job_path)?;
@@ -412,7 +412,11 @@ fn run_job(
         reader.seek(r.reader.z)?;
     }
     // The faces the simplifier receives are the first pass's kept ones.
-    monitor.pass_begins(counts.map(|c| c.kept));
+    monitor.pass_begins(
+        Pass::Run,
+        stages::RunStart::of(resumed_at_slab.unwrap_or(0), &simplifier, second.as_ref()),
+        counts.map(|c| c.kept),
+    );
     let mut outputs = stages::Stages {
         reader,
         input: input.clone(),

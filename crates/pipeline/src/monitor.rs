@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use tracing::info;
 
 use crate::rss::current_rss_bytes;
-use crate::stages::{Pass, Progress};
+use crate::stages::{Pass, Progress, RunStart};
 
 /// Most points a run summary's series holds (between half this and this once decimated).
 pub const MAX_SERIES_POINTS: usize = 1024;
@@ -147,6 +147,7 @@ pub(crate) struct Monitor<'a> {
     started: Instant,
     voxels_per_slab: u64,
     voxels: u64,
+    slabs_total: u64,
     log_every: Option<Duration>,
     observer: &'a (dyn Fn(&Progress) + Sync),
     state: Mutex<State>,
@@ -174,6 +175,7 @@ impl<'a> Monitor<'a> {
             started,
             voxels_per_slab: grid.dims[0] * grid.dims[1],
             voxels: grid.voxel_count(),
+            slabs_total: grid.dims[2].saturating_sub(1),
             log_every,
             observer,
             state: Mutex::new(State {
@@ -189,10 +191,20 @@ impl<'a> Monitor<'a> {
     /// before it (the first pass's 20 s and more at `upsample` 16) promised a 78 s run's end in
     /// 15 minutes. `faces_total`: the faces its simplifier will receive, when a first pass
     /// counted them (the run's ETA paces by them; `None` for the first pass itself).
-    pub fn pass_begins(&self, faces_total: Option<u64>) {
-        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
-        state.pass_started = Instant::now();
-        state.faces_total = faces_total;
+    /// `start`: where it begins (a resumed run's checkpoint slab and faces, else 0).
+    ///
+    /// The caller's observer hears of it at once ([`Progress::begins`]): until the first slab
+    /// it knew neither the pass nor its total.
+    pub fn pass_begins(&self, pass: Pass, start: RunStart, faces_total: Option<u64>) {
+        {
+            let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            state.pass_started = Instant::now();
+            state.faces_total = faces_total;
+        }
+        (self.observer)(&Progress {
+            faces_total,
+            ..Progress::begins(pass, start, self.slabs_total)
+        });
     }
 
     /// The observer the stages call after every slab. It passes `p` on with
@@ -275,6 +287,12 @@ impl Done {
         self.now.saturating_sub(self.start)
     }
 
+    /// Done per second over the `seconds` since the start, `None` before anything is done.
+    pub fn per_second(self, seconds: f64) -> Option<f64> {
+        let done = self.since_start();
+        (done > 0).then(|| done as f64 / seconds.max(1e-9))
+    }
+
     /// Seconds left at the pace of the `seconds` since the start, `None` before anything is done.
     fn left(self, seconds: f64) -> Option<f64> {
         let done = self.since_start();
@@ -337,6 +355,54 @@ fn log_progress(
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// A pass is reported as it begins, with its real total and nothing done: until its first
+    /// slab the bar showed "slab 0/1" and a pace of nothing.
+    #[test]
+    fn a_pass_is_reported_as_it_begins() {
+        let seen = Mutex::new(Vec::new());
+        let observer = |p: &Progress| seen.lock().unwrap().push(*p);
+        let grid = Grid::new([4, 4, 256], [1.0; 3], [0.0; 3]).unwrap();
+        let monitor = Monitor::new(Instant::now(), grid, None, &observer);
+        monitor.pass_begins(Pass::First, RunStart::default(), None);
+        let resumed = RunStart {
+            slabs: 40,
+            faces_in: 5_000,
+            faces_out: 300,
+        };
+        monitor.pass_begins(Pass::Run, resumed, Some(1_000));
+        let seen = seen.into_inner().unwrap();
+        let [first, run] = seen.as_slice() else {
+            panic!("{seen:?}")
+        };
+        assert_eq!(
+            (first.pass, first.slabs_done, first.slabs_total),
+            (Pass::First, 0, 255)
+        );
+        assert_eq!(
+            (
+                run.pass,
+                run.slabs_done,
+                run.slabs_at_start,
+                run.faces_total
+            ),
+            (Pass::Run, 40, 40, Some(1_000))
+        );
+        // A resumed run's restored faces, as its slabs will report them.
+        assert_eq!(
+            (run.faces_in, run.faces_out, run.faces_in_at_start),
+            (5_000, 300, 5_000)
+        );
+        assert_eq!(
+            Done {
+                start: run.slabs_at_start,
+                now: run.slabs_done,
+                total: run.slabs_total
+            }
+            .per_second(1e-6),
+            None
+        );
+    }
 
     #[test]
     fn a_resumed_run_paces_by_the_slabs_it_read() {

@@ -52,8 +52,8 @@ impl Pass {
     }
 }
 
-/// Snapshot passed to the progress observer after every completed slab, of the first pass (when
-/// the job makes one) and then of the run.
+/// Snapshot passed to the progress observer as each pass begins ([`Progress::begins`]) and after
+/// every completed slab, of the first pass (when the job makes one) and then of the run.
 #[derive(Debug, Clone, Copy)]
 pub struct Progress {
     pub pass: Pass,
@@ -85,14 +85,25 @@ impl Progress {
     /// The first pass's slab `slab` done (its faces are counted at its end).
     pub(crate) fn first_pass(slab: u64, slabs_total: u64) -> Self {
         Progress {
-            pass: Pass::First,
             slabs_done: slab + 1,
-            slabs_at_start: 0,
+            ..Progress::begins(Pass::First, RunStart::default(), slabs_total)
+        }
+    }
+
+    /// `pass` begins at `start` (past 0 for a resumed run) of `slabs_total` slabs, nothing of
+    /// it done yet (`slabs_done == slabs_at_start`): reported before its first slab so that an
+    /// observer shows the pass's real total from its start, and no pace (the bar showed "slab
+    /// 0/1" and a rate of thousands of slabs a second until the first slab).
+    pub(crate) fn begins(pass: Pass, start: RunStart, slabs_total: u64) -> Self {
+        Progress {
+            pass,
+            slabs_done: start.slabs,
+            slabs_at_start: start.slabs,
             slabs_total,
-            faces_in: 0,
-            faces_out: 0,
-            faces_in_at_start: 0,
-            faces_out_at_start: 0,
+            faces_in: start.faces_in,
+            faces_out: start.faces_out,
+            faces_in_at_start: start.faces_in,
+            faces_out_at_start: start.faces_out,
             faces_total: None,
             resident_faces: 0,
             queued: [0; 3],
@@ -245,17 +256,7 @@ impl Stages<'_> {
         let ctl = Control::new(cancel);
         let ctl = &ctl;
         ctl.add_range(&range);
-        // The faces a resumed run restored: the first simplifier's in, and the written ones of
-        // the last (the second's, restored in `SecondCounts::of`).
-        let restored = simplifier.stats();
-        let start = RunStart {
-            slabs: first,
-            faces_in: restored.faces_in,
-            faces_out: depth
-                .second
-                .as_ref()
-                .map_or(restored.faces_out, |c| c.faces_out.load(Ordering::Relaxed)),
-        };
+        let start = RunStart::of(first, &simplifier, second.as_ref().map(|(s, _, _)| s));
 
         let extraction = Extraction {
             reader,
@@ -770,10 +771,23 @@ fn interruptible(
 /// Where a run started: the front and face totals of the checkpoint it resumed, 0 on a fresh
 /// run ([`Progress::slabs_at_start`], [`Progress::faces_in_at_start`]).
 #[derive(Debug, Clone, Copy, Default)]
-struct RunStart {
-    slabs: u64,
-    faces_in: u64,
-    faces_out: u64,
+pub(crate) struct RunStart {
+    pub(crate) slabs: u64,
+    pub(crate) faces_in: u64,
+    pub(crate) faces_out: u64,
+}
+
+impl RunStart {
+    /// A run beginning at slab `slabs` with these simplifiers: the faces a resumed run restored
+    /// are the first simplifier's in, and the written ones of the last (a cascade's second).
+    pub(crate) fn of(slabs: u64, simplifier: &Simplifier, second: Option<&Simplifier>) -> Self {
+        let first = simplifier.stats();
+        RunStart {
+            slabs,
+            faces_in: first.faces_in,
+            faces_out: second.map_or(first.faces_out, |s| s.stats().faces_out),
+        }
+    }
 }
 
 /// Deltas -> simplified batches. A delta is added as soon as it arrives, but its batch is closed
