@@ -59,7 +59,7 @@ fn tune_allocator() {
 }
 
 /// Arenas on a many-core node: a run's threads are its stages (4 to 6) and one extraction
-/// worker per core, and 8 arenas (512 MiB of address space) serve them where glibc's default
+/// worker per core (up to 8 unless `[pipeline] threads` asks for more), and 8 arenas (512 MiB of address space) serve them where glibc's default
 /// reserved 64 MiB for each.
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
 const MAX_ARENAS: usize = 8;

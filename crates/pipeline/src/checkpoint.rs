@@ -103,8 +103,10 @@ const FINISHED_MAGIC: &[u8; 16] = b"isostream-done\n\0";
 /// so a flipped input's half-written output of a 35 is in other coordinates; 37: the
 /// extraction's and the data range's counts of voxels saturated to f32's range; 38: the
 /// volume's box in the simplifier's configuration; 39: the first
-/// pass's counts, so a resume does not run it again).
-const FORMAT: u32 = 39;
+/// pass's counts, so a resume does not run it again; 40: band depths in slabs as thick as the
+/// voxels are wide, so a thin-slab job's older checkpoint is refused by its format, not as made
+/// with another configuration).
+const FORMAT: u32 = 40;
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 /// bincode's standard configuration, but with fixed-width integers: a checkpoint is dominated by

@@ -186,16 +186,16 @@ const DEFAULT_INITIAL_RATE: f64 = 0.5;
 /// `retire_lag` when not given: the time-lag's patches reach about 8 slabs at moderate E0.
 const DEFAULT_RETIRE_LAG: u32 = 8;
 
-/// How many slabs of a grid of `spacing` make one as thick as its voxels are wide (the smaller
-/// in-plane spacing over the slabs', rounded; 1 for slabs at least half as thick, at most
-/// [`MAX_THIN_SLABS`]): the unit of the band depths given in slabs, which were chosen on
-/// near-isotropic volumes.
+/// How many slabs of a grid of `spacing` make one as thick as its voxels are wide: the smaller
+/// in-plane spacing over the slabs', rounded (so 1 for slabs more than two thirds as thick),
+/// from 1 to [`MAX_THIN_SLABS`]. The unit of the band depths given in slabs, which were chosen
+/// on near-isotropic volumes.
 pub(crate) fn thin_slabs(spacing: [f64; 3]) -> u32 {
     let ratio = (spacing[0].min(spacing[1]) / spacing[2]).round();
-    if ratio.is_finite() {
-        ratio.clamp(1.0, MAX_THIN_SLABS) as u32
-    } else {
+    if ratio.is_nan() {
         1
+    } else {
+        ratio.clamp(1.0, MAX_THIN_SLABS) as u32
     }
 }
 
@@ -1113,7 +1113,10 @@ impl JobConfig {
         if let Some(n) = p.threads.filter(|n| !(1..=MAX_THREADS).contains(n)) {
             return Err(bad(
                 "pipeline.threads",
-                &format!("1 to {MAX_THREADS} (or leave it out for one per core, at most 8)"),
+                &format!(
+                    "1 to {MAX_THREADS} (or leave it out for one per core, at most \
+                     {DEFAULT_MAX_THREADS})"
+                ),
                 n.to_string(),
             ));
         }
@@ -1634,6 +1637,12 @@ mod tests {
             "the smaller in-plane spacing"
         );
         assert_eq!(thin_slabs([1e8, 1e8, 1.0]), 32, "bounded");
+        assert_eq!(
+            thin_slabs([1e300, 1e300, 1e-10]),
+            32,
+            "a ratio past f64's range"
+        );
+        assert_eq!(thin_slabs([1.0, 1.0, 0.5]), 2);
         let job = |lag: &str| {
             parse(&format!(
                 "{MINIMAL}\n[simplify]\nmode = \"error\"\nerror = 0.1\n{lag}"

@@ -76,7 +76,7 @@ pub enum RunError {
         why: String,
     },
     #[error(
-        "output.path {}: this job could write up to {bound} {counted}, past the {limit} that {what} (nothing was run): write {instead}, or lower the output with [output] faces or a lower [simplify] rate",
+        "output.path {}: this job could write up to {bound} {counted}, past the {limit} that {what} (nothing was run): write {instead}, or {lower}",
         output.display()
     )]
     IndexLimit {
@@ -88,6 +88,8 @@ pub enum RunError {
         what: &'static str,
         /// The formats without the limit.
         instead: &'static str,
+        /// How this job's mode lowers its output (`[output] faces` is mode rate's only).
+        lower: &'static str,
     },
     #[error(
         "{input}: slices of {nx} x {ny} voxels are read whole as f32, and {slices} of them take {need_gib:.1} GiB, more than this machine's {physical_gib:.1} GiB of memory (nothing was run): {fix}"

@@ -114,6 +114,10 @@ fn check(job: &JobConfig, voxels: u64, rate: f64) -> Result<(), RunError> {
         limit: limit.most,
         what: limit.what,
         instead: limit.instead,
+        lower: match job.simplify.mode {
+            Mode::Rate => "lower the output with [output] faces or a lower [simplify] rate",
+            _ => "simplify it to a face count: [simplify] mode = \"rate\" with [output] faces",
+        },
     })
 }
 
@@ -134,7 +138,9 @@ mod tests {
         let none = job("/tmp/x.smb", "[simplify]\nmode = \"none\"");
         let e = check(&none, huge, 1.0).unwrap_err().to_string();
         assert!(
-            e.contains("x.smb") && e.contains(".sma") && e.contains("faces"),
+            e.contains("x.smb")
+                && e.contains(".sma")
+                && e.contains("mode = \"rate\" with [output] faces"),
             "{e}"
         );
         let sma = job("/tmp/x.sma", "[simplify]\nmode = \"none\"");
@@ -159,9 +165,12 @@ mod tests {
                 && e.contains("x.stl")
                 && e.contains("triangles")
                 && e.contains(".obj")
-                && e.contains("[simplify] rate"),
+                && e.contains("mode = \"rate\" with [output] faces"),
             "{e}"
         );
+        let rate = job("/tmp/x.stl", "[simplify]\nrate = 0.9");
+        let e = check(&rate, voxels, 0.9).unwrap_err().to_string();
+        assert!(e.contains("a lower [simplify] rate"), "{e}");
         let low = job("/tmp/x.stl", "[simplify]\nrate = 0.5");
         check(&low, voxels, 0.5).unwrap();
         let mut target = job("/tmp/x.stl", "");

@@ -37,8 +37,8 @@ pub(crate) struct ProgressView {
     /// the ETA paces by the slabs done since, over the time since `started_unix_ms`
     /// (counting the checkpoint's slabs too promised 10 s of 40).
     pub slabs_at_start: u64,
-    /// After a first pass: when the run's first slab was reported (the service's clock, Unix
-    /// ms) and the slabs done then. The ETA paces from there: from the job's start, the first
+    /// After a first pass: when the run's first progress came (the report it sends as it
+    /// begins; the service's clock, Unix ms) and the slabs done then. The ETA paces from there: from the job's start, the first
     /// pass's seconds counted as the run's (a 78 s job promised 15 minutes).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run_started_unix_ms: Option<u64>,
@@ -47,8 +47,8 @@ pub(crate) struct ProgressView {
     pub faces_in: u64,
     pub faces_out: u64,
     /// The run's faces as the ETA paces by them, when a first pass counted them
-    /// ([`Progress::faces_done`]), from where its pace starts: the run's first reported slab
-    /// after a first pass, as the slabs (`run_started_slab`).
+    /// ([`Progress::faces_done`]), from where its pace starts: the run's first report after a
+    /// first pass, as the slabs (`run_started_slab`).
     #[serde(skip)]
     faces: Option<Done>,
     pub resident_faces: u64,
@@ -103,6 +103,15 @@ impl ProgressView {
             self.faces,
         )
     }
+}
+
+/// Whether `p` reports a slab of the run done: an error before one is one of resuming (loading
+/// and checking the checkpoint, reopening its files, and the first batch's check that the slice
+/// it carried still holds the same values; the first pass comes before them), which a restart
+/// may cure. The report a run sends as it begins has no slab done past its start: counted, an
+/// input changed within the checkpoint's slice failed the job instead of starting it over.
+fn did_a_slab(p: &Progress) -> bool {
+    p.pass == Pass::Run && p.slabs_done > p.slabs_at_start
 }
 
 impl From<&Progress> for ProgressView {
@@ -642,12 +651,11 @@ impl Queue {
             // have been replaced by a link to one outside since (or the folders changed with a
             // restart): checked again now, just before the run opens them.
             queue.roots.confirm(&config)?;
-            // Whether a slab of the run was done: an error before is one of resuming (loading
-            // and checking the checkpoint, reopening its files; the first pass comes before
-            // them), after it one of the run.
+            // Whether a slab of the run was done: an error before is one of resuming, after
+            // it one of the run (`did_a_slab`).
             let progressed = AtomicBool::new(false);
             let observer = |p: &Progress| {
-                if p.pass == Pass::Run {
+                if did_a_slab(p) {
                     progressed.store(true, Ordering::Relaxed);
                 }
                 queue.progress(&job_id, p);
@@ -1146,7 +1154,34 @@ mod tests {
         assert_eq!(first.eta_s(Some(1_000), 30_000), None, "not the job's end");
     }
 
-    /// After a first pass, the faces pace from the run's first reported slab, as the slabs and
+    /// Only a slab done past the run's start counts as progress: the first pass's reports and
+    /// the one a run sends as it begins come before the checks a restart may cure.
+    #[test]
+    fn only_a_slab_done_past_the_start_is_progress() {
+        let report = |pass, slabs_done, slabs_at_start| Progress {
+            pass,
+            slabs_done,
+            slabs_at_start,
+            slabs_total: 100,
+            faces_in: 0,
+            faces_out: 0,
+            faces_in_at_start: 0,
+            faces_out_at_start: 0,
+            faces_total: None,
+            resident_faces: 0,
+            queued: [0; 3],
+        };
+        assert!(!did_a_slab(&report(Pass::First, 50, 0)));
+        assert!(!did_a_slab(&report(Pass::Run, 0, 0)), "a fresh run begins");
+        assert!(
+            !did_a_slab(&report(Pass::Run, 40, 40)),
+            "a resumed run begins"
+        );
+        assert!(did_a_slab(&report(Pass::Run, 41, 40)));
+        assert!(did_a_slab(&report(Pass::Run, 1, 0)));
+    }
+
+    /// After a first pass, the faces pace from the run's first report, as the slabs and
     /// the time do; the job's view carries the estimate while it runs.
     #[test]
     fn after_a_first_pass_the_faces_pace_from_the_runs_first_slab() {
