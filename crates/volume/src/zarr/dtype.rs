@@ -103,6 +103,25 @@ impl ZType {
         0
     }
 
+    /// The values an integer type holds (`None` for floats). A fill value outside them is no
+    /// value of the array: the input's range by its type, which an iso is checked against
+    /// before any work, would not hold the fill voxels (a uint8 store filled with 300 had its
+    /// iso 280 refused though those voxels cross it).
+    fn integer_bounds(self) -> Option<(i128, i128)> {
+        let (bytes, signed) = match self {
+            ZType::Plain(Dtype::F32 | Dtype::F64) => return None,
+            ZType::Plain(d) => (d.size_bytes(), d.name().starts_with('i')),
+            ZType::I64 => (8, true),
+            ZType::U64 => (8, false),
+        };
+        let bits = 8 * bytes as u32;
+        Some(if signed {
+            (-(1i128 << (bits - 1)), (1i128 << (bits - 1)) - 1)
+        } else {
+            (0, (1i128 << bits) - 1)
+        })
+    }
+
     /// The value of voxels in chunks that were never written: a number, or for floats "NaN",
     /// "Infinity", "-Infinity" or the bit pattern as "0x..." hex (Zarr v3 core spec); and
     /// whether it was saturated (a finite float64 beyond f32's range, as voxels are).
@@ -113,10 +132,14 @@ impl ZType {
         } else {
             "an integer"
         };
-        if let Some(v) = j.value.as_i64() {
-            return Ok((v as f32, false));
-        }
-        if let Some(v) = j.value.as_u64() {
+        let integer =
+            (j.value.as_i64().map(i128::from)).or_else(|| j.value.as_u64().map(i128::from));
+        if let Some(v) = integer {
+            if let Some((lo, hi)) = self.integer_bounds()
+                && !(lo..=hi).contains(&v)
+            {
+                return Err(j.err(format!("an integer from {lo} to {hi} (the array's type)")));
+            }
             return Ok((v as f32, false));
         }
         if !float {
@@ -168,6 +191,26 @@ mod tests {
         // Beyond f32's range: saturated like the voxels, not infinite.
         assert_eq!(fill("float64", "1e40"), Ok(f32::MAX));
         assert_eq!(fill("float64", "\"0xc800000000000000\""), Ok(-f32::MAX));
+        assert_eq!(fill("uint64", "18446744073709551615"), Ok(u64::MAX as f32));
+        assert_eq!(fill("int8", "-128"), Ok(-128.0));
+        for (ty, bad) in [
+            ("uint8", "300"),
+            ("uint8", "-1"),
+            ("int8", "128"),
+            ("uint64", "-1"),
+        ] {
+            assert!(
+                fill(ty, bad)
+                    .unwrap_err()
+                    .starts_with("zarr.json: key f: expected an integer from"),
+                "{ty} {bad}"
+            );
+        }
+        assert_eq!(
+            fill("uint16", "70000").unwrap_err(),
+            r#"zarr.json: key f: expected an integer from 0 to 65535 (the array's type), found "70000""#
+        );
+        assert_eq!(fill("float32", "300"), Ok(300.0));
         assert_eq!(
             fill("uint16", "\"NaN\"").unwrap_err(),
             r#"zarr.json: key f: expected an integer, found "NaN""#
