@@ -156,19 +156,7 @@ mod tests {
     /// checkpoint slab is not paced by.
     #[test]
     fn no_rate_before_a_slab() {
-        let begun = Progress {
-            pass: Pass::First,
-            slabs_done: 0,
-            slabs_at_start: 0,
-            slabs_total: 255,
-            faces_in: 0,
-            faces_out: 0,
-            faces_in_at_start: 0,
-            faces_out_at_start: 0,
-            faces_total: None,
-            resident_faces: 0,
-            queued: [0; 3],
-        };
+        let begun = Progress::fresh(Pass::First, 255);
         assert_eq!(pace_text(1e-5, &begun), "? slabs/s ETA ?");
         let resumed = Progress {
             pass: Pass::Run,

@@ -86,8 +86,14 @@ impl Progress {
     pub(crate) fn first_pass(slab: u64, slabs_total: u64) -> Self {
         Progress {
             slabs_done: slab + 1,
-            ..Progress::begins(Pass::First, RunStart::default(), slabs_total)
+            ..Progress::fresh(Pass::First, slabs_total)
         }
+    }
+
+    /// `pass` of `slabs_total` slabs begins from the volume's start (not a resumed run):
+    /// [`Progress::begins`] at slab 0, the report observers' own tests build on.
+    pub fn fresh(pass: Pass, slabs_total: u64) -> Self {
+        Progress::begins(pass, RunStart::default(), slabs_total)
     }
 
     /// `pass` begins at `start` (past 0 for a resumed run) of `slabs_total` slabs, nothing of

@@ -1159,17 +1159,9 @@ mod tests {
     #[test]
     fn only_a_slab_done_past_the_start_is_progress() {
         let report = |pass, slabs_done, slabs_at_start| Progress {
-            pass,
             slabs_done,
             slabs_at_start,
-            slabs_total: 100,
-            faces_in: 0,
-            faces_out: 0,
-            faces_in_at_start: 0,
-            faces_out_at_start: 0,
-            faces_total: None,
-            resident_faces: 0,
-            queued: [0; 3],
+            ..Progress::fresh(pass, 100)
         };
         assert!(!did_a_slab(&report(Pass::First, 50, 0)));
         assert!(!did_a_slab(&report(Pass::Run, 0, 0)), "a fresh run begins");
@@ -1194,17 +1186,10 @@ mod tests {
             record.started_unix_ms = Some(now_ms());
         }
         let report = |pass, slabs_done, faces_in| Progress {
-            pass,
             slabs_done,
-            slabs_at_start: 0,
-            slabs_total: 100,
             faces_in,
-            faces_out: 0,
-            faces_in_at_start: 0,
-            faces_out_at_start: 0,
             faces_total: (pass == Pass::Run).then_some(10_000),
-            resident_faces: 0,
-            queued: [0; 3],
+            ..Progress::fresh(pass, 100)
         };
         q.progress(RUNNING, &report(Pass::First, 100, 0));
         assert_eq!(q.get(RUNNING).unwrap().progress.eta_s, None);
